@@ -1,0 +1,80 @@
+/* Registration of the tacrom.tactile sensor plugin, and the only place that raises MuJoCo
+ * errors and warnings.
+ *
+ * Each callback forwards to Rust (see tacrom.h). Rust returns a status and a message; the
+ * shim turns an error into mju_error and a warning into mju_warning after the Rust call has
+ * returned, so no Rust frame is ever on the stack when MuJoCo unwinds. */
+#include <string.h>
+
+#include <mujoco/mujoco.h>
+
+#include "tacrom.h"
+
+static int nstate(const mjModel* m, int instance) {
+  return tacrom_nstate(m, instance);
+}
+
+static int nsensordata(const mjModel* m, int instance, int sensor_id) {
+  char msg[TACROM_MSG_LEN] = {0};
+  int n = tacrom_nsensordata(m, instance, sensor_id, msg, sizeof(msg));
+  if (n < 0) {
+    mju_error("%s", msg);
+    return 0;
+  }
+  return n;
+}
+
+static int init(const mjModel* m, mjData* d, int instance) {
+  char msg[TACROM_MSG_LEN] = {0};
+  int status = tacrom_init(m, d, instance, msg, sizeof(msg));
+  if (status == TACROM_ERROR) {
+    mju_error("%s", msg);
+    return -1;
+  }
+  if (status == TACROM_WARN) {
+    mju_warning("%s", msg);
+  }
+  return 0;
+}
+
+static void destroy(mjData* d, int instance) {
+  tacrom_destroy(d, instance);
+}
+
+static void copy(mjData* dest, const mjModel* m, const mjData* src, int instance) {
+  char msg[TACROM_MSG_LEN] = {0};
+  if (tacrom_copy(dest, m, src, instance, msg, sizeof(msg)) != TACROM_OK) {
+    mju_warning("%s", msg);
+  }
+}
+
+static void reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance) {
+  tacrom_reset(m, plugin_state, plugin_data, instance);
+}
+
+static void compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
+  (void)capability_bit;
+  char msg[TACROM_MSG_LEN] = {0};
+  /* Compute never raises an error: a failed evaluation writes zeros and warns, so one bad
+   * frame cannot take down a long simulation. */
+  if (tacrom_compute(m, d, instance, msg, sizeof(msg)) != TACROM_OK && msg[0]) {
+    mju_warning("%s", msg);
+  }
+}
+
+mjPLUGIN_LIB_INIT(tacrom) {
+  mjpPlugin plugin;
+  mjp_defaultPlugin(&plugin);
+  plugin.name = "tacrom.tactile";
+  plugin.capabilityflags |= mjPLUGIN_SENSOR;
+  plugin.needstage = mjSTAGE_POS;
+  plugin.attributes = tacrom_attributes(&plugin.nattribute);
+  plugin.nstate = nstate;
+  plugin.nsensordata = nsensordata;
+  plugin.init = init;
+  plugin.destroy = destroy;
+  plugin.copy = copy;
+  plugin.reset = reset;
+  plugin.compute = compute;
+  mjp_registerPlugin(&plugin);
+}

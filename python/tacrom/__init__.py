@@ -1,0 +1,161 @@
+"""tacrom: a high-detail tactile sensor for MuJoCo.
+
+Importing ``mujoco`` registers the ``tacrom.tactile`` sensor plugin through MuJoCo's
+``mujoco.plugins`` entry point; :func:`load` does it explicitly. Sensor outputs are read
+with :func:`depth`, :func:`force` and :func:`contact`, or all at once with
+:func:`outputs`.
+
+Image layout: row-major (H, W) in metres, positive into the gel. Row 0 is the +y edge of
+the sensor site's frame and column 0 the -x edge: the gel seen from the indenter's side,
+x to the right, y up.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import pathlib
+import struct
+import zlib
+from typing import Dict, Optional
+
+import numpy as np
+
+__all__ = ["load", "library_path", "layout", "outputs", "depth", "force", "contact", "save_png"]
+
+PLUGIN_NAME = "tacrom.tactile"
+_OUTPUT_NAMES = {0: "depth", 1: "force", 2: "contact"}
+_lib: Optional[ctypes.CDLL] = None
+
+
+def library_path() -> pathlib.Path:
+    """Path of the plugin library: ``$TACROM_PLUGIN`` or the copy inside this package."""
+    env = os.environ.get("TACROM_PLUGIN")
+    if env:
+        return pathlib.Path(env).resolve()
+    return pathlib.Path(__file__).resolve().parent / "_lib" / "libtacrom.so"
+
+
+def load(path: Optional[os.PathLike] = None) -> pathlib.Path:
+    """Registers the plugin with MuJoCo (once per process) and returns the library path."""
+    global _lib
+    lib_path = pathlib.Path(path).resolve() if path else library_path()
+    if _lib is not None:
+        return lib_path
+    if not lib_path.is_file():
+        raise FileNotFoundError(
+            f"tacrom plugin library not found at {lib_path}; run `make build` in the tacrom "
+            "checkout or set TACROM_PLUGIN"
+        )
+    # libmujoco is already loaded by `import mujoco`; the library's constructor registers
+    # the plugin with it.
+    _lib = ctypes.CDLL(str(lib_path))
+    _lib.tacrom_sensor_layout.restype = ctypes.c_int
+    _lib.tacrom_sensor_layout.argtypes = [
+        ctypes.c_void_p,
+        ctypes.c_int,
+        ctypes.POINTER(ctypes.c_int),
+        ctypes.c_int,
+    ]
+    return lib_path
+
+
+def _register_with_mujoco() -> None:
+    """Entry point called by ``import mujoco``."""
+    load()
+
+
+def _sensor_id(model, sensor) -> int:
+    import mujoco
+
+    if isinstance(sensor, (int, np.integer)):
+        sid = int(sensor)
+    else:
+        sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, sensor)
+    if not 0 <= sid < model.nsensor:
+        raise KeyError(f"no sensor {sensor!r} in the model")
+    if model.sensor_plugin[sid] < 0:
+        raise ValueError(f"sensor {sensor!r} is not a {PLUGIN_NAME} sensor")
+    return sid
+
+
+def layout(model, sensor) -> Dict[str, object]:
+    """The sensordata layout of a tacrom sensor.
+
+    Returns ``{"width", "height", "outputs": {name: (offset, length)}}``, offsets relative to
+    the sensor's first value.
+    """
+    load()
+    sid = _sensor_id(model, sensor)
+    buf = (ctypes.c_int * 16)()
+    n = _lib.tacrom_sensor_layout(ctypes.c_void_p(model._address), sid, buf, len(buf))
+    if n < 0:
+        raise ValueError(f"sensor {sensor!r} is not a valid {PLUGIN_NAME} sensor")
+    width, height, count = buf[0], buf[1], buf[2]
+    outs = {}
+    for i in range(count):
+        kind, offset, length = buf[3 + 3 * i : 6 + 3 * i]
+        outs[_OUTPUT_NAMES[kind]] = (offset, length)
+    return {"width": width, "height": height, "outputs": outs}
+
+
+def outputs(model, data, sensor) -> Dict[str, np.ndarray]:
+    """All configured outputs of ``sensor``: depth and contact shaped (H, W), force (3,)."""
+    lay = layout(model, sensor)
+    sid = _sensor_id(model, sensor)
+    adr = model.sensor_adr[sid]
+    values = data.sensordata[adr : adr + model.sensor_dim[sid]]
+    result = {}
+    for name, (offset, length) in lay["outputs"].items():
+        v = np.array(values[offset : offset + length])
+        if name in ("depth", "contact"):
+            v = v.reshape(lay["height"], lay["width"])
+        result[name] = v
+    return result
+
+
+def _one(model, data, sensor, name: str) -> np.ndarray:
+    out = outputs(model, data, sensor)
+    if name not in out:
+        raise KeyError(f"sensor {sensor!r} does not output {name!r}; add it to its 'outputs'")
+    return out[name]
+
+
+def depth(model, data, sensor) -> np.ndarray:
+    """Depth image (H, W) in metres, positive into the gel."""
+    return _one(model, data, sensor, "depth")
+
+
+def force(model, data, sensor) -> np.ndarray:
+    """Total force of the gel on the indenters (3,), newtons, sensor frame."""
+    return _one(model, data, sensor, "force")
+
+
+def contact(model, data, sensor) -> np.ndarray:
+    """Contact mask (H, W): 1 where an indenter touches the gel."""
+    return _one(model, data, sensor, "contact")
+
+
+def save_png(path: os.PathLike, image: np.ndarray, vmax: Optional[float] = None) -> None:
+    """Writes a (H, W) array as an 8-bit greyscale PNG, 0 -> black, ``vmax`` -> white."""
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim != 2:
+        raise ValueError("save_png expects a (H, W) array")
+    top = float(vmax) if vmax else float(img.max()) if img.size and img.max() > 0 else 1.0
+    pixels = np.clip(np.nan_to_num(img) / top * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    h, w = pixels.shape
+    raw = b"".join(b"\x00" + pixels[r].tobytes() for r in range(h))
+
+    def chunk(tag: bytes, payload: bytes) -> bytes:
+        return (
+            struct.pack(">I", len(payload))
+            + tag
+            + payload
+            + struct.pack(">I", zlib.crc32(tag + payload) & 0xFFFFFFFF)
+        )
+
+    png = b"\x89PNG\r\n\x1a\n"
+    png += chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+    png += chunk(b"IDAT", zlib.compress(raw, 6))
+    png += chunk(b"IEND", b"")
+    pathlib.Path(path).write_bytes(png)

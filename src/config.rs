@@ -1,0 +1,568 @@
+//! The sensor's configuration: the MJCF `<config key=... value=...>` attributes, parsed
+//! into typed values and validated. Pure Rust; the MuJoCo layer only supplies a lookup.
+//!
+//! Parsing and validation are separate steps: [`RawConfig`] holds the text of each
+//! attribute (an empty value means "absent"), [`Config::from_raw`] turns it into numbers
+//! and checks every range, with a message that names the sensor, the attribute and the
+//! value.
+
+use std::fmt;
+
+/// `physics`: which model of the gel computes the surface.
+pub const ATTR_PHYSICS: &str = "physics";
+/// `outputs`: space-separated list of outputs, in sensordata order.
+pub const ATTR_OUTPUTS: &str = "outputs";
+/// `resolution`: image width and height in pixels.
+pub const ATTR_RESOLUTION: &str = "resolution";
+/// `fov`: extent of the image on the gel, x and y (m); one number means a square.
+pub const ATTR_FOV: &str = "fov";
+/// `size`: gel extent Lx, Ly and thickness T (m).
+pub const ATTR_SIZE: &str = "size";
+/// `indenters`: names of the bodies whose geoms may press the gel (default: all others).
+pub const ATTR_INDENTERS: &str = "indenters";
+/// `young`: Young's modulus of the gel (Pa).
+pub const ATTR_YOUNG: &str = "young";
+/// `poisson`: Poisson's ratio of the gel.
+pub const ATTR_POISSON: &str = "poisson";
+/// `density`: density of the gel (kg/m^3).
+pub const ATTR_DENSITY: &str = "density";
+/// `friction`: Coulomb friction coefficient between gel and indenters.
+pub const ATTR_FRICTION: &str = "friction";
+/// `dx`: MPM grid spacing (m); empty means the mode's default.
+pub const ATTR_DX: &str = "dx";
+/// `threads`: worker threads of this sensor's solver.
+pub const ATTR_THREADS: &str = "threads";
+
+/// Every attribute the plugin declares to MuJoCo, in table order.
+pub const ATTRIBUTES: &[&str] = &[
+    ATTR_PHYSICS,
+    ATTR_OUTPUTS,
+    ATTR_RESOLUTION,
+    ATTR_FOV,
+    ATTR_SIZE,
+    ATTR_INDENTERS,
+    ATTR_YOUNG,
+    ATTR_POISSON,
+    ATTR_DENSITY,
+    ATTR_FRICTION,
+    ATTR_DX,
+    ATTR_THREADS,
+];
+
+/// Largest image side accepted (pixels).
+pub const MAX_RESOLUTION: usize = 4096;
+/// Largest thread count accepted.
+pub const MAX_THREADS: usize = 256;
+
+/// How the gel's surface is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Physics {
+    /// Geometric penetration of the undeformed gel: fastest, crudest.
+    Rigid,
+    /// Coarse MPM (about 1e4 particles) to quasi-static equilibrium.
+    Coarse,
+    /// Fine MPM (about 1e6 particles): the reference; slow.
+    Fine,
+}
+
+impl Physics {
+    /// Every mode this build offers, by name.
+    pub const ALL: &'static [(&'static str, Physics)] = &[
+        ("rigid", Physics::Rigid),
+        ("coarse", Physics::Coarse),
+        ("fine", Physics::Fine),
+    ];
+
+    /// The attribute value naming this mode.
+    pub fn name(self) -> &'static str {
+        Self::ALL.iter().find(|(_, p)| *p == self).map(|(n, _)| *n).unwrap_or("?")
+    }
+
+    /// Default MPM grid spacing (m) for a gel of thickness `t`; `None` for rigid.
+    pub fn default_dx(self, t: f64) -> Option<f64> {
+        match self {
+            Physics::Rigid => None,
+            // ~1e4 particles for the default 30 x 30 x 4 mm gel.
+            Physics::Coarse => Some(1.4e-3_f64.min(t / 2.0)),
+            // 100 x 100 x ~13 cells, ~1e6 particles for the default gel.
+            Physics::Fine => Some(0.3e-3_f64.min(t / 4.0)),
+        }
+    }
+}
+
+/// One sensor output.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Output {
+    /// Indentation depth image, H x W, metres, positive into the gel.
+    Depth,
+    /// Total force of the gel on the indenters, 3 numbers (N, sensor frame).
+    Force,
+    /// Contact mask, H x W, 1 where an indenter touches the gel, else 0.
+    Contact,
+}
+
+impl Output {
+    /// Every output, by name.
+    pub const ALL: &'static [(&'static str, Output)] =
+        &[("depth", Output::Depth), ("force", Output::Force), ("contact", Output::Contact)];
+
+    /// Number of sensordata values of this output for an image of `pixels` pixels.
+    pub fn len(self, pixels: usize) -> usize {
+        match self {
+            Output::Depth | Output::Contact => pixels,
+            Output::Force => 3,
+        }
+    }
+}
+
+/// The text of each attribute, as found in the MJCF; `None` when absent or empty.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RawConfig {
+    /// `(attribute, value)` pairs with non-empty values.
+    pub values: Vec<(String, String)>,
+}
+
+impl RawConfig {
+    /// Collects the attributes through `lookup`, which returns the configured text of an
+    /// attribute or `None`.
+    pub fn collect(mut lookup: impl FnMut(&str) -> Option<String>) -> Self {
+        let values = ATTRIBUTES
+            .iter()
+            .filter_map(|&a| lookup(a).filter(|v| !v.trim().is_empty()).map(|v| (a.to_owned(), v)))
+            .collect();
+        Self { values }
+    }
+
+    /// The text of `attribute`, if given.
+    pub fn get(&self, attribute: &str) -> Option<&str> {
+        self.values.iter().find(|(a, _)| a == attribute).map(|(_, v)| v.as_str())
+    }
+
+    /// Builder-style setter, for tests and programmatic use.
+    pub fn with(mut self, attribute: &str, value: &str) -> Self {
+        self.values.retain(|(a, _)| a != attribute);
+        self.values.push((attribute.to_owned(), value.to_owned()));
+        self
+    }
+}
+
+/// An invalid attribute.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("tacrom.tactile sensor '{sensor}': attribute '{attribute}' = \"{value}\": {reason}")]
+pub struct ConfigError {
+    /// Name of the sensor.
+    pub sensor: String,
+    /// The attribute at fault.
+    pub attribute: String,
+    /// Its value as written.
+    pub value: String,
+    /// What is wrong, and what would be valid.
+    pub reason: String,
+}
+
+/// A validated sensor configuration, in SI units.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Config {
+    /// Sensor name (for messages).
+    pub name: String,
+    /// Physics mode.
+    pub physics: Physics,
+    /// Outputs in sensordata order, each at most once.
+    pub outputs: Vec<Output>,
+    /// Image width (pixels).
+    pub width: usize,
+    /// Image height (pixels).
+    pub height: usize,
+    /// Image extent on the gel, x and y (m).
+    pub fov: [f64; 2],
+    /// Gel extent Lx, Ly and thickness T (m).
+    pub size: [f64; 3],
+    /// Bodies whose geoms may press the gel; empty means every other body.
+    pub indenters: Vec<String>,
+    /// Young's modulus (Pa).
+    pub young: f64,
+    /// Poisson's ratio.
+    pub poisson: f64,
+    /// Density (kg/m^3).
+    pub density: f64,
+    /// Coulomb friction coefficient.
+    pub friction: f64,
+    /// MPM grid spacing (m); `None` for rigid physics.
+    pub dx: Option<f64>,
+    /// Solver threads.
+    pub threads: usize,
+}
+
+/// The defaults (GelSight Mini-like gel, paper's material).
+pub mod defaults {
+    /// Physics mode.
+    pub const PHYSICS: &str = "rigid";
+    /// Outputs.
+    pub const OUTPUTS: &str = "depth";
+    /// Image width and height (pixels).
+    pub const RESOLUTION: [usize; 2] = [320, 240];
+    /// Image extent (m).
+    pub const FOV: [f64; 2] = [0.024, 0.018];
+    /// Gel extent (m).
+    pub const SIZE: [f64; 3] = [0.03, 0.03, 0.004];
+    /// Young's modulus (Pa).
+    pub const YOUNG: f64 = 1.19e5;
+    /// Poisson's ratio.
+    pub const POISSON: f64 = 0.43;
+    /// Density (kg/m^3).
+    pub const DENSITY: f64 = 1050.0;
+    /// Friction coefficient.
+    pub const FRICTION: f64 = 0.5;
+    /// Threads.
+    pub const THREADS: usize = 1;
+}
+
+impl Config {
+    /// Validates `raw` for the sensor called `name`.
+    pub fn from_raw(name: &str, raw: &RawConfig) -> Result<Config, ConfigError> {
+        let p = Parser { name, raw };
+
+        let physics = p.physics()?;
+        let outputs = p.outputs()?;
+        let [width, height] = p.resolution()?;
+        let size = p.floats::<3>(ATTR_SIZE, defaults::SIZE, |v| {
+            check_all(v, |x| x > 0.0 && x <= 1.0, "each of Lx Ly T must be in (0, 1] m")
+        })?;
+        let fov = p.fov(&size)?;
+        let young = p.float(ATTR_YOUNG, defaults::YOUNG, |x| {
+            (1e2..=1e10).contains(&x).then_some(()).ok_or("must be in [1e2, 1e10] Pa")
+        })?;
+        let poisson = p.float(ATTR_POISSON, defaults::POISSON, |x| {
+            (0.0..=0.4999).contains(&x).then_some(()).ok_or("must be in [0, 0.4999]")
+        })?;
+        let density = p.float(ATTR_DENSITY, defaults::DENSITY, |x| {
+            (1.0..=1e5).contains(&x).then_some(()).ok_or("must be in [1, 1e5] kg/m^3")
+        })?;
+        let friction = p.float(ATTR_FRICTION, defaults::FRICTION, |x| {
+            (0.0..=10.0).contains(&x).then_some(()).ok_or("must be in [0, 10]")
+        })?;
+        let dx = match raw.get(ATTR_DX) {
+            None => physics.default_dx(size[2]),
+            Some(_) => {
+                let t = size[2];
+                let dx = p.float(ATTR_DX, 0.0, |x| {
+                    (x > 0.0 && x <= t / 2.0)
+                        .then_some(())
+                        .ok_or("must be positive and at most half the gel thickness")
+                })?;
+                let cells = (size[0] / dx) * (size[1] / dx) * (t / dx);
+                if cells > 2.0e7 {
+                    return Err(p.error(ATTR_DX, "gives more than 2e7 grid cells: too fine"));
+                }
+                (physics != Physics::Rigid).then_some(dx)
+            }
+        };
+        let threads = p.int(ATTR_THREADS, defaults::THREADS, 1, MAX_THREADS)?;
+        let indenters = raw
+            .get(ATTR_INDENTERS)
+            .map(|v| v.split_whitespace().map(str::to_owned).collect())
+            .unwrap_or_default();
+
+        Ok(Config {
+            name: name.to_owned(),
+            physics,
+            outputs,
+            width,
+            height,
+            fov,
+            size,
+            indenters,
+            young,
+            poisson,
+            density,
+            friction,
+            dx,
+            threads,
+        })
+    }
+
+    /// Number of pixels of one image.
+    pub fn pixels(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// Total sensordata length: the outputs' lengths added up.
+    pub fn sensordata_len(&self) -> usize {
+        self.outputs.iter().map(|o| o.len(self.pixels())).sum()
+    }
+
+    /// Whether `output` was asked for.
+    pub fn wants(&self, output: Output) -> bool {
+        self.outputs.contains(&output)
+    }
+}
+
+fn check_all<const N: usize>(
+    v: &[f64; N],
+    ok: impl Fn(f64) -> bool,
+    reason: &'static str,
+) -> Result<(), &'static str> {
+    if v.iter().all(|&x| ok(x)) {
+        Ok(())
+    } else {
+        Err(reason)
+    }
+}
+
+struct Parser<'a> {
+    name: &'a str,
+    raw: &'a RawConfig,
+}
+
+impl Parser<'_> {
+    fn error(&self, attribute: &str, reason: impl fmt::Display) -> ConfigError {
+        ConfigError {
+            sensor: self.name.to_owned(),
+            attribute: attribute.to_owned(),
+            value: self.raw.get(attribute).unwrap_or("").to_owned(),
+            reason: reason.to_string(),
+        }
+    }
+
+    fn physics(&self) -> Result<Physics, ConfigError> {
+        let value = self.raw.get(ATTR_PHYSICS).unwrap_or(defaults::PHYSICS).trim();
+        Physics::ALL.iter().find(|(n, _)| *n == value).map(|(_, p)| *p).ok_or_else(|| {
+            let valid: Vec<_> = Physics::ALL.iter().map(|(n, _)| *n).collect();
+            self.error(ATTR_PHYSICS, format!("unknown physics; valid values: {}", valid.join(", ")))
+        })
+    }
+
+    fn outputs(&self) -> Result<Vec<Output>, ConfigError> {
+        let value = self.raw.get(ATTR_OUTPUTS).unwrap_or(defaults::OUTPUTS);
+        let valid: Vec<_> = Output::ALL.iter().map(|(n, _)| *n).collect();
+        let mut outputs = Vec::new();
+        for word in value.split_whitespace() {
+            let out = Output::ALL.iter().find(|(n, _)| *n == word).map(|(_, o)| *o).ok_or_else(
+                || {
+                    self.error(
+                        ATTR_OUTPUTS,
+                        format!("unknown output '{word}'; valid values: {}", valid.join(", ")),
+                    )
+                },
+            )?;
+            if outputs.contains(&out) {
+                return Err(self.error(ATTR_OUTPUTS, format!("output '{word}' listed twice")));
+            }
+            outputs.push(out);
+        }
+        if outputs.is_empty() {
+            return Err(self.error(ATTR_OUTPUTS, "no output listed"));
+        }
+        Ok(outputs)
+    }
+
+    fn resolution(&self) -> Result<[usize; 2], ConfigError> {
+        let Some(text) = self.raw.get(ATTR_RESOLUTION) else {
+            return Ok(defaults::RESOLUTION);
+        };
+        let words: Vec<_> = text.split_whitespace().collect();
+        let reason = format!("expected two integers 'W H', each in 1..={MAX_RESOLUTION}");
+        if words.len() != 2 {
+            return Err(self.error(ATTR_RESOLUTION, reason));
+        }
+        let mut wh = [0usize; 2];
+        for (slot, word) in wh.iter_mut().zip(&words) {
+            *slot = word
+                .parse::<usize>()
+                .ok()
+                .filter(|n| (1..=MAX_RESOLUTION).contains(n))
+                .ok_or_else(|| self.error(ATTR_RESOLUTION, &reason))?;
+        }
+        Ok(wh)
+    }
+
+    fn fov(&self, size: &[f64; 3]) -> Result<[f64; 2], ConfigError> {
+        let Some(text) = self.raw.get(ATTR_FOV) else {
+            return Ok([defaults::FOV[0].min(size[0]), defaults::FOV[1].min(size[1])]);
+        };
+        let v = parse_floats(text)
+            .filter(|v| v.len() == 1 || v.len() == 2)
+            .ok_or_else(|| self.error(ATTR_FOV, "expected one or two numbers (m)"))?;
+        let fov = [v[0], *v.get(1).unwrap_or(&v[0])];
+        if !(fov[0] > 0.0 && fov[1] > 0.0 && fov[0] <= size[0] && fov[1] <= size[1]) {
+            return Err(self.error(
+                ATTR_FOV,
+                format!("must be positive and within the gel size ({} x {} m)", size[0], size[1]),
+            ));
+        }
+        Ok(fov)
+    }
+
+    fn floats<const N: usize>(
+        &self,
+        attribute: &str,
+        default: [f64; N],
+        check: impl Fn(&[f64; N]) -> Result<(), &'static str>,
+    ) -> Result<[f64; N], ConfigError> {
+        let Some(text) = self.raw.get(attribute) else {
+            return Ok(default);
+        };
+        let v: [f64; N] = parse_floats(text)
+            .and_then(|v| v.try_into().ok())
+            .ok_or_else(|| self.error(attribute, format!("expected {N} finite numbers")))?;
+        check(&v).map_err(|r| self.error(attribute, r))?;
+        Ok(v)
+    }
+
+    fn float(
+        &self,
+        attribute: &str,
+        default: f64,
+        check: impl Fn(f64) -> Result<(), &'static str>,
+    ) -> Result<f64, ConfigError> {
+        self.floats::<1>(attribute, [default], |v| check(v[0])).map(|v| v[0])
+    }
+
+    fn int(&self, attribute: &str, default: usize, lo: usize, hi: usize) -> Result<usize, ConfigError> {
+        let Some(text) = self.raw.get(attribute) else {
+            return Ok(default);
+        };
+        text.trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|n| (lo..=hi).contains(n))
+            .ok_or_else(|| self.error(attribute, format!("expected an integer in {lo}..={hi}")))
+    }
+}
+
+/// Whitespace-separated finite numbers, or `None` if any word is not one.
+fn parse_floats(text: &str) -> Option<Vec<f64>> {
+    text.split_whitespace()
+        .map(|w| w.parse::<f64>().ok().filter(|x| x.is_finite()))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(pairs: &[(&str, &str)]) -> Result<Config, ConfigError> {
+        let raw = pairs.iter().fold(RawConfig::default(), |r, (a, v)| r.with(a, v));
+        Config::from_raw("touch", &raw)
+    }
+
+    fn err(pairs: &[(&str, &str)]) -> ConfigError {
+        parse(pairs).expect_err("configuration should be rejected")
+    }
+
+    #[test]
+    fn defaults_match_design() {
+        let c = parse(&[]).unwrap();
+        assert_eq!(c.physics, Physics::Rigid);
+        assert_eq!(c.outputs, vec![Output::Depth]);
+        assert_eq!((c.width, c.height), (320, 240));
+        assert_eq!(c.fov, [0.024, 0.018]);
+        assert_eq!(c.size, [0.03, 0.03, 0.004]);
+        assert_eq!(c.young, 1.19e5);
+        assert_eq!(c.poisson, 0.43);
+        assert_eq!(c.density, 1050.0);
+        assert_eq!(c.threads, 1);
+        assert_eq!(c.dx, None);
+        assert_eq!(c.sensordata_len(), 320 * 240);
+    }
+
+    #[test]
+    fn full_configuration_parses() {
+        let c = parse(&[
+            (ATTR_PHYSICS, "coarse"),
+            (ATTR_OUTPUTS, "force  depth contact"),
+            (ATTR_RESOLUTION, "64 48"),
+            (ATTR_FOV, "0.02"),
+            (ATTR_SIZE, "0.025 0.02 0.003"),
+            (ATTR_INDENTERS, "ball  finger"),
+            (ATTR_YOUNG, "2e5"),
+            (ATTR_POISSON, "0.49"),
+            (ATTR_DENSITY, "1100"),
+            (ATTR_FRICTION, "0"),
+            (ATTR_DX, "0.001"),
+            (ATTR_THREADS, "2"),
+        ])
+        .unwrap();
+        assert_eq!(c.outputs, vec![Output::Force, Output::Depth, Output::Contact]);
+        assert_eq!(c.sensordata_len(), 3 + 2 * 64 * 48);
+        assert_eq!(c.fov, [0.02, 0.02]);
+        assert_eq!(c.indenters, vec!["ball".to_owned(), "finger".to_owned()]);
+        assert_eq!(c.dx, Some(0.001));
+        assert_eq!(c.threads, 2);
+    }
+
+    #[test]
+    fn mode_default_dx_gives_the_designed_particle_counts() {
+        let coarse = parse(&[(ATTR_PHYSICS, "coarse")]).unwrap().dx.unwrap();
+        let fine = parse(&[(ATTR_PHYSICS, "fine")]).unwrap().dx.unwrap();
+        let particles = |dx: f64| 8.0 * (0.03 / dx) * (0.03 / dx) * (0.004 / dx);
+        assert!((5e3..3e4).contains(&particles(coarse)), "{}", particles(coarse));
+        assert!((5e5..2e6).contains(&particles(fine)), "{}", particles(fine));
+    }
+
+    #[test]
+    fn every_error_names_sensor_attribute_and_value() {
+        let cases: &[(&str, &str)] = &[
+            (ATTR_PHYSICS, "magic"),
+            (ATTR_OUTPUTS, "depth pressure"),
+            (ATTR_OUTPUTS, "depth depth"),
+            (ATTR_RESOLUTION, "0 240"),
+            (ATTR_RESOLUTION, "320"),
+            (ATTR_RESOLUTION, "320 -1"),
+            (ATTR_RESOLUTION, "320 240.5"),
+            (ATTR_RESOLUTION, "99999 2"),
+            (ATTR_FOV, "0.5 0.5"),
+            (ATTR_FOV, "-0.01"),
+            (ATTR_FOV, "a b"),
+            (ATTR_SIZE, "-0.03 0.03 0.004"),
+            (ATTR_SIZE, "0.03 0.03"),
+            (ATTR_SIZE, "0.03 nan 0.004"),
+            (ATTR_SIZE, "0.03 0.03 inf"),
+            (ATTR_YOUNG, "0"),
+            (ATTR_YOUNG, "soft"),
+            (ATTR_POISSON, "0.5"),
+            (ATTR_POISSON, "-0.1"),
+            (ATTR_DENSITY, "0"),
+            (ATTR_FRICTION, "-1"),
+            (ATTR_DX, "0"),
+            (ATTR_DX, "0.003"),
+            (ATTR_THREADS, "0"),
+            (ATTR_THREADS, "two"),
+        ];
+        for &(attribute, value) in cases {
+            let mut pairs = vec![(attribute, value)];
+            if attribute == ATTR_DX {
+                pairs.push((ATTR_PHYSICS, "coarse"));
+            }
+            let e = err(&pairs);
+            assert_eq!(e.attribute, attribute, "{value}");
+            let msg = e.to_string();
+            assert!(msg.contains("'touch'"), "{msg}");
+            assert!(msg.contains(&format!("'{attribute}'")), "{msg}");
+            assert!(msg.contains(value), "{msg}");
+        }
+    }
+
+    #[test]
+    fn unknown_physics_lists_the_valid_ones() {
+        let msg = err(&[(ATTR_PHYSICS, "magic")]).to_string();
+        for (name, _) in Physics::ALL {
+            assert!(msg.contains(name), "{msg}");
+        }
+    }
+
+    #[test]
+    fn empty_value_means_absent() {
+        let c = parse(&[(ATTR_RESOLUTION, "  "), (ATTR_PHYSICS, "")]);
+        // RawConfig::with keeps empty strings; collect() drops them. Check collect().
+        assert!(c.is_err());
+        let raw = RawConfig::collect(|a| (a == ATTR_RESOLUTION).then(|| " ".to_owned()));
+        assert_eq!(Config::from_raw("touch", &raw).unwrap().width, 320);
+    }
+
+    #[test]
+    fn fine_dx_refuses_absurd_grids() {
+        let e = err(&[(ATTR_PHYSICS, "fine"), (ATTR_SIZE, "1 1 0.004"), (ATTR_DX, "0.0001")]);
+        assert_eq!(e.attribute, ATTR_DX);
+    }
+}

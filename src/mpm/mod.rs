@@ -1,0 +1,825 @@
+//! The elastomer as a quasi-static MLS-MPM simulation.
+//!
+//! [`Gel`] holds a block of silicone, bonded to the sensor at its bottom face, discretised
+//! by the moving least squares material point method (MLS-MPM, Hu et al. 2018) with APIC
+//! transfers (Jiang et al. 2015) and quadratic B-spline weights. [`Gel::solve`] brings it
+//! to static equilibrium under rigid indenters given as signed distance fields;
+//! [`Gel::surface_depth`] samples the indentation of its top face on a pixel grid and
+//! [`Gel::force`] returns the total contact force.
+//!
+//! # Frame and discretisation
+//!
+//! Sensor frame: origin at the centre of the undeformed top face, +z out of the gel, the
+//! gel in `[-Lx/2, Lx/2] x [-Ly/2, Ly/2] x [-T, 0]`. The background grid has spacing
+//! `dx`; a node plane lies exactly on the bonded bottom `z = -T`. Along each axis the gel
+//! gets `n = max(1, round(L / dx))` cells' worth of particles, two per cell, at spacing
+//! `s = L / (2 n)`: the simulated block has exactly the requested size, and when `L / dx`
+//! is not an integer the particles are slightly closer or farther apart than `dx / 2`
+//! (4 mm at dx = 0.3 mm: 13 cells, 26 particles, s = 0.154 mm). Particle volume is
+//! `sx sy sz` (`dx^3 / 8` when the size fits the grid).
+//!
+//! # Internal units and mass scaling
+//!
+//! Inside the solver lengths are in cells (`dx`), time in steps (`dt = 1`) and stresses
+//! in units of the P-wave modulus `M = lambda + 2 mu`, and everything is f32 (values of
+//! order one; f64 measured no more accurate at the solver tolerance and half as fast).
+//! The density is a free parameter at equilibrium, so it is chosen (mass scaling) to make
+//! the P-wave speed `c_p = sqrt(M / rho)` exactly `cfl` cells per step: `rho' = 1 / cfl^2`.
+//! The CFL condition `c_p dt <= cfl dx` then holds by construction and the number of steps
+//! depends only on the geometry in cells, Poisson's ratio and the tolerance, not on `E` or
+//! the real density. Forces convert back as `F = F' M dx^2`.
+//!
+//! # Quasi-static solve
+//!
+//! Dynamic relaxation: explicit steps with mass-proportional damping `v <- v / (1 + c)`,
+//! `c = 2 zeta omega_1`, tuned to the lowest mode of the bonded layer, the thickness-shear
+//! quarter wave `omega_1 = (pi / 2) c_s / T` (`zeta` = [`SolverOptions::damping`], 1 for
+//! critical). Every mode then decays at least like `exp(-omega_1 t)`. Each solve starts
+//! from the previous equilibrium (warm start) with zero velocity. It stops when the
+//! largest out-of-balance nodal force (stress plus contact force left after the
+//! constraints, plus the damping force) divided by the largest nodal reaction (bonded and
+//! contact nodes; at least `1e-4 mu' dx^2`, i.e. a strain of `1e-4`) is below
+//! [`SolverOptions::tolerance`], or after [`SolverOptions::max_iterations`] steps.
+//!
+//! Near incompressibility (Poisson 0.49, 0.499): volumetric locking comes from imposing the
+//! volume constraint at every particle (8 per cell) with about 3 velocity unknowns per
+//! node. As in F-bar / B-bar (de Souza Neto et al. 1996; Hughes 1980), the pressure term
+//! of the stress uses a smoothed volume ratio `J_bar`: `J` is scattered to the nodes with
+//! the mass and gathered back with the weights (one step behind, which is immaterial at
+//! equilibrium), so there is about one volume constraint per node; the deviatoric part
+//! uses the particle's own `F` ([`SolverOptions::fbar`]). `det F` is clamped to
+//! `[J_MIN, J_MAX]`. Stability needs nothing more (the step follows `c_p`), but the shear
+//! modes that carry an indentation are `sqrt(M / mu)` times slower than `c_p`, so the
+//! iteration count grows like that ratio (about 3.2x at 0.49, 10x at 0.499, relative to
+//! 0.43); the cap bounds the cost and the report says when it was hit.
+//!
+//! # Indenters and sliding
+//!
+//! Each indenter is a rigid boundary on the grid nodes with separating Coulomb contact
+//! (see [`transfer::grid_update`]). The gap is measured from the deformed top surface of
+//! the gel (each top particle's surface point `x_p + (s_z / 2) F e_z`) rather than from
+//! the Eulerian node position: node-position contact misplaces the surface by up to a
+//! cell, which at the coarse resolution is larger than the indentation. Indenters are
+//! matched to those of the previous call by their position in the slice. During the
+//! first steps of a solve, each indenter moves from its previous pose to the current one
+//! (linear in translation, slerp in rotation) at most [`SolverOptions::sweep_rate`] cells
+//! per step; a new indenter starts lifted just clear of the surface. The indenter's
+//! displacement per step is its velocity in the contact, so friction drags the surface
+//! along while it slides and holds it (stick) afterwards: the shear history of a sliding
+//! contact is kept, which treating each frame as a fresh press would lose.
+//!
+//! # Robustness
+//!
+//! A non-finite value in any particle after a step is recorded
+//! ([`SolveReport::nonfinite_recovered`]) and the gel is restored to its state at the start
+//! of the solve (the previous good equilibrium; if that is itself bad, the undeformed gel).
+//! Indenters with non-finite poses are skipped. Particles are clamped inside the grid.
+
+mod material;
+mod surface;
+mod transfer;
+
+#[cfg(test)]
+mod tests;
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use rayon::prelude::*;
+
+use crate::geometry::{Aabb, Placed, PixelGrid, Sdf};
+
+pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use transfer::{ChunkStats, ColumnContact, LayerStats, Node, P2gInput, Particle, StepCtx};
+
+/// Smallest `det F` a particle may reach; `F` is scaled up uniformly below it.
+pub const J_MIN: f64 = 0.2;
+/// Largest `det F` a particle may reach; `F` is scaled down uniformly above it.
+pub const J_MAX: f64 = 5.0;
+
+/// Grid nodes added around the gel on each lateral side and above it (cells).
+const PAD: usize = 3;
+/// Grid nodes below the bonded face (cells); all of them are fixed.
+const PAD_BOTTOM: usize = 2;
+/// Largest number of particles accepted (memory guard, about 0.3 GB).
+const MAX_PARTICLES: usize = 1 << 30 >> 2;
+/// Surface displacements below this (m) count as "no deformation" for [`Gel::surface_depth`].
+const DEPTH_EPS: f64 = 1e-9;
+
+/// Elastic energy of the gel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Material {
+    /// Fixed corotated (Stomakhin et al. 2012); the usual MPM choice for soft solids.
+    #[default]
+    FixedCorotated,
+    /// Compressible Neo-Hookean, with `det F` guarded (see [`NeoHookeanModel`]).
+    NeoHookean,
+}
+
+/// Physical description of the gel, SI units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GelParams {
+    /// Size `[Lx, Ly, T]` (m).
+    pub size: [f64; 3],
+    /// Young's modulus (Pa).
+    pub young: f64,
+    /// Poisson's ratio, in `(-1, 0.5)`.
+    pub poisson: f64,
+    /// Density (kg/m^3). Validated but irrelevant to the equilibrium (mass scaling).
+    pub density: f64,
+    /// Coulomb friction coefficient between the gel and the indenters.
+    pub friction: f64,
+    /// Grid spacing (m); two particles per axis per cell.
+    pub dx: f64,
+    /// Elastic energy.
+    pub material: Material,
+}
+
+impl Default for GelParams {
+    /// The GelSight Mini-like gel: 30 x 30 x 4 mm, E = 1.19e5 Pa, Poisson 0.43,
+    /// 1050 kg/m^3, friction 0.5, coarse grid dx = 1.4 mm (about 1e4 particles).
+    fn default() -> Self {
+        Self {
+            size: [0.03, 0.03, 0.004],
+            young: 1.19e5,
+            poisson: 0.43,
+            density: 1050.0,
+            friction: 0.5,
+            dx: 1.4e-3,
+            material: Material::FixedCorotated,
+        }
+    }
+}
+
+/// Numerical settings of the quasi-static solve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolverOptions {
+    /// Convergence threshold on the relative out-of-balance force (see the module docs).
+    pub tolerance: f64,
+    /// Most steps per solve.
+    pub max_iterations: usize,
+    /// Threads of the gel's own pool; results do not depend on it.
+    pub threads: usize,
+    /// Courant number `c_p dt / dx`, in `(0, 1)`.
+    pub cfl: f64,
+    /// Damping ratio relative to critical damping of the layer's lowest mode.
+    pub damping: f64,
+    /// Largest indenter motion per step while it moves from its previous pose (cells).
+    pub sweep_rate: f64,
+    /// F-bar volume smoothing against volumetric locking.
+    pub fbar: bool,
+}
+
+impl Default for SolverOptions {
+    fn default() -> Self {
+        Self { tolerance: 1e-3, max_iterations: 3000, threads: 1, cfl: 0.5, damping: 1.0, sweep_rate: 0.1, fbar: true }
+    }
+}
+
+/// Errors of [`Gel::new`].
+#[derive(Debug, thiserror::Error)]
+pub enum MpmError {
+    /// A parameter is out of its range.
+    #[error("invalid gel parameter `{name}` = {value}: {reason}")]
+    InvalidParameter {
+        /// The parameter.
+        name: &'static str,
+        /// Its value.
+        value: f64,
+        /// What is required.
+        reason: &'static str,
+    },
+    /// The thread pool could not be built.
+    #[error("cannot build the MPM thread pool: {0}")]
+    ThreadPool(String),
+}
+
+/// What one [`Gel::solve`] did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolveReport {
+    /// Steps taken.
+    pub iterations: usize,
+    /// Whether the residual fell below the tolerance (after the indenters finished moving).
+    pub converged: bool,
+    /// Relative out-of-balance force after the last step.
+    pub residual: f64,
+    /// Smallest `det F` over the particles after the last step.
+    pub det_f_min: f64,
+    /// Largest `det F` over the particles after the last step.
+    pub det_f_max: f64,
+    /// Whether non-finite values appeared and the gel was restored.
+    pub nonfinite_recovered: bool,
+    /// Steps spent moving the indenters from their previous poses.
+    pub sweep_steps: usize,
+    /// Number of indenters used (finite poses).
+    pub indenters: usize,
+}
+
+/// An indenter during one step: pose now and one step earlier, bounding box of both.
+#[derive(Clone, Debug)]
+struct StepIndenter {
+    shape: Arc<dyn Sdf>,
+    now: Isometry3<f64>,
+    before: Isometry3<f64>,
+    bounds: Aabb,
+}
+
+/// Geometry of the particle lattice and grid, fixed at construction.
+#[derive(Clone, Copy, Debug)]
+struct Layout {
+    dx: f64,
+    /// SI position of node (0, 0, 0).
+    origin: Vector3<f64>,
+    dims: [usize; 3],
+    /// Particles per axis.
+    lattice: [usize; 3],
+    /// Particle spacing per axis (m).
+    spacing: [f64; 3],
+}
+
+/// The gel: particles, grid, workspaces and the state carried between solves.
+pub struct Gel {
+    params: GelParams,
+    options: SolverOptions,
+    pool: rayon::ThreadPool,
+    layout: Layout,
+    ctx: StepCtx,
+    /// Internal moduli (units of `M`).
+    mu: f32,
+    lambda: f32,
+    /// P-wave modulus `M = lambda + 2 mu` (Pa).
+    modulus: f64,
+    particles: Vec<Particle>,
+    rest: Vec<Particle>,
+    snapshot: Vec<Particle>,
+    /// Top-surface slot -> particle index; slots row-major `iy * nx_top + ix`.
+    top: Vec<u32>,
+    /// Reference surface point of each slot (cells).
+    top_ref: Vec<Vector3<f32>>,
+    /// Half the vertical particle spacing (cells): particle to surface.
+    half_top: f32,
+    /// Surface displacement of each slot during the current solve (cells).
+    surf_cells: Vec<Vector3<f64>>,
+    /// Contact state of each grid column, `ix * ny + iy`.
+    columns: Vec<ColumnContact>,
+    grid: Vec<Node>,
+    order: Vec<u32>,
+    offsets: Vec<u32>,
+    cursor: Vec<u32>,
+    layer_stats: Vec<LayerStats>,
+    chunk_stats: Vec<ChunkStats>,
+    step_ind: Vec<StepIndenter>,
+    prev_poses: Vec<Option<Isometry3<f64>>>,
+    force: Vector3<f64>,
+    /// Displacement of the top surface per slot (m), after the last solve.
+    surface_u: Vec<Vector3<f64>>,
+    /// Lattice index range `[ix0, ix1) x [iy0, iy1)` where the surface moved.
+    surface_box: Option<[usize; 4]>,
+    /// Whether the gel is undeformed and no indenter touched it in the last solve.
+    resting: bool,
+}
+
+const _: fn() = || {
+    fn assert_send_sync<T: Send + Sync>() {}
+    assert_send_sync::<Gel>();
+};
+
+fn check(name: &'static str, value: f64, ok: bool, reason: &'static str) -> Result<(), MpmError> {
+    if ok && value.is_finite() {
+        Ok(())
+    } else {
+        Err(MpmError::InvalidParameter { name, value, reason })
+    }
+}
+
+impl Gel {
+    /// Builds the undeformed gel after validating `params` and `options`.
+    pub fn new(params: GelParams, options: SolverOptions) -> Result<Gel, MpmError> {
+        for (k, &l) in params.size.iter().enumerate() {
+            let name = ["size[0]", "size[1]", "size[2]"][k];
+            check(name, l, l > 0.0, "must be positive")?;
+        }
+        check("young", params.young, params.young > 0.0, "must be positive")?;
+        check("poisson", params.poisson, params.poisson > -1.0 && params.poisson < 0.5, "must lie in (-1, 0.5)")?;
+        check("density", params.density, params.density > 0.0, "must be positive")?;
+        check("friction", params.friction, params.friction >= 0.0, "must be non-negative")?;
+        check("dx", params.dx, params.dx > 0.0, "must be positive")?;
+        let min_size = params.size.iter().cloned().fold(f64::INFINITY, f64::min);
+        check("dx", params.dx, params.dx <= 2.0 * min_size, "must not exceed twice the smallest gel dimension")?;
+        check("tolerance", options.tolerance, options.tolerance > 0.0, "must be positive")?;
+        check("max_iterations", options.max_iterations as f64, options.max_iterations > 0, "must be positive")?;
+        check("threads", options.threads as f64, options.threads > 0, "must be positive")?;
+        check("cfl", options.cfl, options.cfl > 0.0 && options.cfl < 1.0, "must lie in (0, 1)")?;
+        check("damping", options.damping, options.damping > 0.0, "must be positive")?;
+        check("sweep_rate", options.sweep_rate, options.sweep_rate > 0.0, "must be positive")?;
+
+        let dx = params.dx;
+        let cells: [usize; 3] = std::array::from_fn(|k| ((params.size[k] / dx).round() as usize).max(1));
+        let lattice: [usize; 3] = std::array::from_fn(|k| 2 * cells[k]);
+        let count = lattice.iter().map(|&n| n as f64).product::<f64>();
+        check("dx", dx, count <= MAX_PARTICLES as f64, "gives too many particles")?;
+        let spacing: [f64; 3] = std::array::from_fn(|k| params.size[k] / lattice[k] as f64);
+        let [lx, ly, t] = params.size;
+        let span = |l: f64| (l / dx).ceil() as usize;
+        let dims = [span(lx) + 2 * PAD + 1, span(ly) + 2 * PAD + 1, PAD_BOTTOM + span(t) + PAD + 1];
+        let origin = Vector3::new(-0.5 * lx - PAD as f64 * dx, -0.5 * ly - PAD as f64 * dx, -t - PAD_BOTTOM as f64 * dx);
+        let layout = Layout { dx, origin, dims, lattice, spacing };
+
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(options.threads)
+            .build()
+            .map_err(|e| MpmError::ThreadPool(e.to_string()))?;
+
+        // Lame parameters, then internal units (divided by M = lambda + 2 mu).
+        let (e, nu) = (params.young, params.poisson);
+        let mu_si = e / (2.0 * (1.0 + nu));
+        let lambda_si = e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu));
+        let modulus = lambda_si + 2.0 * mu_si;
+        let mu = mu_si / modulus;
+        let lambda = lambda_si / modulus;
+        // Mass scaling: rho' = 1 / cfl^2, so c_p = cfl cells per step.
+        let rho = 1.0 / (options.cfl * options.cfl);
+        let pvol = spacing.iter().map(|s| s / dx).product::<f64>();
+        let pmass = rho * pvol;
+        // Lowest mode of the bonded layer: thickness-shear quarter wave.
+        let c_s = options.cfl * mu.sqrt();
+        let omega1 = 0.5 * std::f64::consts::PI * c_s / (t / dx);
+        let damping = 2.0 * options.damping * omega1;
+        let ctx = StepCtx {
+            dims,
+            iz_bottom: PAD_BOTTOM,
+            pmass: pmass as f32,
+            pvol: pvol as f32,
+            damping: damping as f32,
+            friction: params.friction as f32,
+            fbar: options.fbar,
+            rot_iters: if params.material == Material::FixedCorotated { 2 } else { 0 },
+        };
+
+        // Particles, x-major (ix outer, iz inner) so memory order follows the x bins.
+        let n = lattice.iter().product::<usize>();
+        let mut particles = Vec::with_capacity(n);
+        let [nxp, nyp, nzp] = lattice;
+        let mut top = vec![0u32; nxp * nyp];
+        let mut top_ref = vec![Vector3::zeros(); nxp * nyp];
+        let half_top = (0.5 * spacing[2] / dx) as f32;
+        for ix in 0..nxp {
+            for iy in 0..nyp {
+                for iz in 0..nzp {
+                    let p = Vector3::new(
+                        -0.5 * lx + (ix as f64 + 0.5) * spacing[0],
+                        -0.5 * ly + (iy as f64 + 0.5) * spacing[1],
+                        -t + (iz as f64 + 0.5) * spacing[2],
+                    );
+                    let x = ((p - origin) / dx).cast::<f32>();
+                    if iz + 1 == nzp {
+                        let slot = iy * nxp + ix;
+                        top[slot] = particles.len() as u32;
+                        top_ref[slot] = x + Vector3::new(0.0, 0.0, half_top);
+                    }
+                    particles.push(Particle::at_rest(x));
+                }
+            }
+        }
+        let nodes = dims.iter().product::<usize>();
+        let top_len = top.len();
+        Ok(Gel {
+            params,
+            options,
+            pool,
+            layout,
+            ctx,
+            mu: mu as f32,
+            lambda: lambda as f32,
+            modulus,
+            rest: particles.clone(),
+            snapshot: particles.clone(),
+            particles,
+            top,
+            top_ref,
+            half_top,
+            surf_cells: vec![Vector3::zeros(); top_len],
+            columns: vec![ColumnContact::NONE; dims[0] * dims[1]],
+            grid: vec![Node::ZERO; nodes],
+            order: Vec::with_capacity(n),
+            offsets: Vec::with_capacity(dims[0] + 1),
+            cursor: Vec::with_capacity(dims[0]),
+            layer_stats: Vec::with_capacity(dims[0]),
+            chunk_stats: Vec::with_capacity(n / transfer::CHUNK + 1),
+            step_ind: Vec::new(),
+            prev_poses: Vec::new(),
+            force: Vector3::zeros(),
+            surface_u: vec![Vector3::zeros(); top_len],
+            surface_box: None,
+            resting: true,
+        })
+    }
+
+    /// The parameters the gel was built with.
+    pub fn params(&self) -> &GelParams {
+        &self.params
+    }
+
+    /// The solver options.
+    pub fn options(&self) -> &SolverOptions {
+        &self.options
+    }
+
+    /// Grid nodes per axis.
+    pub fn grid_dims(&self) -> [usize; 3] {
+        self.layout.dims
+    }
+
+    /// Particles per axis `[nx, ny, nz]`; their spacing is `size / lattice`.
+    pub fn lattice(&self) -> [usize; 3] {
+        self.layout.lattice
+    }
+
+    /// Back to the undeformed gel at rest, forgetting the previous indenter poses.
+    pub fn reset(&mut self) {
+        self.particles.copy_from_slice(&self.rest);
+        self.prev_poses.clear();
+        self.force = Vector3::zeros();
+        self.surface_u.iter_mut().for_each(|u| *u = Vector3::zeros());
+        self.surface_box = None;
+        self.resting = true;
+    }
+
+    /// Number of particles.
+    pub fn num_particles(&self) -> usize {
+        self.particles.len()
+    }
+
+    /// Total force of the gel on the indenters (sensor frame, N): the sum of the contact
+    /// impulses of the last step of the last solve, divided by its time step.
+    pub fn force(&self) -> Vector3<f64> {
+        self.force
+    }
+
+    /// Bytes held per particle (state, rest state, snapshot, sort and slot indices), not
+    /// counting the grid.
+    pub fn bytes_per_particle() -> usize {
+        3 * std::mem::size_of::<Particle>() + 2 * std::mem::size_of::<u32>()
+    }
+
+    /// Bytes held by the grid.
+    pub fn grid_bytes(&self) -> usize {
+        self.grid.len() * std::mem::size_of::<Node>() + self.columns.len() * std::mem::size_of::<ColumnContact>()
+    }
+
+    /// Brings the gel to static equilibrium under `indenters` (sensor frame), starting from
+    /// the previous equilibrium. See the module docs for the method and the convergence
+    /// test. Indenters with a non-finite pose are skipped.
+    pub fn solve(&mut self, indenters: &[Placed]) -> SolveReport {
+        let dx = self.layout.dx;
+        let top_z = 0.0;
+        // Current poses; None for unusable ones (non-finite) so that indices stay matched.
+        let current: Vec<Option<Isometry3<f64>>> = indenters
+            .iter()
+            .map(|p| {
+                let ok = p.pose.translation.vector.iter().all(|v| v.is_finite())
+                    && p.pose.rotation.coords.iter().all(|v| v.is_finite());
+                ok.then_some(p.pose)
+            })
+            .collect();
+        let used = current.iter().filter(|p| p.is_some()).count();
+        let reach = |p: &Placed| {
+            let b = p.aabb();
+            b.min.z <= top_z + 2.0 * dx && b.max.z >= -self.params.size[2] - 2.0 * dx
+        };
+        let touching = indenters.iter().zip(&current).any(|(p, c)| c.is_some() && reach(p));
+        let mut report = SolveReport {
+            iterations: 0,
+            converged: true,
+            residual: 0.0,
+            det_f_min: 1.0,
+            det_f_max: 1.0,
+            nonfinite_recovered: false,
+            sweep_steps: 0,
+            indenters: used,
+        };
+        if !touching && self.resting {
+            self.prev_poses = current;
+            self.force = Vector3::zeros();
+            return report;
+        }
+
+        // Start pose of each indenter: its previous pose, or lifted clear of the surface.
+        let starts: Vec<Option<Isometry3<f64>>> = indenters
+            .iter()
+            .zip(&current)
+            .enumerate()
+            .map(|(i, (p, cur))| {
+                let cur = (*cur)?;
+                if let Some(Some(prev)) = self.prev_poses.get(i) {
+                    return Some(*prev);
+                }
+                let lift = top_z - p.aabb().min.z;
+                let lift = if lift.is_finite() { lift.clamp(0.0, self.params.size[2] + 4.0 * dx) } else { 0.0 };
+                let mut s = cur;
+                s.translation.vector.z += lift;
+                Some(s)
+            })
+            .collect();
+        // Sweep length: the largest displacement of a bounding-box corner, in steps.
+        let mut disp: f64 = 0.0;
+        for ((p, cur), start) in indenters.iter().zip(&current).zip(&starts) {
+            if let (Some(cur), Some(start)) = (cur, start) {
+                let b = p.shape.aabb();
+                for i in 0..8 {
+                    let c = Point3::new(
+                        if i & 1 == 0 { b.min.x } else { b.max.x },
+                        if i & 2 == 0 { b.min.y } else { b.max.y },
+                        if i & 4 == 0 { b.min.z } else { b.max.z },
+                    );
+                    let d = (cur * c - start * c).norm();
+                    disp = disp.max(if d.is_finite() { d } else { 0.0 });
+                }
+            }
+        }
+        let cap = (self.options.max_iterations / 2).max(1);
+        let sweep = ((disp / (self.options.sweep_rate * dx)).ceil() as usize).clamp(1, cap);
+        report.sweep_steps = sweep;
+
+        self.snapshot.copy_from_slice(&self.particles);
+        for p in &mut self.particles {
+            p.v = Vector3::zeros();
+            p.c = nalgebra::Matrix3::zeros();
+        }
+        let interp = |a: &Isometry3<f64>, b: &Isometry3<f64>, s: f64| a.try_lerp_slerp(b, s, 1e-9).unwrap_or(*b);
+        let tol = self.options.tolerance;
+        for it in 0..self.options.max_iterations {
+            let s_now = ((it + 1) as f64 / sweep as f64).min(1.0);
+            let s_before = (it as f64 / sweep as f64).min(1.0);
+            self.step_ind.clear();
+            for ((p, cur), start) in indenters.iter().zip(&current).zip(&starts) {
+                if let (Some(cur), Some(start)) = (cur, start) {
+                    let now = interp(start, cur, s_now);
+                    let before = interp(start, cur, s_before);
+                    let b0 = p.shape.aabb().transformed(&now);
+                    let b1 = p.shape.aabb().transformed(&before);
+                    let bounds = Aabb::new(b0.min.inf(&b1.min), b0.max.sup(&b1.max))
+                        .inflated((transfer::CONTACT_BAND as f64 + 1.0) * dx);
+                    self.step_ind.push(StepIndenter { shape: p.shape.clone(), now, before, bounds });
+                }
+            }
+            let (residual, nonfinite, det_min, det_max) = match self.params.material {
+                Material::FixedCorotated => {
+                    let m = FixedCorotatedModel { mu: self.mu, lambda: self.lambda };
+                    self.step(&m)
+                }
+                Material::NeoHookean => {
+                    let m = NeoHookeanModel { mu: self.mu, lambda: self.lambda };
+                    self.step(&m)
+                }
+            };
+            report.iterations = it + 1;
+            if nonfinite {
+                self.recover();
+                report.nonfinite_recovered = true;
+                report.converged = false;
+                report.residual = f64::INFINITY;
+                break;
+            }
+            report.residual = residual;
+            report.det_f_min = det_min;
+            report.det_f_max = det_max;
+            report.converged = it + 1 >= sweep && residual <= tol;
+            if report.converged {
+                break;
+            }
+        }
+        if report.nonfinite_recovered {
+            let (lo, hi) = self.det_range();
+            report.det_f_min = lo;
+            report.det_f_max = hi;
+            self.force = Vector3::zeros();
+            self.prev_poses.clear();
+        } else {
+            self.prev_poses = current;
+        }
+        self.update_surface();
+        self.resting = !touching && self.surface_box.is_none();
+        report
+    }
+
+    /// Restores the state at the start of the solve, or the undeformed gel if that state is
+    /// itself not finite; zero velocities either way.
+    fn recover(&mut self) {
+        let good = self.snapshot.iter().all(|p| {
+            let s = p.x.sum() + p.f.sum() + p.jr + p.q.coords.sum();
+            s.is_finite()
+        });
+        if good {
+            self.particles.copy_from_slice(&self.snapshot);
+        } else {
+            self.particles.copy_from_slice(&self.rest);
+        }
+        for p in &mut self.particles {
+            p.v = Vector3::zeros();
+            p.c = nalgebra::Matrix3::zeros();
+        }
+    }
+
+    fn det_range(&self) -> (f64, f64) {
+        self.particles.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+            let j = p.f.determinant() as f64;
+            (lo.min(j), hi.max(j))
+        })
+    }
+
+    /// One MLS-MPM step: contact gaps of the top particles, bin, P2G, grid update, G2P.
+    /// Returns (relative residual, non-finite seen, det F min, det F max).
+    fn step<M: ConstitutiveModel>(&mut self, model: &M) -> (f64, bool, f64, f64) {
+        let Gel {
+            pool,
+            layout,
+            ctx,
+            particles,
+            top,
+            top_ref,
+            half_top,
+            surf_cells,
+            columns,
+            grid,
+            order,
+            offsets,
+            cursor,
+            layer_stats,
+            chunk_stats,
+            step_ind,
+            mu,
+            modulus,
+            force,
+            ..
+        } = self;
+        let layout = *layout;
+        let ctx = *ctx;
+        let half_top = *half_top;
+        pool.install(|| {
+            let t0 = std::time::Instant::now();
+            let surf = SurfaceLattice { layout: &layout, half_top, particles, top, top_ref };
+            surf.displacements(surf_cells);
+            update_columns(&surf, surf_cells, step_ind, columns);
+            let t1 = std::time::Instant::now();
+            transfer::bin_particles(particles, layout.dims[0], order, offsets, cursor);
+            let t2 = std::time::Instant::now();
+            let input = P2gInput { particles, order, offsets };
+            transfer::particle_to_grid(&ctx, model, &input, grid);
+            let t3 = std::time::Instant::now();
+            transfer::grid_update(&ctx, grid, columns, layer_stats);
+            let t4 = std::time::Instant::now();
+            transfer::grid_to_particle(&ctx, grid, particles, chunk_stats);
+            let t5 = std::time::Instant::now();
+            if std::env::var("MPM_TIMING").is_ok() {
+                eprintln!("surf {:?} bin {:?} p2g {:?} grid {:?} g2p {:?}", t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4);
+            }
+        });
+        let mut residual = 0.0f32;
+        let mut reaction = 1e-4 * *mu;
+        let mut f = [0.0f64; 3];
+        for s in layer_stats.iter() {
+            residual = residual.max(s.residual);
+            reaction = reaction.max(s.reaction);
+            for k in 0..3 {
+                f[k] += s.force[k];
+            }
+        }
+        let scale = *modulus * layout.dx * layout.dx;
+        *force = Vector3::from(f) * scale;
+        let mut nonfinite = !residual.is_finite() || !force.iter().all(|v| v.is_finite());
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for s in chunk_stats.iter() {
+            nonfinite |= s.nonfinite;
+            lo = lo.min(s.det_min);
+            hi = hi.max(s.det_max);
+        }
+        ((residual / reaction) as f64, nonfinite, lo as f64, hi as f64)
+    }
+
+    /// Recomputes the top-surface displacement field and the box where it is non-zero.
+    fn update_surface(&mut self) {
+        let [nxp, nyp, _] = self.layout.lattice;
+        let dx = self.layout.dx;
+        let mut bx = [usize::MAX, 0, usize::MAX, 0];
+        for (slot, u) in self.surface_u.iter_mut().enumerate() {
+            let p = &self.particles[self.top[slot] as usize];
+            let s = p.x + p.f.column(2) * self.half_top;
+            let d = (s - self.top_ref[slot]).cast::<f64>() * dx;
+            *u = if d.iter().all(|v| v.is_finite()) { d } else { Vector3::zeros() };
+            if u.amax() > DEPTH_EPS {
+                let (ix, iy) = (slot % nxp, slot / nxp);
+                bx = [bx[0].min(ix), bx[1].max(ix + 1), bx[2].min(iy), bx[3].max(iy + 1)];
+            }
+        }
+        self.surface_box = (bx[0] != usize::MAX).then(|| [bx[0], bx[1], bx[2], bx[3]]);
+        debug_assert!(bx[1] <= nxp && bx[3] <= nyp || bx[0] == usize::MAX);
+    }
+
+    /// Indentation of the deformed top surface at each pixel of `grid` (m, positive into
+    /// the gel, clamped to `[0, T]`), row-major into `out` (`grid.height * grid.width`
+    /// values; see [`PixelGrid`] for the orientation). See [`surface`] for the method.
+    ///
+    /// # Panics
+    /// If `out` is shorter than `grid.width * grid.height`.
+    pub fn surface_depth(&self, grid: &PixelGrid, out: &mut [f64]) {
+        surface::surface_depth(self, grid, out);
+    }
+}
+
+/// The top layer of particles as a lattice, for the contact queries of a step.
+struct SurfaceLattice<'a> {
+    layout: &'a Layout,
+    half_top: f32,
+    particles: &'a [Particle],
+    top: &'a [u32],
+    top_ref: &'a [Vector3<f32>],
+}
+
+impl SurfaceLattice<'_> {
+    /// Displacement (cells) of every top particle's surface point `x_p + (s_z/2) F e_z`.
+    fn displacements(&self, out: &mut [Vector3<f64>]) {
+        out.par_chunks_mut(256).enumerate().for_each(|(ci, chunk)| {
+            for (k, u) in chunk.iter_mut().enumerate() {
+                let slot = ci * 256 + k;
+                let p = &self.particles[self.top[slot] as usize];
+                let s = p.x + p.f.column(2) * self.half_top;
+                *u = (s - self.top_ref[slot]).cast::<f64>();
+            }
+        });
+    }
+}
+
+/// Contact state of every grid column whose nodes' (x, y) lie inside the swept bounding
+/// box of an indenter: the deformed surface point above the column (solving
+/// `X + u_xy(X) = (x_i, y_i)` on the bicubic surface lattice, as for the depth image, so
+/// the curvature of the surface costs no bias), its signed distance to the nearest
+/// indenter, that indenter's normal and its displacement during the step. Only these
+/// columns query the SDFs.
+fn update_columns(surf: &SurfaceLattice<'_>, u: &[Vector3<f64>], indenters: &[StepIndenter], columns: &mut [ColumnContact]) {
+    let layout = surf.layout;
+    let [_, ny, _] = layout.dims;
+    let [nxp, nyp, _] = layout.lattice;
+    let dx = layout.dx;
+    let inv_dx = 1.0 / dx;
+    let r0 = surf.top_ref[0].cast::<f64>();
+    let sx = layout.spacing[0] * inv_dx;
+    let sy = layout.spacing[1] * inv_dx;
+    let half = surf.half_top as f64;
+    columns.par_chunks_mut(ny).enumerate().for_each(|(ix, col)| {
+        for (iy, c) in col.iter_mut().enumerate() {
+            *c = ColumnContact::NONE;
+            let xs = layout.origin.x + ix as f64 * dx;
+            let ys = layout.origin.y + iy as f64 * dx;
+            let near = indenters.iter().any(|ind| {
+                let b = &ind.bounds;
+                xs >= b.min.x && xs <= b.max.x && ys >= b.min.y && ys <= b.max.y
+            });
+            if !near {
+                continue;
+            }
+            let (mut a, mut b) = ((ix as f64 - r0.x) / sx, (iy as f64 - r0.y) / sy);
+            for _ in 0..4 {
+                let d = surface::sample(u, nxp, nyp, a, b);
+                a = (ix as f64 - d.x - r0.x) / sx;
+                b = (iy as f64 - d.y - r0.y) / sy;
+            }
+            let d = surface::sample(u, nxp, nyp, a, b);
+            let zs = r0.z + d.z;
+            if !zs.is_finite() {
+                continue;
+            }
+            let s = Point3::new(xs, ys, layout.origin.z + zs * dx);
+            let mut best = f64::INFINITY;
+            for ind in indenters {
+                let bx = &ind.bounds;
+                if s.z < bx.min.z || s.z > bx.max.z {
+                    continue;
+                }
+                let local = ind.now.inverse_transform_point(&s);
+                let dist = ind.shape.distance(&local);
+                if !(dist < best) || !dist.is_finite() {
+                    continue;
+                }
+                let n = ind.now.rotation * ind.shape.gradient(&local);
+                let disp = s - ind.before * local;
+                let g = (dist * inv_dx) as f32;
+                if g < transfer::CONTACT_BAND && n.iter().all(|v| v.is_finite()) && disp.iter().all(|v| v.is_finite()) {
+                    best = dist;
+                    // Nodes within the quadratic stencil (1.5 cells) of the top particle.
+                    let zp = zs - half;
+                    let lo = (zp - 1.5).ceil().max(0.0) as u32;
+                    let hi = (zp + 1.5).floor().max(0.0) as u32;
+                    *c = ColumnContact {
+                        active: true,
+                        g,
+                        n: n.cast::<f32>(),
+                        u: (disp * inv_dx).cast::<f32>(),
+                        iz_lo: lo,
+                        iz_hi: hi,
+                    };
+                }
+            }
+        }
+    });
+}

@@ -1,0 +1,381 @@
+//! The plugin callbacks that the C shim (`include/tacrom_shim.c`) forwards to.
+//!
+//! Every entry point goes through [`edge`]: panics are caught, errors become a status code
+//! and a message in the shim's buffer, and nothing unwinds into C. Rust never calls
+//! `mju_error`; the shim does, after these functions have returned.
+
+use std::ffi::{c_char, c_int, c_void, CString};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::OnceLock;
+
+use super::scene::{GatherIssues, SceneSpec};
+use super::sys;
+use super::view::{Data, Model};
+use crate::config::{Config, RawConfig, ATTRIBUTES};
+use crate::geometry::Placed;
+use crate::sensor::TactileSensor;
+
+const OK: c_int = 0;
+const WARN: c_int = 1;
+const ERROR: c_int = -1;
+
+/// Limits how often a running sensor repeats the same kind of warning.
+const MAX_REPEATED_WARNINGS: u32 = 5;
+
+/// Everything one sensor instance owns in one `mjData` (behind `plugin_data`).
+#[derive(Clone, Debug)]
+struct Instance {
+    sensor_id: usize,
+    scene: SceneSpec,
+    sensor: TactileSensor,
+    placed: Vec<Placed>,
+    warnings_given: u32,
+}
+
+/// Runs `f` at the FFI edge: its `Err` and any panic become `ERROR` with a message in
+/// `msg`; a warning becomes `WARN`.
+fn edge(msg: *mut c_char, len: c_int, f: impl FnOnce() -> Result<Option<String>, String>) -> c_int {
+    let outcome = catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|panic| {
+        let what = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        Err(format!("tacrom.tactile: internal error: {what}"))
+    });
+    match outcome {
+        Ok(None) => OK,
+        Ok(Some(warning)) => {
+            write_msg(msg, len, &warning);
+            WARN
+        }
+        Err(error) => {
+            write_msg(msg, len, &error);
+            ERROR
+        }
+    }
+}
+
+fn write_msg(msg: *mut c_char, len: c_int, text: &str) {
+    let Ok(len) = usize::try_from(len) else { return };
+    if msg.is_null() || len == 0 {
+        return;
+    }
+    // Keep it a valid C string: no interior NULs, cut to the buffer.
+    let bytes: Vec<u8> = text.bytes().filter(|&b| b != 0).take(len - 1).collect();
+    // SAFETY: the shim passes a buffer of `len` bytes; we write at most len - 1 plus NUL.
+    unsafe {
+        std::ptr::copy_nonoverlapping(bytes.as_ptr(), msg as *mut u8, bytes.len());
+        *msg.add(bytes.len()) = 0;
+    }
+}
+
+/// Parses and validates the configuration of plugin `instance`, serving `sensor_id`.
+fn config_of(m: Model<'_>, instance: c_int, sensor_id: usize) -> Result<Config, String> {
+    let name = m.sensor_name(sensor_id);
+    let name = if name.is_empty() { format!("#{sensor_id}") } else { name.to_owned() };
+    let raw = RawConfig::collect(|a| m.plugin_config(instance, a));
+    Config::from_raw(&name, &raw).map_err(|e| e.to_string())
+}
+
+/// The site the sensor is attached to, validated.
+fn site_of(m: Model<'_>, sensor_id: usize, config: &Config) -> Result<usize, String> {
+    let objtype = m.sensor_objtype()[sensor_id];
+    let objid = m.sensor_objid()[sensor_id];
+    let nsite = m.site_bodyid().len();
+    if objtype as u32 != sys::mjOBJ_SITE || objid < 0 || objid as usize >= nsite {
+        return Err(format!(
+            "tacrom.tactile sensor '{}': must be attached to a site (objtype=\"site\" \
+             objname=\"...\")",
+            config.name
+        ));
+    }
+    Ok(objid as usize)
+}
+
+/// The attribute table, built once from [`ATTRIBUTES`].
+#[no_mangle]
+pub extern "C" fn tacrom_attributes(count: *mut c_int) -> *const *const c_char {
+    /// Owns the names (field 0) that the pointers (field 1) point into.
+    struct Table(#[allow(dead_code)] Vec<CString>, Vec<*const c_char>);
+    // SAFETY: the table is immutable after construction; the pointers point into the
+    // CStrings it owns, which live for the whole process.
+    unsafe impl Send for Table {}
+    // SAFETY: as above, read-only after construction.
+    unsafe impl Sync for Table {}
+    static TABLE: OnceLock<Table> = OnceLock::new();
+    let table = TABLE.get_or_init(|| {
+        let names: Vec<CString> =
+            ATTRIBUTES.iter().map(|a| CString::new(*a).expect("attribute names have no NUL")).collect();
+        let ptrs = names.iter().map(|c| c.as_ptr()).collect();
+        Table(names, ptrs)
+    });
+    if !count.is_null() {
+        // SAFETY: the shim passes a valid int pointer.
+        unsafe { *count = table.1.len() as c_int };
+    }
+    table.1.as_ptr()
+}
+
+/// The sensor keeps no state in `plugin_state`: everything lives in `plugin_data`.
+#[no_mangle]
+pub extern "C" fn tacrom_nstate(_m: *const sys::mjModel, _instance: c_int) -> c_int {
+    0
+}
+
+/// The sensor's dimension; called at compile time, before `init`, so it validates the
+/// whole configuration itself.
+#[no_mangle]
+pub extern "C" fn tacrom_nsensordata(
+    m: *const sys::mjModel,
+    instance: c_int,
+    sensor_id: c_int,
+    msg: *mut c_char,
+    len: c_int,
+) -> c_int {
+    let mut n = 0;
+    let status = edge(msg, len, || {
+        // SAFETY: MuJoCo passes a valid model.
+        let m = Model(unsafe { m.as_ref() }.ok_or("null model")?);
+        let sensor_id = usize::try_from(sensor_id).map_err(|_| "bad sensor id")?;
+        let config = config_of(m, instance, sensor_id)?;
+        n = c_int::try_from(config.sensordata_len()).map_err(|_| "sensordata too large")?;
+        Ok(None)
+    });
+    if status == ERROR {
+        ERROR
+    } else {
+        n
+    }
+}
+
+/// Builds the instance's state for a new `mjData`.
+#[no_mangle]
+pub extern "C" fn tacrom_init(
+    m: *const sys::mjModel,
+    d: *mut sys::mjData,
+    instance: c_int,
+    msg: *mut c_char,
+    len: c_int,
+) -> c_int {
+    edge(msg, len, || {
+        // SAFETY: MuJoCo passes valid model and data.
+        let (mr, dr) = unsafe { (m.as_ref().ok_or("null model")?, d.as_mut().ok_or("null data")?) };
+        let m = Model(mr);
+        let sensor_id = m
+            .sensor_of_instance(instance)
+            .ok_or_else(|| format!("tacrom.tactile: plugin instance {instance} has no sensor"))?;
+        let config = config_of(m, instance, sensor_id)?;
+        let site = site_of(m, sensor_id, &config)?;
+        let (scene, warnings) = SceneSpec::build(m, site, &config)?;
+        let sensor = TactileSensor::new(config).map_err(|e| e.to_string())?;
+        let state = Box::new(Instance { sensor_id, scene, sensor, placed: Vec::new(), warnings_given: 0 });
+        let slot = plugin_slot(dr, instance)?;
+        *slot = Box::into_raw(state) as usize;
+        Ok((!warnings.is_empty()).then(|| warnings.join("; ")))
+    })
+}
+
+fn plugin_slot(d: &mut sys::mjData, instance: c_int) -> Result<&mut usize, String> {
+    let i = usize::try_from(instance).map_err(|_| "bad plugin instance")?;
+    let n = usize::try_from(d.nplugin).unwrap_or(0);
+    if d.plugin_data.is_null() || i >= n {
+        return Err(format!("tacrom.tactile: plugin instance {instance} out of range"));
+    }
+    // SAFETY: plugin_data has nplugin entries, i < nplugin.
+    Ok(unsafe { &mut *d.plugin_data.add(i) })
+}
+
+/// The instance behind `plugin_data[instance]`, if any.
+///
+/// # Safety
+/// `d` must be a valid mjData whose slot holds null or a pointer made by `tacrom_init`.
+unsafe fn instance_mut<'a>(d: *mut sys::mjData, instance: c_int) -> Option<&'a mut Instance> {
+    // SAFETY: valid data per the caller.
+    let d = unsafe { d.as_mut()? };
+    let slot = plugin_slot(d, instance).ok()?;
+    // SAFETY: the slot holds null or a live Box<Instance> from tacrom_init.
+    unsafe { (*slot as *mut Instance).as_mut() }
+}
+
+/// Frees the instance's state.
+#[no_mangle]
+pub extern "C" fn tacrom_destroy(d: *mut sys::mjData, instance: c_int) {
+    let _ = catch_unwind(AssertUnwindSafe(|| {
+        // SAFETY: MuJoCo passes valid data.
+        let Some(d) = (unsafe { d.as_mut() }) else { return };
+        if let Ok(slot) = plugin_slot(d, instance) {
+            let ptr = std::mem::replace(slot, 0) as *mut Instance;
+            if !ptr.is_null() {
+                // SAFETY: made by Box::into_raw in tacrom_init or tacrom_copy; the slot is
+                // cleared so it cannot be freed twice.
+                drop(unsafe { Box::from_raw(ptr) });
+            }
+        }
+    }));
+}
+
+/// Copies the source's state into the destination (for `mj_copyData`).
+#[no_mangle]
+pub extern "C" fn tacrom_copy(
+    dest: *mut sys::mjData,
+    _m: *const sys::mjModel,
+    src: *const sys::mjData,
+    instance: c_int,
+    msg: *mut c_char,
+    len: c_int,
+) -> c_int {
+    edge(msg, len, || {
+        // SAFETY: MuJoCo passes valid data; the source is only read.
+        let Some(source) = (unsafe { instance_mut(src as *mut sys::mjData, instance) }) else {
+            return Ok(None);
+        };
+        let copy = Box::new(source.clone());
+        // SAFETY: valid destination data.
+        let d = unsafe { dest.as_mut() }.ok_or("null data")?;
+        let slot = plugin_slot(d, instance)?;
+        let old = std::mem::replace(slot, Box::into_raw(copy) as usize) as *mut Instance;
+        if !old.is_null() && old as *const Instance != source as *const Instance {
+            // SAFETY: the destination's previous state, made by Box::into_raw.
+            drop(unsafe { Box::from_raw(old) });
+        }
+        Ok(None)
+    })
+}
+
+/// Restores the undeformed gel.
+#[no_mangle]
+pub extern "C" fn tacrom_reset(
+    _m: *const sys::mjModel,
+    _plugin_state: *mut f64,
+    plugin_data: *mut c_void,
+    _instance: c_int,
+) {
+    let _ = catch_unwind(AssertUnwindSafe(|| {
+        // SAFETY: `plugin_data` is this instance's pointer from tacrom_init (or null).
+        if let Some(inst) = unsafe { (plugin_data as *mut Instance).as_mut() } {
+            inst.sensor.reset();
+        }
+    }));
+}
+
+/// Evaluates the sensor and writes its sensordata. Failures write zeros and warn.
+#[no_mangle]
+pub extern "C" fn tacrom_compute(
+    m: *const sys::mjModel,
+    d: *mut sys::mjData,
+    instance: c_int,
+    msg: *mut c_char,
+    len: c_int,
+) -> c_int {
+    let mut out_ptr: Option<(*mut f64, usize)> = None;
+    let status = edge(msg, len, || {
+        // SAFETY: MuJoCo passes valid model and data.
+        let m = Model(unsafe { m.as_ref() }.ok_or("null model")?);
+        // SAFETY: valid data; the instance was made by tacrom_init.
+        let inst = unsafe { instance_mut(d, instance) }.ok_or("tacrom.tactile: no state")?;
+        // SAFETY: valid data, read-only view for the poses.
+        let data = Data(unsafe { &*d });
+        let adr = m.sensor_adr()[inst.sensor_id] as usize;
+        let dim = inst.sensor.config().sensordata_len();
+        if adr + dim > m.nsensordata() {
+            return Err("tacrom.tactile: sensordata out of range".into());
+        }
+        // SAFETY: sensordata has nsensordata entries; [adr, adr + dim) is this sensor's.
+        let out = unsafe { std::slice::from_raw_parts_mut(data.0.sensordata.add(adr), dim) };
+        out_ptr = Some((out.as_mut_ptr(), dim));
+
+        let issues = inst.scene.gather(m, data, &mut inst.placed);
+        let eval = if issues.nonfinite_site {
+            out.fill(0.0);
+            None
+        } else {
+            Some(inst.sensor.evaluate(&inst.placed, out))
+        };
+        // Never hand non-finite numbers to MuJoCo.
+        if !out.iter().all(|x| x.is_finite()) {
+            out.fill(0.0);
+        }
+        let mut warnings = describe(&issues, inst.sensor.config());
+        if let Some(e) = eval {
+            warnings.extend(e.warnings);
+        }
+        if warnings.is_empty() || inst.warnings_given >= MAX_REPEATED_WARNINGS {
+            return Ok(None);
+        }
+        inst.warnings_given += 1;
+        if inst.warnings_given == MAX_REPEATED_WARNINGS {
+            warnings.push("further warnings of this sensor are suppressed".into());
+        }
+        Ok(Some(warnings.join("; ")))
+    });
+    if status == ERROR {
+        if let Some((ptr, dim)) = out_ptr {
+            // SAFETY: the same sensordata range as above.
+            unsafe { std::slice::from_raw_parts_mut(ptr, dim) }.fill(0.0);
+        }
+    }
+    status
+}
+
+fn describe(issues: &GatherIssues, config: &Config) -> Vec<String> {
+    let mut w = Vec::new();
+    if issues.nonfinite_site {
+        w.push(format!(
+            "tacrom.tactile sensor '{}': the sensor site's pose is not finite; output set to zero",
+            config.name
+        ));
+    }
+    if !issues.nonfinite_geoms.is_empty() {
+        w.push(format!(
+            "tacrom.tactile sensor '{}': geoms {:?} have non-finite poses and were ignored",
+            config.name, issues.nonfinite_geoms
+        ));
+    }
+    w
+}
+
+/// The sensordata layout of sensor `sensor_id`, for the Python package:
+/// `[width, height, count, (kind, offset, length) x count]` with kind 0 depth, 1 force,
+/// 2 contact. Returns the number of ints written, or -1 if the sensor is not a valid
+/// tacrom sensor or the buffer is too small.
+#[no_mangle]
+pub extern "C" fn tacrom_sensor_layout(
+    m: *const sys::mjModel,
+    sensor_id: c_int,
+    layout: *mut c_int,
+    n: c_int,
+) -> c_int {
+    catch_unwind(AssertUnwindSafe(|| -> Option<c_int> {
+        // SAFETY: the caller passes a live model (Python's MjModel._address).
+        let m = Model(unsafe { m.as_ref() }?);
+        let sid = usize::try_from(sensor_id).ok()?;
+        let instance = *m.sensor_plugin().get(sid)?;
+        if instance < 0 {
+            return None;
+        }
+        let config = config_of(m, instance, sid).ok()?;
+        let mut v = vec![config.width as c_int, config.height as c_int, config.outputs.len() as c_int];
+        let mut offset = 0;
+        for o in &config.outputs {
+            let len = o.len(config.pixels());
+            let kind = match o {
+                crate::config::Output::Depth => 0,
+                crate::config::Output::Force => 1,
+                crate::config::Output::Contact => 2,
+            };
+            v.extend([kind, offset as c_int, len as c_int]);
+            offset += len;
+        }
+        let n = usize::try_from(n).ok()?;
+        if layout.is_null() || v.len() > n {
+            return None;
+        }
+        // SAFETY: the caller's buffer holds n >= v.len() ints.
+        unsafe { std::ptr::copy_nonoverlapping(v.as_ptr(), layout, v.len()) };
+        Some(v.len() as c_int)
+    }))
+    .ok()
+    .flatten()
+    .unwrap_or(-1)
+}

@@ -1,0 +1,188 @@
+//! The tactile sensor: indenters in, depth image (and other outputs) out.
+//!
+//! [`TactileSensor`] owns everything one sensor needs in one `mjData`: the validated
+//! configuration, the gel's state, and reusable image buffers. It knows nothing of MuJoCo:
+//! the caller hands it the indenters posed in the sensor frame.
+
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use crate::config::{Config, Output, Physics};
+use crate::geometry::{Aabb, PixelGrid, Placed};
+
+/// Failure to build a sensor from a valid configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum SensorError {
+    /// The gel simulation refused its parameters.
+    #[error("tacrom.tactile sensor '{sensor}': {message}")]
+    #[allow(dead_code)]
+    Physics {
+        /// Sensor name.
+        sensor: String,
+        /// What the solver said.
+        message: String,
+    },
+}
+
+/// Per-stage wall time of the last evaluation (seconds).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// Contact test and rigid surface of the indenters.
+    pub geometry: f64,
+    /// Gel simulation.
+    pub physics: f64,
+    /// Writing the outputs.
+    pub render: f64,
+}
+
+/// What one evaluation did, for warnings and benchmarks.
+#[derive(Clone, Debug, Default)]
+pub struct Evaluation {
+    /// Whether any indenter reached the gel.
+    pub contact: bool,
+    /// Stage timings.
+    pub times: StageTimes,
+    /// Messages for the user (the solver hit its iteration cap, ...).
+    pub warnings: Vec<String>,
+}
+
+/// The gel's model.
+#[derive(Clone, Debug)]
+enum GelModel {
+    /// No gel state: the undeformed surface.
+    Rigid,
+}
+
+/// One tactile sensor's state in one simulation.
+#[derive(Clone, Debug)]
+pub struct TactileSensor {
+    config: Config,
+    grid: PixelGrid,
+    gel: GelModel,
+    /// Lowest indenter surface per pixel (sensor frame z), +inf where none.
+    zmin: Vec<f64>,
+    depth: Vec<f64>,
+    force: Vector3<f64>,
+}
+
+impl TactileSensor {
+    /// A sensor in its undeformed state.
+    pub fn new(config: Config) -> Result<Self, SensorError> {
+        let grid = PixelGrid {
+            width: config.width,
+            height: config.height,
+            fov_x: config.fov[0],
+            fov_y: config.fov[1],
+        };
+        let gel = match (config.physics, config.dx) {
+            (Physics::Rigid, _) | (_, None) => GelModel::Rigid,
+            (Physics::Coarse | Physics::Fine, Some(_)) => GelModel::Rigid,
+        };
+        let pixels = config.pixels();
+        Ok(Self {
+            config,
+            grid,
+            gel,
+            zmin: vec![f64::INFINITY; pixels],
+            depth: vec![0.0; pixels],
+            force: Vector3::zeros(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// The image's pixel grid.
+    pub fn grid(&self) -> &PixelGrid {
+        &self.grid
+    }
+
+    /// The depth image of the last evaluation (H x W, row-major, m).
+    pub fn depth(&self) -> &[f64] {
+        &self.depth
+    }
+
+    /// The force of the last evaluation (N, sensor frame).
+    pub fn force(&self) -> Vector3<f64> {
+        self.force
+    }
+
+    /// Back to the undeformed gel.
+    pub fn reset(&mut self) {
+        self.depth.fill(0.0);
+        self.force = Vector3::zeros();
+    }
+
+    /// The gel's bounding box in the sensor frame.
+    pub fn gel_box(&self) -> Aabb {
+        let [lx, ly, t] = self.config.size;
+        Aabb::new([-0.5 * lx, -0.5 * ly, -t].into(), [0.5 * lx, 0.5 * ly, 0.0].into())
+    }
+
+    /// Evaluates the sensor for `indenters` (posed in the sensor frame) and writes the
+    /// configured outputs, concatenated in order, into `out`
+    /// (`out.len() == config.sensordata_len()`).
+    pub fn evaluate(&mut self, indenters: &[Placed], out: &mut [f64]) -> Evaluation {
+        let mut eval = Evaluation::default();
+        let t0 = Instant::now();
+        let gel_box = self.gel_box();
+        let touching: Vec<Placed> =
+            indenters.iter().filter(|p| p.aabb().intersects(&gel_box)).cloned().collect();
+        eval.contact = !touching.is_empty();
+
+        let mpm_idle = true;
+        if !eval.contact && mpm_idle {
+            // No contact and a flat gel: zeros, nothing else.
+            self.depth.fill(0.0);
+            self.force = Vector3::zeros();
+            out.fill(0.0);
+            eval.times.geometry = t0.elapsed().as_secs_f64();
+            return eval;
+        }
+
+        // Rigid surface of the indenters, the ground truth where they touch.
+        self.zmin.fill(f64::INFINITY);
+        let t = self.config.size[2];
+        for p in &touching {
+            p.lower_surface(&self.grid, -t, 0.0, &mut self.zmin);
+        }
+        let t1 = Instant::now();
+        eval.times.geometry = (t1 - t0).as_secs_f64();
+
+        match &mut self.gel {
+            GelModel::Rigid => {
+                for (d, &z) in self.depth.iter_mut().zip(&self.zmin) {
+                    *d = if z.is_finite() { (-z).clamp(0.0, t) } else { 0.0 };
+                }
+                self.force = Vector3::zeros();
+            }
+        }
+        let t2 = Instant::now();
+        eval.times.physics = (t2 - t1).as_secs_f64();
+        self.write_outputs(out);
+        eval.times.render = t2.elapsed().as_secs_f64();
+        eval
+    }
+
+    fn write_outputs(&self, out: &mut [f64]) {
+        let pixels = self.config.pixels();
+        let mut at = 0;
+        for &o in &self.config.outputs {
+            let n = o.len(pixels);
+            let dst = &mut out[at..at + n];
+            match o {
+                Output::Depth => dst.copy_from_slice(&self.depth),
+                Output::Force => dst.copy_from_slice(self.force.as_slice()),
+                Output::Contact => {
+                    for (c, &z) in dst.iter_mut().zip(&self.zmin) {
+                        *c = if z.is_finite() && z < 0.0 { 1.0 } else { 0.0 };
+                    }
+                }
+            }
+            at += n;
+        }
+    }
+}

@@ -1,0 +1,216 @@
+//! The real plugin library loaded into the real libmujoco from MJCF: geometric (rigid)
+//! depth images against closed-form answers, orientation, state handling and bad input.
+
+mod common;
+
+use common::*;
+
+const R: f64 = 0.005;
+const W: usize = 320;
+const H: usize = 240;
+const FOV: [f64; 2] = [0.024, 0.018];
+
+fn pixel_centre(row: usize, col: usize) -> (f64, f64) {
+    let x = -0.5 * FOV[0] + (col as f64 + 0.5) * FOV[0] / W as f64;
+    let y = 0.5 * FOV[1] - (row as f64 + 0.5) * FOV[1] / H as f64;
+    (x, y)
+}
+
+/// Depth of a rigid sphere of radius R pressed `d` into a flat surface, at distance `r`
+/// from its axis: the spherical cap, sqrt(R^2 - r^2) - (R - d), where positive.
+fn cap_depth(d: f64, r: f64) -> f64 {
+    if r >= R {
+        return 0.0;
+    }
+    ((R * R - r * r).sqrt() - (R - d)).max(0.0)
+}
+
+fn sphere_model(extra: &[(&str, &str)]) -> Model {
+    let mut pairs = vec![("physics", "rigid")];
+    pairs.extend_from_slice(extra);
+    load_xml(&press_scene(&config(&pairs), &sphere_body(R))).expect("model loads")
+}
+
+#[test]
+fn sphere_press_gives_the_spherical_cap() {
+    let m = sphere_model(&[]);
+    let mut d = m.make_data();
+    let depth = 0.5e-3;
+    d.set_qpos(0, depth);
+    d.forward(&m);
+    let img = d.sensor(&m, 0);
+    assert_eq!(img.len(), W * H);
+
+    // Everywhere: the analytic cap, to rounding.
+    let mut worst = 0.0f64;
+    for row in 0..H {
+        for col in 0..W {
+            let (x, y) = pixel_centre(row, col);
+            let expect = cap_depth(depth, (x * x + y * y).sqrt());
+            worst = worst.max((img[row * W + col] - expect).abs());
+        }
+    }
+    assert!(worst < 1e-9, "max deviation from the spherical cap {worst:e} m");
+
+    // Centre: the four pixels around the origin are within 1 um of the press depth.
+    let centre = img[(H / 2) * W + W / 2];
+    assert!((centre - depth).abs() < 1e-6, "centre depth {centre}");
+
+    // Contact radius from the contact area, within one pixel's footprint of sqrt(2Rd - d^2).
+    let px = FOV[0] / W as f64;
+    let area = img.iter().filter(|&&v| v > 0.0).count() as f64 * px * px;
+    let radius = (area / std::f64::consts::PI).sqrt();
+    let expect = (2.0 * R * depth - depth * depth).sqrt();
+    assert!((radius - expect).abs() < px, "contact radius {radius} vs {expect}");
+}
+
+#[test]
+fn depth_is_zero_before_contact_and_grows_with_press() {
+    let m = sphere_model(&[]);
+    let mut d = m.make_data();
+    let mut last = -1.0;
+    for (i, press) in [-0.5e-3, 0.0, 0.1e-3, 0.3e-3, 0.6e-3, 1.0e-3].into_iter().enumerate() {
+        d.set_qpos(0, press);
+        d.forward(&m);
+        let max = d.sensor(&m, 0).into_iter().fold(0.0, f64::max);
+        if i < 2 {
+            assert_eq!(max, 0.0, "press {press}");
+        } else {
+            assert!(max > last, "press {press}: {max} after {last}");
+            assert!((max - press).abs() < 1e-5, "press {press}: peak {max}");
+        }
+        last = max;
+    }
+}
+
+#[test]
+fn image_orientation_row0_is_plus_y_col0_is_minus_x() {
+    // A small box pressed at (+6 mm, +4 mm): it must appear right of centre and above it,
+    // i.e. in columns > W/2 and rows < H/2.
+    let body = r#"<body name="block" pos="0.006 0.004 0.001">
+      <joint name="press" type="slide" axis="0 0 -1"/>
+      <geom type="box" size="0.001 0.0005 0.001" contype="0" conaffinity="0"/>
+    </body>"#;
+    let m = load_xml(&press_scene(&config(&[("physics", "rigid")]), body)).unwrap();
+    let mut d = m.make_data();
+    d.set_qpos(0, 0.2e-3);
+    d.forward(&m);
+    let img = d.sensor(&m, 0);
+    let hits: Vec<(usize, usize)> =
+        (0..H * W).filter(|&i| img[i] > 0.0).map(|i| (i / W, i % W)).collect();
+    assert!(!hits.is_empty());
+    for &(row, col) in &hits {
+        let (x, y) = pixel_centre(row, col);
+        assert!((x - 0.006).abs() <= 0.001 + 1e-9 && (y - 0.004).abs() <= 0.0005 + 1e-9);
+    }
+    // The footprint is 2 mm along x and 1 mm along y: wider than tall in the image.
+    let cols = hits.iter().map(|h| h.1).max().unwrap() - hits.iter().map(|h| h.1).min().unwrap();
+    let rows = hits.iter().map(|h| h.0).max().unwrap() - hits.iter().map(|h| h.0).min().unwrap();
+    assert!(cols > rows + rows / 2, "cols {cols} rows {rows}");
+}
+
+#[test]
+fn reset_clears_and_copy_carries_state() {
+    let m = sphere_model(&[("outputs", "depth contact")]);
+    let mut d = m.make_data();
+    d.set_qpos(0, 0.4e-3);
+    d.forward(&m);
+    let before = d.sensor(&m, 0);
+    assert!(before.iter().any(|&v| v > 0.0));
+    let copy = d.copy(&m);
+    assert_eq!(copy.sensor(&m, 0), before);
+    d.reset(&m);
+    assert!(d.sensor(&m, 0).iter().all(|&v| v == 0.0));
+    // The copy lives on its own after the original is gone.
+    drop(d);
+    let mut copy = copy;
+    copy.forward(&m);
+    assert_eq!(copy.sensor(&m, 0), before);
+}
+
+#[test]
+fn contact_mask_matches_depth_support() {
+    let m = sphere_model(&[("outputs", "depth contact"), ("resolution", "64 48")]);
+    let mut d = m.make_data();
+    d.set_qpos(0, 0.3e-3);
+    d.forward(&m);
+    let v = d.sensor(&m, 0);
+    let (depth, contact) = v.split_at(64 * 48);
+    for (a, c) in depth.iter().zip(contact) {
+        assert_eq!(*c, if *a > 0.0 { 1.0 } else { 0.0 });
+    }
+}
+
+#[test]
+fn many_data_in_threads_match_sequential() {
+    let m = sphere_model(&[("resolution", "80 60")]);
+    let presses = [0.1e-3, 0.25e-3, 0.4e-3, 0.7e-3];
+    let sequential: Vec<Vec<f64>> = presses
+        .iter()
+        .map(|&p| {
+            let mut d = m.make_data();
+            d.set_qpos(0, p);
+            d.forward(&m);
+            d.sensor(&m, 0)
+        })
+        .collect();
+    let parallel: Vec<Vec<f64>> = std::thread::scope(|s| {
+        let handles: Vec<_> = presses
+            .iter()
+            .map(|&p| {
+                let m = &m;
+                s.spawn(move || {
+                    let mut d = m.make_data();
+                    d.set_qpos(0, p);
+                    d.forward(m);
+                    d.sensor(m, 0)
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    assert_eq!(sequential, parallel);
+}
+
+#[test]
+fn bad_configuration_fails_at_load_naming_the_attribute() {
+    let cases = [
+        ("physics", "magic"),
+        ("size", "-0.03 0.03 0.004"),
+        ("resolution", "0 240"),
+        ("resolution", "garbage"),
+        ("young", "soft"),
+        ("outputs", "depth smell"),
+        ("indenters", "no_such_body"),
+    ];
+    for (key, value) in cases {
+        let xml = press_scene(&config(&[(key, value)]), &sphere_body(R));
+        let err = load_xml(&xml).err().unwrap_or_else(|| panic!("{key}={value} accepted"));
+        assert!(err.contains(&format!("'{key}'")), "{key}={value}: {err}");
+        assert!(err.contains("'touch'"), "{key}={value}: {err}");
+        assert!(err.contains(value), "{key}={value}: {err}");
+    }
+}
+
+#[test]
+fn sensor_not_on_a_site_is_refused() {
+    let xml = press_scene("", &sphere_body(R))
+        .replace(r#"objtype="site" objname="gel""#, r#"objtype="body" objname="sensor""#);
+    let err = load_xml(&xml).err().expect("a body-attached sensor must be refused");
+    assert!(err.contains("site"), "{err}");
+}
+
+#[test]
+fn nan_pose_gives_zeros_not_nan() {
+    let m = sphere_model(&[]);
+    let mut d = m.make_data();
+    d.set_qpos(0, f64::NAN);
+    d.forward(&m);
+    let img = d.sensor(&m, 0);
+    assert!(img.iter().all(|v| v.is_finite()));
+    // And the sensor keeps working.
+    d.set_qpos(0, 0.3e-3);
+    d.forward(&m);
+    let max = d.sensor(&m, 0).into_iter().fold(0.0, f64::max);
+    assert!((max - 0.3e-3).abs() < 1e-5);
+}

@@ -1,0 +1,21 @@
+import pathlib
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def press_xml() -> str:
+    return (ROOT / "examples" / "press.xml").read_text()
+
+
+def with_config(xml: str, **config: str) -> str:
+    """The press example with its sensor's <config> entries replaced by ``config``."""
+    import re
+
+    start = xml.index('<plugin name="touch"')
+    end = xml.index("</plugin>", start)
+    head = xml[start : xml.index(">", start) + 1]
+    body = "".join(f'<config key="{k}" value="{v}"/>' for k, v in config.items())
+    return xml[:start] + head + body + xml[end:]

@@ -1,0 +1,145 @@
+"""The plugin through the real `mujoco` Python package: registration by entry point, the
+press example, state handling, threads, and bad input."""
+
+import threading
+
+import mujoco
+import numpy as np
+import pytest
+
+import tacrom
+from conftest import with_config
+
+DEFAULT = dict(physics="rigid", outputs="depth", resolution="320 240")
+
+
+def press(model, data, depth_m):
+    """Places the press joint and evaluates the sensor."""
+    data.qpos[0] = depth_m
+    mujoco.mj_forward(model, data)
+    return tacrom.depth(model, data, "touch")
+
+
+def test_import_mujoco_registers_the_plugin(press_xml):
+    # Only `import mujoco` ran (tacrom's entry point); the model compiles.
+    model = mujoco.MjModel.from_xml_string(press_xml)
+    assert model.nplugin == 1
+
+
+def test_press_example_steps_and_depth_behaves(press_xml):
+    model = mujoco.MjModel.from_xml_string(press_xml)
+    data = mujoco.MjData(model)
+    img = tacrom.depth(model, data, "touch")
+    assert img.shape == (240, 320)
+    mujoco.mj_forward(model, data)
+    assert np.all(tacrom.depth(model, data, "touch") == 0.0)  # ctrl 0: just touching
+    peaks = []
+    for target in (0.2e-3, 0.5e-3, 1.0e-3):
+        data.ctrl[0] = target
+        for _ in range(300):
+            mujoco.mj_step(model, data)
+        img = tacrom.depth(model, data, "touch")
+        assert np.all(np.isfinite(img)) and img.min() >= 0.0
+        peaks.append(img.max())
+        # The actuator tracks the target: the peak equals the joint's press.
+        assert abs(img.max() - data.qpos[0]) < 2e-5
+    assert peaks[0] < peaks[1] < peaks[2]
+    assert abs(peaks[2] - 1.0e-3) < 5e-5
+
+
+def test_reset_clears_the_image(press_xml):
+    model = mujoco.MjModel.from_xml_string(press_xml)
+    data = mujoco.MjData(model)
+    assert press(model, data, 0.5e-3).max() > 0.4e-3
+    mujoco.mj_resetData(model, data)
+    assert np.all(tacrom.depth(model, data, "touch") == 0.0)
+
+
+def test_copy_data_carries_sensor_state(press_xml):
+    model = mujoco.MjModel.from_xml_string(press_xml)
+    data = mujoco.MjData(model)
+    img = press(model, data, 0.5e-3)
+    clone = mujoco.MjData(model)
+    mujoco.mj_copyData(clone, model, data)
+    np.testing.assert_array_equal(tacrom.depth(model, clone, "touch"), img)
+    clone2 = data.__copy__() if hasattr(data, "__copy__") else None
+    if clone2 is not None:
+        mujoco.mj_forward(model, clone2)
+        np.testing.assert_array_equal(tacrom.depth(model, clone2, "touch"), img)
+
+
+def test_two_threads_match_sequential(press_xml):
+    model = mujoco.MjModel.from_xml_string(with_config(press_xml, **{**DEFAULT, "resolution": "80 60"}))
+    depths = [0.15e-3, 0.35e-3, 0.55e-3, 0.8e-3]
+    sequential = [press(model, mujoco.MjData(model), d) for d in depths]
+    results = [None] * len(depths)
+
+    def worker(i):
+        results[i] = press(model, mujoco.MjData(model), depths[i])
+
+    threads = [threading.Thread(target=worker, args=(i,)) for i in range(len(depths))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for a, b in zip(sequential, results):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_layout_and_outputs(press_xml):
+    xml = with_config(press_xml, physics="rigid", outputs="contact depth", resolution="40 30")
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    lay = tacrom.layout(model, "touch")
+    assert lay["width"] == 40 and lay["height"] == 30
+    assert lay["outputs"] == {"contact": (0, 1200), "depth": (1200, 1200)}
+    img = press(model, data, 0.4e-3)
+    mask = tacrom.contact(model, data, "touch")
+    np.testing.assert_array_equal(mask, (img > 0).astype(float))
+    with pytest.raises(KeyError, match="force"):
+        tacrom.force(model, data, "touch")
+
+
+@pytest.mark.parametrize(
+    "key,value",
+    [
+        ("physics", "magic"),
+        ("size", "-0.03 0.03 0.004"),
+        ("resolution", "0 240"),
+        ("resolution", "lots of pixels"),
+        ("fov", "garbage"),
+        ("young", "-5"),
+        ("poisson", "0.7"),
+        ("threads", "0"),
+        ("outputs", "depth pressure"),
+    ],
+)
+def test_bad_attribute_raises_naming_it(press_xml, key, value):
+    config = {**DEFAULT, key: value}
+    with pytest.raises(ValueError) as err:
+        mujoco.MjModel.from_xml_string(with_config(press_xml, **config))
+    msg = str(err.value)
+    assert f"'{key}'" in msg and "'touch'" in msg and value in msg
+
+
+def test_missing_site_raises(press_xml):
+    xml = press_xml.replace('objname="gel"', 'objname="no_such_site"')
+    with pytest.raises(ValueError, match="no_such_site"):
+        mujoco.MjModel.from_xml_string(xml)
+
+
+def test_process_survives_bad_input_and_keeps_working(press_xml):
+    for _ in range(3):
+        with pytest.raises(ValueError):
+            mujoco.MjModel.from_xml_string(with_config(press_xml, physics="nope"))
+    model = mujoco.MjModel.from_xml_string(press_xml)
+    assert press(model, mujoco.MjData(model), 0.3e-3).max() > 0.29e-3
+
+
+def test_nan_pose_gives_finite_output(press_xml):
+    model = mujoco.MjModel.from_xml_string(press_xml)
+    data = mujoco.MjData(model)
+    data.qpos[0] = np.nan
+    mujoco.mj_forward(model, data)
+    assert np.all(np.isfinite(data.sensordata))
+    assert press(model, data, 0.3e-3).max() > 0.29e-3

@@ -214,3 +214,86 @@ fn nan_pose_gives_zeros_not_nan() {
     let max = d.sensor(&m, 0).into_iter().fold(0.0, f64::max);
     assert!((max - 0.3e-3).abs() < 1e-5);
 }
+
+/// The box's eight corners as an MJCF mesh, and the same box as a primitive: the mesh's
+/// rasterised lower surface must match the analytic one.
+#[test]
+fn mesh_indenter_matches_the_same_primitive() {
+    let (a, b, c) = (0.003, 0.002, 0.001);
+    let mut verts = String::new();
+    for i in 0..8 {
+        let s = |bit: usize, h: f64| if i & bit == 0 { -h } else { h };
+        verts += &format!("{} {} {} ", s(1, a), s(2, b), s(4, c));
+    }
+    let pose = r#"pos="0.001 -0.002 0.0016" euler="10 5 30""#;
+    let scene = |geom: String| {
+        let body = format!(
+            r#"<body name="block" {pose}>
+      <joint name="press" type="slide" axis="0 0 -1"/>
+      {geom}
+    </body>"#
+        );
+        press_scene(&config(&[("physics", "rigid")]), &body)
+            .replace("<asset></asset>", &format!(r#"<asset><mesh name="boxmesh" vertex="{verts}"/></asset>"#))
+    };
+    let mesh = load_xml(&scene(r#"<geom type="mesh" mesh="boxmesh" contype="0" conaffinity="0"/>"#.into()))
+        .expect("mesh model");
+    let prim = load_xml(&scene(format!(
+        r#"<geom type="box" size="{a} {b} {c}" contype="0" conaffinity="0"/>"#
+    )))
+    .expect("box model");
+    let image = |m: &Model| {
+        let mut d = m.make_data();
+        d.set_qpos(0, 0.4e-3);
+        d.forward(m);
+        d.sensor(m, 0)
+    };
+    let (im_mesh, im_prim) = (image(&mesh), image(&prim));
+    let touched = im_prim.iter().filter(|&&v| v > 0.0).count();
+    assert!(touched > 300, "the tilted box must touch: {touched} pixels");
+    // Pixel centres exactly on an edge may fall either way; everything else agrees to
+    // rounding.
+    let differ = im_mesh.iter().zip(&im_prim).filter(|(x, y)| (*x - *y).abs() > 1e-9).count();
+    assert!(differ * 100 < touched, "{differ} of {touched} pixels differ");
+    let worst_inside = im_mesh
+        .iter()
+        .zip(&im_prim)
+        .filter(|(x, y)| **x > 0.0 && **y > 0.0)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    assert!(worst_inside < 1e-9, "{worst_inside}");
+}
+
+/// Benchmark meshes load from STL through MuJoCo, and their images stay finite and within
+/// [0, T] when pressed far through the gel.
+#[test]
+fn pattern_meshes_render_within_bounds() {
+    let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    for name in ["hexagon", "moon"] {
+        let file = data.join(format!("{name}.stl"));
+        // MuJoCo recentres the mesh: with this pose its lowest point (the patterned face,
+        // flipped towards the gel) is at z = 0 when qpos = 0.
+        let body = r#"<body name="pattern" pos="0 0 0.020" euler="180 0 0">
+      <joint name="press" type="slide" axis="0 0 1"/>
+      <geom type="mesh" mesh="pattern" contype="0" conaffinity="0"/>
+    </body>"#;
+        let xml = press_scene(&config(&[("physics", "rigid")]), body).replace(
+            "<asset></asset>",
+            &format!(r#"<asset><mesh name="pattern" file="{}" scale="0.001 0.001 0.001"/></asset>"#, file.display()),
+        );
+        let m = load_xml(&xml).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let mut d = m.make_data();
+        let mut peak = 0.0;
+        for press in [0.0, 0.0002, 0.001, 0.003, 0.008] {
+            d.set_qpos(0, press);
+            d.forward(&m);
+            let img = d.sensor(&m, 0);
+            assert!(img.iter().all(|v| v.is_finite() && (0.0..=0.004).contains(v)), "{name}");
+            let max = img.iter().cloned().fold(0.0, f64::max);
+            assert!(max >= peak, "{name}: depth must grow with the press");
+            assert!(press > 0.0 || max < 1e-8, "{name}: touching is not pressing ({max})");
+            peak = max;
+        }
+        assert_eq!(peak, 0.004, "{name}: a press through the gel saturates at T");
+    }
+}

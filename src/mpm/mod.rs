@@ -11,7 +11,8 @@
 //!
 //! Sensor frame: origin at the centre of the undeformed top face, +z out of the gel, the
 //! gel in `[-Lx/2, Lx/2] x [-Ly/2, Ly/2] x [-T, 0]`. The background grid has spacing
-//! `dx`; a node plane lies exactly on the bonded bottom `z = -T`. Along each axis the gel
+//! `dx`, centred laterally on the gel (mirror symmetric); a node plane lies exactly on the
+//! bonded bottom `z = -T`. Along each axis the gel
 //! gets `n = max(1, round(L / dx))` cells' worth of particles, two per cell, at spacing
 //! `s = L / (2 n)`: the simulated block has exactly the requested size, and when `L / dx`
 //! is not an integer the particles are slightly closer or farther apart than `dx / 2`
@@ -320,9 +321,12 @@ impl Gel {
         check("dx", dx, count <= MAX_PARTICLES as f64, "gives too many particles")?;
         let spacing: [f64; 3] = std::array::from_fn(|k| params.size[k] / lattice[k] as f64);
         let [lx, ly, t] = params.size;
-        let span = |l: f64| (l / dx).ceil() as usize;
-        let dims = [span(lx) + 2 * PAD + 1, span(ly) + 2 * PAD + 1, PAD_BOTTOM + span(t) + PAD + 1];
-        let origin = Vector3::new(-0.5 * lx - PAD as f64 * dx, -0.5 * ly - PAD as f64 * dx, -t - PAD_BOTTOM as f64 * dx);
+        // Lateral node counts are odd and the grid is centred on the gel, so the discrete
+        // problem is mirror symmetric in x and y; a node plane lies on the bonded face.
+        let half_span = |l: f64| (0.5 * l / dx).ceil() as usize + PAD;
+        let (hx, hy) = (half_span(lx), half_span(ly));
+        let dims = [2 * hx + 1, 2 * hy + 1, PAD_BOTTOM + (t / dx).ceil() as usize + PAD + 1];
+        let origin = Vector3::new(-(hx as f64) * dx, -(hy as f64) * dx, -t - PAD_BOTTOM as f64 * dx);
         let layout = Layout { dx, origin, dims, lattice, spacing };
 
         let pool = rayon::ThreadPoolBuilder::new()

@@ -15,7 +15,8 @@ use nalgebra::Vector3;
 use super::Gel;
 use crate::geometry::PixelGrid;
 
-/// Fixed-point iterations for `X + u_xy(X) = p`.
+/// Most fixed-point iterations for `X + u_xy(X) = p` (it stops when a step moves less
+/// than 1e-9 lattice spacings).
 const FIXED_POINT_ITERATIONS: usize = 8;
 
 /// Catmull-Rom weights of the samples at `-1, 0, 1, 2` for parameter `t` in `[0, 1)`.
@@ -82,8 +83,12 @@ pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
             let (mut a, mut b) = ((px - x0) / sx, (py - y0) / sy);
             for _ in 0..FIXED_POINT_ITERATIONS {
                 let d = sample(u, nx, ny, a, b);
-                a = (px - d.x - x0) / sx;
-                b = (py - d.y - y0) / sy;
+                let (a1, b1) = ((px - d.x - x0) / sx, (py - d.y - y0) / sy);
+                let done = (a1 - a).abs() + (b1 - b).abs() < 1e-9;
+                (a, b) = (a1, b1);
+                if done {
+                    break;
+                }
             }
             let d = sample(u, nx, ny, a, b);
             let depth = -d.z;

@@ -51,6 +51,7 @@
 
 use std::collections::HashMap;
 use std::fmt;
+use std::sync::{Arc, OnceLock};
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -84,14 +85,19 @@ impl Default for MeshSdfOptions {
 /// Half width of the narrow band, in cells. Must exceed one cell for the sign fill.
 const BAND_CELLS: f64 = 2.0;
 
-/// A triangle mesh in its local frame (metres), with a precomputed signed-distance grid.
+/// A triangle mesh in its local frame (metres), with a signed-distance grid.
+///
+/// The grid is built on the first distance query, not at construction: a sensor in rigid
+/// mode only rasterises the triangles ([`Sdf::lower_surface`]) and never pays for it.
 #[derive(Clone)]
 pub struct TriMesh {
     vertices: Vec<Point3<f64>>,
     faces: Vec<[u32; 3]>,
     aabb: Aabb,
     closed: bool,
-    grid: Grid,
+    topo: Arc<Topology>,
+    options: MeshSdfOptions,
+    grid: Arc<OnceLock<Grid>>,
 }
 
 impl fmt::Debug for TriMesh {
@@ -101,13 +107,18 @@ impl fmt::Debug for TriMesh {
             .field("faces", &self.faces.len())
             .field("aabb", &self.aabb)
             .field("closed", &self.closed)
-            .field("grid_dims", &self.grid.dims)
-            .field("cell_size", &self.grid.cell)
+            .field("grid_built", &self.grid.get().is_some())
             .finish()
     }
 }
 
 impl TriMesh {
+    /// The distance grid, built on first use.
+    fn grid(&self) -> &Grid {
+        self.grid
+            .get_or_init(|| Grid::build(&self.vertices, &self.topo, &self.aabb, &self.options))
+    }
+
     /// A mesh from vertices and triangles (indices into `vertices`), with the default
     /// [`MeshSdfOptions`].
     pub fn new(vertices: Vec<Point3<f64>>, faces: Vec<[u32; 3]>) -> Result<Self, GeometryError> {
@@ -179,14 +190,22 @@ impl TriMesh {
                 extent.as_slice()
             )));
         }
+        if let Some(h) = options.cell_size {
+            if !(h.is_finite() && h > 0.0) {
+                return Err(GeometryError::Degenerate(format!(
+                    "cell size {h} must be finite and positive"
+                )));
+            }
+        }
         let topo = Topology::new(&vertices, &faces)?;
-        let grid = Grid::build(&vertices, &topo, &aabb, options)?;
         Ok(Self {
             closed: topo.closed,
             vertices,
             faces,
             aabb,
-            grid,
+            topo: Arc::new(topo),
+            options: *options,
+            grid: Arc::new(OnceLock::new()),
         })
     }
 
@@ -206,27 +225,32 @@ impl TriMesh {
         self.closed
     }
 
+    /// Whether the distance grid has been built (by a distance or gradient query).
+    pub fn grid_is_built(&self) -> bool {
+        self.grid.get().is_some()
+    }
+
     /// Cell size of the distance grid (m).
     pub fn cell_size(&self) -> f64 {
-        self.grid.cell
+        self.grid().cell
     }
 
     /// Nodes of the distance grid along x, y, z.
     pub fn grid_dims(&self) -> [usize; 3] {
-        self.grid.dims
+        self.grid().dims
     }
 
     /// Whether `p` (local frame) lies in the distance grid's box, where the distance is
     /// accurate to [`TriMesh::error_bound`]; outside it is a lower bound.
     pub fn in_grid(&self, p: &Point3<f64>) -> bool {
-        let u = (p - self.grid.origin) * self.grid.inv_cell;
-        (0..3).all(|k| u[k] >= 0.0 && u[k] <= (self.grid.dims[k] - 1) as f64)
+        let u = (p - self.grid().origin) * self.grid().inv_cell;
+        (0..3).all(|k| u[k] >= 0.0 && u[k] <= (self.grid().dims[k] - 1) as f64)
     }
 
     /// Largest error of the grid distance against the exact one, to first order: the
     /// trilinear bound `sqrt(3)/2` cell (m).
     pub fn error_bound(&self) -> f64 {
-        0.5 * 3f64.sqrt() * self.grid.cell
+        0.5 * 3f64.sqrt() * self.grid().cell
     }
 }
 
@@ -425,16 +449,12 @@ impl Grid {
         topo: &Topology,
         aabb: &Aabb,
         options: &MeshSdfOptions,
-    ) -> Result<Self, GeometryError> {
+    ) -> Self {
         let extent = aabb.max - aabb.min;
         let margin = options.margin_cells.max(3) as f64;
+        // Validated in `TriMesh::with_options`.
         let mut cell = match options.cell_size {
-            Some(h) if h.is_finite() && h > 0.0 => h,
-            Some(h) => {
-                return Err(GeometryError::Degenerate(format!(
-                    "cell size {h} must be finite and positive"
-                )))
-            }
+            Some(h) => h,
             None => extent.max() / options.cells_per_extent.max(1) as f64,
         };
         let dims_for = |h: f64| extent.map(|e| (e / h).ceil() + 2.0 * margin + 1.0);
@@ -453,13 +473,13 @@ impl Grid {
         b.narrow_band(vertices, topo);
         b.propagate();
         b.fill_signs();
-        Ok(Grid {
+        Grid {
             origin,
             cell,
             inv_cell: 1.0 / cell,
             dims,
             values: b.finish(),
-        })
+        }
     }
 
     #[inline]
@@ -713,11 +733,11 @@ impl Builder {
 
 impl Sdf for TriMesh {
     fn distance(&self, p: &Point3<f64>) -> f64 {
-        self.grid.query(p).0
+        self.grid().query(p).0
     }
 
     fn gradient(&self, p: &Point3<f64>) -> Vector3<f64> {
-        let g = self.grid.query(p).1;
+        let g = self.grid().query(p).1;
         let n = g.norm();
         if n > 1e-12 && n.is_finite() {
             g / n
@@ -845,6 +865,21 @@ fn row_span(t: &[Point3<f64>; 3], y: f64) -> (f64, f64) {
 
 #[cfg(test)]
 mod tests {
+
+    /// Rigid rendering rasterises the triangles: it must not build the distance grid.
+    #[test]
+    fn lower_surface_does_not_build_the_distance_grid() {
+        let mesh = TriMesh::from_file(pattern("hexagon.stl"), 1e-3)
+            .expect("hexagon loads");
+        let grid = PixelGrid { width: 32, height: 24, fov_x: 0.024, fov_y: 0.018 };
+        let mut zmin = vec![f64::INFINITY; 32 * 24];
+        mesh.lower_surface(&Isometry3::translation(0.0, 0.0, -0.001), &grid, -0.004, 0.0, &mut zmin);
+        assert!(zmin.iter().any(|z| z.is_finite()));
+        assert!(!mesh.grid_is_built());
+        let _ = mesh.distance(&Point3::origin());
+        assert!(mesh.grid_is_built());
+    }
+
     use super::*;
     use crate::geometry::io::load_stl;
     use crate::geometry::test_support::{pattern, Rng, TEST_GRID};
@@ -1010,9 +1045,9 @@ mod tests {
             let [nx, ny, nz] = mesh.grid_dims();
             for _ in 0..n {
                 let idx = [nx, ny, nz].map(|d| ((rng.next_f64() * d as f64) as usize).min(d - 1));
-                let p = mesh.grid.origin
+                let p = mesh.grid().origin
                     + Vector3::new(idx[0] as f64, idx[1] as f64, idx[2] as f64) * mesh.cell_size();
-                let got = mesh.grid.values[mesh.grid.index(idx[0], idx[1], idx[2])] as f64;
+                let got = mesh.grid().values[mesh.grid().index(idx[0], idx[1], idx[2])] as f64;
                 let want = brute_with(&topo, &mesh.vertices, &p);
                 assert!(
                     got.abs() >= want.abs() - 1e-8,
@@ -1108,7 +1143,7 @@ mod tests {
         let mut rng = Rng::new(24);
         for _ in 0..200 {
             let p = rng.point(0.02);
-            let g = mesh.grid.query(&p).1;
+            let g = mesh.grid().query(&p).1;
             let h = 1e-8;
             let fd = Vector3::from_fn(|k, _| {
                 let (mut a, mut b) = (p, p);

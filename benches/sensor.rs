@@ -1,0 +1,93 @@
+//! Sensor evaluation benchmarks: median and 90th-percentile time of one 320 x 240
+//! evaluation in a continuous moving press, per physics mode and indenter.
+//!
+//! `cargo bench --bench sensor` (add `-- --quick` for fewer frames).
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use tacrom::config::{Config, RawConfig};
+use tacrom::geometry::{load_mesh, MeshSdfOptions, Placed, Sdf, Sphere};
+use tacrom::sensor::TactileSensor;
+
+fn pattern(name: &str) -> std::path::PathBuf {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let shared = root.join("../shared/indenters/patterns").join(name);
+    if shared.is_file() {
+        shared
+    } else {
+        root.join("tests/data").join(name)
+    }
+}
+
+struct Stats {
+    median_ms: f64,
+    p90_ms: f64,
+}
+
+fn stats(mut t: Vec<f64>) -> Stats {
+    t.sort_by(f64::total_cmp);
+    let at = |q: f64| t[((t.len() - 1) as f64 * q).round() as usize] * 1e3;
+    Stats { median_ms: at(0.5), p90_ms: at(0.9) }
+}
+
+/// `frames` evaluations pressing `shape` from 0.1 to 1.0 mm while sliding 1 mm along x.
+/// `lowest` is the z of the shape's lowest point in its own frame (negative).
+fn press(config: &Config, shape: Arc<dyn Sdf>, lowest: f64, frames: usize) -> Stats {
+    let mut sensor = TactileSensor::new(config.clone()).expect("sensor");
+    let mut out = vec![0.0; config.sensordata_len()];
+    let mut times = Vec::with_capacity(frames);
+    for f in 0..frames {
+        let s = f as f64 / (frames - 1).max(1) as f64;
+        let depth = 0.1e-3 + 0.9e-3 * s;
+        let pose = Isometry3::from_parts(
+            Translation3::new(-0.5e-3 + 1e-3 * s, 0.0, -lowest - depth),
+            UnitQuaternion::identity(),
+        );
+        let placed = [Placed { shape: shape.clone(), pose }];
+        let t0 = Instant::now();
+        let eval = sensor.evaluate(&placed, &mut out);
+        times.push(t0.elapsed().as_secs_f64());
+        assert!(eval.contact);
+        std::hint::black_box(&out);
+    }
+    stats(times)
+}
+
+fn main() {
+    let quick = std::env::args().any(|a| a == "--quick");
+    let frames = if quick { 20 } else { 200 };
+    let sphere: Arc<dyn Sdf> = Arc::new(Sphere::new(0.005));
+    // The cone pattern, flipped so its patterned face (z = 20 mm) points at the gel.
+    let cone = load_mesh(&pattern("cone.stl"), 1e-3)
+        .or_else(|_| load_mesh(&pattern("moon.stl"), 1e-3))
+        .expect("a pattern mesh");
+    let flipped: Vec<_> = cone.vertices.iter().map(|p| nalgebra::Point3::new(p.x, -p.y, 0.02 - p.z)).collect();
+    let mesh = tacrom::geometry::TriMesh::with_options(
+        flipped,
+        cone.faces.iter().map(|f| [f[0], f[2], f[1]]).collect(),
+        &MeshSdfOptions::default(),
+    )
+    .expect("mesh");
+    let mesh_lowest = mesh.vertices().iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+    let mesh: Arc<dyn Sdf> = Arc::new(mesh);
+    let _ = Vector3::<f64>::zeros();
+
+    println!("{:<8} {:<8} {:>8} {:>12} {:>12}", "physics", "indenter", "threads", "median ms", "p90 ms");
+    for physics in ["rigid"] {
+        for threads in [1usize, 2] {
+            let raw = RawConfig::default().with("physics", physics).with("threads", &threads.to_string());
+            let config = Config::from_raw("bench", &raw).expect("config");
+            for (name, shape, lowest) in
+                [("sphere", sphere.clone(), -0.005), ("cone", mesh.clone(), mesh_lowest)]
+            {
+                let s = press(&config, shape, lowest, frames);
+                println!(
+                    "{physics:<8} {name:<8} {threads:>8} {:>12.3} {:>12.3}",
+                    s.median_ms, s.p90_ms
+                );
+            }
+        }
+    }
+}

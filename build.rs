@@ -20,7 +20,8 @@ fn main() {
     println!("cargo:rerun-if-changed=include/tacrom.h");
     println!("cargo:rerun-if-changed=build.rs");
 
-    let root = PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
+    let root =
+        PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
     let mujoco = find_mujoco(&root);
     let include = mujoco.join("include");
     check_version(&include);

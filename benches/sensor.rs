@@ -29,7 +29,10 @@ struct Stats {
 fn stats(mut t: Vec<f64>) -> Stats {
     t.sort_by(f64::total_cmp);
     let at = |q: f64| t[((t.len() - 1) as f64 * q).round() as usize] * 1e3;
-    Stats { median_ms: at(0.5), p90_ms: at(0.9) }
+    Stats {
+        median_ms: at(0.5),
+        p90_ms: at(0.9),
+    }
 }
 
 /// `frames` evaluations pressing `shape` from 0.1 to 1.0 mm while sliding 1 mm along x.
@@ -45,7 +48,10 @@ fn press(config: &Config, shape: Arc<dyn Sdf>, lowest: f64, frames: usize) -> St
             Translation3::new(-0.5e-3 + 1e-3 * s, 0.0, -lowest - depth),
             UnitQuaternion::identity(),
         );
-        let placed = [Placed { shape: shape.clone(), pose }];
+        let placed = [Placed {
+            shape: shape.clone(),
+            pose,
+        }];
         let t0 = Instant::now();
         let eval = sensor.evaluate(&placed, &mut out);
         times.push(t0.elapsed().as_secs_f64());
@@ -63,25 +69,39 @@ fn main() {
     let cone = load_mesh(&pattern("cone.stl"), 1e-3)
         .or_else(|_| load_mesh(&pattern("moon.stl"), 1e-3))
         .expect("a pattern mesh");
-    let flipped: Vec<_> = cone.vertices.iter().map(|p| nalgebra::Point3::new(p.x, -p.y, 0.02 - p.z)).collect();
+    let flipped: Vec<_> = cone
+        .vertices
+        .iter()
+        .map(|p| nalgebra::Point3::new(p.x, -p.y, 0.02 - p.z))
+        .collect();
     let mesh = tacrom::geometry::TriMesh::with_options(
         flipped,
         cone.faces.iter().map(|f| [f[0], f[2], f[1]]).collect(),
         &MeshSdfOptions::default(),
     )
     .expect("mesh");
-    let mesh_lowest = mesh.vertices().iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+    let mesh_lowest = mesh
+        .vertices()
+        .iter()
+        .map(|p| p.z)
+        .fold(f64::INFINITY, f64::min);
     let mesh: Arc<dyn Sdf> = Arc::new(mesh);
     let _ = Vector3::<f64>::zeros();
 
-    println!("{:<8} {:<8} {:>8} {:>12} {:>12}", "physics", "indenter", "threads", "median ms", "p90 ms");
+    println!(
+        "{:<8} {:<8} {:>8} {:>12} {:>12}",
+        "physics", "indenter", "threads", "median ms", "p90 ms"
+    );
     for physics in ["rigid"] {
         for threads in [1usize, 2] {
-            let raw = RawConfig::default().with("physics", physics).with("threads", &threads.to_string());
+            let raw = RawConfig::default()
+                .with("physics", physics)
+                .with("threads", &threads.to_string());
             let config = Config::from_raw("bench", &raw).expect("config");
-            for (name, shape, lowest) in
-                [("sphere", sphere.clone(), -0.005), ("cone", mesh.clone(), mesh_lowest)]
-            {
+            for (name, shape, lowest) in [
+                ("sphere", sphere.clone(), -0.005),
+                ("cone", mesh.clone(), mesh_lowest),
+            ] {
                 let s = press(&config, shape, lowest, frames);
                 println!(
                     "{physics:<8} {name:<8} {threads:>8} {:>12.3} {:>12.3}",

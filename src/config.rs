@@ -75,7 +75,11 @@ impl Physics {
 
     /// The attribute value naming this mode.
     pub fn name(self) -> &'static str {
-        Self::ALL.iter().find(|(_, p)| *p == self).map(|(n, _)| *n).unwrap_or("?")
+        Self::ALL
+            .iter()
+            .find(|(_, p)| *p == self)
+            .map(|(n, _)| *n)
+            .unwrap_or("?")
     }
 
     /// Default MPM grid spacing (m) for a gel of thickness `t`; `None` for rigid.
@@ -103,8 +107,11 @@ pub enum Output {
 
 impl Output {
     /// Every output, by name.
-    pub const ALL: &'static [(&'static str, Output)] =
-        &[("depth", Output::Depth), ("force", Output::Force), ("contact", Output::Contact)];
+    pub const ALL: &'static [(&'static str, Output)] = &[
+        ("depth", Output::Depth),
+        ("force", Output::Force),
+        ("contact", Output::Contact),
+    ];
 
     /// Number of sensordata values of this output for an image of `pixels` pixels.
     pub fn len(self, pixels: usize) -> usize {
@@ -128,14 +135,21 @@ impl RawConfig {
     pub fn collect(mut lookup: impl FnMut(&str) -> Option<String>) -> Self {
         let values = ATTRIBUTES
             .iter()
-            .filter_map(|&a| lookup(a).filter(|v| !v.trim().is_empty()).map(|v| (a.to_owned(), v)))
+            .filter_map(|&a| {
+                lookup(a)
+                    .filter(|v| !v.trim().is_empty())
+                    .map(|v| (a.to_owned(), v))
+            })
             .collect();
         Self { values }
     }
 
     /// The text of `attribute`, if given.
     pub fn get(&self, attribute: &str) -> Option<&str> {
-        self.values.iter().find(|(a, _)| a == attribute).map(|(_, v)| v.as_str())
+        self.values
+            .iter()
+            .find(|(a, _)| a == attribute)
+            .map(|(_, v)| v.as_str())
     }
 
     /// Builder-style setter, for tests and programmatic use.
@@ -226,20 +240,36 @@ impl Config {
         let outputs = p.outputs()?;
         let [width, height] = p.resolution()?;
         let size = p.floats::<3>(ATTR_SIZE, defaults::SIZE, |v| {
-            check_all(v, |x| x > 0.0 && x <= 1.0, "each of Lx Ly T must be in (0, 1] m")
+            check_all(
+                v,
+                |x| x > 0.0 && x <= 1.0,
+                "each of Lx Ly T must be in (0, 1] m",
+            )
         })?;
         let fov = p.fov(&size)?;
         let young = p.float(ATTR_YOUNG, defaults::YOUNG, |x| {
-            (1e2..=1e10).contains(&x).then_some(()).ok_or("must be in [1e2, 1e10] Pa")
+            (1e2..=1e10)
+                .contains(&x)
+                .then_some(())
+                .ok_or("must be in [1e2, 1e10] Pa")
         })?;
         let poisson = p.float(ATTR_POISSON, defaults::POISSON, |x| {
-            (0.0..=0.4999).contains(&x).then_some(()).ok_or("must be in [0, 0.4999]")
+            (0.0..=0.4999)
+                .contains(&x)
+                .then_some(())
+                .ok_or("must be in [0, 0.4999]")
         })?;
         let density = p.float(ATTR_DENSITY, defaults::DENSITY, |x| {
-            (1.0..=1e5).contains(&x).then_some(()).ok_or("must be in [1, 1e5] kg/m^3")
+            (1.0..=1e5)
+                .contains(&x)
+                .then_some(())
+                .ok_or("must be in [1, 1e5] kg/m^3")
         })?;
         let friction = p.float(ATTR_FRICTION, defaults::FRICTION, |x| {
-            (0.0..=10.0).contains(&x).then_some(()).ok_or("must be in [0, 10]")
+            (0.0..=10.0)
+                .contains(&x)
+                .then_some(())
+                .ok_or("must be in [0, 10]")
         })?;
         let dx = match raw.get(ATTR_DX) {
             None => physics.default_dx(size[2]),
@@ -325,11 +355,22 @@ impl Parser<'_> {
     }
 
     fn physics(&self) -> Result<Physics, ConfigError> {
-        let value = self.raw.get(ATTR_PHYSICS).unwrap_or(defaults::PHYSICS).trim();
-        Physics::ALL.iter().find(|(n, _)| *n == value).map(|(_, p)| *p).ok_or_else(|| {
-            let valid: Vec<_> = Physics::ALL.iter().map(|(n, _)| *n).collect();
-            self.error(ATTR_PHYSICS, format!("unknown physics; valid values: {}", valid.join(", ")))
-        })
+        let value = self
+            .raw
+            .get(ATTR_PHYSICS)
+            .unwrap_or(defaults::PHYSICS)
+            .trim();
+        Physics::ALL
+            .iter()
+            .find(|(n, _)| *n == value)
+            .map(|(_, p)| *p)
+            .ok_or_else(|| {
+                let valid: Vec<_> = Physics::ALL.iter().map(|(n, _)| *n).collect();
+                self.error(
+                    ATTR_PHYSICS,
+                    format!("unknown physics; valid values: {}", valid.join(", ")),
+                )
+            })
     }
 
     fn outputs(&self) -> Result<Vec<Output>, ConfigError> {
@@ -337,14 +378,19 @@ impl Parser<'_> {
         let valid: Vec<_> = Output::ALL.iter().map(|(n, _)| *n).collect();
         let mut outputs = Vec::new();
         for word in value.split_whitespace() {
-            let out = Output::ALL.iter().find(|(n, _)| *n == word).map(|(_, o)| *o).ok_or_else(
-                || {
+            let out = Output::ALL
+                .iter()
+                .find(|(n, _)| *n == word)
+                .map(|(_, o)| *o)
+                .ok_or_else(|| {
                     self.error(
                         ATTR_OUTPUTS,
-                        format!("unknown output '{word}'; valid values: {}", valid.join(", ")),
+                        format!(
+                            "unknown output '{word}'; valid values: {}",
+                            valid.join(", ")
+                        ),
                     )
-                },
-            )?;
+                })?;
             if outputs.contains(&out) {
                 return Err(self.error(ATTR_OUTPUTS, format!("output '{word}' listed twice")));
             }
@@ -387,7 +433,10 @@ impl Parser<'_> {
         if !(fov[0] > 0.0 && fov[1] > 0.0 && fov[0] <= size[0] && fov[1] <= size[1]) {
             return Err(self.error(
                 ATTR_FOV,
-                format!("must be positive and within the gel size ({} x {} m)", size[0], size[1]),
+                format!(
+                    "must be positive and within the gel size ({} x {} m)",
+                    size[0], size[1]
+                ),
             ));
         }
         Ok(fov)
@@ -415,10 +464,17 @@ impl Parser<'_> {
         default: f64,
         check: impl Fn(f64) -> Result<(), &'static str>,
     ) -> Result<f64, ConfigError> {
-        self.floats::<1>(attribute, [default], |v| check(v[0])).map(|v| v[0])
+        self.floats::<1>(attribute, [default], |v| check(v[0]))
+            .map(|v| v[0])
     }
 
-    fn int(&self, attribute: &str, default: usize, lo: usize, hi: usize) -> Result<usize, ConfigError> {
+    fn int(
+        &self,
+        attribute: &str,
+        default: usize,
+        lo: usize,
+        hi: usize,
+    ) -> Result<usize, ConfigError> {
         let Some(text) = self.raw.get(attribute) else {
             return Ok(default);
         };
@@ -442,7 +498,9 @@ mod tests {
     use super::*;
 
     fn parse(pairs: &[(&str, &str)]) -> Result<Config, ConfigError> {
-        let raw = pairs.iter().fold(RawConfig::default(), |r, (a, v)| r.with(a, v));
+        let raw = pairs
+            .iter()
+            .fold(RawConfig::default(), |r, (a, v)| r.with(a, v));
         Config::from_raw("touch", &raw)
     }
 
@@ -483,7 +541,10 @@ mod tests {
             (ATTR_THREADS, "2"),
         ])
         .unwrap();
-        assert_eq!(c.outputs, vec![Output::Force, Output::Depth, Output::Contact]);
+        assert_eq!(
+            c.outputs,
+            vec![Output::Force, Output::Depth, Output::Contact]
+        );
         assert_eq!(c.sensordata_len(), 3 + 2 * 64 * 48);
         assert_eq!(c.fov, [0.02, 0.02]);
         assert_eq!(c.indenters, vec!["ball".to_owned(), "finger".to_owned()]);
@@ -496,7 +557,11 @@ mod tests {
         let coarse = parse(&[(ATTR_PHYSICS, "coarse")]).unwrap().dx.unwrap();
         let fine = parse(&[(ATTR_PHYSICS, "fine")]).unwrap().dx.unwrap();
         let particles = |dx: f64| 8.0 * (0.03 / dx) * (0.03 / dx) * (0.004 / dx);
-        assert!((5e3..3e4).contains(&particles(coarse)), "{}", particles(coarse));
+        assert!(
+            (5e3..3e4).contains(&particles(coarse)),
+            "{}",
+            particles(coarse)
+        );
         assert!((5e5..2e6).contains(&particles(fine)), "{}", particles(fine));
     }
 
@@ -562,7 +627,11 @@ mod tests {
 
     #[test]
     fn fine_dx_refuses_absurd_grids() {
-        let e = err(&[(ATTR_PHYSICS, "fine"), (ATTR_SIZE, "1 1 0.004"), (ATTR_DX, "0.0001")]);
+        let e = err(&[
+            (ATTR_PHYSICS, "fine"),
+            (ATTR_SIZE, "1 1 0.004"),
+            (ATTR_DX, "0.0001"),
+        ]);
         assert_eq!(e.attribute, ATTR_DX);
     }
 }

@@ -8,5 +8,6 @@
 
 pub mod config;
 pub mod geometry;
+pub mod mpm;
 pub mod mujoco;
 pub mod sensor;

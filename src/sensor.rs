@@ -10,13 +10,13 @@ use nalgebra::Vector3;
 
 use crate::config::{Config, Output, Physics};
 use crate::geometry::{Aabb, PixelGrid, Placed};
+use crate::mpm::{Gel, GelParams, Material, SolveReport, SolverOptions};
 
 /// Failure to build a sensor from a valid configuration.
 #[derive(Debug, thiserror::Error)]
 pub enum SensorError {
     /// The gel simulation refused its parameters.
     #[error("tacrom.tactile sensor '{sensor}': {message}")]
-    #[allow(dead_code)]
     Physics {
         /// Sensor name.
         sensor: String,
@@ -41,6 +41,8 @@ pub struct StageTimes {
 pub struct Evaluation {
     /// Whether any indenter reached the gel.
     pub contact: bool,
+    /// The gel solver's report, when it ran.
+    pub solve: Option<SolveReport>,
     /// Stage timings.
     pub times: StageTimes,
     /// Messages for the user (the solver hit its iteration cap, ...).
@@ -52,6 +54,13 @@ pub struct Evaluation {
 enum GelModel {
     /// No gel state: the undeformed surface.
     Rigid,
+    /// An MPM gel, created on first contact (a scene that never touches costs nothing).
+    Mpm {
+        params: GelParams,
+        options: SolverOptions,
+        gel: Option<Box<Gel>>,
+        deformed: bool,
+    },
 }
 
 /// One tactile sensor's state in one simulation.
@@ -77,7 +86,33 @@ impl TactileSensor {
         };
         let gel = match (config.physics, config.dx) {
             (Physics::Rigid, _) | (_, None) => GelModel::Rigid,
-            (Physics::Coarse | Physics::Fine, Some(_)) => GelModel::Rigid,
+            (Physics::Coarse | Physics::Fine, Some(dx)) => {
+                let params = GelParams {
+                    size: config.size,
+                    young: config.young,
+                    poisson: config.poisson,
+                    density: config.density,
+                    friction: config.friction,
+                    dx,
+                    material: Material::FixedCorotated,
+                };
+                let options = SolverOptions {
+                    threads: config.threads,
+                    ..SolverOptions::default()
+                };
+                // Validate now, so a bad combination fails at model load; the gel itself is
+                // built on first contact.
+                Gel::validate(&params, &options).map_err(|e| SensorError::Physics {
+                    sensor: config.name.clone(),
+                    message: e.to_string(),
+                })?;
+                GelModel::Mpm {
+                    params,
+                    options,
+                    gel: None,
+                    deformed: false,
+                }
+            }
         };
         let pixels = config.pixels();
         Ok(Self {
@@ -112,6 +147,15 @@ impl TactileSensor {
 
     /// Back to the undeformed gel.
     pub fn reset(&mut self) {
+        if let GelModel::Mpm {
+            gel: Some(gel),
+            deformed,
+            ..
+        } = &mut self.gel
+        {
+            gel.reset();
+            *deformed = false;
+        }
         self.depth.fill(0.0);
         self.force = Vector3::zeros();
     }
@@ -119,7 +163,10 @@ impl TactileSensor {
     /// The gel's bounding box in the sensor frame.
     pub fn gel_box(&self) -> Aabb {
         let [lx, ly, t] = self.config.size;
-        Aabb::new([-0.5 * lx, -0.5 * ly, -t].into(), [0.5 * lx, 0.5 * ly, 0.0].into())
+        Aabb::new(
+            [-0.5 * lx, -0.5 * ly, -t].into(),
+            [0.5 * lx, 0.5 * ly, 0.0].into(),
+        )
     }
 
     /// Evaluates the sensor for `indenters` (posed in the sensor frame) and writes the
@@ -129,11 +176,17 @@ impl TactileSensor {
         let mut eval = Evaluation::default();
         let t0 = Instant::now();
         let gel_box = self.gel_box();
-        let touching: Vec<Placed> =
-            indenters.iter().filter(|p| p.aabb().intersects(&gel_box)).cloned().collect();
+        let touching: Vec<Placed> = indenters
+            .iter()
+            .filter(|p| p.aabb().intersects(&gel_box))
+            .cloned()
+            .collect();
         eval.contact = !touching.is_empty();
 
-        let mpm_idle = true;
+        let mpm_idle = match &self.gel {
+            GelModel::Rigid => true,
+            GelModel::Mpm { deformed, .. } => !deformed,
+        };
         if !eval.contact && mpm_idle {
             // No contact and a flat gel: zeros, nothing else.
             self.depth.fill(0.0);
@@ -155,9 +208,69 @@ impl TactileSensor {
         match &mut self.gel {
             GelModel::Rigid => {
                 for (d, &z) in self.depth.iter_mut().zip(&self.zmin) {
-                    *d = if z.is_finite() { (-z).clamp(0.0, t) } else { 0.0 };
+                    *d = if z.is_finite() {
+                        (-z).clamp(0.0, t)
+                    } else {
+                        0.0
+                    };
                 }
                 self.force = Vector3::zeros();
+            }
+            GelModel::Mpm {
+                params,
+                options,
+                gel,
+                deformed,
+            } => {
+                let gel = match gel {
+                    Some(g) => g,
+                    None => match Gel::new(params.clone(), options.clone()) {
+                        Ok(g) => gel.insert(Box::new(g)),
+                        Err(e) => {
+                            eval.warnings
+                                .push(format!("tacrom.tactile sensor '{}': {e}", self.config.name));
+                            out.fill(0.0);
+                            return eval;
+                        }
+                    },
+                };
+                if eval.contact {
+                    let report = gel.solve(&touching);
+                    if !report.converged {
+                        eval.warnings.push(format!(
+                            "tacrom.tactile sensor '{}': gel did not reach equilibrium in {} \
+                             iterations (residual {:.3e})",
+                            self.config.name, report.iterations, report.residual
+                        ));
+                    }
+                    if report.nonfinite_recovered {
+                        eval.warnings.push(format!(
+                            "tacrom.tactile sensor '{}': non-finite values in the gel; state \
+                             recovered",
+                            self.config.name
+                        ));
+                    }
+                    eval.solve = Some(report);
+                    *deformed = true;
+                } else {
+                    // With nothing pressing, the equilibrium is the flat gel.
+                    gel.reset();
+                    *deformed = false;
+                }
+                gel.surface_depth(&self.grid, &mut self.depth);
+                for (d, &z) in self.depth.iter_mut().zip(&self.zmin) {
+                    let rigid = if z.is_finite() { -z } else { 0.0 };
+                    let v = if d.is_finite() { d.max(rigid) } else { rigid };
+                    *d = v.clamp(0.0, t);
+                }
+                self.force = if self.config.wants(Output::Force) {
+                    gel.force()
+                } else {
+                    Vector3::zeros()
+                };
+                if !self.force.iter().all(|f| f.is_finite()) {
+                    self.force = Vector3::zeros();
+                }
             }
         }
         let t2 = Instant::now();

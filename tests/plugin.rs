@@ -50,7 +50,10 @@ fn sphere_press_gives_the_spherical_cap() {
             worst = worst.max((img[row * W + col] - expect).abs());
         }
     }
-    assert!(worst < 1e-9, "max deviation from the spherical cap {worst:e} m");
+    assert!(
+        worst < 1e-9,
+        "max deviation from the spherical cap {worst:e} m"
+    );
 
     // Centre: the four pixels around the origin are within 1 um of the press depth.
     let centre = img[(H / 2) * W + W / 2];
@@ -61,7 +64,10 @@ fn sphere_press_gives_the_spherical_cap() {
     let area = img.iter().filter(|&&v| v > 0.0).count() as f64 * px * px;
     let radius = (area / std::f64::consts::PI).sqrt();
     let expect = (2.0 * R * depth - depth * depth).sqrt();
-    assert!((radius - expect).abs() < px, "contact radius {radius} vs {expect}");
+    assert!(
+        (radius - expect).abs() < px,
+        "contact radius {radius} vs {expect}"
+    );
 }
 
 #[test]
@@ -69,7 +75,10 @@ fn depth_is_zero_before_contact_and_grows_with_press() {
     let m = sphere_model(&[]);
     let mut d = m.make_data();
     let mut last = -1.0;
-    for (i, press) in [-0.5e-3, 0.0, 0.1e-3, 0.3e-3, 0.6e-3, 1.0e-3].into_iter().enumerate() {
+    for (i, press) in [-0.5e-3, 0.0, 0.1e-3, 0.3e-3, 0.6e-3, 1.0e-3]
+        .into_iter()
+        .enumerate()
+    {
         d.set_qpos(0, press);
         d.forward(&m);
         let max = d.sensor(&m, 0).into_iter().fold(0.0, f64::max);
@@ -96,8 +105,10 @@ fn image_orientation_row0_is_plus_y_col0_is_minus_x() {
     d.set_qpos(0, 0.2e-3);
     d.forward(&m);
     let img = d.sensor(&m, 0);
-    let hits: Vec<(usize, usize)> =
-        (0..H * W).filter(|&i| img[i] > 0.0).map(|i| (i / W, i % W)).collect();
+    let hits: Vec<(usize, usize)> = (0..H * W)
+        .filter(|&i| img[i] > 0.0)
+        .map(|i| (i / W, i % W))
+        .collect();
     assert!(!hits.is_empty());
     for &(row, col) in &hits {
         let (x, y) = pixel_centre(row, col);
@@ -185,7 +196,9 @@ fn bad_configuration_fails_at_load_naming_the_attribute() {
     ];
     for (key, value) in cases {
         let xml = press_scene(&config(&[(key, value)]), &sphere_body(R));
-        let err = load_xml(&xml).err().unwrap_or_else(|| panic!("{key}={value} accepted"));
+        let err = load_xml(&xml)
+            .err()
+            .unwrap_or_else(|| panic!("{key}={value} accepted"));
         assert!(err.contains(&format!("'{key}'")), "{key}={value}: {err}");
         assert!(err.contains("'touch'"), "{key}={value}: {err}");
         assert!(err.contains(value), "{key}={value}: {err}");
@@ -194,9 +207,13 @@ fn bad_configuration_fails_at_load_naming_the_attribute() {
 
 #[test]
 fn sensor_not_on_a_site_is_refused() {
-    let xml = press_scene("", &sphere_body(R))
-        .replace(r#"objtype="site" objname="gel""#, r#"objtype="body" objname="sensor""#);
-    let err = load_xml(&xml).err().expect("a body-attached sensor must be refused");
+    let xml = press_scene("", &sphere_body(R)).replace(
+        r#"objtype="site" objname="gel""#,
+        r#"objtype="body" objname="sensor""#,
+    );
+    let err = load_xml(&xml)
+        .err()
+        .expect("a body-attached sensor must be refused");
     assert!(err.contains("site"), "{err}");
 }
 
@@ -233,11 +250,15 @@ fn mesh_indenter_matches_the_same_primitive() {
       {geom}
     </body>"#
         );
-        press_scene(&config(&[("physics", "rigid")]), &body)
-            .replace("<asset></asset>", &format!(r#"<asset><mesh name="boxmesh" vertex="{verts}"/></asset>"#))
+        press_scene(&config(&[("physics", "rigid")]), &body).replace(
+            "<asset></asset>",
+            &format!(r#"<asset><mesh name="boxmesh" vertex="{verts}"/></asset>"#),
+        )
     };
-    let mesh = load_xml(&scene(r#"<geom type="mesh" mesh="boxmesh" contype="0" conaffinity="0"/>"#.into()))
-        .expect("mesh model");
+    let mesh = load_xml(&scene(
+        r#"<geom type="mesh" mesh="boxmesh" contype="0" conaffinity="0"/>"#.into(),
+    ))
+    .expect("mesh model");
     let prim = load_xml(&scene(format!(
         r#"<geom type="box" size="{a} {b} {c}" contype="0" conaffinity="0"/>"#
     )))
@@ -253,8 +274,15 @@ fn mesh_indenter_matches_the_same_primitive() {
     assert!(touched > 300, "the tilted box must touch: {touched} pixels");
     // Pixel centres exactly on an edge may fall either way; everything else agrees to
     // rounding.
-    let differ = im_mesh.iter().zip(&im_prim).filter(|(x, y)| (*x - *y).abs() > 1e-9).count();
-    assert!(differ * 100 < touched, "{differ} of {touched} pixels differ");
+    let differ = im_mesh
+        .iter()
+        .zip(&im_prim)
+        .filter(|(x, y)| (*x - *y).abs() > 1e-9)
+        .count();
+    assert!(
+        differ * 100 < touched,
+        "{differ} of {touched} pixels differ"
+    );
     let worst_inside = im_mesh
         .iter()
         .zip(&im_prim)
@@ -279,7 +307,10 @@ fn pattern_meshes_render_within_bounds() {
     </body>"#;
         let xml = press_scene(&config(&[("physics", "rigid")]), body).replace(
             "<asset></asset>",
-            &format!(r#"<asset><mesh name="pattern" file="{}" scale="0.001 0.001 0.001"/></asset>"#, file.display()),
+            &format!(
+                r#"<asset><mesh name="pattern" file="{}" scale="0.001 0.001 0.001"/></asset>"#,
+                file.display()
+            ),
         );
         let m = load_xml(&xml).unwrap_or_else(|e| panic!("{name}: {e}"));
         let mut d = m.make_data();
@@ -288,12 +319,71 @@ fn pattern_meshes_render_within_bounds() {
             d.set_qpos(0, press);
             d.forward(&m);
             let img = d.sensor(&m, 0);
-            assert!(img.iter().all(|v| v.is_finite() && (0.0..=0.004).contains(v)), "{name}");
+            assert!(
+                img.iter()
+                    .all(|v| v.is_finite() && (0.0..=0.004).contains(v)),
+                "{name}"
+            );
             let max = img.iter().cloned().fold(0.0, f64::max);
             assert!(max >= peak, "{name}: depth must grow with the press");
-            assert!(press > 0.0 || max < 1e-8, "{name}: touching is not pressing ({max})");
+            assert!(
+                press > 0.0 || max < 1e-8,
+                "{name}: touching is not pressing ({max})"
+            );
             peak = max;
         }
-        assert_eq!(peak, 0.004, "{name}: a press through the gel saturates at T");
+        assert_eq!(
+            peak, 0.004,
+            "{name}: a press through the gel saturates at T"
+        );
     }
+}
+
+/// The coarse MPM gel through the plugin: the depth image grows with the press, is never
+/// shallower than the rigid penetration where the sphere touches, sags around the contact
+/// (depth outside the rigid footprint), reports a repulsive force, and relaxes flat again.
+#[test]
+fn coarse_gel_press_and_release() {
+    let m = load_xml(&press_scene(
+        &config(&[
+            ("physics", "coarse"),
+            ("outputs", "depth force contact"),
+            ("resolution", "96 72"),
+        ]),
+        &sphere_body(R),
+    ))
+    .expect("model loads");
+    let n = 96 * 72;
+    let mut d = m.make_data();
+    let mut last_fz = 0.0;
+    for press in [0.2e-3, 0.4e-3] {
+        d.set_qpos(0, press);
+        d.forward(&m);
+        let v = d.sensor(&m, 0);
+        let (depth, rest) = v.split_at(n);
+        let (force, contact) = rest.split_at(3);
+        assert!(v.iter().all(|x| x.is_finite()));
+        assert!(depth.iter().all(|&x| (0.0..=0.004).contains(&x)));
+        let peak = depth.iter().cloned().fold(0.0, f64::max);
+        assert!(
+            (peak - press).abs() < 0.05e-3,
+            "peak {peak} at press {press}"
+        );
+        let sag = depth
+            .iter()
+            .zip(contact)
+            .filter(|(x, c)| **c == 0.0 && **x > 1e-6)
+            .count();
+        assert!(sag > 0, "the gel must sag outside the contact");
+        // The gel pushes the sphere up (+z) with a force that grows with the press.
+        assert!(force[2] > last_fz, "fz {} after {last_fz}", force[2]);
+        assert!(force[0].abs() < 0.05 * force[2] && force[1].abs() < 0.05 * force[2]);
+        last_fz = force[2];
+    }
+    d.set_qpos(0, -1e-3);
+    d.forward(&m);
+    assert!(
+        d.sensor(&m, 0).iter().all(|&x| x == 0.0),
+        "released gel must be flat"
+    );
 }

@@ -869,11 +869,21 @@ mod tests {
     /// Rigid rendering rasterises the triangles: it must not build the distance grid.
     #[test]
     fn lower_surface_does_not_build_the_distance_grid() {
-        let mesh = TriMesh::from_file(pattern("hexagon.stl"), 1e-3)
-            .expect("hexagon loads");
-        let grid = PixelGrid { width: 32, height: 24, fov_x: 0.024, fov_y: 0.018 };
+        let mesh = TriMesh::from_file(pattern("hexagon.stl"), 1e-3).expect("hexagon loads");
+        let grid = PixelGrid {
+            width: 32,
+            height: 24,
+            fov_x: 0.024,
+            fov_y: 0.018,
+        };
         let mut zmin = vec![f64::INFINITY; 32 * 24];
-        mesh.lower_surface(&Isometry3::translation(0.0, 0.0, -0.001), &grid, -0.004, 0.0, &mut zmin);
+        mesh.lower_surface(
+            &Isometry3::translation(0.0, 0.0, -0.001),
+            &grid,
+            -0.004,
+            0.0,
+            &mut zmin,
+        );
         assert!(zmin.iter().any(|z| z.is_finite()));
         assert!(!mesh.grid_is_built());
         let _ = mesh.distance(&Point3::origin());

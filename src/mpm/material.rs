@@ -124,13 +124,29 @@ mod tests {
     // Both models are stress free at rest and agree to first order (same mu, lambda).
     #[test]
     fn models_agree_for_small_strain() {
-        let co = FixedCorotatedModel { mu: 0.3, lambda: 0.4 };
-        let nh = NeoHookeanModel { mu: 0.3, lambda: 0.4 };
+        let co = FixedCorotatedModel {
+            mu: 0.3,
+            lambda: 0.4,
+        };
+        let nh = NeoHookeanModel {
+            mu: 0.3,
+            lambda: 0.4,
+        };
         let i = Matrix3::identity();
         assert!(co.kirchhoff(&i, 1.0, &i).norm() < 1e-7);
         assert!(nh.kirchhoff(&i, 1.0, &i).norm() < 1e-7);
         let e = 1e-3f32;
-        let f = Matrix3::new(1.0 + e, 0.5 * e, 0.0, 0.5 * e, 1.0, 0.0, 0.0, 0.0, 1.0 - 0.3 * e);
+        let f = Matrix3::new(
+            1.0 + e,
+            0.5 * e,
+            0.0,
+            0.5 * e,
+            1.0,
+            0.0,
+            0.0,
+            0.0,
+            1.0 - 0.3 * e,
+        );
         let mut q = UnitQuaternion::identity();
         extract_rotation(&f, &mut q, 20);
         let r = *q.to_rotation_matrix().matrix();

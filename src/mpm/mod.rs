@@ -38,9 +38,11 @@
 //! critical). Every mode then decays at least like `exp(-omega_1 t)`. Each solve starts
 //! from the previous equilibrium (warm start) with zero velocity. It stops when the
 //! largest out-of-balance nodal force (stress plus contact force left after the
-//! constraints, plus the damping force) divided by the largest nodal reaction (bonded and
-//! contact nodes; at least `1e-4 mu' dx^2`, i.e. a strain of `1e-4`) is below
-//! [`SolverOptions::tolerance`], or after [`SolverOptions::max_iterations`] steps.
+//! constraints, plus the damping force) divided by the force scale is below
+//! [`SolverOptions::tolerance`], or after [`SolverOptions::max_iterations`] steps. The
+//! force scale is the largest nodal reaction (bonded and contact nodes) of this step or of
+//! the previous equilibrium (so that unloading is measured against the load it releases),
+//! and at least `1e-4 mu dx^2` (a strain of `1e-4`).
 //!
 //! Near incompressibility (Poisson 0.49, 0.499): volumetric locking comes from imposing the
 //! volume constraint at every particle (8 per cell) with about 3 velocity unknowns per
@@ -74,7 +76,11 @@
 //! A non-finite value in any particle after a step is recorded
 //! ([`SolveReport::nonfinite_recovered`]) and the gel is restored to its state at the start
 //! of the solve (the previous good equilibrium; if that is itself bad, the undeformed gel).
-//! Indenters with non-finite poses are skipped. Particles are clamped inside the grid.
+//! Indenters with non-finite poses are skipped. Particles are clamped inside the grid and
+//! `det F` to `[J_MIN, J_MAX]` (by a uniform scaling of `F`, which forgets that part of the
+//! deformation); a solve that ends with a particle at a clamp (an indenter driven through
+//! the gel) makes the next solve start from the undeformed gel
+//! ([`SolveReport::restarted`]).
 
 mod material;
 mod surface;
@@ -88,7 +94,7 @@ use std::sync::Arc;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
-use crate::geometry::{Aabb, Placed, PixelGrid, Sdf};
+use crate::geometry::{Aabb, PixelGrid, Placed, Sdf};
 
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 use transfer::{ChunkStats, ColumnContact, LayerStats, Node, P2gInput, Particle, StepCtx};
@@ -173,7 +179,15 @@ pub struct SolverOptions {
 
 impl Default for SolverOptions {
     fn default() -> Self {
-        Self { tolerance: 1e-3, max_iterations: 3000, threads: 1, cfl: 0.5, damping: 1.0, sweep_rate: 0.1, fbar: true }
+        Self {
+            tolerance: 1e-3,
+            max_iterations: 3000,
+            threads: 1,
+            cfl: 0.5,
+            damping: 1.0,
+            sweep_rate: 0.1,
+            fbar: true,
+        }
     }
 }
 
@@ -214,6 +228,9 @@ pub struct SolveReport {
     pub sweep_steps: usize,
     /// Number of indenters used (finite poses).
     pub indenters: usize,
+    /// Whether the solve started from the undeformed gel because the previous one ended
+    /// with `det F` at a clamp (the elastic state is then no longer trustworthy).
+    pub restarted: bool,
 }
 
 /// An indenter during one step: pose now and one step earlier, bounding box of both.
@@ -238,11 +255,44 @@ struct Layout {
     spacing: [f64; 3],
 }
 
+/// The gel's own worker threads. Cloning a gel (for `mj_copyData`) gives the copy a pool
+/// of its own with the same number of threads.
+struct Pool {
+    pool: rayon::ThreadPool,
+    threads: usize,
+}
+
+impl Pool {
+    fn new(threads: usize) -> Result<Self, MpmError> {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .map_err(|e| MpmError::ThreadPool(e.to_string()))?;
+        Ok(Self { pool, threads })
+    }
+}
+
+impl Clone for Pool {
+    fn clone(&self) -> Self {
+        // The only failure is the OS refusing a thread; a panic here is caught at the FFI
+        // edge and reported as a failed copy.
+        Pool::new(self.threads).expect("cannot build the MPM thread pool for a copy")
+    }
+}
+
+impl std::ops::Deref for Pool {
+    type Target = rayon::ThreadPool;
+    fn deref(&self) -> &rayon::ThreadPool {
+        &self.pool
+    }
+}
+
 /// The gel: particles, grid, workspaces and the state carried between solves.
+#[derive(Clone)]
 pub struct Gel {
     params: GelParams,
     options: SolverOptions,
-    pool: rayon::ThreadPool,
+    pool: Pool,
     layout: Layout,
     ctx: StepCtx,
     /// Internal moduli (units of `M`).
@@ -278,6 +328,23 @@ pub struct Gel {
     surface_box: Option<[usize; 4]>,
     /// Whether the gel is undeformed and no indenter touched it in the last solve.
     resting: bool,
+    /// Largest nodal reaction (internal units) at the end of the previous solve.
+    last_reaction: f32,
+    /// Largest nodal reaction of the last step.
+    reaction: f32,
+    /// Whether the last solve ended with `det F` at a clamp.
+    clamped: bool,
+}
+
+impl std::fmt::Debug for Gel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Gel")
+            .field("params", &self.params)
+            .field("options", &self.options)
+            .field("particles", &self.particles.len())
+            .field("grid_dims", &self.layout.dims)
+            .finish_non_exhaustive()
+    }
 }
 
 const _: fn() = || {
@@ -289,50 +356,145 @@ fn check(name: &'static str, value: f64, ok: bool, reason: &'static str) -> Resu
     if ok && value.is_finite() {
         Ok(())
     } else {
-        Err(MpmError::InvalidParameter { name, value, reason })
+        Err(MpmError::InvalidParameter {
+            name,
+            value,
+            reason,
+        })
     }
 }
 
 impl Gel {
-    /// Builds the undeformed gel after validating `params` and `options`.
-    pub fn new(params: GelParams, options: SolverOptions) -> Result<Gel, MpmError> {
+    /// Checks `params` and `options` without building anything (cheap: a sensor calls it
+    /// at model load and builds the gel on first contact).
+    pub fn validate(params: &GelParams, options: &SolverOptions) -> Result<(), MpmError> {
         for (k, &l) in params.size.iter().enumerate() {
             let name = ["size[0]", "size[1]", "size[2]"][k];
             check(name, l, l > 0.0, "must be positive")?;
         }
-        check("young", params.young, params.young > 0.0, "must be positive")?;
-        check("poisson", params.poisson, params.poisson > -1.0 && params.poisson < 0.5, "must lie in (-1, 0.5)")?;
-        check("density", params.density, params.density > 0.0, "must be positive")?;
-        check("friction", params.friction, params.friction >= 0.0, "must be non-negative")?;
+        check(
+            "young",
+            params.young,
+            params.young > 0.0,
+            "must be positive",
+        )?;
+        check(
+            "poisson",
+            params.poisson,
+            params.poisson > -1.0 && params.poisson < 0.5,
+            "must lie in (-1, 0.5)",
+        )?;
+        check(
+            "density",
+            params.density,
+            params.density > 0.0,
+            "must be positive",
+        )?;
+        check(
+            "friction",
+            params.friction,
+            params.friction >= 0.0,
+            "must be non-negative",
+        )?;
         check("dx", params.dx, params.dx > 0.0, "must be positive")?;
         let min_size = params.size.iter().cloned().fold(f64::INFINITY, f64::min);
-        check("dx", params.dx, params.dx <= 2.0 * min_size, "must not exceed twice the smallest gel dimension")?;
-        check("tolerance", options.tolerance, options.tolerance > 0.0, "must be positive")?;
-        check("max_iterations", options.max_iterations as f64, options.max_iterations > 0, "must be positive")?;
-        check("threads", options.threads as f64, options.threads > 0, "must be positive")?;
-        check("cfl", options.cfl, options.cfl > 0.0 && options.cfl < 1.0, "must lie in (0, 1)")?;
-        check("damping", options.damping, options.damping > 0.0, "must be positive")?;
-        check("sweep_rate", options.sweep_rate, options.sweep_rate > 0.0, "must be positive")?;
+        check(
+            "dx",
+            params.dx,
+            params.dx <= 2.0 * min_size,
+            "must not exceed twice the smallest gel dimension",
+        )?;
+        check(
+            "tolerance",
+            options.tolerance,
+            options.tolerance > 0.0,
+            "must be positive",
+        )?;
+        check(
+            "max_iterations",
+            options.max_iterations as f64,
+            options.max_iterations > 0,
+            "must be positive",
+        )?;
+        check(
+            "threads",
+            options.threads as f64,
+            options.threads > 0,
+            "must be positive",
+        )?;
+        check(
+            "cfl",
+            options.cfl,
+            options.cfl > 0.0 && options.cfl < 1.0,
+            "must lie in (0, 1)",
+        )?;
+        check(
+            "damping",
+            options.damping,
+            options.damping > 0.0,
+            "must be positive",
+        )?;
+        check(
+            "sweep_rate",
+            options.sweep_rate,
+            options.sweep_rate > 0.0,
+            "must be positive",
+        )?;
 
         let dx = params.dx;
-        let cells: [usize; 3] = std::array::from_fn(|k| ((params.size[k] / dx).round() as usize).max(1));
+        let count: f64 = params
+            .size
+            .iter()
+            .map(|&l| 2.0 * (l / dx).round().max(1.0))
+            .product();
+        check(
+            "dx",
+            dx,
+            count <= MAX_PARTICLES as f64,
+            "gives too many particles",
+        )?;
+        Ok(())
+    }
+
+    /// Builds the undeformed gel after validating `params` and `options`.
+    pub fn new(params: GelParams, options: SolverOptions) -> Result<Gel, MpmError> {
+        Self::validate(&params, &options)?;
+        let dx = params.dx;
+        let cells: [usize; 3] =
+            std::array::from_fn(|k| ((params.size[k] / dx).round() as usize).max(1));
         let lattice: [usize; 3] = std::array::from_fn(|k| 2 * cells[k]);
         let count = lattice.iter().map(|&n| n as f64).product::<f64>();
-        check("dx", dx, count <= MAX_PARTICLES as f64, "gives too many particles")?;
+        check(
+            "dx",
+            dx,
+            count <= MAX_PARTICLES as f64,
+            "gives too many particles",
+        )?;
         let spacing: [f64; 3] = std::array::from_fn(|k| params.size[k] / lattice[k] as f64);
         let [lx, ly, t] = params.size;
         // Lateral node counts are odd and the grid is centred on the gel, so the discrete
         // problem is mirror symmetric in x and y; a node plane lies on the bonded face.
         let half_span = |l: f64| (0.5 * l / dx).ceil() as usize + PAD;
         let (hx, hy) = (half_span(lx), half_span(ly));
-        let dims = [2 * hx + 1, 2 * hy + 1, PAD_BOTTOM + (t / dx).ceil() as usize + PAD + 1];
-        let origin = Vector3::new(-(hx as f64) * dx, -(hy as f64) * dx, -t - PAD_BOTTOM as f64 * dx);
-        let layout = Layout { dx, origin, dims, lattice, spacing };
+        let dims = [
+            2 * hx + 1,
+            2 * hy + 1,
+            PAD_BOTTOM + (t / dx).ceil() as usize + PAD + 1,
+        ];
+        let origin = Vector3::new(
+            -(hx as f64) * dx,
+            -(hy as f64) * dx,
+            -t - PAD_BOTTOM as f64 * dx,
+        );
+        let layout = Layout {
+            dx,
+            origin,
+            dims,
+            lattice,
+            spacing,
+        };
 
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(options.threads)
-            .build()
-            .map_err(|e| MpmError::ThreadPool(e.to_string()))?;
+        let pool = Pool::new(options.threads)?;
 
         // Lame parameters, then internal units (divided by M = lambda + 2 mu).
         let (e, nu) = (params.young, params.poisson);
@@ -357,7 +519,11 @@ impl Gel {
             damping: damping as f32,
             friction: params.friction as f32,
             fbar: options.fbar,
-            rot_iters: if params.material == Material::FixedCorotated { 2 } else { 0 },
+            rot_iters: if params.material == Material::FixedCorotated {
+                2
+            } else {
+                0
+            },
         };
 
         // Particles, x-major (ix outer, iz inner) so memory order follows the x bins.
@@ -416,6 +582,9 @@ impl Gel {
             surface_u: vec![Vector3::zeros(); top_len],
             surface_box: None,
             resting: true,
+            last_reaction: 0.0,
+            reaction: 0.0,
+            clamped: false,
         })
     }
 
@@ -444,9 +613,13 @@ impl Gel {
         self.particles.copy_from_slice(&self.rest);
         self.prev_poses.clear();
         self.force = Vector3::zeros();
-        self.surface_u.iter_mut().for_each(|u| *u = Vector3::zeros());
+        self.surface_u
+            .iter_mut()
+            .for_each(|u| *u = Vector3::zeros());
         self.surface_box = None;
         self.resting = true;
+        self.last_reaction = 0.0;
+        self.clamped = false;
     }
 
     /// Number of particles.
@@ -460,15 +633,16 @@ impl Gel {
         self.force
     }
 
-    /// Bytes held per particle (state, rest state, snapshot, sort and slot indices), not
+    /// Bytes held per particle (state, rest state, snapshot, sort index), not
     /// counting the grid.
     pub fn bytes_per_particle() -> usize {
-        3 * std::mem::size_of::<Particle>() + 2 * std::mem::size_of::<u32>()
+        3 * std::mem::size_of::<Particle>() + std::mem::size_of::<u32>()
     }
 
     /// Bytes held by the grid.
     pub fn grid_bytes(&self) -> usize {
-        self.grid.len() * std::mem::size_of::<Node>() + self.columns.len() * std::mem::size_of::<ColumnContact>()
+        self.grid.len() * std::mem::size_of::<Node>()
+            + self.columns.len() * std::mem::size_of::<ColumnContact>()
     }
 
     /// Brings the gel to static equilibrium under `indenters` (sensor frame), starting from
@@ -491,7 +665,10 @@ impl Gel {
             let b = p.aabb();
             b.min.z <= top_z + 2.0 * dx && b.max.z >= -self.params.size[2] - 2.0 * dx
         };
-        let touching = indenters.iter().zip(&current).any(|(p, c)| c.is_some() && reach(p));
+        let touching = indenters
+            .iter()
+            .zip(&current)
+            .any(|(p, c)| c.is_some() && reach(p));
         let mut report = SolveReport {
             iterations: 0,
             converged: true,
@@ -501,7 +678,14 @@ impl Gel {
             nonfinite_recovered: false,
             sweep_steps: 0,
             indenters: used,
+            restarted: false,
         };
+        if self.clamped {
+            // The last solve crushed or stretched some particles to the det F clamp, where
+            // the elastic memory is lost: start again from the undeformed gel.
+            self.reset();
+            report.restarted = true;
+        }
         if !touching && self.resting {
             self.prev_poses = current;
             self.force = Vector3::zeros();
@@ -519,7 +703,11 @@ impl Gel {
                     return Some(*prev);
                 }
                 let lift = top_z - p.aabb().min.z;
-                let lift = if lift.is_finite() { lift.clamp(0.0, self.params.size[2] + 4.0 * dx) } else { 0.0 };
+                let lift = if lift.is_finite() {
+                    lift.clamp(0.0, self.params.size[2] + 4.0 * dx)
+                } else {
+                    0.0
+                };
                 let mut s = cur;
                 s.translation.vector.z += lift;
                 Some(s)
@@ -550,7 +738,9 @@ impl Gel {
             p.v = Vector3::zeros();
             p.c = nalgebra::Matrix3::zeros();
         }
-        let interp = |a: &Isometry3<f64>, b: &Isometry3<f64>, s: f64| a.try_lerp_slerp(b, s, 1e-9).unwrap_or(*b);
+        let interp = |a: &Isometry3<f64>, b: &Isometry3<f64>, s: f64| {
+            a.try_lerp_slerp(b, s, 1e-9).unwrap_or(*b)
+        };
         let tol = self.options.tolerance;
         for it in 0..self.options.max_iterations {
             let s_now = ((it + 1) as f64 / sweep as f64).min(1.0);
@@ -564,16 +754,27 @@ impl Gel {
                     let b1 = p.shape.aabb().transformed(&before);
                     let bounds = Aabb::new(b0.min.inf(&b1.min), b0.max.sup(&b1.max))
                         .inflated((transfer::CONTACT_BAND as f64 + 1.0) * dx);
-                    self.step_ind.push(StepIndenter { shape: p.shape.clone(), now, before, bounds });
+                    self.step_ind.push(StepIndenter {
+                        shape: p.shape.clone(),
+                        now,
+                        before,
+                        bounds,
+                    });
                 }
             }
             let (residual, nonfinite, det_min, det_max) = match self.params.material {
                 Material::FixedCorotated => {
-                    let m = FixedCorotatedModel { mu: self.mu, lambda: self.lambda };
+                    let m = FixedCorotatedModel {
+                        mu: self.mu,
+                        lambda: self.lambda,
+                    };
                     self.step(&m)
                 }
                 Material::NeoHookean => {
-                    let m = NeoHookeanModel { mu: self.mu, lambda: self.lambda };
+                    let m = NeoHookeanModel {
+                        mu: self.mu,
+                        lambda: self.lambda,
+                    };
                     self.step(&m)
                 }
             };
@@ -599,11 +800,14 @@ impl Gel {
             report.det_f_max = hi;
             self.force = Vector3::zeros();
             self.prev_poses.clear();
+            self.last_reaction = 0.0;
         } else {
             self.prev_poses = current;
+            self.last_reaction = self.reaction;
         }
         self.update_surface();
         self.resting = !touching && self.surface_box.is_none();
+        self.clamped = report.det_f_min <= J_MIN * 1.01 || report.det_f_max >= J_MAX * 0.99;
         report
     }
 
@@ -626,10 +830,12 @@ impl Gel {
     }
 
     fn det_range(&self) -> (f64, f64) {
-        self.particles.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
-            let j = p.f.determinant() as f64;
-            (lo.min(j), hi.max(j))
-        })
+        self.particles
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                let j = p.f.determinant() as f64;
+                (lo.min(j), hi.max(j))
+            })
     }
 
     /// One MLS-MPM step: contact gaps of the top particles, bin, P2G, grid update, G2P.
@@ -655,38 +861,41 @@ impl Gel {
             mu,
             modulus,
             force,
+            last_reaction,
+            reaction: last_step_reaction,
             ..
         } = self;
         let layout = *layout;
         let ctx = *ctx;
         let half_top = *half_top;
         pool.install(|| {
-            let t0 = std::time::Instant::now();
-            let surf = SurfaceLattice { layout: &layout, half_top, particles, top, top_ref };
+            let surf = SurfaceLattice {
+                layout: &layout,
+                half_top,
+                particles,
+                top,
+                top_ref,
+            };
             surf.displacements(surf_cells);
             update_columns(&surf, surf_cells, step_ind, columns);
-            let t1 = std::time::Instant::now();
             transfer::bin_particles(particles, layout.dims[0], order, offsets, cursor);
-            let t2 = std::time::Instant::now();
-            let input = P2gInput { particles, order, offsets };
+            let input = P2gInput {
+                particles,
+                order,
+                offsets,
+            };
             transfer::particle_to_grid(&ctx, model, &input, grid);
-            let t3 = std::time::Instant::now();
             transfer::grid_update(&ctx, grid, columns, layer_stats);
-            let t4 = std::time::Instant::now();
             transfer::grid_to_particle(&ctx, grid, particles, chunk_stats);
-            let t5 = std::time::Instant::now();
-            if std::env::var("MPM_TIMING").is_ok() {
-                eprintln!("surf {:?} bin {:?} p2g {:?} grid {:?} g2p {:?}", t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4);
-            }
         });
         let mut residual = 0.0f32;
-        let mut reaction = 1e-4 * *mu;
+        let mut reaction = (1e-4 * *mu).max(*last_reaction);
         let mut f = [0.0f64; 3];
         for s in layer_stats.iter() {
             residual = residual.max(s.residual);
             reaction = reaction.max(s.reaction);
-            for k in 0..3 {
-                f[k] += s.force[k];
+            for (fk, sk) in f.iter_mut().zip(&s.force) {
+                *fk += sk;
             }
         }
         let scale = *modulus * layout.dx * layout.dx;
@@ -698,7 +907,13 @@ impl Gel {
             lo = lo.min(s.det_min);
             hi = hi.max(s.det_max);
         }
-        ((residual / reaction) as f64, nonfinite, lo as f64, hi as f64)
+        *last_step_reaction = layer_stats.iter().fold(0.0, |m, s| m.max(s.reaction));
+        (
+            (residual / reaction) as f64,
+            nonfinite,
+            lo as f64,
+            hi as f64,
+        )
     }
 
     /// Recomputes the top-surface displacement field and the box where it is non-zero.
@@ -710,10 +925,19 @@ impl Gel {
             let p = &self.particles[self.top[slot] as usize];
             let s = p.x + p.f.column(2) * self.half_top;
             let d = (s - self.top_ref[slot]).cast::<f64>() * dx;
-            *u = if d.iter().all(|v| v.is_finite()) { d } else { Vector3::zeros() };
+            *u = if d.iter().all(|v| v.is_finite()) {
+                d
+            } else {
+                Vector3::zeros()
+            };
             if u.amax() > DEPTH_EPS {
                 let (ix, iy) = (slot % nxp, slot / nxp);
-                bx = [bx[0].min(ix), bx[1].max(ix + 1), bx[2].min(iy), bx[3].max(iy + 1)];
+                bx = [
+                    bx[0].min(ix),
+                    bx[1].max(ix + 1),
+                    bx[2].min(iy),
+                    bx[3].max(iy + 1),
+                ];
             }
         }
         self.surface_box = (bx[0] != usize::MAX).then(|| [bx[0], bx[1], bx[2], bx[3]]);
@@ -760,7 +984,12 @@ impl SurfaceLattice<'_> {
 /// the curvature of the surface costs no bias), its signed distance to the nearest
 /// indenter, that indenter's normal and its displacement during the step. Only these
 /// columns query the SDFs.
-fn update_columns(surf: &SurfaceLattice<'_>, u: &[Vector3<f64>], indenters: &[StepIndenter], columns: &mut [ColumnContact]) {
+fn update_columns(
+    surf: &SurfaceLattice<'_>,
+    u: &[Vector3<f64>],
+    indenters: &[StepIndenter],
+    columns: &mut [ColumnContact],
+) {
     let layout = surf.layout;
     let [_, ny, _] = layout.dims;
     let [nxp, nyp, _] = layout.lattice;
@@ -770,60 +999,66 @@ fn update_columns(surf: &SurfaceLattice<'_>, u: &[Vector3<f64>], indenters: &[St
     let sx = layout.spacing[0] * inv_dx;
     let sy = layout.spacing[1] * inv_dx;
     let half = surf.half_top as f64;
-    columns.par_chunks_mut(ny).enumerate().for_each(|(ix, col)| {
-        for (iy, c) in col.iter_mut().enumerate() {
-            *c = ColumnContact::NONE;
-            let xs = layout.origin.x + ix as f64 * dx;
-            let ys = layout.origin.y + iy as f64 * dx;
-            let near = indenters.iter().any(|ind| {
-                let b = &ind.bounds;
-                xs >= b.min.x && xs <= b.max.x && ys >= b.min.y && ys <= b.max.y
-            });
-            if !near {
-                continue;
-            }
-            let (mut a, mut b) = ((ix as f64 - r0.x) / sx, (iy as f64 - r0.y) / sy);
-            for _ in 0..4 {
+    columns
+        .par_chunks_mut(ny)
+        .enumerate()
+        .for_each(|(ix, col)| {
+            for (iy, c) in col.iter_mut().enumerate() {
+                *c = ColumnContact::NONE;
+                let xs = layout.origin.x + ix as f64 * dx;
+                let ys = layout.origin.y + iy as f64 * dx;
+                let near = indenters.iter().any(|ind| {
+                    let b = &ind.bounds;
+                    xs >= b.min.x && xs <= b.max.x && ys >= b.min.y && ys <= b.max.y
+                });
+                if !near {
+                    continue;
+                }
+                let (mut a, mut b) = ((ix as f64 - r0.x) / sx, (iy as f64 - r0.y) / sy);
+                for _ in 0..4 {
+                    let d = surface::sample(u, nxp, nyp, a, b);
+                    a = (ix as f64 - d.x - r0.x) / sx;
+                    b = (iy as f64 - d.y - r0.y) / sy;
+                }
                 let d = surface::sample(u, nxp, nyp, a, b);
-                a = (ix as f64 - d.x - r0.x) / sx;
-                b = (iy as f64 - d.y - r0.y) / sy;
-            }
-            let d = surface::sample(u, nxp, nyp, a, b);
-            let zs = r0.z + d.z;
-            if !zs.is_finite() {
-                continue;
-            }
-            let s = Point3::new(xs, ys, layout.origin.z + zs * dx);
-            let mut best = f64::INFINITY;
-            for ind in indenters {
-                let bx = &ind.bounds;
-                if s.z < bx.min.z || s.z > bx.max.z {
+                let zs = r0.z + d.z;
+                if !zs.is_finite() {
                     continue;
                 }
-                let local = ind.now.inverse_transform_point(&s);
-                let dist = ind.shape.distance(&local);
-                if !(dist < best) || !dist.is_finite() {
-                    continue;
-                }
-                let n = ind.now.rotation * ind.shape.gradient(&local);
-                let disp = s - ind.before * local;
-                let g = (dist * inv_dx) as f32;
-                if g < transfer::CONTACT_BAND && n.iter().all(|v| v.is_finite()) && disp.iter().all(|v| v.is_finite()) {
-                    best = dist;
-                    // Nodes within the quadratic stencil (1.5 cells) of the top particle.
-                    let zp = zs - half;
-                    let lo = (zp - 1.5).ceil().max(0.0) as u32;
-                    let hi = (zp + 1.5).floor().max(0.0) as u32;
-                    *c = ColumnContact {
-                        active: true,
-                        g,
-                        n: n.cast::<f32>(),
-                        u: (disp * inv_dx).cast::<f32>(),
-                        iz_lo: lo,
-                        iz_hi: hi,
-                    };
+                let s = Point3::new(xs, ys, layout.origin.z + zs * dx);
+                let mut best = f64::INFINITY;
+                for ind in indenters {
+                    let bx = &ind.bounds;
+                    if s.z < bx.min.z || s.z > bx.max.z {
+                        continue;
+                    }
+                    let local = ind.now.inverse_transform_point(&s);
+                    let dist = ind.shape.distance(&local);
+                    if dist.is_nan() || dist >= best || !dist.is_finite() {
+                        continue;
+                    }
+                    let n = ind.now.rotation * ind.shape.gradient(&local);
+                    let disp = s - ind.before * local;
+                    let g = (dist * inv_dx) as f32;
+                    if g < transfer::CONTACT_BAND
+                        && n.iter().all(|v| v.is_finite())
+                        && disp.iter().all(|v| v.is_finite())
+                    {
+                        best = dist;
+                        // Nodes within the quadratic stencil (1.5 cells) of the top particle.
+                        let zp = zs - half;
+                        let lo = (zp - 1.5).ceil().max(0.0) as u32;
+                        let hi = (zp + 1.5).floor().max(0.0) as u32;
+                        *c = ColumnContact {
+                            active: true,
+                            g,
+                            n: n.cast::<f32>(),
+                            u: (disp * inv_dx).cast::<f32>(),
+                            iz_lo: lo,
+                            iz_hi: hi,
+                        };
+                    }
                 }
             }
-        }
-    });
+        });
 }

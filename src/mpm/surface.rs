@@ -56,7 +56,11 @@ pub(super) fn sample(u: &[Vector3<f64>], nx: usize, ny: usize, a: f64, b: f64) -
 /// See [`Gel::surface_depth`].
 pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
     let n = grid.width * grid.height;
-    assert!(out.len() >= n, "depth buffer holds {} values, the grid needs {n}", out.len());
+    assert!(
+        out.len() >= n,
+        "depth buffer holds {} values, the grid needs {n}",
+        out.len()
+    );
     let out = &mut out[..n];
     out.fill(0.0);
     let Some([ix0, ix1, iy0, iy1]) = gel.surface_box else {
@@ -69,7 +73,10 @@ pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
     let (x0, y0) = (-0.5 * lx + 0.5 * sx, -0.5 * ly + 0.5 * sy);
     // Lateral reach of the deformation: the box of moved lattice points, grown by the
     // bicubic stencil (2 spacings) and the largest lateral displacement.
-    let umax = gel.surface_u.iter().fold(0.0f64, |m, u| m.max(u.x.abs()).max(u.y.abs()));
+    let umax = gel
+        .surface_u
+        .iter()
+        .fold(0.0f64, |m, u| m.max(u.x.abs()).max(u.y.abs()));
     let xa = x0 + (ix0 as f64 - 2.0) * sx - umax;
     let xb = x0 + (ix1 as f64 + 1.0) * sx + umax;
     let ya = y0 + (iy0 as f64 - 2.0) * sy - umax;
@@ -92,7 +99,11 @@ pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
             }
             let d = sample(u, nx, ny, a, b);
             let depth = -d.z;
-            out[row * grid.width + col] = if depth.is_finite() { depth.clamp(0.0, t) } else { 0.0 };
+            out[row * grid.width + col] = if depth.is_finite() {
+                depth.clamp(0.0, t)
+            } else {
+                0.0
+            };
         }
     }
 }

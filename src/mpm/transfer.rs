@@ -96,7 +96,12 @@ pub(crate) struct Node {
 }
 
 impl Node {
-    pub const ZERO: Node = Node { m: 0.0, mv: Vector3::new(0.0, 0.0, 0.0), f: Vector3::new(0.0, 0.0, 0.0), mj: 0.0 };
+    pub const ZERO: Node = Node {
+        m: 0.0,
+        mv: Vector3::new(0.0, 0.0, 0.0),
+        f: Vector3::new(0.0, 0.0, 0.0),
+        mj: 0.0,
+    };
 }
 
 /// Contact state of one grid column `(ix, iy)`: the deformed top surface point above the
@@ -158,7 +163,11 @@ pub(crate) struct StepCtx {
 fn weights(x: f32) -> (usize, f32, [f32; 3]) {
     let base = (x - 0.5).max(0.0) as usize as f32;
     let fx = x - base;
-    let w = [0.5 * (1.5 - fx) * (1.5 - fx), 0.75 - (fx - 1.0) * (fx - 1.0), 0.5 * (fx - 0.5) * (fx - 0.5)];
+    let w = [
+        0.5 * (1.5 - fx) * (1.5 - fx),
+        0.75 - (fx - 1.0) * (fx - 1.0),
+        0.5 * (fx - 0.5) * (fx - 0.5),
+    ];
     (base.max(0.0) as usize, fx, w)
 }
 
@@ -170,7 +179,13 @@ fn base_x(x: f32) -> usize {
 
 /// Stable counting sort of particle indices by base x cell: afterwards the particles whose
 /// base is `bx` are `order[offsets[bx]..offsets[bx + 1]]`, in increasing index.
-pub(crate) fn bin_particles(particles: &[Particle], nx: usize, order: &mut Vec<u32>, offsets: &mut Vec<u32>, cursor: &mut Vec<u32>) {
+pub(crate) fn bin_particles(
+    particles: &[Particle],
+    nx: usize,
+    order: &mut Vec<u32>,
+    offsets: &mut Vec<u32>,
+    cursor: &mut Vec<u32>,
+) {
     offsets.clear();
     offsets.resize(nx + 1, 0);
     for p in particles {
@@ -200,32 +215,46 @@ pub(crate) struct P2gInput<'a> {
 /// colouring that makes this deterministic). Per particle, with `dt = 1` and
 /// `M_p^-1 = 4 / dx^2 = 4` (Hu et al. 2018, Eq. 29):
 /// `m_i += w m`, `(m v)_i += w m (v + C (x_i - x_p))`, `f_i -= w 4 V tau (x_i - x_p)`.
-pub(crate) fn particle_to_grid<M: ConstitutiveModel>(ctx: &StepCtx, model: &M, input: &P2gInput<'_>, grid: &mut [Node]) {
+pub(crate) fn particle_to_grid<M: ConstitutiveModel>(
+    ctx: &StepCtx,
+    model: &M,
+    input: &P2gInput<'_>,
+    grid: &mut [Node],
+) {
     let [_, ny, nz] = ctx.dims;
     let nyz = ny * nz;
     let nbx = input.offsets.len() - 1;
-    grid.par_chunks_mut(nyz * 8).for_each(|c| c.fill(Node::ZERO));
+    grid.par_chunks_mut(nyz * 8)
+        .for_each(|c| c.fill(Node::ZERO));
     for parity in 0..2 {
         let start = parity * BLOCK;
         if start * nyz >= grid.len() {
             continue;
         }
         let g = &mut grid[start * nyz..];
-        g.par_chunks_mut(2 * BLOCK * nyz).enumerate().for_each(|(k, gc)| {
-            let block = 2 * k + parity;
-            let layer0 = block * BLOCK;
-            let bx0 = layer0.min(nbx);
-            let bx1 = (layer0 + BLOCK).min(nbx);
-            let range = input.offsets[bx0] as usize..input.offsets[bx1] as usize;
-            for &pi in &input.order[range] {
-                scatter_particle(ctx, model, &input.particles[pi as usize], layer0, gc);
-            }
-        });
+        g.par_chunks_mut(2 * BLOCK * nyz)
+            .enumerate()
+            .for_each(|(k, gc)| {
+                let block = 2 * k + parity;
+                let layer0 = block * BLOCK;
+                let bx0 = layer0.min(nbx);
+                let bx1 = (layer0 + BLOCK).min(nbx);
+                let range = input.offsets[bx0] as usize..input.offsets[bx1] as usize;
+                for &pi in &input.order[range] {
+                    scatter_particle(ctx, model, &input.particles[pi as usize], layer0, gc);
+                }
+            });
     }
 }
 
 #[inline(always)]
-fn scatter_particle<M: ConstitutiveModel>(ctx: &StepCtx, model: &M, p: &Particle, layer0: usize, g: &mut [Node]) {
+fn scatter_particle<M: ConstitutiveModel>(
+    ctx: &StepCtx,
+    model: &M,
+    p: &Particle,
+    layer0: usize,
+    g: &mut [Node],
+) {
     let [_, ny, nz] = ctx.dims;
     let (bx, fx, wx) = weights(p.x.x);
     let (by, fy, wy) = weights(p.x.y);
@@ -233,7 +262,11 @@ fn scatter_particle<M: ConstitutiveModel>(ctx: &StepCtx, model: &M, p: &Particle
     let j = p.f.determinant();
     // Volume smoothing: the volumetric (pressure) term sees the kernel-smoothed J.
     let jb = if ctx.fbar { j * p.jr } else { j };
-    let r = if M::USES_ROTATION { *p.q.to_rotation_matrix().matrix() } else { Matrix3::identity() };
+    let r = if M::USES_ROTATION {
+        *p.q.to_rotation_matrix().matrix()
+    } else {
+        Matrix3::identity()
+    };
     let tau = model.kirchhoff(&p.f, jb, &r);
     let stress = tau * (-4.0 * ctx.pvol);
     let affine = p.c * ctx.pmass;
@@ -290,7 +323,12 @@ pub(crate) struct LayerStats {
 /// The out-of-balance force is `|m (v_bc - v_apic)| + c m |v_bc|`: the stress plus
 /// contact force left after the constraints, plus the damping force; both vanish at
 /// equilibrium. The contact impulse on the indenters is `m (v* - v_bc)`.
-pub(crate) fn grid_update(ctx: &StepCtx, grid: &mut [Node], columns: &[ColumnContact], stats: &mut Vec<LayerStats>) {
+pub(crate) fn grid_update(
+    ctx: &StepCtx,
+    grid: &mut [Node],
+    columns: &[ColumnContact],
+    stats: &mut Vec<LayerStats>,
+) {
     let [nx, ny, nz] = ctx.dims;
     let nyz = ny * nz;
     let c = ctx.damping;
@@ -301,7 +339,7 @@ pub(crate) fn grid_update(ctx: &StepCtx, grid: &mut [Node], columns: &[ColumnCon
         .map(|(ix, (g, cg))| {
             let mut st = LayerStats::default();
             let wall_x = ix == 0 || ix + 1 == nx;
-            for iy in 0..ny {
+            for (iy, col) in cg.iter().enumerate() {
                 let wall_y = wall_x || iy == 0 || iy + 1 == ny;
                 for iz in 0..nz {
                     let idx = iy * nz + iz;
@@ -321,12 +359,15 @@ pub(crate) fn grid_update(ctx: &StepCtx, grid: &mut [Node], columns: &[ColumnCon
                         continue;
                     }
                     let mut v = v_star;
-                    let col = &cg[iy];
                     if col.active && (col.iz_lo as usize..=col.iz_hi as usize).contains(&iz) {
                         let normal = col.n;
                         let gap = col.g;
                         let u = col.u;
-                        let bound = if gap >= 0.0 { -gap } else { (-PUSH_GAIN * gap).min(MAX_PUSH) };
+                        let bound = if gap >= 0.0 {
+                            -gap
+                        } else {
+                            (-PUSH_GAIN * gap).min(MAX_PUSH)
+                        };
                         let rel = v - u;
                         let vn = rel.dot(&normal);
                         if vn < bound {
@@ -369,14 +410,23 @@ pub(crate) struct ChunkStats {
 /// interior (`[1, n - 2]` cells, so the stencil never leaves the grid) and `det F` to
 /// `[J_MIN, J_MAX]` by a uniform scaling of `F`. The smoothed volume ratio `J_bar / J` of
 /// the F-bar scheme is gathered from the nodes' `J` here too.
-pub(crate) fn grid_to_particle(ctx: &StepCtx, grid: &[Node], particles: &mut [Particle], stats: &mut Vec<ChunkStats>) {
+pub(crate) fn grid_to_particle(
+    ctx: &StepCtx,
+    grid: &[Node],
+    particles: &mut [Particle],
+    stats: &mut Vec<ChunkStats>,
+) {
     let [nx, ny, nz] = ctx.dims;
     let hi = Vector3::new(nx as f32 - 2.0, ny as f32 - 2.0, nz as f32 - 2.0);
     let rot_iters = ctx.rot_iters;
     particles
         .par_chunks_mut(CHUNK)
         .map(|chunk| {
-            let mut st = ChunkStats { det_min: f32::INFINITY, det_max: f32::NEG_INFINITY, nonfinite: false };
+            let mut st = ChunkStats {
+                det_min: f32::INFINITY,
+                det_max: f32::NEG_INFINITY,
+                nonfinite: false,
+            };
             for p in chunk.iter_mut() {
                 let (bx, fx, wx) = weights(p.x.x);
                 let (by, fy, wy) = weights(p.x.y);
@@ -401,7 +451,11 @@ pub(crate) fn grid_to_particle(ctx: &StepCtx, grid: &[Node], particles: &mut [Pa
                     }
                 }
                 let j_old = p.f.determinant();
-                p.jr = if ctx.fbar { (jbar / j_old).clamp(0.25, 4.0) } else { 1.0 };
+                p.jr = if ctx.fbar {
+                    (jbar / j_old).clamp(0.25, 4.0)
+                } else {
+                    1.0
+                };
                 p.v = v;
                 p.c = b * 4.0;
                 p.x = (p.x + v).sup(&Vector3::repeat(1.0)).inf(&hi);

@@ -29,7 +29,8 @@ pub fn get_or_build(verts: &[f32], faces: &[i32]) -> Result<Arc<dyn Sdf>, String
         return Ok(mesh);
     }
     let mesh = Arc::new(
-        TriMesh::from_flat(verts, faces, 1.0, &MeshSdfOptions::default()).map_err(|e| e.to_string())?,
+        TriMesh::from_flat(verts, faces, 1.0, &MeshSdfOptions::default())
+            .map_err(|e| e.to_string())?,
     );
     if let Ok(mut cache) = CACHE.lock() {
         let map = cache.get_or_insert_with(HashMap::new);

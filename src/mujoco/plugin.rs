@@ -57,7 +57,9 @@ fn edge(msg: *mut c_char, len: c_int, f: impl FnOnce() -> Result<Option<String>,
 }
 
 fn write_msg(msg: *mut c_char, len: c_int, text: &str) {
-    let Ok(len) = usize::try_from(len) else { return };
+    let Ok(len) = usize::try_from(len) else {
+        return;
+    };
     if msg.is_null() || len == 0 {
         return;
     }
@@ -73,7 +75,11 @@ fn write_msg(msg: *mut c_char, len: c_int, text: &str) {
 /// Parses and validates the configuration of plugin `instance`, serving `sensor_id`.
 fn config_of(m: Model<'_>, instance: c_int, sensor_id: usize) -> Result<Config, String> {
     let name = m.sensor_name(sensor_id);
-    let name = if name.is_empty() { format!("#{sensor_id}") } else { name.to_owned() };
+    let name = if name.is_empty() {
+        format!("#{sensor_id}")
+    } else {
+        name.to_owned()
+    };
     let raw = RawConfig::collect(|a| m.plugin_config(instance, a));
     Config::from_raw(&name, &raw).map_err(|e| e.to_string())
 }
@@ -105,8 +111,10 @@ pub extern "C" fn tacrom_attributes(count: *mut c_int) -> *const *const c_char {
     unsafe impl Sync for Table {}
     static TABLE: OnceLock<Table> = OnceLock::new();
     let table = TABLE.get_or_init(|| {
-        let names: Vec<CString> =
-            ATTRIBUTES.iter().map(|a| CString::new(*a).expect("attribute names have no NUL")).collect();
+        let names: Vec<CString> = ATTRIBUTES
+            .iter()
+            .map(|a| CString::new(*a).expect("attribute names have no NUL"))
+            .collect();
         let ptrs = names.iter().map(|c| c.as_ptr()).collect();
         Table(names, ptrs)
     });
@@ -160,7 +168,12 @@ pub extern "C" fn tacrom_init(
 ) -> c_int {
     edge(msg, len, || {
         // SAFETY: MuJoCo passes valid model and data.
-        let (mr, dr) = unsafe { (m.as_ref().ok_or("null model")?, d.as_mut().ok_or("null data")?) };
+        let (mr, dr) = unsafe {
+            (
+                m.as_ref().ok_or("null model")?,
+                d.as_mut().ok_or("null data")?,
+            )
+        };
         let m = Model(mr);
         let sensor_id = m
             .sensor_of_instance(instance)
@@ -169,7 +182,13 @@ pub extern "C" fn tacrom_init(
         let site = site_of(m, sensor_id, &config)?;
         let (scene, warnings) = SceneSpec::build(m, site, &config)?;
         let sensor = TactileSensor::new(config).map_err(|e| e.to_string())?;
-        let state = Box::new(Instance { sensor_id, scene, sensor, placed: Vec::new(), warnings_given: 0 });
+        let state = Box::new(Instance {
+            sensor_id,
+            scene,
+            sensor,
+            placed: Vec::new(),
+            warnings_given: 0,
+        });
         let slot = plugin_slot(dr, instance)?;
         *slot = Box::into_raw(state) as usize;
         Ok((!warnings.is_empty()).then(|| warnings.join("; ")))
@@ -180,7 +199,9 @@ fn plugin_slot(d: &mut sys::mjData, instance: c_int) -> Result<&mut usize, Strin
     let i = usize::try_from(instance).map_err(|_| "bad plugin instance")?;
     let n = usize::try_from(d.nplugin).unwrap_or(0);
     if d.plugin_data.is_null() || i >= n {
-        return Err(format!("tacrom.tactile: plugin instance {instance} out of range"));
+        return Err(format!(
+            "tacrom.tactile: plugin instance {instance} out of range"
+        ));
     }
     // SAFETY: plugin_data has nplugin entries, i < nplugin.
     Ok(unsafe { &mut *d.plugin_data.add(i) })
@@ -203,7 +224,9 @@ unsafe fn instance_mut<'a>(d: *mut sys::mjData, instance: c_int) -> Option<&'a m
 pub extern "C" fn tacrom_destroy(d: *mut sys::mjData, instance: c_int) {
     let _ = catch_unwind(AssertUnwindSafe(|| {
         // SAFETY: MuJoCo passes valid data.
-        let Some(d) = (unsafe { d.as_mut() }) else { return };
+        let Some(d) = (unsafe { d.as_mut() }) else {
+            return;
+        };
         if let Ok(slot) = plugin_slot(d, instance) {
             let ptr = std::mem::replace(slot, 0) as *mut Instance;
             if !ptr.is_null() {
@@ -355,7 +378,11 @@ pub extern "C" fn tacrom_sensor_layout(
             return None;
         }
         let config = config_of(m, instance, sid).ok()?;
-        let mut v = vec![config.width as c_int, config.height as c_int, config.outputs.len() as c_int];
+        let mut v = vec![
+            config.width as c_int,
+            config.height as c_int,
+            config.outputs.len() as c_int,
+        ];
         let mut offset = 0;
         for o in &config.outputs {
             let len = o.len(config.pixels());

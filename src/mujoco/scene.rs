@@ -40,7 +40,11 @@ pub struct GatherIssues {
 impl SceneSpec {
     /// Finds the candidate geoms for the sensor on `site`. Returns the spec and warnings
     /// (geom types that cannot be simulated).
-    pub fn build(m: Model<'_>, site: usize, config: &Config) -> Result<(Self, Vec<String>), String> {
+    pub fn build(
+        m: Model<'_>,
+        site: usize,
+        config: &Config,
+    ) -> Result<(Self, Vec<String>), String> {
         let weld = |body: usize| m.body_weldid().get(body).copied().unwrap_or(-1);
         let site_body = *m.site_bodyid().get(site).ok_or("site id out of range")? as usize;
         let sensor_weld = weld(site_body);
@@ -50,16 +54,16 @@ impl SceneSpec {
         if !config.indenters.is_empty() {
             let mut ids = Vec::new();
             for name in &config.indenters {
-                let id = (0..m.name_bodyadr().len()).find(|&b| m.body_name(b) == name).ok_or_else(
-                    || {
+                let id = (0..m.name_bodyadr().len())
+                    .find(|&b| m.body_name(b) == name)
+                    .ok_or_else(|| {
                         format!(
                             "tacrom.tactile sensor '{}': attribute 'indenters' = \"{}\": no body \
                              named '{name}'",
                             config.name,
                             config.indenters.join(" ")
                         )
-                    },
-                )?;
+                    })?;
                 ids.push(id);
             }
             allowed = Some(ids);
@@ -80,13 +84,17 @@ impl SceneSpec {
                 continue;
             }
             match shape_of_geom(m, g) {
-                Ok(Some(shape)) => {
-                    candidates.push(Candidate { geom: g, shape, rbound: m.geom_rbound()[g] })
-                }
+                Ok(Some(shape)) => candidates.push(Candidate {
+                    geom: g,
+                    shape,
+                    rbound: m.geom_rbound()[g],
+                }),
                 Ok(None) => {
                     // Planes and height fields are the floor and terrain: only warn when
                     // the user named the body explicitly.
-                    if allowed.is_some() || !matches!(types[g] as u32, sys::mjGEOM_PLANE | sys::mjGEOM_HFIELD) {
+                    if allowed.is_some()
+                        || !matches!(types[g] as u32, sys::mjGEOM_PLANE | sys::mjGEOM_HFIELD)
+                    {
                         warnings.push(format!(
                             "tacrom.tactile sensor '{}': geom '{}' (id {g}) has type {} which the \
                              sensor cannot simulate; it is ignored",
@@ -107,7 +115,14 @@ impl SceneSpec {
         }
         let [lx, ly, t] = config.size;
         let gel_radius = (0.25 * lx * lx + 0.25 * ly * ly + t * t).sqrt();
-        Ok((SceneSpec { site, candidates, gel_radius }, warnings))
+        Ok((
+            SceneSpec {
+                site,
+                candidates,
+                gel_radius,
+            },
+            warnings,
+        ))
     }
 
     /// Number of candidate geoms.
@@ -126,9 +141,10 @@ impl SceneSpec {
         out.clear();
         let mut issues = GatherIssues::default();
         let s = self.site;
-        let Some(site_pose) =
-            pose(d.site_xpos(&m).get(3 * s..3 * s + 3).unwrap_or(&[]), d.site_xmat(&m).get(9 * s..9 * s + 9).unwrap_or(&[]))
-        else {
+        let Some(site_pose) = pose(
+            d.site_xpos(&m).get(3 * s..3 * s + 3).unwrap_or(&[]),
+            d.site_xmat(&m).get(9 * s..9 * s + 9).unwrap_or(&[]),
+        ) else {
             issues.nonfinite_site = true;
             return issues;
         };
@@ -163,8 +179,12 @@ fn shape_of_geom(m: Model<'_>, g: usize) -> Result<Option<Arc<dyn Sdf>>, String>
         sys::mjGEOM_SPHERE => Arc::new(geometry::Sphere { radius: size[0] }),
         sys::mjGEOM_CAPSULE => Arc::new(geometry::Capsule::new(size[0], size[1])),
         sys::mjGEOM_CYLINDER => Arc::new(geometry::Cylinder::new(size[0], size[1])),
-        sys::mjGEOM_ELLIPSOID => Arc::new(geometry::Ellipsoid::new(Vector3::new(size[0], size[1], size[2]))),
-        sys::mjGEOM_BOX => Arc::new(geometry::Cuboid::new(Vector3::new(size[0], size[1], size[2]))),
+        sys::mjGEOM_ELLIPSOID => Arc::new(geometry::Ellipsoid::new(Vector3::new(
+            size[0], size[1], size[2],
+        ))),
+        sys::mjGEOM_BOX => Arc::new(geometry::Cuboid::new(Vector3::new(
+            size[0], size[1], size[2],
+        ))),
         sys::mjGEOM_MESH => {
             let mesh = m.geom_dataid()[g];
             let Ok(mesh) = usize::try_from(mesh) else {
@@ -183,8 +203,14 @@ fn mesh_shape(m: Model<'_>, id: usize) -> Result<Arc<dyn Sdf>, String> {
     let vnum = m.mesh_vertnum()[id] as usize;
     let fadr = m.mesh_faceadr()[id] as usize;
     let fnum = m.mesh_facenum()[id] as usize;
-    let verts = m.mesh_vert().get(3 * vadr..3 * (vadr + vnum)).ok_or("mesh vertices out of range")?;
-    let faces = m.mesh_face().get(3 * fadr..3 * (fadr + fnum)).ok_or("mesh faces out of range")?;
+    let verts = m
+        .mesh_vert()
+        .get(3 * vadr..3 * (vadr + vnum))
+        .ok_or("mesh vertices out of range")?;
+    let faces = m
+        .mesh_face()
+        .get(3 * fadr..3 * (fadr + fnum))
+        .ok_or("mesh faces out of range")?;
     super::mesh_cache::get_or_build(verts, faces)
 }
 

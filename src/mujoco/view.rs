@@ -111,7 +111,9 @@ impl<'a> Model<'a> {
     /// The name stored at `adr` in the names buffer ("" when out of range).
     pub fn name_at(&self, adr: i32) -> &'a str {
         let len = count(self.0.nnames);
-        let Ok(adr) = usize::try_from(adr) else { return "" };
+        let Ok(adr) = usize::try_from(adr) else {
+            return "";
+        };
         if adr >= len {
             return "";
         }
@@ -124,7 +126,9 @@ impl<'a> Model<'a> {
 
     /// Name of sensor `id`.
     pub fn sensor_name(&self, id: usize) -> &'a str {
-        self.name_sensoradr().get(id).map_or("", |&a| self.name_at(a))
+        self.name_sensoradr()
+            .get(id)
+            .map_or("", |&a| self.name_at(a))
     }
 
     /// Name of body `id`.
@@ -152,7 +156,9 @@ impl<'a> Model<'a> {
             return None;
         }
         // SAFETY: non-null, NUL-terminated, alive as long as the model.
-        let text = unsafe { CStr::from_ptr(value) }.to_string_lossy().into_owned();
+        let text = unsafe { CStr::from_ptr(value) }
+            .to_string_lossy()
+            .into_owned();
         Some(text)
     }
 }
@@ -200,5 +206,8 @@ pub fn pose(pos: &[f64], mat: &[f64]) -> Option<Isometry3<f64>> {
     if !q.coords.iter().all(|x| x.is_finite()) {
         return None;
     }
-    Some(Isometry3::from_parts(Translation3::from(Vector3::new(pos[0], pos[1], pos[2])), q))
+    Some(Isometry3::from_parts(
+        Translation3::from(Vector3::new(pos[0], pos[1], pos[2])),
+        q,
+    ))
 }

@@ -11,7 +11,10 @@ use tacrom::mujoco::sys;
 /// The cdylib built alongside this test binary (target/<profile>/libtacrom.so).
 pub fn plugin_path() -> PathBuf {
     let exe = std::env::current_exe().expect("test binary path");
-    let dir = exe.parent().and_then(|p| p.parent()).expect("target/<profile>");
+    let dir = exe
+        .parent()
+        .and_then(|p| p.parent())
+        .expect("target/<profile>");
     dir.join("libtacrom.so")
 }
 
@@ -20,7 +23,11 @@ pub fn load_plugin() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         let path = plugin_path();
-        assert!(path.is_file(), "plugin library missing at {}", path.display());
+        assert!(
+            path.is_file(),
+            "plugin library missing at {}",
+            path.display()
+        );
         let c = CString::new(path.to_str().unwrap()).unwrap();
         // SAFETY: a valid path; MuJoCo dlopens it and its constructor registers the plugin.
         unsafe { sys::mj_loadPluginLibrary(c.as_ptr()) };
@@ -69,7 +76,9 @@ pub fn load_xml(xml: &str) -> Result<Model, String> {
     let _ = std::fs::remove_file(&path);
     if m.is_null() {
         // SAFETY: MuJoCo writes a NUL-terminated message.
-        Err(unsafe { CStr::from_ptr(err.as_ptr()) }.to_string_lossy().into_owned())
+        Err(unsafe { CStr::from_ptr(err.as_ptr()) }
+            .to_string_lossy()
+            .into_owned())
     } else {
         Ok(Model(m))
     }
@@ -155,7 +164,10 @@ pub fn press_scene(config: &str, indenter_body: &str) -> String {
 
 /// `<config key=.. value=../>` lines.
 pub fn config(pairs: &[(&str, &str)]) -> String {
-    pairs.iter().map(|(k, v)| format!(r#"<config key="{k}" value="{v}"/>"#)).collect()
+    pairs
+        .iter()
+        .map(|(k, v)| format!(r#"<config key="{k}" value="{v}"/>"#))
+        .collect()
 }
 
 /// A sphere of radius `r` whose lowest point is at z = 0 when qpos[0] = 0; qpos[0] presses

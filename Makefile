@@ -32,7 +32,7 @@ build: venv
 	$(MAKE) --no-print-directory $(VENV)/.tacrom-installed
 
 demo: build
-	$(PY) examples/demo.py --out out/demo --physics rigid
+	$(PY) examples/demo.py --out out/demo --physics rigid coarse
 
 test-rust: venv
 	$(CARGO) test --release

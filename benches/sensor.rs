@@ -76,7 +76,8 @@ fn main() {
         .collect();
     let mesh = tacrom::geometry::TriMesh::with_options(
         flipped,
-        cone.faces.iter().map(|f| [f[0], f[2], f[1]]).collect(),
+        // A rotation by pi about x keeps the winding.
+        cone.faces.clone(),
         &MeshSdfOptions::default(),
     )
     .expect("mesh");

@@ -11,3 +11,4 @@ pub mod geometry;
 pub mod mpm;
 pub mod mujoco;
 pub mod sensor;
+pub mod stability;

@@ -238,6 +238,13 @@ impl Config {
 
         let physics = p.physics()?;
         let outputs = p.outputs()?;
+        if physics == Physics::Rigid && outputs.contains(&Output::Force) {
+            return Err(p.error(
+                ATTR_OUTPUTS,
+                "output 'force' needs a gel model: set physics to coarse or fine (rigid \
+                 penetration has no stiffness)",
+            ));
+        }
         let [width, height] = p.resolution()?;
         let size = p.floats::<3>(ATTR_SIZE, defaults::SIZE, |v| {
             check_all(
@@ -571,6 +578,7 @@ mod tests {
             (ATTR_PHYSICS, "magic"),
             (ATTR_OUTPUTS, "depth pressure"),
             (ATTR_OUTPUTS, "depth depth"),
+            (ATTR_OUTPUTS, "depth force"),
             (ATTR_RESOLUTION, "0 240"),
             (ATTR_RESOLUTION, "320"),
             (ATTR_RESOLUTION, "320 -1"),

@@ -257,11 +257,14 @@ impl TactileSensor {
                     gel.reset();
                     *deformed = false;
                 }
-                gel.surface_depth(&self.grid, &mut self.depth);
-                for (d, &z) in self.depth.iter_mut().zip(&self.zmin) {
-                    let rigid = if z.is_finite() { -z } else { 0.0 };
-                    let v = if d.is_finite() { d.max(rigid) } else { rigid };
-                    *d = v.clamp(0.0, t);
+                // The surface is interpolated only when the image is asked for.
+                if self.config.wants(Output::Depth) {
+                    gel.surface_depth(&self.grid, &mut self.depth);
+                    for (d, &z) in self.depth.iter_mut().zip(&self.zmin) {
+                        let rigid = if z.is_finite() { -z } else { 0.0 };
+                        let v = if d.is_finite() { d.max(rigid) } else { rigid };
+                        *d = v.clamp(0.0, t);
+                    }
                 }
                 self.force = if self.config.wants(Output::Force) {
                     gel.force()

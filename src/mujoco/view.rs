@@ -200,9 +200,14 @@ pub fn pose(pos: &[f64], mat: &[f64]) -> Option<Isometry3<f64>> {
         return None;
     }
     let r = Matrix3::from_row_slice(&mat[..9]);
-    // Re-orthonormalise: MuJoCo's matrices are orthonormal to rounding; a quaternion keeps
-    // later inverse transforms exact.
-    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
+    // MuJoCo's matrices are orthonormal to rounding: Shepperd's method on the matrix as
+    // given, then normalising the quaternion, is exact to rounding and never iterates.
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    let n = q.quaternion().norm();
+    if !(n.is_finite() && n > 1e-6) {
+        return None;
+    }
+    let q = UnitQuaternion::new_normalize(*q.quaternion());
     if !q.coords.iter().all(|x| x.is_finite()) {
         return None;
     }
@@ -210,4 +215,33 @@ pub fn pose(pos: &[f64], mat: &[f64]) -> Option<Isometry3<f64>> {
         Translation3::from(Vector3::new(pos[0], pos[1], pos[2])),
         q,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pose_from_mujoco_arrays() {
+        // 90 degrees about z, row-major.
+        let mat = [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        let p = pose(&[1.0, 2.0, 3.0], &mat).unwrap();
+        let v = p * nalgebra::Point3::new(1.0, 0.0, 0.0);
+        assert!((v - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn bad_pose_arrays_never_stall_or_give_nan() {
+        assert!(pose(
+            &[f64::NAN, 0.0, 0.0],
+            &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        )
+        .is_none());
+        assert!(pose(&[0.0; 3], &[f64::INFINITY; 9]).is_none());
+        assert!(pose(&[0.0; 2], &[0.0; 9]).is_none());
+        // A degenerate (zero) matrix: bounded work, and a finite pose or none.
+        if let Some(p) = pose(&[0.0; 3], &[0.0; 9]) {
+            assert!(p.rotation.coords.iter().all(|x| x.is_finite()));
+        }
+    }
 }

@@ -1,0 +1,731 @@
+//! Paired training data for the reduced-order model: the same quasi-static press solved by
+//! the coarse MPM and by a finer reference MPM (`tacrom gen-data`).
+//!
+//! Each sample is one indenter, pose sequence and material: the indenter is lowered to its
+//! depth (and, for some samples, slid a little further: the solver keeps the shear
+//! history), then both gels are brought to equilibrium. A sample is written as
+//!
+//! * `sample-NNNNNN.npy`: float32 `[3, ny, nx]`, metres, on the model's surface lattice
+//!   ([`crate::rom::features`]): channel 0 the coarse depth (`max(mpm, p)`), 1 the rigid
+//!   penetration `p`, 2 the reference depth (`max(mpm, p)`, finer MPM);
+//! * `sample-NNNNNN.json`: family, shape parameters, poses, solver reports, timings;
+//!   written last (by rename), so a sample counts as done only when both exist.
+//!
+//! and `dataset.json` records the settings (gel, material, coarse and reference grid
+//! spacings, lattice, seed, held-out families). Sample `i` is drawn from its own random
+//! stream seeded by `(seed, i)`, so a run is reproducible whatever the sharding: shard
+//! `k/N` does the samples with `i % N == k`, skipping those already on disk (resumable).
+//! `numpy.load` reads every file; `training/dataset.py` loads a directory.
+//!
+//! Families: `sphere`, `cylinder` (end-on or lying), `box`, `edge` (a box on one edge),
+//! `bumps` (random clusters of small spheres), `ridges` (parallel capsules),
+//! `heightfield` (a block with a sinusoidal textured face) and `mesh:<name>`, one per
+//! pattern of `../shared/indenters/patterns`, flipped to press with its patterned face,
+//! randomly scaled and turned. Positions over the gel, depths up to 1 mm, tilts up to
+//! 8 degrees, slides up to 0.6 mm. [`HELD_OUT`] families are for validation only.
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+
+use crate::geometry::{Aabb, Capsule, Cuboid, Cylinder, PixelGrid, Placed, Sdf, Sphere, TriMesh};
+use crate::mpm::{Gel, GelParams, Material, SolveReport, SolverOptions};
+use crate::rom::features::{penetration, LatticeSpec, Observation};
+
+/// Families kept out of training, for validation (and the held-out test).
+pub const HELD_OUT: &[&str] = &[
+    "ridges",
+    "mesh:dots",
+    "mesh:hexagon",
+    "mesh:pacman",
+    "mesh:torus",
+    "mesh:wave1",
+];
+
+/// Settings of a data set.
+#[derive(Clone, Debug)]
+pub struct GenConfig {
+    /// Output directory.
+    pub out: PathBuf,
+    /// Total samples of the data set (all shards).
+    pub samples: usize,
+    /// This shard and the number of shards.
+    pub shard: (usize, usize),
+    /// Seed of the data set.
+    pub seed: u64,
+    /// Coarse grid spacing (m).
+    pub coarse_dx: f64,
+    /// Reference grid spacing (m).
+    pub fine_dx: f64,
+    /// Lattice pitch (m).
+    pub pitch: f64,
+    /// Solver threads.
+    pub threads: usize,
+    /// Directory of the pattern meshes (STL, millimetres).
+    pub patterns: PathBuf,
+    /// Only these families (empty: all).
+    pub families: Vec<String>,
+    /// Gel parameters (size, material); `dx` is replaced by the two spacings.
+    pub gel: GelParams,
+    /// Reference solver iteration cap.
+    pub fine_max_iterations: usize,
+}
+
+impl Default for GenConfig {
+    fn default() -> Self {
+        Self {
+            out: PathBuf::from("data/rom"),
+            samples: 100,
+            shard: (0, 1),
+            seed: 1,
+            coarse_dx: 1.4e-3,
+            fine_dx: 0.7e-3,
+            pitch: 0.3e-3,
+            threads: 1,
+            patterns: PathBuf::from("../shared/indenters/patterns"),
+            families: Vec::new(),
+            gel: GelParams::default(),
+            fine_max_iterations: 6000,
+        }
+    }
+}
+
+/// Usage of `tacrom gen-data`.
+pub const USAGE: &str = "\
+tacrom gen-data --out DIR --samples N [--shard K/N] [--seed S] [--fine-dx M] [--coarse-dx M]
+                [--pitch M] [--threads T] [--patterns DIR] [--families a,b,...]
+                [--fine-max-iterations N]
+  Paired coarse / reference presses for the reduced-order model (see src/datagen.rs).
+  Resumable: samples already in DIR are skipped. Defaults: --samples 100 --shard 0/1
+  --seed 1 --coarse-dx 1.4e-3 --fine-dx 7e-4 --pitch 3e-4 --threads 1
+  --patterns ../shared/indenters/patterns";
+
+/// Parses the arguments of `tacrom gen-data` (after the subcommand).
+pub fn parse_args(args: &[String]) -> Result<GenConfig, String> {
+    let mut c = GenConfig::default();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut val = || it.next().cloned().ok_or_else(|| format!("{a} needs a value\n{USAGE}"));
+        let num = |s: String| s.parse::<f64>().map_err(|_| format!("{a}: bad number '{s}'"));
+        let int = |s: String| s.parse::<usize>().map_err(|_| format!("{a}: bad integer '{s}'"));
+        match a.as_str() {
+            "--out" => c.out = PathBuf::from(val()?),
+            "--samples" => c.samples = int(val()?)?,
+            "--seed" => c.seed = int(val()?)? as u64,
+            "--fine-dx" => c.fine_dx = num(val()?)?,
+            "--coarse-dx" => c.coarse_dx = num(val()?)?,
+            "--pitch" => c.pitch = num(val()?)?,
+            "--threads" => c.threads = int(val()?)?.max(1),
+            "--patterns" => c.patterns = PathBuf::from(val()?),
+            "--fine-max-iterations" => c.fine_max_iterations = int(val()?)?.max(1),
+            "--families" => {
+                c.families = val()?.split(',').filter(|s| !s.is_empty()).map(str::to_owned).collect()
+            }
+            "--shard" => {
+                let v = val()?;
+                let (k, n) = v
+                    .split_once('/')
+                    .and_then(|(k, n)| Some((k.parse().ok()?, n.parse().ok()?)))
+                    .filter(|&(k, n): &(usize, usize)| n > 0 && k < n)
+                    .ok_or_else(|| format!("--shard: expected K/N with K < N, got '{v}'"))?;
+                c.shard = (k, n);
+            }
+            "-h" | "--help" => return Err(USAGE.to_owned()),
+            other => return Err(format!("unknown argument '{other}'\n{USAGE}")),
+        }
+    }
+    for (name, v) in [("--fine-dx", c.fine_dx), ("--coarse-dx", c.coarse_dx), ("--pitch", c.pitch)] {
+        if !(v > 0.0 && v.is_finite()) {
+            return Err(format!("{name} must be positive"));
+        }
+    }
+    Ok(c)
+}
+
+/// `tacrom gen-data ARGS`: parses, generates, prints progress to stderr.
+pub fn run_cli(args: &[String]) -> Result<(), String> {
+    let config = parse_args(args)?;
+    let summary = generate(&config, |line| eprintln!("{line}"))?;
+    eprintln!("{summary}");
+    Ok(())
+}
+
+/// A small deterministic random generator (SplitMix64).
+#[derive(Clone, Debug)]
+pub struct Rng(u64);
+
+impl Rng {
+    /// The stream of sample `index` of a data set seeded `seed`.
+    pub fn new(seed: u64, index: u64) -> Self {
+        let mut r = Rng(seed ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03));
+        let _ = r.next_u64();
+        r
+    }
+    /// Next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in `[a, b)`.
+    pub fn uniform(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
+    }
+    /// Uniform integer in `[0, n)`.
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+}
+
+/// A shape scaled uniformly by `scale` about its local origin.
+#[derive(Debug)]
+pub struct Scaled {
+    /// The shape.
+    pub inner: Arc<dyn Sdf>,
+    /// Scale factor.
+    pub scale: f64,
+}
+
+impl Sdf for Scaled {
+    fn distance(&self, p: &Point3<f64>) -> f64 {
+        self.scale * self.inner.distance(&(p / self.scale))
+    }
+    fn gradient(&self, p: &Point3<f64>) -> Vector3<f64> {
+        self.inner.gradient(&(p / self.scale))
+    }
+    fn aabb(&self) -> Aabb {
+        let b = self.inner.aabb();
+        Aabb::new(b.min * self.scale, b.max * self.scale)
+    }
+}
+
+/// The union of shapes, each at its local pose (distance: the minimum).
+#[derive(Debug)]
+pub struct Union {
+    /// Parts and their poses in the union's frame.
+    pub parts: Vec<(Arc<dyn Sdf>, Isometry3<f64>)>,
+}
+
+impl Sdf for Union {
+    fn distance(&self, p: &Point3<f64>) -> f64 {
+        self.parts
+            .iter()
+            .map(|(s, pose)| s.distance(&pose.inverse_transform_point(p)))
+            .fold(f64::INFINITY, f64::min)
+    }
+    fn gradient(&self, p: &Point3<f64>) -> Vector3<f64> {
+        let mut best = (f64::INFINITY, Vector3::z());
+        for (s, pose) in &self.parts {
+            let q = pose.inverse_transform_point(p);
+            let d = s.distance(&q);
+            if d < best.0 {
+                best = (d, pose.rotation * s.gradient(&q));
+            }
+        }
+        best.1
+    }
+    fn aabb(&self) -> Aabb {
+        let mut min = Point3::new(f64::INFINITY, f64::INFINITY, f64::INFINITY);
+        let mut max = -min;
+        for (s, pose) in &self.parts {
+            let b = s.aabb().transformed(pose);
+            min = min.inf(&b.min);
+            max = max.sup(&b.max);
+        }
+        Aabb::new(min, max)
+    }
+}
+
+/// A block `[-hx, hx] x [-hy, hy] x [h(x, y), top]` whose lower face is the textured height
+/// field `h = -sum_k a_k (1 + sin(kx_k x + ky_k y + phase_k)) / 2`. The distance is the
+/// Lipschitz-bounded `max` of the face, side and top distances: exact sign, a lower bound
+/// of the magnitude (enough for sphere tracing and contact).
+#[derive(Debug)]
+pub struct HeightField {
+    /// Half extents in x and y (m).
+    pub half: [f64; 2],
+    /// Height of the top face (m).
+    pub top: f64,
+    /// `(amplitude, kx, ky, phase)` of each mode.
+    pub modes: Vec<(f64, f64, f64, f64)>,
+}
+
+impl HeightField {
+    fn height(&self, x: f64, y: f64) -> f64 {
+        -self
+            .modes
+            .iter()
+            .map(|&(a, kx, ky, ph)| 0.5 * a * (1.0 + (kx * x + ky * y + ph).sin()))
+            .sum::<f64>()
+    }
+    fn lipschitz(&self) -> f64 {
+        let g: f64 = self
+            .modes
+            .iter()
+            .map(|&(a, kx, ky, _)| 0.5 * a * (kx * kx + ky * ky).sqrt())
+            .sum();
+        (1.0 + g * g).sqrt()
+    }
+}
+
+impl Sdf for HeightField {
+    fn distance(&self, p: &Point3<f64>) -> f64 {
+        let face = (self.height(p.x, p.y) - p.z) / self.lipschitz();
+        let side = (p.x.abs() - self.half[0]).max(p.y.abs() - self.half[1]);
+        let top = p.z - self.top;
+        face.max(side).max(top)
+    }
+    fn aabb(&self) -> Aabb {
+        let depth: f64 = self.modes.iter().map(|m| m.0).sum();
+        Aabb::new(
+            Point3::new(-self.half[0], -self.half[1], -depth),
+            Point3::new(self.half[0], self.half[1], self.top),
+        )
+    }
+}
+
+/// Pattern meshes, loaded once (metres, flipped so the patterned face is lowest).
+#[derive(Default)]
+pub struct MeshLibrary {
+    dir: PathBuf,
+    names: Vec<String>,
+    cache: HashMap<String, Arc<dyn Sdf>>,
+}
+
+impl MeshLibrary {
+    /// The `.stl` files of `dir`, sorted by name (none if the directory is missing).
+    pub fn new(dir: &Path) -> Self {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .map(|rd| {
+                rd.filter_map(|e| e.ok())
+                    .filter_map(|e| e.file_name().into_string().ok())
+                    .filter(|n| n.to_ascii_lowercase().ends_with(".stl"))
+                    .map(|n| n[..n.len() - 4].to_owned())
+                    .collect()
+            })
+            .unwrap_or_default();
+        names.sort();
+        Self {
+            dir: dir.to_owned(),
+            names,
+            cache: HashMap::new(),
+        }
+    }
+
+    /// Pattern names.
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// The mesh `name`, centred in x and y, patterned face down at `z = 0` and the body
+    /// above it (m).
+    pub fn get(&mut self, name: &str) -> Result<Arc<dyn Sdf>, String> {
+        if let Some(s) = self.cache.get(name) {
+            return Ok(s.clone());
+        }
+        let path = self.dir.join(format!("{name}.stl"));
+        let data = crate::geometry::load_stl(&path, 1e-3).map_err(|e| e.to_string())?;
+        let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
+        for v in &data.vertices {
+            lo = lo.inf(&v.coords);
+            hi = hi.sup(&v.coords);
+        }
+        let c = 0.5 * (lo + hi);
+        // Flip about x (z -> -z), patterned face (max z) to z = 0.
+        let vertices: Vec<Point3<f64>> = data
+            .vertices
+            .iter()
+            .map(|v| Point3::new(v.x - c.x, -(v.y - c.y), hi.z - v.z))
+            .collect();
+        // A rotation: the triangles keep their winding.
+        let mesh = TriMesh::new(vertices, data.faces).map_err(|e| format!("{}: {e}", path.display()))?;
+        let s: Arc<dyn Sdf> = Arc::new(mesh);
+        let _ = self.cache.insert(name.to_owned(), s.clone());
+        Ok(s)
+    }
+}
+
+/// One paired press: an indenter and its poses (the last one is the frame recorded).
+#[derive(Clone, Debug)]
+pub struct Press {
+    /// Family name.
+    pub family: String,
+    /// The shape.
+    pub shape: Arc<dyn Sdf>,
+    /// Poses in the sensor frame, solved in order.
+    pub poses: Vec<Isometry3<f64>>,
+    /// Shape and pose parameters, as JSON members.
+    pub params: String,
+}
+
+impl Press {
+    /// The indenter at pose `k`.
+    pub fn placed(&self, k: usize) -> Placed {
+        Placed {
+            shape: self.shape.clone(),
+            pose: self.poses[k],
+        }
+    }
+}
+
+/// The family of sample `index` and its weights: every mesh pattern is a family of its own.
+fn families(meshes: &MeshLibrary) -> Vec<(String, f64)> {
+    let mut f: Vec<(String, f64)> = [
+        ("sphere", 1.0),
+        ("cylinder", 1.0),
+        ("box", 1.0),
+        ("edge", 1.0),
+        ("bumps", 1.5),
+        ("ridges", 1.0),
+        ("heightfield", 1.5),
+    ]
+    .iter()
+    .map(|(n, w)| (n.to_string(), *w))
+    .collect();
+    let per_mesh = if meshes.names().is_empty() { 0.0 } else { 4.0 / meshes.names().len() as f64 };
+    for n in meshes.names() {
+        f.push((format!("mesh:{n}"), per_mesh));
+    }
+    f
+}
+
+fn rot_z(a: f64) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a)
+}
+
+/// Draws the shape of `family` with its local orientation (before yaw, tilt and depth).
+fn draw_shape(
+    family: &str,
+    rng: &mut Rng,
+    meshes: &mut MeshLibrary,
+    params: &mut String,
+) -> Result<(Arc<dyn Sdf>, UnitQuaternion<f64>), String> {
+    let mm = 1e-3;
+    let half_pi = std::f64::consts::FRAC_PI_2;
+    let id = UnitQuaternion::identity();
+    Ok(match family {
+        "sphere" => {
+            let r = rng.uniform(2.0, 8.0) * mm;
+            let _ = write!(params, "\"radius\": {r:e}, ");
+            (Arc::new(Sphere::new(r)), id)
+        }
+        "cylinder" => {
+            let r = rng.uniform(1.5, 5.0) * mm;
+            let h = rng.uniform(3.0, 8.0) * mm;
+            let lying = rng.uniform(0.0, 1.0) < 0.5;
+            let _ = write!(params, "\"radius\": {r:e}, \"half_length\": {h:e}, \"lying\": {lying}, ");
+            let q = if lying {
+                UnitQuaternion::from_axis_angle(&Vector3::x_axis(), half_pi)
+            } else {
+                id
+            };
+            (Arc::new(Cylinder::new(r, h)), q)
+        }
+        "box" | "edge" => {
+            let he = Vector3::new(rng.uniform(1.0, 6.0), rng.uniform(1.0, 6.0), 3.0) * mm;
+            let _ = write!(params, "\"half_extents\": [{:e}, {:e}, {:e}], ", he.x, he.y, he.z);
+            let q = if family == "edge" {
+                UnitQuaternion::from_axis_angle(&Vector3::x_axis(), rng.uniform(0.6, 0.97) * half_pi)
+            } else {
+                id
+            };
+            (Arc::new(Cuboid::new(he)), q)
+        }
+        "bumps" => {
+            let n = 3 + rng.below(6);
+            let mut parts: Vec<(Arc<dyn Sdf>, Isometry3<f64>)> = Vec::new();
+            let spread = rng.uniform(2.0, 5.0) * mm;
+            for _ in 0..n {
+                let r = rng.uniform(0.5, 2.0) * mm;
+                let c = Vector3::new(
+                    rng.uniform(-spread, spread),
+                    rng.uniform(-spread, spread),
+                    rng.uniform(0.0, 0.8) * mm + r,
+                );
+                parts.push((Arc::new(Sphere::new(r)), Isometry3::from_parts(Translation3::from(c), id)));
+            }
+            let _ = write!(params, "\"count\": {n}, \"spread\": {spread:e}, ");
+            (Arc::new(Union { parts }), id)
+        }
+        "ridges" => {
+            let n = 2 + rng.below(4);
+            let r = rng.uniform(0.4, 1.2) * mm;
+            let gap = rng.uniform(1.5, 4.0) * mm;
+            let hl = rng.uniform(3.0, 6.0) * mm;
+            let mut parts: Vec<(Arc<dyn Sdf>, Isometry3<f64>)> = Vec::new();
+            let along_x = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), half_pi);
+            for k in 0..n {
+                let y = (k as f64 - 0.5 * (n - 1) as f64) * gap;
+                let z = r + rng.uniform(0.0, 0.15) * mm;
+                parts.push((
+                    Arc::new(Capsule::new(r, hl)),
+                    Isometry3::from_parts(Translation3::new(0.0, y, z), along_x),
+                ));
+            }
+            let _ = write!(params, "\"count\": {n}, \"radius\": {r:e}, \"gap\": {gap:e}, ");
+            (Arc::new(Union { parts }), id)
+        }
+        "heightfield" => {
+            let half = [rng.uniform(3.0, 7.0) * mm, rng.uniform(3.0, 7.0) * mm];
+            let n = 1 + rng.below(3);
+            let mut modes = Vec::new();
+            for _ in 0..n {
+                let wavelength = rng.uniform(1.0, 5.0) * mm;
+                let k = 2.0 * std::f64::consts::PI / wavelength;
+                let dir = rng.uniform(0.0, std::f64::consts::PI);
+                modes.push((rng.uniform(0.1, 0.5) * mm, k * dir.cos(), k * dir.sin(), rng.uniform(0.0, 6.3)));
+            }
+            let _ = write!(params, "\"half\": [{:e}, {:e}], \"modes\": {n}, ", half[0], half[1]);
+            (Arc::new(HeightField { half, top: 3.0 * mm, modes }), id)
+        }
+        f if f.starts_with("mesh:") => {
+            let name = &f[5..];
+            let mesh = meshes.get(name)?;
+            let s = rng.uniform(0.4, 0.9);
+            let _ = write!(params, "\"mesh\": \"{name}\", \"scale\": {s}, ");
+            (Arc::new(Scaled { inner: mesh, scale: s }), id)
+        }
+        other => return Err(format!("unknown indenter family '{other}'")),
+    })
+}
+
+/// Lowest z of `shape` at `pose` over the gel (sampled at 0.1 mm), `None` if it misses.
+fn lowest_point(shape: &Arc<dyn Sdf>, pose: &Isometry3<f64>, size: [f64; 3]) -> Option<f64> {
+    let grid = PixelGrid {
+        width: (size[0] / 1e-4).round() as usize,
+        height: (size[1] / 1e-4).round() as usize,
+        fov_x: size[0],
+        fov_y: size[1],
+    };
+    let placed = [Placed { shape: shape.clone(), pose: *pose }];
+    let (mut zmin, mut pen) = (Vec::new(), Vec::new());
+    // The shape's bounding-box bottom put 0.5 m deep into a gel 1 m thick.
+    let lift = placed[0].aabb().min.z + 0.5;
+    let mut lowered = placed.clone();
+    lowered[0].pose.translation.vector.z -= lift;
+    penetration(&lowered, &grid, 1.0, &mut zmin, &mut pen);
+    let _ = pen;
+    let m = zmin.iter().cloned().fold(f64::INFINITY, f64::min);
+    m.is_finite().then_some(m + lift)
+}
+
+/// Draws press `index` of the data set (deterministic in `(seed, index)`).
+pub fn draw_press(
+    seed: u64,
+    index: u64,
+    meshes: &mut MeshLibrary,
+    only: &[String],
+    size: [f64; 3],
+) -> Result<Press, String> {
+    let mut rng = Rng::new(seed, index);
+    let mut fams = families(meshes);
+    if !only.is_empty() {
+        fams.retain(|(n, _)| only.iter().any(|o| o == n || (o == "mesh" && n.starts_with("mesh:"))));
+        if fams.is_empty() {
+            return Err(format!("no family matches {only:?}"));
+        }
+    }
+    let total: f64 = fams.iter().map(|f| f.1).sum();
+    let mut u = rng.uniform(0.0, total);
+    let mut family = fams[fams.len() - 1].0.clone();
+    for (n, w) in &fams {
+        if u < *w {
+            family = n.clone();
+            break;
+        }
+        u -= w;
+    }
+    let mut params = String::new();
+    let (shape, local) = draw_shape(&family, &mut rng, meshes, &mut params)?;
+    let yaw = rng.uniform(0.0, 2.0 * std::f64::consts::PI);
+    let tilt_axis = rng.uniform(0.0, 2.0 * std::f64::consts::PI);
+    let tilt = rng.uniform(0.0, 8f64.to_radians());
+    let tilt_q = UnitQuaternion::from_axis_angle(
+        &nalgebra::Unit::new_normalize(Vector3::new(tilt_axis.cos(), tilt_axis.sin(), 0.0)),
+        tilt,
+    );
+    let rot = tilt_q * rot_z(yaw) * local;
+    let x = rng.uniform(-0.3, 0.3) * size[0];
+    let y = rng.uniform(-0.25, 0.25) * size[1];
+    // Depths 0 to 1 mm, more of them shallow.
+    let depth = 1e-3 * rng.uniform(0.05, 1.0).powf(1.3).min(1.0);
+    let slide = if rng.uniform(0.0, 1.0) < 0.3 {
+        let a = rng.uniform(0.0, 2.0 * std::f64::consts::PI);
+        let d = rng.uniform(0.1, 0.6) * 1e-3;
+        Some(Vector3::new(d * a.cos(), d * a.sin(), 0.0))
+    } else {
+        None
+    };
+    let mut pose = Isometry3::from_parts(Translation3::new(x, y, 0.0), rot);
+    let low = lowest_point(&shape, &pose, size).ok_or_else(|| format!("{family}: misses the gel"))?;
+    pose.translation.vector.z -= low + depth;
+    let mut poses = vec![pose];
+    if let Some(s) = slide {
+        let mut p2 = pose;
+        p2.translation.vector += s;
+        poses.push(p2);
+    }
+    let _ = write!(
+        params,
+        "\"x\": {x:e}, \"y\": {y:e}, \"depth\": {depth:e}, \"yaw\": {yaw}, \"tilt\": {tilt}, \"slide\": {}",
+        slide.map(|s| format!("[{:e}, {:e}]", s.x, s.y)).unwrap_or_else(|| "null".into())
+    );
+    Ok(Press { family, shape, poses, params })
+}
+
+/// Solves `press` on `gel` from the undeformed state, pose by pose.
+pub fn solve_press(gel: &mut Gel, press: &Press) -> (SolveReport, f64) {
+    gel.reset();
+    let t0 = Instant::now();
+    let mut report = None;
+    for k in 0..press.poses.len() {
+        report = Some(gel.solve(&[press.placed(k)]));
+    }
+    (report.expect("a press has a pose"), t0.elapsed().as_secs_f64())
+}
+
+/// Writes a float32 array as `.npy` (C order).
+pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
+    assert_eq!(shape.iter().product::<usize>(), data.len());
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let tuple = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
+    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {tuple}, }}");
+    let unpadded = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
+    header.push('\n');
+    let mut bytes = Vec::with_capacity(10 + header.len() + 4 * data.len());
+    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
+    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(header.as_bytes());
+    for v in data {
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    write_atomic(path, &bytes)
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = path.with_extension("tmp");
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+    }
+    std::fs::rename(&tmp, path)
+}
+
+fn report_json(r: &SolveReport, seconds: f64) -> String {
+    format!(
+        "{{\"iterations\": {}, \"converged\": {}, \"residual\": {:e}, \"seconds\": {:.4}}}",
+        r.iterations, r.converged, r.residual, seconds
+    )
+}
+
+/// The reference gel's and the coarse gel's parameters.
+fn gel_params(config: &GenConfig, dx: f64) -> GelParams {
+    GelParams { dx, material: Material::FixedCorotated, ..config.gel }
+}
+
+/// Generates this shard's missing samples; `progress` gets one line per sample. Returns
+/// a summary line.
+pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<String, String> {
+    std::fs::create_dir_all(&config.out).map_err(|e| format!("{}: {e}", config.out.display()))?;
+    let spec = LatticeSpec::with_pitch(config.gel.size, config.pitch);
+    let mut meshes = MeshLibrary::new(&config.patterns);
+    if meshes.names().is_empty() {
+        progress(&format!("warning: no STL patterns in {}; mesh families skipped", config.patterns.display()));
+    }
+    let g = &config.gel;
+    let held: Vec<String> = HELD_OUT.iter().map(|s| format!("\"{s}\"")).collect();
+    let dataset = format!(
+        "{{\n  \"format\": \"tacrom-rom-pairs-1\",\n  \"channels\": [\"coarse\", \"penetration\", \"reference\"],\n  \
+         \"units\": \"m\",\n  \"size\": [{:e}, {:e}, {:e}],\n  \"young\": {:e},\n  \"poisson\": {},\n  \"density\": {},\n  \
+         \"friction\": {},\n  \"material\": \"fixed_corotated\",\n  \"coarse_dx\": {:e},\n  \"fine_dx\": {:e},\n  \
+         \"pitch\": {:e},\n  \"lattice\": [{}, {}],\n  \"samples\": {},\n  \"seed\": {},\n  \"held_out\": [{}],\n  \
+         \"fine_max_iterations\": {}\n}}\n",
+        g.size[0], g.size[1], g.size[2], g.young, g.poisson, g.density, g.friction, config.coarse_dx,
+        config.fine_dx, config.pitch, spec.ny, spec.nx, config.samples, config.seed, held.join(", "),
+        config.fine_max_iterations
+    );
+    let ds_path = config.out.join("dataset.json");
+    match std::fs::read_to_string(&ds_path) {
+        Ok(existing) if existing != dataset => {
+            return Err(format!(
+                "{} holds a data set with other settings; use another --out",
+                ds_path.display()
+            ))
+        }
+        Ok(_) => {}
+        Err(_) => write_atomic(&ds_path, dataset.as_bytes()).map_err(|e| e.to_string())?,
+    }
+    let options = SolverOptions { threads: config.threads, ..SolverOptions::default() };
+    let mut coarse = Gel::new(gel_params(config, config.coarse_dx), options).map_err(|e| e.to_string())?;
+    let fine_options = SolverOptions { max_iterations: config.fine_max_iterations, ..options };
+    let mut fine = Gel::new(gel_params(config, config.fine_dx), fine_options).map_err(|e| e.to_string())?;
+    let (k, n) = config.shard;
+    let (mut done, mut skipped) = (0usize, 0usize);
+    let (mut t_coarse, mut t_fine) = (0.0, 0.0);
+    let mut obs = Observation::default();
+    let mut zmin = Vec::new();
+    for index in (k..config.samples).step_by(n) {
+        let stem = config.out.join(format!("sample-{index:06}"));
+        let (npy, json) = (stem.with_extension("npy"), stem.with_extension("json"));
+        if npy.is_file() && json.is_file() {
+            skipped += 1;
+            continue;
+        }
+        let press = draw_press(config.seed, index as u64, &mut meshes, &config.families, g.size)?;
+        let last = press.poses.len() - 1;
+        let placed = [press.placed(last)];
+        let (rc, sc) = solve_press(&mut coarse, &press);
+        obs.update(&coarse, &placed, &spec, &mut zmin);
+        let (rf, sf) = solve_press(&mut fine, &press);
+        let mut reference = vec![0.0; spec.points()];
+        fine.surface_depth(&spec.grid(), &mut reference);
+        let t = g.size[2];
+        let mut data: Vec<f32> = Vec::with_capacity(3 * spec.points());
+        data.extend(obs.coarse.iter().map(|&v| v as f32));
+        data.extend(obs.pen.iter().map(|&v| v as f32));
+        data.extend(reference.iter().zip(&obs.pen).map(|(&r, &p)| {
+            let v = if r.is_finite() { r.max(p) } else { p };
+            v.clamp(0.0, t) as f32
+        }));
+        write_npy(&npy, &[3, spec.ny, spec.nx], &data).map_err(|e| format!("{}: {e}", npy.display()))?;
+        let meta = format!(
+            "{{\"index\": {index}, \"family\": \"{}\", \"held_out\": {}, {}, \"coarse\": {}, \"reference\": {}}}\n",
+            press.family,
+            HELD_OUT.contains(&press.family.as_str()),
+            press.params,
+            report_json(&rc, sc),
+            report_json(&rf, sf)
+        );
+        write_atomic(&json, meta.as_bytes()).map_err(|e| format!("{}: {e}", json.display()))?;
+        done += 1;
+        t_coarse += sc;
+        t_fine += sf;
+        progress(&format!(
+            "sample {index}: {} coarse {:.2}s ({} it) reference {:.2}s ({} it{})",
+            press.family,
+            sc,
+            rc.iterations,
+            sf,
+            rf.iterations,
+            if rf.converged { "" } else { ", NOT converged" }
+        ));
+    }
+    let per = |t: f64| if done > 0 { t / done as f64 } else { 0.0 };
+    Ok(format!(
+        "shard {k}/{n}: {done} samples written, {skipped} already present; mean coarse {:.3}s, \
+         reference {:.3}s per sample (dx {:e} / {:e} m, {} threads)",
+        per(t_coarse),
+        per(t_fine),
+        config.coarse_dx,
+        config.fine_dx,
+        config.threads
+    ))
+}

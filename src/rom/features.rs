@@ -1,0 +1,192 @@
+//! What the networks see: the coarse solution and the indenters' geometry sampled on the
+//! model's surface lattice, and the per-point query features of the decoder.
+//!
+//! Shared by data generation ([`crate::datagen`]) and inference ([`super::Rom`]), so that
+//! training and run time compute the inputs with the same code.
+//!
+//! * The **lattice** is a [`PixelGrid`] over the whole top face of the gel with the
+//!   model's pitch (row 0 the +y edge, column 0 the -x edge, as images).
+//! * **Coarse depth** `c`: the coarse MPM's surface indentation at each lattice point,
+//!   combined with the rigid penetration as the coarse sensor mode does
+//!   (`max(mpm, p)` clamped to `[0, T]`).
+//! * **Rigid penetration** `p`: how far the undeformed gel would be pierced by the
+//!   indenters at that point, `clamp(-z_lowest, 0, T)`.
+//! * **Encoder input**: `c` and `p` on the sub-lattice of stride `encoder_stride`
+//!   (offset `encoder_stride / 2`), in model units (mm), channel-major.
+//! * **Decoder query** at lattice point `(row, col)`: the normalised position
+//!   `(x / (Lx/2), y / (Ly/2))`, then a `patch x patch` window of `c` and one of `p`
+//!   centred on the point with `patch_step` lattice steps between samples (zero outside
+//!   the gel), in model units. The centre of the `c` window is feature
+//!   [`COARSE_CENTRE_FEATURE`]... no: see [`query_features`] for the exact order.
+
+use crate::geometry::{PixelGrid, Placed};
+use crate::mpm::Gel;
+
+/// How the model samples the gel's surface: fixed by the model's manifest.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LatticeSpec {
+    /// Gel extent `[Lx, Ly, T]` (m).
+    pub size: [f64; 3],
+    /// Lattice columns (along x).
+    pub nx: usize,
+    /// Lattice rows (along y).
+    pub ny: usize,
+    /// Stride of the encoder's sub-lattice (lattice steps).
+    pub encoder_stride: usize,
+    /// Side of the decoder's square geometry windows (odd).
+    pub patch: usize,
+    /// Lattice steps between window samples.
+    pub patch_step: usize,
+    /// Depth scale: model units per metre (1000: millimetres).
+    pub depth_scale: f64,
+}
+
+impl LatticeSpec {
+    /// The lattice for a gel of `size` with points `pitch` apart (m), and the default
+    /// encoder stride 4, windows 5 x 5 with step 2, millimetre units.
+    pub fn with_pitch(size: [f64; 3], pitch: f64) -> Self {
+        let nx = ((size[0] / pitch).round() as usize).max(1);
+        let ny = ((size[1] / pitch).round() as usize).max(1);
+        Self {
+            size,
+            nx,
+            ny,
+            encoder_stride: 4,
+            patch: 5,
+            patch_step: 2,
+            depth_scale: 1000.0,
+        }
+    }
+
+    /// The lattice as a pixel grid covering the gel's top face.
+    pub fn grid(&self) -> PixelGrid {
+        PixelGrid {
+            width: self.nx,
+            height: self.ny,
+            fov_x: self.size[0],
+            fov_y: self.size[1],
+        }
+    }
+
+    /// Lattice points.
+    pub fn points(&self) -> usize {
+        self.nx * self.ny
+    }
+
+    /// Rows and columns of the encoder's sub-lattice.
+    pub fn encoder_dims(&self) -> [usize; 2] {
+        let s = self.encoder_stride;
+        let o = s / 2;
+        [
+            (self.ny.saturating_sub(o)).div_ceil(s),
+            (self.nx.saturating_sub(o)).div_ceil(s),
+        ]
+    }
+
+    /// Length of the encoder's input vector (two channels).
+    pub fn encoder_len(&self) -> usize {
+        let [r, c] = self.encoder_dims();
+        2 * r * c
+    }
+
+    /// Number of decoder query features.
+    pub fn query_len(&self) -> usize {
+        2 + 2 * self.patch * self.patch
+    }
+}
+
+/// Index of the coarse depth at the query point itself among the query features.
+pub fn coarse_centre_feature(spec: &LatticeSpec) -> usize {
+    2 + (spec.patch * spec.patch) / 2
+}
+
+/// The coarse solution and the rigid penetration on the lattice (m, row-major).
+#[derive(Clone, Debug, Default)]
+pub struct Observation {
+    /// Coarse depth `max(mpm, p)`, clamped to `[0, T]`.
+    pub coarse: Vec<f64>,
+    /// Rigid penetration.
+    pub pen: Vec<f64>,
+}
+
+/// Rigid penetration of `indenters` on `grid` (m), `clamp(-z_lowest, 0, t)`; `zmin` is
+/// scratch space of the grid's size.
+pub fn penetration(indenters: &[Placed], grid: &PixelGrid, t: f64, zmin: &mut Vec<f64>, out: &mut Vec<f64>) {
+    let n = grid.width * grid.height;
+    zmin.clear();
+    zmin.resize(n, f64::INFINITY);
+    for p in indenters {
+        p.lower_surface(grid, -t, 0.0, zmin);
+    }
+    out.clear();
+    out.extend(zmin.iter().map(|&z| {
+        if z.is_finite() {
+            (-z).clamp(0.0, t)
+        } else {
+            0.0
+        }
+    }));
+}
+
+impl Observation {
+    /// Samples a solved coarse `gel` and its `indenters` (sensor frame) on the lattice.
+    pub fn from_gel(gel: &Gel, indenters: &[Placed], spec: &LatticeSpec) -> Self {
+        let mut obs = Observation::default();
+        obs.update(gel, indenters, spec, &mut Vec::new());
+        obs
+    }
+
+    /// As [`Observation::from_gel`], reusing the buffers; `zmin` is scratch space.
+    pub fn update(&mut self, gel: &Gel, indenters: &[Placed], spec: &LatticeSpec, zmin: &mut Vec<f64>) {
+        let grid = spec.grid();
+        let t = spec.size[2];
+        penetration(indenters, &grid, t, zmin, &mut self.pen);
+        self.coarse.clear();
+        self.coarse.resize(spec.points(), 0.0);
+        gel.surface_depth(&grid, &mut self.coarse);
+        for (c, &p) in self.coarse.iter_mut().zip(&self.pen) {
+            let v = if c.is_finite() { c.max(p) } else { p };
+            *c = v.clamp(0.0, t);
+        }
+    }
+
+    /// The encoder's input (model units), appended to `out` after clearing it.
+    pub fn encoder_input(&self, spec: &LatticeSpec, out: &mut Vec<f32>) {
+        out.clear();
+        let s = spec.encoder_stride;
+        let o = s / 2;
+        for field in [&self.coarse, &self.pen] {
+            for row in (o..spec.ny).step_by(s) {
+                for col in (o..spec.nx).step_by(s) {
+                    out.push((field[row * spec.nx + col] * spec.depth_scale) as f32);
+                }
+            }
+        }
+    }
+}
+
+/// Appends the decoder query features of lattice point `(row, col)` to `out`:
+/// `[x / (Lx/2), y / (Ly/2)]`, then the `patch x patch` window of coarse depth, then the
+/// window of rigid penetration (row-major windows, row offset outer, zero outside the gel),
+/// in model units.
+pub fn query_features(obs: &Observation, spec: &LatticeSpec, row: usize, col: usize, out: &mut Vec<f32>) {
+    let grid = spec.grid();
+    out.push((grid.x(col) / (0.5 * spec.size[0])) as f32);
+    out.push((grid.y(row) / (0.5 * spec.size[1])) as f32);
+    let h = (spec.patch / 2) as isize;
+    let step = spec.patch_step as isize;
+    for field in [&obs.coarse, &obs.pen] {
+        for dr in -h..=h {
+            for dc in -h..=h {
+                let r = row as isize + dr * step;
+                let c = col as isize + dc * step;
+                let v = if r >= 0 && c >= 0 && (r as usize) < spec.ny && (c as usize) < spec.nx {
+                    field[r as usize * spec.nx + c as usize] * spec.depth_scale
+                } else {
+                    0.0
+                };
+                out.push(v as f32);
+            }
+        }
+    }
+}

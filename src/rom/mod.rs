@@ -1,0 +1,2 @@
+//! Reduced-order neural model (stub while building).
+pub mod features;

@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build demo test test-rust test-python bench clean
+.PHONY: all venv build demo test test-rust test-python bench bench-quick bench-micro stability clean
 
 all: build
 
@@ -40,10 +40,22 @@ test-rust: venv
 test-python: build
 	$(PY) -m pytest tests/python -q
 
-test: build test-rust test-python
+test: build test-rust test-python bench-quick
 
+# The press benchmark (error against run time of every mode; README "Benchmarks").
 bench: build
-	$(CARGO) bench
+	$(CARGO) run --release --bin tacrom -- bench --full
+
+bench-quick: venv
+	$(CARGO) run --release --bin tacrom -- bench --quick
+
+# Micro-benchmarks of one sensor evaluation per mode and indenter.
+bench-micro: build
+	$(CARGO) bench --bench sensor
+
+# The stability suite's table.
+stability: venv
+	$(CARGO) run --release --bin tacrom -- stability
 
 clean:
 	rm -rf target out $(VENV) python/tacrom/_lib python/*.egg-info

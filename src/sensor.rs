@@ -224,7 +224,7 @@ impl TactileSensor {
             } => {
                 let gel = match gel {
                     Some(g) => g,
-                    None => match Gel::new(params.clone(), options.clone()) {
+                    None => match Gel::new(*params, *options) {
                         Ok(g) => gel.insert(Box::new(g)),
                         Err(e) => {
                             eval.warnings

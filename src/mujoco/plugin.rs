@@ -100,8 +100,11 @@ fn site_of(m: Model<'_>, sensor_id: usize, config: &Config) -> Result<usize, Str
 }
 
 /// The attribute table, built once from [`ATTRIBUTES`].
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_attributes(count: *mut c_int) -> *const *const c_char {
+pub unsafe extern "C" fn tacrom_attributes(count: *mut c_int) -> *const *const c_char {
     /// Owns the names (field 0) that the pointers (field 1) point into.
     struct Table(#[allow(dead_code)] Vec<CString>, Vec<*const c_char>);
     // SAFETY: the table is immutable after construction; the pointers point into the
@@ -126,15 +129,21 @@ pub extern "C" fn tacrom_attributes(count: *mut c_int) -> *const *const c_char {
 }
 
 /// The sensor keeps no state in `plugin_state`: everything lives in `plugin_data`.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_nstate(_m: *const sys::mjModel, _instance: c_int) -> c_int {
+pub unsafe extern "C" fn tacrom_nstate(_m: *const sys::mjModel, _instance: c_int) -> c_int {
     0
 }
 
 /// The sensor's dimension; called at compile time, before `init`, so it validates the
 /// whole configuration itself.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_nsensordata(
+pub unsafe extern "C" fn tacrom_nsensordata(
     m: *const sys::mjModel,
     instance: c_int,
     sensor_id: c_int,
@@ -158,8 +167,11 @@ pub extern "C" fn tacrom_nsensordata(
 }
 
 /// Builds the instance's state for a new `mjData`.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_init(
+pub unsafe extern "C" fn tacrom_init(
     m: *const sys::mjModel,
     d: *mut sys::mjData,
     instance: c_int,
@@ -220,8 +232,11 @@ unsafe fn instance_mut<'a>(d: *mut sys::mjData, instance: c_int) -> Option<&'a m
 }
 
 /// Frees the instance's state.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_destroy(d: *mut sys::mjData, instance: c_int) {
+pub unsafe extern "C" fn tacrom_destroy(d: *mut sys::mjData, instance: c_int) {
     let _ = catch_unwind(AssertUnwindSafe(|| {
         // SAFETY: MuJoCo passes valid data.
         let Some(d) = (unsafe { d.as_mut() }) else {
@@ -239,8 +254,11 @@ pub extern "C" fn tacrom_destroy(d: *mut sys::mjData, instance: c_int) {
 }
 
 /// Copies the source's state into the destination (for `mj_copyData`).
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_copy(
+pub unsafe extern "C" fn tacrom_copy(
     dest: *mut sys::mjData,
     _m: *const sys::mjModel,
     src: *const sys::mjData,
@@ -258,7 +276,7 @@ pub extern "C" fn tacrom_copy(
         let d = unsafe { dest.as_mut() }.ok_or("null data")?;
         let slot = plugin_slot(d, instance)?;
         let old = std::mem::replace(slot, Box::into_raw(copy) as usize) as *mut Instance;
-        if !old.is_null() && old as *const Instance != source as *const Instance {
+        if !old.is_null() && !std::ptr::eq(old, source) {
             // SAFETY: the destination's previous state, made by Box::into_raw.
             drop(unsafe { Box::from_raw(old) });
         }
@@ -267,8 +285,11 @@ pub extern "C" fn tacrom_copy(
 }
 
 /// Restores the undeformed gel.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_reset(
+pub unsafe extern "C" fn tacrom_reset(
     _m: *const sys::mjModel,
     _plugin_state: *mut f64,
     plugin_data: *mut c_void,
@@ -283,8 +304,11 @@ pub extern "C" fn tacrom_reset(
 }
 
 /// Evaluates the sensor and writes its sensordata. Failures write zeros and warn.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_compute(
+pub unsafe extern "C" fn tacrom_compute(
     m: *const sys::mjModel,
     d: *mut sys::mjData,
     instance: c_int,
@@ -362,8 +386,11 @@ fn describe(issues: &GatherIssues, config: &Config) -> Vec<String> {
 /// `[width, height, count, (kind, offset, length) x count]` with kind 0 depth, 1 force,
 /// 2 contact. Returns the number of ints written, or -1 if the sensor is not a valid
 /// tacrom sensor or the buffer is too small.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub extern "C" fn tacrom_sensor_layout(
+pub unsafe extern "C" fn tacrom_sensor_layout(
     m: *const sys::mjModel,
     sensor_id: c_int,
     layout: *mut c_int,

@@ -1,0 +1,780 @@
+//! The press benchmark: error against run time for every physics mode (`tacrom bench`).
+//!
+//! The protocol follows the paper's Tables I and II: each indenter is pressed at a grid of
+//! positions through increasing depths (0.1 to 0.5 mm in 0.1 mm steps, then 1.0 mm) as one
+//! continuous sequence per indenter and position (the gel warm-starts from press to
+//! press); every mode sees the same poses. The reference is the fine MPM mode at a chosen
+//! grid spacing (`reference_dx`); its presses are cached on disk ([`cache`]), so a re-run
+//! costs only the modes. Each mode runs once per thread count (1 and 2 by default); errors
+//! come from the first run, and the others are checked to give the same images.
+//!
+//! * [`protocol`]: indenters, positions, modes, one press sequence.
+//! * [`metrics`]: MAE, RMSE, PSNR, SSIM, Chamfer-L2, quantiles.
+//! * [`cache`]: the reference cache.
+//! * [`report`]: markdown and CSV; [`plot`], [`draw`]: the figures.
+//!
+//! **Peak memory** is measured in-process: before each mode's run the kernel's peak
+//! resident set (VmHWM) is reset by writing `5` to `/proc/self/clear_refs`, and VmHWM is
+//! read after it. The figure therefore includes what the process already held (the loaded
+//! meshes and the reference images, reported as the baseline). Where the reset is refused
+//! the figure is the process's peak so far, and the report says so.
+
+pub mod cache;
+pub mod draw;
+pub mod metrics;
+pub mod plot;
+pub mod protocol;
+pub mod report;
+
+use std::io::{IsTerminal, Write as _};
+use std::path::PathBuf;
+use std::time::Instant;
+
+use crate::config::RawConfig;
+use crate::mpm::SolverOptions;
+use cache::{Cache, CacheKey, CachedPress};
+use protocol::{Frame, Indenter, ModeSpec};
+
+/// The stages of the timing breakdown, in order. The rom stages (encoder, refinement,
+/// decoder) are empty until that mode exists.
+pub const STAGES: [&str; 7] = [
+    "scene",
+    "SDF",
+    "MPM",
+    "encoder",
+    "refinement",
+    "decoder",
+    "render",
+];
+
+/// Bump when the meaning of a cached reference press changes without the solver's source
+/// changing (the format, the protocol's poses).
+pub const CACHE_VERSION: &str = "tacrom-bench-cache-1";
+
+/// A benchmark failure, with a message for the user.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// Bad arguments.
+    #[error("{0}")]
+    Usage(String),
+    /// An indenter folder or mesh could not be used.
+    #[error("indenter {}: {message}", path.display())]
+    Indenter {
+        /// The file or folder.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A sensor configuration was rejected.
+    #[error("{0}")]
+    Config(String),
+    /// The reference cache failed.
+    #[error(transparent)]
+    Cache(#[from] cache::CacheError),
+    /// Writing the report failed.
+    #[error("cannot write {}: {message}", path.display())]
+    Output {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// Where the indenters come from.
+#[derive(Clone, Debug)]
+pub enum IndenterSource {
+    /// Every STL/OBJ mesh of a folder, coordinates times `scale`, flipped or not; `names`
+    /// (file stems) selects some, `limit` keeps the first few.
+    Folder {
+        /// The folder.
+        dir: PathBuf,
+        /// Coordinate scale (1e-3 for millimetres).
+        scale: f64,
+        /// Turn each mesh a half turn about x (its top face presses the gel).
+        flip: bool,
+        /// File stems to keep (all when empty).
+        names: Vec<String>,
+        /// At most this many.
+        limit: Option<usize>,
+    },
+    /// Given indenters.
+    Given(Vec<Indenter>),
+}
+
+/// Everything a benchmark run needs.
+#[derive(Clone, Debug)]
+pub struct BenchOptions {
+    /// Name of the profile, for the report.
+    pub profile: String,
+    /// Indenters.
+    pub indenters: IndenterSource,
+    /// Positions per side of the square grid (3: a 3 x 3 grid).
+    pub grid: usize,
+    /// Spacing of the position grid (m).
+    pub spacing: f64,
+    /// Depths of each press sequence (m), increasing.
+    pub depths: Vec<f64>,
+    /// Modes to compare with the reference.
+    pub modes: Vec<ModeSpec>,
+    /// Grid spacing of the fine reference (m).
+    pub reference_dx: f64,
+    /// Solver threads of the reference.
+    pub reference_threads: usize,
+    /// Thread counts each mode runs with.
+    pub threads: Vec<usize>,
+    /// Image width and height.
+    pub resolution: [usize; 2],
+    /// Further sensor attributes for every mode and the reference (gel, material).
+    pub attrs: Vec<(String, String)>,
+    /// Reference cache folder; `None` disables the cache.
+    pub cache: Option<PathBuf>,
+    /// Report folder.
+    pub out: PathBuf,
+    /// Number of press panels to draw.
+    pub panels: usize,
+    /// Show progress on stderr.
+    pub progress: bool,
+}
+
+impl BenchOptions {
+    /// The full protocol: every pattern, a 3 x 3 grid 2 mm apart, six depths, 320 x 240,
+    /// reference at the fine mode's 0.3 mm.
+    pub fn full(indenter_dir: PathBuf) -> Self {
+        Self {
+            profile: "full".to_owned(),
+            indenters: IndenterSource::Folder {
+                dir: indenter_dir,
+                scale: 1e-3,
+                flip: true,
+                names: Vec::new(),
+                limit: None,
+            },
+            grid: 3,
+            spacing: 2e-3,
+            depths: vec![0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3, 0.5e-3, 1.0e-3],
+            modes: ModeSpec::defaults(),
+            reference_dx: 0.3e-3,
+            reference_threads: 2,
+            threads: vec![1, 2],
+            resolution: [320, 240],
+            attrs: Vec::new(),
+            cache: Some(PathBuf::from("out/bench-cache")),
+            out: PathBuf::from("out/bench/full"),
+            panels: 4,
+            progress: true,
+        }
+    }
+
+    /// The quick profile (a few minutes on two cores, cold cache included): two patterns,
+    /// the centre position, three depths, 64 x 48 images, a cheaper 0.7 mm reference.
+    pub fn quick(indenter_dir: PathBuf) -> Self {
+        Self {
+            profile: "quick".to_owned(),
+            indenters: IndenterSource::Folder {
+                dir: indenter_dir,
+                scale: 1e-3,
+                flip: true,
+                names: vec!["hexagon".to_owned(), "moon".to_owned()],
+                limit: Some(2),
+            },
+            grid: 1,
+            depths: vec![0.2e-3, 0.5e-3, 1.0e-3],
+            reference_dx: 0.7e-3,
+            resolution: [64, 48],
+            out: PathBuf::from("out/bench/quick"),
+            panels: 2,
+            ..Self::full(PathBuf::new())
+        }
+    }
+
+    fn base_config(&self) -> RawConfig {
+        let mut raw = RawConfig::default()
+            .with(
+                "resolution",
+                &format!("{} {}", self.resolution[0], self.resolution[1]),
+            )
+            .with("outputs", "depth force");
+        for (k, v) in &self.attrs {
+            raw = raw.with(k, v);
+        }
+        raw
+    }
+
+    /// The reference's mode.
+    pub fn reference_mode(&self) -> ModeSpec {
+        ModeSpec {
+            label: "fine-ref".to_owned(),
+            attrs: vec![
+                ("physics".to_owned(), "fine".to_owned()),
+                ("dx".to_owned(), format!("{:e}", self.reference_dx)),
+            ],
+        }
+    }
+}
+
+/// Resets the process's peak resident set; false where the kernel refuses.
+pub fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
+/// A field of `/proc/self/status` in bytes (`VmHWM`, `VmRSS`).
+pub fn status_bytes(field: &str) -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with(field))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// A hash of the solver's and sensor's source, so that the cache notices their changes.
+fn code_version() -> String {
+    let mut k = CacheKey::new();
+    let _ = k
+        .field("version", CACHE_VERSION.as_bytes())
+        .field("crate", env!("CARGO_PKG_VERSION").as_bytes())
+        .field("mpm", include_str!("../mpm/mod.rs").as_bytes())
+        .field("sensor", include_str!("../sensor.rs").as_bytes())
+        .field(
+            "solver",
+            format!("{:?}", SolverOptions::default()).as_bytes(),
+        );
+    k.hex()
+}
+
+/// One press of the protocol.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PressId {
+    /// Index into the indenters.
+    pub indenter: usize,
+    /// Index into the positions.
+    pub position: usize,
+    /// Index into the depths.
+    pub depth: usize,
+}
+
+/// Errors of one mode against the reference, averaged over presses.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Accuracy {
+    /// Depth MAE (m).
+    pub mae: f64,
+    /// Depth RMSE (m).
+    pub rmse: f64,
+    /// PSNR (dB), each press's capped at [`metrics::PSNR_CAP_DB`].
+    pub psnr: f64,
+    /// SSIM.
+    pub ssim: f64,
+    /// Chamfer-L2 of the deformed surfaces (m^2).
+    pub chamfer: f64,
+    /// Mean norm of the force difference (N).
+    pub force_abs: f64,
+    /// Sum of force difference norms over the sum of reference force norms.
+    pub force_rel: f64,
+}
+
+/// One row of the report: a mode at one thread count.
+#[derive(Clone, Debug)]
+pub struct ModeResult {
+    /// Mode label.
+    pub label: String,
+    /// Solver threads.
+    pub threads: usize,
+    /// Whether this is the reference.
+    pub reference: bool,
+    /// Errors against the reference (the reference's own are zero).
+    pub accuracy: Accuracy,
+    /// Median time per evaluation (ms).
+    pub median_ms: f64,
+    /// 90th-percentile time per evaluation (ms).
+    pub p90_ms: f64,
+    /// Peak resident memory during the run (bytes).
+    pub peak_rss: Option<u64>,
+    /// Resident memory at the start of the run (bytes).
+    pub base_rss: Option<u64>,
+    /// Median per-stage times (ms), [`STAGES`] order, `NaN` where absent.
+    pub stages_ms: [f64; STAGES.len()],
+    /// Evaluations whose solver did not converge.
+    pub not_converged: usize,
+    /// Evaluations.
+    pub evaluations: usize,
+    /// For the reference: how many presses came from the cache.
+    pub cached: usize,
+    /// Largest difference to the first thread count's images (m), for later counts.
+    pub thread_diff: Option<f64>,
+}
+
+/// The outcome of a run.
+#[derive(Clone, Debug)]
+pub struct BenchResult {
+    /// The options it ran with.
+    pub options: BenchOptions,
+    /// Indenter names.
+    pub indenters: Vec<String>,
+    /// Positions (m).
+    pub positions: Vec<[f64; 2]>,
+    /// Rows: the reference first, then each mode and thread count.
+    pub rows: Vec<ModeResult>,
+    /// Modes that could not run, with the reason.
+    pub unavailable: Vec<(String, String)>,
+    /// Whether the peak-memory reset worked.
+    pub peak_reset: bool,
+    /// Wall time of the whole run (s).
+    pub wall_seconds: f64,
+    /// Files written.
+    pub files: Vec<PathBuf>,
+}
+
+/// Progress on stderr: a redrawn bar on a terminal, a line per finished sequence otherwise.
+struct Progress {
+    total: usize,
+    done: usize,
+    start: Instant,
+    enabled: bool,
+    tty: bool,
+}
+
+impl Progress {
+    fn new(total: usize, enabled: bool) -> Self {
+        Self {
+            total: total.max(1),
+            done: 0,
+            start: Instant::now(),
+            enabled,
+            tty: std::io::stderr().is_terminal(),
+        }
+    }
+
+    fn step(&mut self, what: &str, end_of_sequence: bool) {
+        self.done += 1;
+        if !self.enabled || !(self.tty || end_of_sequence) {
+            return;
+        }
+        let frac = self.done as f64 / self.total as f64;
+        let width = 30;
+        let filled = ((frac * width as f64) as usize).min(width);
+        let bar = format!("{}{}", "#".repeat(filled), ".".repeat(width - filled));
+        let el = self.start.elapsed().as_secs_f64();
+        let line = format!(
+            "[{bar}] {:>4}/{} {:>5.0}s  {what}",
+            self.done, self.total, el
+        );
+        let mut e = std::io::stderr().lock();
+        let _ = if self.tty {
+            write!(e, "\r\x1b[2K{line}")
+        } else {
+            writeln!(e, "{line}")
+        };
+        let _ = e.flush();
+    }
+
+    fn skip(&mut self, n: usize) {
+        self.done += n;
+    }
+
+    fn finish(&self) {
+        if self.enabled && self.tty {
+            eprintln!();
+        }
+    }
+}
+
+struct Loaded {
+    indenters: Vec<Indenter>,
+    positions: Vec<[f64; 2]>,
+}
+
+fn load(opts: &BenchOptions) -> Result<Loaded, BenchError> {
+    if opts.depths.is_empty()
+        || opts
+            .depths
+            .iter()
+            .any(|d| !(d.is_finite() && *d >= 0.0 && *d < 0.05))
+    {
+        return Err(BenchError::Usage(
+            "depths must be given, each finite, non-negative and below 50 mm".to_owned(),
+        ));
+    }
+    if opts.grid == 0 || !(opts.spacing.is_finite() && opts.spacing >= 0.0) {
+        return Err(BenchError::Usage(
+            "the position grid needs at least one position and a finite spacing".to_owned(),
+        ));
+    }
+    if opts.threads.is_empty() {
+        return Err(BenchError::Usage("no thread count given".to_owned()));
+    }
+    let indenters = match &opts.indenters {
+        IndenterSource::Given(v) => v.clone(),
+        IndenterSource::Folder {
+            dir,
+            scale,
+            flip,
+            names,
+            limit,
+        } => {
+            let mut files = protocol::mesh_files(dir)?;
+            if !names.is_empty() {
+                let stem = |p: &PathBuf| p.file_stem().map(|s| s.to_string_lossy().into_owned());
+                for n in names {
+                    if !files.iter().any(|f| stem(f).as_deref() == Some(n)) {
+                        return Err(BenchError::Indenter {
+                            path: dir.join(n),
+                            message: "no such mesh (.stl or .obj) in the folder".to_owned(),
+                        });
+                    }
+                }
+                files.retain(|f| stem(f).is_some_and(|s| names.contains(&s)));
+            }
+            if let Some(l) = limit {
+                files.truncate(*l);
+            }
+            files
+                .iter()
+                .map(|f| Indenter::from_mesh(f, *scale, *flip))
+                .collect::<Result<_, _>>()?
+        }
+    };
+    if indenters.is_empty() {
+        return Err(BenchError::Usage("no indenter".to_owned()));
+    }
+    Ok(Loaded {
+        indenters,
+        positions: protocol::grid_positions(opts.grid, opts.spacing),
+    })
+}
+
+/// Key of the reference press `depths[..=k]` of `indenter` at `position`.
+fn reference_key(
+    version: &str,
+    config_text: &str,
+    indenter: &Indenter,
+    position: [f64; 2],
+    depths: &[f64],
+) -> CacheKey {
+    let mut key = CacheKey::new();
+    let _ = key
+        .field("code", version.as_bytes())
+        .field("config", config_text.as_bytes())
+        .field("indenter", indenter.fingerprint.as_bytes())
+        .floats("position", &position)
+        .floats("depths", depths);
+    key
+}
+
+fn frame_from_cache(c: CachedPress) -> Frame {
+    let mut stages = [f64::NAN; STAGES.len()];
+    for (s, v) in stages.iter_mut().zip(&c.stages) {
+        *s = *v;
+    }
+    Frame {
+        depth: c.depth,
+        force: c.force,
+        seconds: c.seconds,
+        stages,
+        iterations: c.iterations,
+        converged: c.converged,
+    }
+}
+
+/// Frames of one mode run, sequence by sequence ([indenter][position][depth]).
+pub type Frames = Vec<Vec<Vec<Frame>>>;
+
+struct Timed {
+    frames: Frames,
+    peak_rss: Option<u64>,
+    base_rss: Option<u64>,
+}
+
+fn median_stage(frames: &Frames, s: usize) -> f64 {
+    let v: Vec<f64> = frames
+        .iter()
+        .flatten()
+        .flatten()
+        .map(|f| f.stages[s])
+        .filter(|v| v.is_finite())
+        .collect();
+    metrics::median(&v) * 1e3
+}
+
+fn row_of(label: &str, threads: usize, t: &Timed) -> ModeResult {
+    let all: Vec<&Frame> = t.frames.iter().flatten().flatten().collect();
+    let secs: Vec<f64> = all.iter().map(|f| f.seconds).collect();
+    let mut stages_ms = [f64::NAN; STAGES.len()];
+    for (s, v) in stages_ms.iter_mut().enumerate() {
+        *v = median_stage(&t.frames, s);
+    }
+    ModeResult {
+        label: label.to_owned(),
+        threads,
+        reference: false,
+        accuracy: Accuracy::default(),
+        median_ms: metrics::median(&secs) * 1e3,
+        p90_ms: metrics::quantile(&secs, 0.9) * 1e3,
+        peak_rss: t.peak_rss,
+        base_rss: t.base_rss,
+        stages_ms,
+        not_converged: all.iter().filter(|f| !f.converged).count(),
+        evaluations: all.len(),
+        cached: 0,
+        thread_diff: None,
+    }
+}
+
+fn accuracy(frames: &Frames, reference: &Frames, grid: &crate::geometry::PixelGrid) -> Accuracy {
+    let (mut acc, mut n) = (Accuracy::default(), 0usize);
+    let (mut fsum, mut fref) = (0.0, 0.0);
+    let (mut psnr_n, mut ssim_n) = (0usize, 0usize);
+    for (a, r) in frames
+        .iter()
+        .flatten()
+        .flatten()
+        .zip(reference.iter().flatten().flatten())
+    {
+        let peak = r.depth.iter().copied().fold(0.0f64, f64::max);
+        acc.mae += metrics::mae(&a.depth, &r.depth);
+        acc.rmse += metrics::rmse(&a.depth, &r.depth);
+        if let Some(p) = metrics::psnr(&a.depth, &r.depth, peak) {
+            acc.psnr += p.min(metrics::PSNR_CAP_DB);
+            psnr_n += 1;
+        }
+        if let Some(s) = metrics::ssim(&a.depth, &r.depth, grid.width, grid.height, peak) {
+            acc.ssim += s;
+            ssim_n += 1;
+        }
+        acc.chamfer += metrics::chamfer_l2(
+            &metrics::surface_points(grid, &a.depth),
+            &metrics::surface_points(grid, &r.depth),
+        );
+        let df = (0..3)
+            .map(|k| (a.force[k] - r.force[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        fsum += df;
+        fref += r.force.iter().map(|f| f * f).sum::<f64>().sqrt();
+        n += 1;
+    }
+    let n = n.max(1) as f64;
+    acc.mae /= n;
+    acc.rmse /= n;
+    acc.chamfer /= n;
+    acc.psnr = if psnr_n > 0 {
+        acc.psnr / psnr_n as f64
+    } else {
+        f64::NAN
+    };
+    acc.ssim = if ssim_n > 0 {
+        acc.ssim / ssim_n as f64
+    } else {
+        f64::NAN
+    };
+    acc.force_abs = fsum / n;
+    acc.force_rel = if fref > 0.0 { fsum / fref } else { f64::NAN };
+    acc
+}
+
+/// Runs the benchmark and writes its report into `options.out`.
+pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
+    let wall = Instant::now();
+    let opts = options;
+    let Loaded {
+        indenters,
+        positions,
+    } = load(opts)?;
+    let base = opts.base_config();
+    let ref_mode = opts.reference_mode();
+    let ref_config = ref_mode.config(&base, opts.reference_threads)?;
+    let grid = crate::geometry::PixelGrid {
+        width: ref_config.width,
+        height: ref_config.height,
+        fov_x: ref_config.fov[0],
+        fov_y: ref_config.fov[1],
+    };
+    let version = code_version();
+    // Everything of the configuration but the thread count (results do not depend on it).
+    let config_text = {
+        let mut c = ref_config.clone();
+        c.threads = 1;
+        format!("{c:?}")
+    };
+    let cache = opts.cache.as_ref().map(Cache::new);
+
+    // Which reference sequences need computing.
+    let n_seq = indenters.len() * positions.len();
+    let nd = opts.depths.len();
+    let mut ref_frames: Frames = vec![vec![Vec::new(); positions.len()]; indenters.len()];
+    let mut todo = Vec::new();
+    let mut cached = 0;
+    let mut cached_peak: Option<u64> = None;
+    for (i, ind) in indenters.iter().enumerate() {
+        for (p, &pos) in positions.iter().enumerate() {
+            let mut frames = Vec::new();
+            if let Some(cache) = &cache {
+                for k in 0..nd {
+                    let key = reference_key(&version, &config_text, ind, pos, &opts.depths[..=k]);
+                    match cache.load(&key)? {
+                        Some(c) => {
+                            cached_peak = cached_peak.max(c.peak_rss);
+                            frames.push(frame_from_cache(c));
+                        }
+                        None => break,
+                    }
+                }
+            }
+            if frames.len() == nd {
+                cached += nd;
+                ref_frames[i][p] = frames;
+            } else {
+                todo.push((i, p));
+            }
+        }
+    }
+    let modes_work = opts.modes.len() * opts.threads.len() * n_seq * nd;
+    let mut progress = Progress::new(todo.len() * nd + modes_work, opts.progress);
+
+    // The modes first, the reference last: each run's peak memory then includes little
+    // of the runs before it (the allocator may keep what they freed).
+    let mut rows = Vec::new();
+    let mut unavailable = Vec::new();
+    let mut mode_frames: Vec<(String, Frames)> = Vec::new();
+    for mode in &opts.modes {
+        let mut first: Option<Frames> = None;
+        for &threads in &opts.threads {
+            let config = match mode.config(&base, threads) {
+                Ok(c) => c,
+                Err(e) => {
+                    unavailable.push((mode.label.clone(), e.to_string()));
+                    progress.skip(n_seq * nd * opts.threads.len());
+                    break;
+                }
+            };
+            let _ = reset_peak_rss();
+            let base_rss = status_bytes("VmRSS");
+            let mut frames: Frames = Vec::new();
+            for ind in &indenters {
+                let mut per_pos = Vec::new();
+                for &pos in &positions {
+                    let f = protocol::run_sequence(&config, ind, pos, &opts.depths, |k, _| {
+                        progress.step(
+                            &format!(
+                                "{} x{threads} {} @({:.1},{:.1}) mm {:.1} mm",
+                                mode.label,
+                                ind.name,
+                                pos[0] * 1e3,
+                                pos[1] * 1e3,
+                                opts.depths[k] * 1e3
+                            ),
+                            k + 1 == nd,
+                        );
+                    })?;
+                    per_pos.push(f);
+                }
+                frames.push(per_pos);
+            }
+            let timed = Timed {
+                frames,
+                peak_rss: status_bytes("VmHWM"),
+                base_rss,
+            };
+            let mut row = row_of(&mode.label, threads, &timed);
+            match &first {
+                None => first = Some(timed.frames),
+                Some(f0) => {
+                    let diff = f0
+                        .iter()
+                        .flatten()
+                        .flatten()
+                        .zip(timed.frames.iter().flatten().flatten())
+                        .flat_map(|(a, b)| a.depth.iter().zip(&b.depth).map(|(x, y)| (x - y).abs()))
+                        .fold(0.0f64, f64::max);
+                    row.thread_diff = Some(diff);
+                }
+            }
+            rows.push(row);
+        }
+        if let Some(f) = first {
+            // The first run's frames, for the panels.
+            mode_frames.push((mode.label.clone(), f));
+        }
+    }
+    // The reference.
+    let peak_reset = reset_peak_rss();
+    let ref_base = status_bytes("VmRSS");
+    for &(i, p) in &todo {
+        let ind = &indenters[i];
+        let pos = positions[p];
+        let frames = protocol::run_sequence(&ref_config, ind, pos, &opts.depths, |k, _| {
+            progress.step(
+                &format!(
+                    "reference {} @({:.1},{:.1}) mm {:.1} mm",
+                    ind.name,
+                    pos[0] * 1e3,
+                    pos[1] * 1e3,
+                    opts.depths[k] * 1e3
+                ),
+                k + 1 == nd,
+            );
+        })?;
+        let peak = status_bytes("VmHWM");
+        if let Some(cache) = &cache {
+            for (k, f) in frames.iter().enumerate() {
+                let key = reference_key(&version, &config_text, ind, pos, &opts.depths[..=k]);
+                cache.store(
+                    &key,
+                    &CachedPress {
+                        width: grid.width,
+                        height: grid.height,
+                        depth: f.depth.clone(),
+                        force: f.force,
+                        points: metrics::surface_points(&grid, &f.depth),
+                        seconds: f.seconds,
+                        stages: f.stages.to_vec(),
+                        iterations: f.iterations,
+                        converged: f.converged,
+                        peak_rss: peak,
+                    },
+                )?;
+            }
+        }
+        ref_frames[i][p] = frames;
+    }
+    let ref_timed = Timed {
+        frames: ref_frames,
+        // From the cache: the peak of the runs that computed it.
+        peak_rss: if todo.is_empty() {
+            cached_peak
+        } else {
+            status_bytes("VmHWM").max(cached_peak)
+        },
+        base_rss: if todo.is_empty() { None } else { ref_base },
+    };
+    let mut ref_row = row_of(&ref_mode.label, opts.reference_threads, &ref_timed);
+    ref_row.reference = true;
+    ref_row.cached = cached;
+    rows.insert(0, ref_row);
+
+    // Errors, from each mode's first thread count.
+    for (label, frames) in &mode_frames {
+        let acc = accuracy(frames, &ref_timed.frames, &grid);
+        for row in rows.iter_mut().filter(|r| &r.label == label) {
+            row.accuracy = acc;
+        }
+    }
+
+    progress.finish();
+    let mut result = BenchResult {
+        options: opts.clone(),
+        indenters: indenters.iter().map(|i| i.name.clone()).collect(),
+        positions,
+        rows,
+        unavailable,
+        peak_reset,
+        wall_seconds: 0.0,
+        files: Vec::new(),
+    };
+    let figures = report::Figures {
+        grid: &grid,
+        reference: &ref_timed.frames,
+        modes: &mode_frames,
+    };
+    result.wall_seconds = wall.elapsed().as_secs_f64();
+    result.files = report::write(&result, &figures)?;
+    Ok(result)
+}

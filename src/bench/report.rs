@@ -1,0 +1,401 @@
+//! The benchmark's report: `report.md` (tables a person reads at a glance), `results.csv`
+//! (one row per mode and thread count), `error_vs_time.png` and `panels/*.png`.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use super::plot::{ErrorTimePlot, Marker, Panel, PanelImage, PlotPoint, PALETTE};
+use super::{metrics, BenchError, BenchResult, Frames, ModeResult, STAGES};
+use crate::geometry::PixelGrid;
+
+/// What the figures are drawn from.
+pub struct Figures<'a> {
+    /// The image grid.
+    pub grid: &'a PixelGrid,
+    /// The reference's frames.
+    pub reference: &'a Frames,
+    /// Each mode's frames (its first thread count).
+    pub modes: &'a [(String, Frames)],
+}
+
+fn num(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "-".to_owned()
+    }
+}
+
+fn mib(v: Option<u64>) -> String {
+    v.map_or("-".to_owned(), |b| {
+        format!("{:.0}", b as f64 / (1 << 20) as f64)
+    })
+}
+
+fn speedup(rows: &[ModeResult], r: &ModeResult) -> String {
+    if r.threads == 1 {
+        return "1.00".to_owned();
+    }
+    rows.iter()
+        .find(|o| o.label == r.label && o.threads == 1)
+        .map_or("-".to_owned(), |o| num(o.median_ms / r.median_ms, 2))
+}
+
+/// The markdown report.
+pub fn markdown(r: &BenchResult) -> String {
+    let o = &r.options;
+    let mut s = String::new();
+    let depths: Vec<String> = o.depths.iter().map(|d| format!("{:.1}", d * 1e3)).collect();
+    let _ = writeln!(
+        s,
+        "# tacrom bench: error against run time ({} profile)\n",
+        o.profile
+    );
+    let _ = writeln!(
+        s,
+        "Reference: fine MPM at dx = {:.2} mm, {} solver thread(s){}.",
+        o.reference_dx * 1e3,
+        o.reference_threads,
+        if (o.reference_dx - 0.3e-3).abs() > 1e-9 {
+            " (cheaper than the fine mode's default 0.3 mm: errors are against this \
+             reference, not the 0.3 mm one)"
+        } else {
+            " (the fine mode's default)"
+        }
+    );
+    let _ = writeln!(
+        s,
+        "Protocol: indenters {}; {} position(s) on a {}x{} grid {:.1} mm apart; depths {} mm \
+         pressed in one continuous sequence per indenter and position; {}x{} images. \
+         {} evaluations per mode and thread count. Wall time {:.0} s.\n",
+        r.indenters.join(", "),
+        r.positions.len(),
+        o.grid,
+        o.grid,
+        o.spacing * 1e3,
+        depths.join(", "),
+        o.resolution[0],
+        o.resolution[1],
+        r.indenters.len() * r.positions.len() * o.depths.len(),
+        r.wall_seconds
+    );
+
+    let _ = writeln!(s, "## Accuracy against the reference (mean over presses)\n");
+    let _ = writeln!(
+        s,
+        "| mode | MAE um | RMSE um | PSNR dB | SSIM | Chamfer-L2 um^2 | force err N | force err % |"
+    );
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|");
+    let first = |r: &&ModeResult| !r.reference && r.thread_diff.is_none();
+    for m in r.rows.iter().filter(first) {
+        let a = &m.accuracy;
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {} |",
+            m.label,
+            num(a.mae * 1e6, 2),
+            num(a.rmse * 1e6, 2),
+            num(a.psnr, 1),
+            num(a.ssim, 4),
+            num(a.chamfer * 1e12, 2),
+            num(a.force_abs, 4),
+            num(a.force_rel * 100.0, 1)
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nPSNR peak: the reference image's largest depth, per press (capped at {} dB). SSIM: \
+         {}x{} Gaussian window, sigma {}, K1 = {}, K2 = {}, L = the same peak, valid windows \
+         only. Chamfer-L2: sum of both directed mean squared nearest distances between the \
+         deformed surfaces (every pixel centre lowered by its depth). Force error: norm of \
+         the total-force difference; % of the reference's total.\n",
+        metrics::PSNR_CAP_DB,
+        metrics::SSIM_WINDOW,
+        metrics::SSIM_WINDOW,
+        metrics::SSIM_SIGMA,
+        metrics::SSIM_K1,
+        metrics::SSIM_K2
+    );
+
+    let _ = writeln!(s, "## Cost per evaluation\n");
+    let _ = writeln!(
+        s,
+        "| mode | threads | median ms | p90 ms | speed-up vs 1 thread | peak RSS MiB | RSS at start MiB | not converged | note |"
+    );
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---|");
+    for m in &r.rows {
+        let note = if m.reference {
+            if m.cached == m.evaluations {
+                "reference; all from cache (times of the run that computed them)".to_owned()
+            } else if m.cached > 0 {
+                format!("reference; {} of {} from cache", m.cached, m.evaluations)
+            } else {
+                "reference".to_owned()
+            }
+        } else {
+            match m.thread_diff {
+                Some(0.0) => "images identical to 1 thread".to_owned(),
+                Some(d) => format!("images differ from 1 thread by up to {:.3} um", d * 1e6),
+                None => String::new(),
+            }
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |",
+            m.label,
+            m.threads,
+            num(m.median_ms, 2),
+            num(m.p90_ms, 2),
+            if m.reference {
+                "-".to_owned()
+            } else {
+                speedup(&r.rows, m)
+            },
+            mib(m.peak_rss),
+            mib(m.base_rss),
+            m.not_converged,
+            m.evaluations,
+            note
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nPeak RSS: {}; it includes what the process held at the start (second column).\n",
+        if r.peak_reset {
+            "VmHWM of /proc/self/status, reset before each run through /proc/self/clear_refs"
+        } else {
+            "VmHWM of /proc/self/status; the reset was refused, so it is the process's peak \
+             so far"
+        }
+    );
+
+    let _ = writeln!(s, "## Time per stage (median ms per evaluation)\n");
+    let _ = writeln!(s, "| mode | threads | {} |", STAGES.join(" | "));
+    let _ = writeln!(s, "|---|---:|{}", "---:|".repeat(STAGES.len()));
+    for m in &r.rows {
+        let cells: Vec<String> = m.stages_ms.iter().map(|v| num(*v, 3)).collect();
+        let _ = writeln!(s, "| {} | {} | {} |", m.label, m.threads, cells.join(" | "));
+    }
+    let _ = writeln!(
+        s,
+        "\nscene: posing the indenters in the sensor frame; SDF: contact test and the \
+         indenters' rigid surface; MPM: the gel solve (the rigid mode's penetration for \
+         rigid); render: writing the outputs. The rom stages are empty until that mode \
+         exists.\n"
+    );
+    if !r.unavailable.is_empty() {
+        let _ = writeln!(s, "## Modes not available in this build\n");
+        for (m, why) in &r.unavailable {
+            let _ = writeln!(s, "* `{m}`: {why}");
+        }
+        s.push('\n');
+    }
+    if !r.files.is_empty() {
+        let _ = writeln!(s, "## Files\n");
+        for f in &r.files {
+            let _ = writeln!(s, "* {}", f.display());
+        }
+    }
+    s
+}
+
+/// The CSV: one row per mode and thread count.
+pub fn csv(r: &BenchResult) -> String {
+    let mut s = String::from(
+        "mode,threads,reference,mae_um,rmse_um,psnr_db,ssim,chamfer_um2,force_err_n,force_err_rel,\
+         median_ms,p90_ms,speedup,peak_rss_mib,start_rss_mib,not_converged,evaluations,cached",
+    );
+    for st in STAGES {
+        let _ = write!(s, ",{}_ms", st.to_lowercase());
+    }
+    s.push('\n');
+    for m in &r.rows {
+        let a = &m.accuracy;
+        let _ = write!(
+            s,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            m.label,
+            m.threads,
+            m.reference,
+            num(a.mae * 1e6, 4),
+            num(a.rmse * 1e6, 4),
+            num(a.psnr, 3),
+            num(a.ssim, 5),
+            num(a.chamfer * 1e12, 4),
+            num(a.force_abs, 6),
+            num(a.force_rel, 5),
+            num(m.median_ms, 3),
+            num(m.p90_ms, 3),
+            if m.reference {
+                "-".to_owned()
+            } else {
+                speedup(&r.rows, m)
+            },
+            mib(m.peak_rss),
+            mib(m.base_rss),
+            m.not_converged,
+            m.evaluations,
+            m.cached
+        );
+        for v in &m.stages_ms {
+            let _ = write!(s, ",{}", num(*v, 4));
+        }
+        s.push('\n');
+    }
+    s
+}
+
+fn write_text(path: &Path, text: &str) -> Result<(), BenchError> {
+    std::fs::write(path, text).map_err(|e| BenchError::Output {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+fn png_error(path: &Path) -> impl FnOnce(image::ImageError) -> BenchError + '_ {
+    move |e| BenchError::Output {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+/// The error-time plot of a result.
+pub fn error_plot(r: &BenchResult) -> ErrorTimePlot {
+    let labels: Vec<&str> = {
+        let mut v: Vec<&str> = Vec::new();
+        for m in r.rows.iter().filter(|m| !m.reference) {
+            if !v.contains(&m.label.as_str()) {
+                v.push(&m.label);
+            }
+        }
+        v
+    };
+    let points = r
+        .rows
+        .iter()
+        .filter(|m| !m.reference)
+        .map(|m| {
+            let i = labels.iter().position(|l| *l == m.label).unwrap_or(0);
+            PlotPoint {
+                label: m.label.clone(),
+                x: m.median_ms,
+                y: m.accuracy.mae * 1e6,
+                colour: PALETTE[i % PALETTE.len()],
+                marker: if m.threads <= 1 {
+                    Marker::Disc
+                } else {
+                    Marker::Square
+                },
+            }
+        })
+        .collect();
+    let reference = r.rows.iter().find(|m| m.reference).map(|m| {
+        (
+            m.median_ms,
+            format!(
+                "reference: fine dx {:.2} mm, x{}",
+                r.options.reference_dx * 1e3,
+                m.threads
+            ),
+        )
+    });
+    ErrorTimePlot {
+        title: format!(
+            "depth MAE against the fine reference ({} profile)",
+            r.options.profile
+        ),
+        x_label: "median ms per evaluation".to_owned(),
+        y_label: "depth MAE (um)".to_owned(),
+        points,
+        reference,
+    }
+}
+
+/// The presses drawn as panels: the deepest press at the centre position of successive
+/// indenters, then their middle depths.
+fn panel_presses(r: &BenchResult) -> Vec<(usize, usize, usize)> {
+    let centre = r
+        .positions
+        .iter()
+        .enumerate()
+        .min_by(|a, b| {
+            let n = |p: &[f64; 2]| p[0] * p[0] + p[1] * p[1];
+            n(a.1).total_cmp(&n(b.1))
+        })
+        .map_or(0, |(i, _)| i);
+    let nd = r.options.depths.len();
+    let mut out = Vec::new();
+    for depth in [nd - 1, nd / 2] {
+        for i in 0..r.indenters.len() {
+            if out.len() < r.options.panels && !out.contains(&(i, centre, depth)) {
+                out.push((i, centre, depth));
+            }
+        }
+    }
+    out
+}
+
+/// Writes the report's files into the output folder; returns their paths.
+pub fn write(r: &BenchResult, fig: &Figures) -> Result<Vec<PathBuf>, BenchError> {
+    let dir = &r.options.out;
+    let panels_dir = dir.join("panels");
+    std::fs::create_dir_all(&panels_dir).map_err(|e| BenchError::Output {
+        path: panels_dir.clone(),
+        message: e.to_string(),
+    })?;
+    let mut files = Vec::new();
+
+    let plot_path = dir.join("error_vs_time.png");
+    error_plot(r)
+        .save(&plot_path)
+        .map_err(png_error(&plot_path))?;
+    files.push(plot_path);
+
+    for (i, p, d) in panel_presses(r) {
+        let reference = &fig.reference[i][p][d];
+        let pos = r.positions[p];
+        let panel = Panel {
+            title: format!(
+                "{} at ({:.1}, {:.1}) mm, depth {:.1} mm",
+                r.indenters[i],
+                pos[0] * 1e3,
+                pos[1] * 1e3,
+                r.options.depths[d] * 1e3
+            ),
+            width: fig.grid.width,
+            height: fig.grid.height,
+            reference: PanelImage {
+                title: format!("reference (fine {:.2} mm)", r.options.reference_dx * 1e3),
+                values: reference.depth.clone(),
+            },
+            modes: fig
+                .modes
+                .iter()
+                .map(|(label, frames)| PanelImage {
+                    title: label.clone(),
+                    values: frames[i][p][d].depth.clone(),
+                })
+                .collect(),
+        };
+        let path = panels_dir.join(format!(
+            "{}_p{}_d{:.1}mm.png",
+            r.indenters[i],
+            p,
+            r.options.depths[d] * 1e3
+        ));
+        panel.save(&path).map_err(png_error(&path))?;
+        files.push(path);
+    }
+
+    let csv_path = dir.join("results.csv");
+    write_text(&csv_path, &csv(r))?;
+    files.push(csv_path);
+    let md_path = dir.join("report.md");
+    files.push(md_path.clone());
+    let with_files = BenchResult {
+        files: files.clone(),
+        ..r.clone()
+    };
+    write_text(&md_path, &markdown(&with_files))?;
+    Ok(files)
+}

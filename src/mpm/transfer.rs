@@ -5,9 +5,10 @@
 //!    base cell (what makes the scatter deterministic and race free);
 //! 2. [`particle_to_grid`]: clear the grid, scatter mass, APIC momentum and the MLS-MPM
 //!    stress force (Hu et al. 2018, "A moving least squares material point method", Eq. 18
-//!    and 29), and the contact gaps of the top particles;
-//! 3. [`grid_update`]: momentum to velocity, bonded bottom, indenter contact with Coulomb
-//!    friction, damping, and the out-of-balance force that the convergence test reads;
+//!    and 29); the contact forces of the top particles are added after it
+//!    (`super::contact::scatter_contacts`, sequential, in slot order);
+//! 3. [`grid_update`]: momentum to velocity, bonded bottom, damping, and the
+//!    out-of-balance force that the convergence test reads;
 //! 4. [`grid_to_particle`]: velocity and affine `C` (APIC, Jiang et al. 2015), then
 //!    `F <- (I + dt C) F`, `x <- x + dt v`, with clamps on `x` and `det F`.
 //!
@@ -33,17 +34,6 @@ pub(crate) const BLOCK: usize = 4;
 /// Particles per parallel task in the particle passes (fixed, so that per-chunk reductions
 /// do not depend on the thread count).
 pub(crate) const CHUNK: usize = 1024;
-
-/// A top particle whose surface point is farther than this from every indenter (cells)
-/// takes no part in contact.
-pub(crate) const CONTACT_BAND: f32 = 1.0;
-
-/// Largest speed (cells per step) at which a penetrating surface is pushed out of an
-/// indenter; bounds the impulse when an indenter jumps deep into the gel.
-const MAX_PUSH: f32 = 0.1;
-
-/// Fraction of a penetration removed per step (Baumgarte factor).
-const PUSH_GAIN: f32 = 0.5;
 
 /// State of one material point (internal units).
 #[derive(Clone, Copy, Debug)]
@@ -104,35 +94,6 @@ impl Node {
     };
 }
 
-/// Contact state of one grid column `(ix, iy)`: the deformed top surface point above the
-/// column's nodes, tested against the nearest indenter.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct ColumnContact {
-    /// Whether the surface point lies within [`CONTACT_BAND`] of an indenter.
-    pub active: bool,
-    /// Signed gap (cells; negative when penetrating).
-    pub g: f32,
-    /// Indenter outward unit normal.
-    pub n: Vector3<f32>,
-    /// Indenter displacement during this step at that point (cells).
-    pub u: Vector3<f32>,
-    /// Nodes `iz_lo..=iz_hi` of the column lie within the stencil of the top particles.
-    pub iz_lo: u32,
-    /// See `iz_lo`.
-    pub iz_hi: u32,
-}
-
-impl ColumnContact {
-    pub const NONE: ColumnContact = ColumnContact {
-        active: false,
-        g: 0.0,
-        n: Vector3::new(0.0, 0.0, 1.0),
-        u: Vector3::new(0.0, 0.0, 0.0),
-        iz_lo: 1,
-        iz_hi: 0,
-    };
-}
-
 /// Fixed quantities of a step, bundled.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct StepCtx {
@@ -146,8 +107,6 @@ pub(crate) struct StepCtx {
     pub pvol: f32,
     /// Mass-proportional damping per step, `v <- v / (1 + damping)`.
     pub damping: f32,
-    /// Coulomb friction coefficient.
-    pub friction: f32,
     /// Whether to use the smoothed volume ratio (F-bar).
     pub fbar: bool,
     /// Iterations of the rotation extraction per step.
@@ -160,7 +119,7 @@ pub(crate) struct StepCtx {
 /// Particles are clamped to `x >= 1`, so truncation is the floor (the default x86-64
 /// target has no SSE4.1 `roundss`, and `floorf` is a library call).
 #[inline(always)]
-fn weights(x: f32) -> (usize, f32, [f32; 3]) {
+pub(crate) fn weights(x: f32) -> (usize, f32, [f32; 3]) {
     let base = (x - 0.5).max(0.0) as usize as f32;
     let fx = x - base;
     let w = [
@@ -298,52 +257,31 @@ fn scatter_particle<M: ConstitutiveModel>(
 /// Per x-layer results of the grid update.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct LayerStats {
-    /// Largest out-of-balance force on a free or contact node.
+    /// Largest out-of-balance force on a free node.
     pub residual: f32,
-    /// Largest reaction on a bonded or contact node.
+    /// Largest reaction on a bonded node.
     pub reaction: f32,
-    /// Sum of the contact impulses of the gel on the indenters.
-    pub force: [f64; 3],
 }
 
 /// Grid update, per node with mass (internal units, `dt = 1`):
-/// `v* = (m v)_i / m_i + f_i / m_i`; bonded nodes (`iz <= iz_bottom`) and the outermost
-/// layer get `v = 0`; contact nodes get the separating Coulomb contact below; then the
-/// mass-proportional damping `v <- v / (1 + c)`.
+/// `v* = (m v)_i / m_i + f_i / m_i` (the stress force and the contact forces of
+/// `super::contact`); bonded nodes (`iz <= iz_bottom`) and the outermost layer get
+/// `v = 0`; then the mass-proportional damping `v <- v / (1 + c)`.
 ///
-/// Contact: the nodes of a column within the top particles' stencil take the column's gap
-/// `g`, indenter normal `n` and indenter step displacement `u`. With `v_rel = v* - u` and
-/// `v_n = v_rel . n`, the constraint is `v_n >= b`, `b = -g` for `g >= 0` (the surface
-/// may close the gap but not cross it in this step) and `b = min(-g/2, MAX_PUSH)` for
-/// `g < 0` (push a penetration out). Only when the constraint is violated does the node
-/// get `v_n = b` and Coulomb friction: the tangential `v_t` shrinks by `mu (b - v_n)` and
-/// stops when it would reverse. A node moving away from the indenter is left free, so
-/// the contact never pulls the gel.
-///
-/// The out-of-balance force is `|m (v_bc - v_apic)| + c m |v_bc|`: the stress plus
-/// contact force left after the constraints, plus the damping force; both vanish at
-/// equilibrium. The contact impulse on the indenters is `m (v* - v_bc)`.
-pub(crate) fn grid_update(
-    ctx: &StepCtx,
-    grid: &mut [Node],
-    columns: &[ColumnContact],
-    stats: &mut Vec<LayerStats>,
-) {
+/// The out-of-balance force is `|m (v* - v_apic)| + c m |v*|`: the stress plus contact
+/// force, plus the damping force; both vanish at equilibrium.
+pub(crate) fn grid_update(ctx: &StepCtx, grid: &mut [Node], stats: &mut Vec<LayerStats>) {
     let [nx, ny, nz] = ctx.dims;
     let nyz = ny * nz;
     let c = ctx.damping;
-    let mu = ctx.friction;
     grid.par_chunks_mut(nyz)
-        .zip(columns.par_chunks(ny))
         .enumerate()
-        .map(|(ix, (g, cg))| {
+        .map(|(ix, g)| {
             let mut st = LayerStats::default();
             let wall_x = ix == 0 || ix + 1 == nx;
-            for (iy, col) in cg.iter().enumerate() {
+            for (iy, gc) in g.chunks_exact_mut(nz).enumerate() {
                 let wall_y = wall_x || iy == 0 || iy + 1 == ny;
-                for iz in 0..nz {
-                    let idx = iy * nz + iz;
-                    let n = &mut g[idx];
+                for (iz, n) in gc.iter_mut().enumerate() {
                     if n.m <= 0.0 {
                         n.mv = Vector3::zeros();
                         n.mj = 1.0;
@@ -351,41 +289,12 @@ pub(crate) fn grid_update(
                     }
                     let inv = 1.0 / n.m;
                     let v_apic = n.mv * inv;
-                    let v_star = v_apic + n.f * inv;
+                    let v = v_apic + n.f * inv;
                     n.mj *= inv;
                     if iz <= ctx.iz_bottom || wall_y || iz + 1 == nz {
-                        st.reaction = st.reaction.max(n.m * v_star.norm());
+                        st.reaction = st.reaction.max(n.m * v.norm());
                         n.mv = Vector3::zeros();
                         continue;
-                    }
-                    let mut v = v_star;
-                    if col.active && (col.iz_lo as usize..=col.iz_hi as usize).contains(&iz) {
-                        let normal = col.n;
-                        let gap = col.g;
-                        let u = col.u;
-                        let bound = if gap >= 0.0 {
-                            -gap
-                        } else {
-                            (-PUSH_GAIN * gap).min(MAX_PUSH)
-                        };
-                        let rel = v - u;
-                        let vn = rel.dot(&normal);
-                        if vn < bound {
-                            let dvn = bound - vn;
-                            let mut vt = rel - normal * vn;
-                            let t = vt.norm();
-                            if t <= mu * dvn {
-                                vt = Vector3::zeros();
-                            } else {
-                                vt *= 1.0 - mu * dvn / t;
-                            }
-                            v = u + vt + normal * bound;
-                            let imp = (v_star - v) * n.m;
-                            st.force[0] += imp.x as f64;
-                            st.force[1] += imp.y as f64;
-                            st.force[2] += imp.z as f64;
-                            st.reaction = st.reaction.max(imp.norm());
-                        }
                     }
                     let r = ((v - v_apic).norm() + c * v.norm()) * n.m;
                     st.residual = st.residual.max(r);

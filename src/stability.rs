@@ -44,6 +44,9 @@ pub struct Row {
     pub depth_in_range: bool,
     /// Deepest pixel seen (m).
     pub max_depth: f64,
+    /// No frame's image is deeper than the indenters reach (the rigid penetration) by
+    /// more than [`OVERSHOOT`]: a gel pressed by a rigid body cannot sink below it.
+    pub depth_bounded_by_indenter: bool,
     /// Smallest and largest `det F` reported by the solver.
     pub det_f: (f64, f64),
     /// `det F` within `[J_MIN, J_MAX]` in every frame.
@@ -65,13 +68,31 @@ pub struct Row {
 impl Row {
     /// Whether every check passed.
     pub fn ok(&self) -> bool {
-        self.finite
-            && self.depth_in_range
-            && self.det_f_in_bounds
-            && self.warned_when_unconverged
-            && self.recovered
+        self.failures().is_empty()
+    }
+
+    /// The names of the checks that failed.
+    pub fn failures(&self) -> Vec<&'static str> {
+        let checks = [
+            (self.finite, "finite"),
+            (self.depth_in_range, "depth range"),
+            (self.depth_bounded_by_indenter, "overshoot"),
+            (self.det_f_in_bounds, "det F"),
+            (self.warned_when_unconverged, "silent non-convergence"),
+            (self.recovered, "next press"),
+        ];
+        checks
+            .iter()
+            .filter(|(ok, _)| !ok)
+            .map(|(_, name)| *name)
+            .collect()
     }
 }
+
+/// How much deeper than the rigid penetration an image may be (m): the surface is
+/// interpolated between particles half a coarse cell apart, which may overshoot a little
+/// next to a sharp edge.
+pub const OVERSHOOT: f64 = 0.05e-3;
 
 /// Resolution of the images in the suite (pixels): enough to see the contact, cheap.
 const RES: &str = "64 48";
@@ -276,6 +297,15 @@ pub fn run_case(case: &Case, physics: &str, dx: Option<f64>) -> Row {
     let config = Config::from_raw(&case.name, &raw).expect("stability configurations are valid");
     let t = config.size[2];
     let mut sensor = TactileSensor::new(config.clone()).expect("sensor builds");
+    let rigid_config = Config::from_raw(
+        &case.name,
+        &raw.clone()
+            .with("physics", "rigid")
+            .with("outputs", "depth"),
+    )
+    .expect("rigid configuration is valid");
+    let mut rigid = TactileSensor::new(rigid_config).expect("rigid sensor builds");
+    let mut rigid_out = vec![0.0; config.pixels()];
     let mut out = vec![0.0; config.sensordata_len()];
     let mut row = Row {
         name: case.name.clone(),
@@ -283,6 +313,7 @@ pub fn run_case(case: &Case, physics: &str, dx: Option<f64>) -> Row {
         finite: true,
         depth_in_range: true,
         max_depth: 0.0,
+        depth_bounded_by_indenter: true,
         det_f: (1.0, 1.0),
         det_f_in_bounds: true,
         converged: (0, 0),
@@ -305,6 +336,9 @@ pub fn run_case(case: &Case, physics: &str, dx: Option<f64>) -> Row {
         row.depth_in_range &= out.iter().all(|&x| (0.0..=t).contains(&x));
         let peak = out.iter().cloned().fold(0.0, f64::max);
         row.max_depth = row.max_depth.max(peak);
+        rigid.evaluate(placed, &mut rigid_out);
+        let reach = rigid_out.iter().cloned().fold(0.0, f64::max);
+        row.depth_bounded_by_indenter &= peak <= reach + OVERSHOOT;
         if let Some(s) = eval.solve {
             row.det_f = (row.det_f.0.min(s.det_f_min), row.det_f.1.max(s.det_f_max));
             row.det_f_in_bounds &= s.det_f_min >= J_MIN - 1e-6 && s.det_f_max <= J_MAX + 1e-6;
@@ -352,7 +386,7 @@ pub fn table(rows: &[Row]) -> String {
             r.max_residual,
             yn(r.recovered),
             r.median_ms,
-            if r.ok() { "ok" } else { "FAIL" },
+            if r.ok() { "ok".to_owned() } else { format!("FAIL: {}", r.failures().join(", ")) },
         );
     }
     s

@@ -1,7 +1,8 @@
 //! Sensor evaluation benchmarks: median and 90th-percentile time of one 320 x 240
 //! evaluation in a continuous moving press, per physics mode and indenter.
 //!
-//! `cargo bench --bench sensor` (add `-- --quick` for fewer frames).
+//! `cargo bench --bench sensor` (add `-- --quick` for fewer frames, `-- --fine` to add the
+//! fine mode, a few frames only: it takes seconds to minutes per frame).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -63,7 +64,7 @@ fn press(config: &Config, shape: Arc<dyn Sdf>, lowest: f64, frames: usize) -> St
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
-    let frames = if quick { 20 } else { 200 };
+    let with_fine = std::env::args().any(|a| a == "--fine");
     let sphere: Arc<dyn Sdf> = Arc::new(Sphere::new(0.005));
     // The cone pattern, flipped so its patterned face (z = 20 mm) points at the gel.
     let cone = load_mesh(&pattern("cone.stl"), 1e-3)
@@ -93,7 +94,11 @@ fn main() {
         "{:<8} {:<8} {:>8} {:>12} {:>12}",
         "physics", "indenter", "threads", "median ms", "p90 ms"
     );
-    for physics in ["rigid"] {
+    let mut modes = vec![("rigid", if quick { 20 } else { 200 }), ("coarse", if quick { 5 } else { 20 })];
+    if with_fine {
+        modes.push(("fine", 3));
+    }
+    for (physics, frames) in modes {
         for threads in [1usize, 2] {
             let raw = RawConfig::default()
                 .with("physics", physics)

@@ -260,10 +260,25 @@ impl TactileSensor {
                 // The surface is interpolated only when the image is asked for.
                 if self.config.wants(Output::Depth) {
                     gel.surface_depth(&self.grid, &mut self.depth);
+                    // Two bounds from the contact problem itself. Below: the surface cannot
+                    // pass into an indenter, so where one reaches below the undeformed face
+                    // the depth is at least its penetration (the rigid geometry is the
+                    // ground truth in contact). Above: under compressive contact the
+                    // displacement of an elastic layer peaks in the contact region, where
+                    // it equals the penetration; no point sinks below the deepest indenter
+                    // (a conservative bound: the lowest corner of its bounding box). The
+                    // coarse grid can sink surface points a little below a flat feature
+                    // narrower than two cells (about 0.15 mm at dx = 1.4 mm); this bound
+                    // keeps that artefact out of the image.
+                    let reach = touching
+                        .iter()
+                        .map(|p| -p.aabb().min.z)
+                        .fold(0.0, f64::max)
+                        .min(t);
                     for (d, &z) in self.depth.iter_mut().zip(&self.zmin) {
                         let rigid = if z.is_finite() { -z } else { 0.0 };
-                        let v = if d.is_finite() { d.max(rigid) } else { rigid };
-                        *d = v.clamp(0.0, t);
+                        let gel = if d.is_finite() { d.min(reach) } else { 0.0 };
+                        *d = gel.max(rigid).clamp(0.0, t);
                     }
                 }
                 self.force = if self.config.wants(Output::Force) {

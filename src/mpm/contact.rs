@@ -62,6 +62,9 @@ pub(crate) struct StepIndenter {
 pub(crate) struct SlotContact {
     /// Normal multiplier `lambda_p` (internal force units).
     pub lambda: f32,
+    /// Indenter that `lambda` belongs to, the nearest at the last update (`u32::MAX`:
+    /// none); lets [`super::Gel::solve`] release it when that indenter leaves.
+    pub owner: u32,
     /// Indenter holding the stick anchor (`u32::MAX`: none).
     pub indenter: u32,
     /// Stick anchor in that indenter's frame (m).
@@ -71,6 +74,7 @@ pub(crate) struct SlotContact {
 impl SlotContact {
     pub const NONE: SlotContact = SlotContact {
         lambda: 0.0,
+        owner: u32::MAX,
         indenter: u32::MAX,
         anchor: Point3::new(0.0, 0.0, 0.0),
     };
@@ -156,6 +160,7 @@ pub(crate) fn update_contacts(
                 // Augmented Lagrangian normal force and multiplier update.
                 let fn_ = (c.lambda - k * g).max(0.0);
                 c.lambda = (c.lambda - ki * g).max(0.0);
+                c.owner = i as u32;
                 if fn_ <= 0.0 {
                     c.indenter = u32::MAX;
                     continue;

@@ -65,7 +65,10 @@
 //! indenters is their sum, exact at equilibrium. (An earlier velocity constraint on every
 //! grid node within 1.5 cells below the surface acted as a rigid slab and gave forces
 //! 12-18 % above Hertz that did not converge under refinement.) Indenters are matched to
-//! those of the previous call by their position in the slice. During the first steps of
+//! those of the previous call by identity: the same shape (`Arc::ptr_eq` of
+//! [`Placed::shape`]), and among several sharing one shape, the nearest previous pose; an
+//! indenter without a match is new, and the contact state (multipliers, stick anchors) of
+//! a previous indenter without a successor is released. During the first steps of
 //! a solve, each indenter moves from its previous pose to the current one (linear in
 //! translation, slerp in rotation) at most [`SolverOptions::sweep_rate`] cells per step;
 //! a new indenter starts lifted just clear of the surface. Stick anchors are fixed in the
@@ -83,8 +86,8 @@
 //! ([`SolveReport::nonfinite_recovered`]) and the gel is restored to its state at the start
 //! of the solve (the previous good equilibrium; if that is itself bad, the undeformed gel).
 //! Indenters with non-finite poses are skipped. Particles are clamped inside the grid and
-//! `det F` to `[J_MIN, J_MAX]` (by a uniform scaling of `F`, which forgets that part of the
-//! deformation); a solve that ends with a particle at a clamp (an indenter driven through
+//! `det F` to `[J_MIN, J_MAX]` (inverted particles included, by clamping the signed
+//! singular values of `F`, which forgets that part of the deformation); a solve that ends with a particle at a clamp (an indenter driven through
 //! the gel) makes the next solve start from the undeformed gel
 //! ([`SolveReport::restarted`]).
 
@@ -98,15 +101,18 @@ mod tests;
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use crate::geometry::{Aabb, PixelGrid, Placed};
+use std::sync::Arc;
+
+use crate::geometry::{Aabb, PixelGrid, Placed, Sdf};
 
 use contact::{ActiveContact, ContactInput, SlotContact, StepIndenter};
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 use transfer::{ChunkStats, LayerStats, Node, P2gInput, Particle, StepCtx};
 
-/// Smallest `det F` a particle may reach; `F` is scaled up uniformly below it.
+/// Smallest `det F` a particle may reach; below it (inverted included) `F` is repaired
+/// through its SVD.
 pub const J_MIN: f64 = 0.2;
-/// Largest `det F` a particle may reach; `F` is scaled down uniformly above it.
+/// Largest `det F` a particle may reach; above it `F` is repaired through its SVD.
 pub const J_MAX: f64 = 5.0;
 
 /// Smallest Poisson's ratio at which [`SolverOptions::fbar`] applies: below it there is
@@ -323,7 +329,9 @@ pub struct Gel {
     layer_stats: Vec<LayerStats>,
     chunk_stats: Vec<ChunkStats>,
     step_ind: Vec<StepIndenter>,
-    prev_poses: Vec<Option<Isometry3<f64>>>,
+    /// Shape and pose of each usable indenter of the previous solve, in the order that
+    /// the contact state's indenter indices refer to.
+    prev: Vec<(Arc<dyn Sdf>, Isometry3<f64>)>,
     force: Vector3<f64>,
     /// Displacement of the top surface per slot (m), after the last solve.
     surface_u: Vec<Vector3<f64>>,
@@ -354,6 +362,52 @@ const _: fn() = || {
     fn assert_send_sync<T: Send + Sync>() {}
     assert_send_sync::<Gel>();
 };
+
+/// Largest displacement (m) of a corner of `shape`'s bounding box between poses `a` and
+/// `b`; 0 if not finite.
+fn corner_motion(shape: &dyn Sdf, a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
+    let bb = shape.aabb();
+    (0..8)
+        .map(|i| {
+            let c = Point3::new(
+                if i & 1 == 0 { bb.min.x } else { bb.max.x },
+                if i & 2 == 0 { bb.min.y } else { bb.max.y },
+                if i & 4 == 0 { bb.min.z } else { bb.max.z },
+            );
+            let d = (a * c - b * c).norm();
+            if d.is_finite() {
+                d
+            } else {
+                0.0
+            }
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Matches the indenters of this solve to those of the previous one: same shape (the
+/// same `Arc`), and among several sharing a shape, nearest pose first (greedy on the
+/// largest bounding-box corner motion, ties in index order). Returns, for each current
+/// indenter, the index of its previous self, or `None` for a new one.
+fn match_indenters(prev: &[(Arc<dyn Sdf>, Isometry3<f64>)], now: &[&Placed]) -> Vec<Option<usize>> {
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for (i, p) in now.iter().enumerate() {
+        for (j, (shape, pose)) in prev.iter().enumerate() {
+            if Arc::ptr_eq(shape, &p.shape) {
+                pairs.push((corner_motion(p.shape.as_ref(), pose, &p.pose), i, j));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut matched = vec![None; now.len()];
+    let mut taken = vec![false; prev.len()];
+    for (_, i, j) in pairs {
+        if matched[i].is_none() && !taken[j] {
+            matched[i] = Some(j);
+            taken[j] = true;
+        }
+    }
+    matched
+}
 
 fn check(name: &'static str, value: f64, ok: bool, reason: &'static str) -> Result<(), MpmError> {
     if ok && value.is_finite() {
@@ -579,7 +633,7 @@ impl Gel {
             layer_stats: Vec::with_capacity(dims[0]),
             chunk_stats: Vec::with_capacity(n / transfer::CHUNK + 1),
             step_ind: Vec::new(),
-            prev_poses: Vec::new(),
+            prev: Vec::new(),
             force: Vector3::zeros(),
             surface_u: vec![Vector3::zeros(); top_len],
             surface_box: None,
@@ -613,7 +667,7 @@ impl Gel {
     /// Back to the undeformed gel at rest, forgetting the previous indenter poses.
     pub fn reset(&mut self) {
         self.particles.copy_from_slice(&self.rest);
-        self.prev_poses.clear();
+        self.prev.clear();
         self.force = Vector3::zeros();
         self.surface_u
             .iter_mut()
@@ -655,24 +709,20 @@ impl Gel {
     pub fn solve(&mut self, indenters: &[Placed]) -> SolveReport {
         let dx = self.layout.dx;
         let top_z = 0.0;
-        // Current poses; None for unusable ones (non-finite) so that indices stay matched.
-        let current: Vec<Option<Isometry3<f64>>> = indenters
+        // The usable indenters (finite poses), in slice order; contact state refers to
+        // indenters by their index in this list.
+        let used: Vec<&Placed> = indenters
             .iter()
-            .map(|p| {
-                let ok = p.pose.translation.vector.iter().all(|v| v.is_finite())
-                    && p.pose.rotation.coords.iter().all(|v| v.is_finite());
-                ok.then_some(p.pose)
+            .filter(|p| {
+                p.pose.translation.vector.iter().all(|v| v.is_finite())
+                    && p.pose.rotation.coords.iter().all(|v| v.is_finite())
             })
             .collect();
-        let used = current.iter().filter(|p| p.is_some()).count();
         let reach = |p: &Placed| {
             let b = p.aabb();
             b.min.z <= top_z + 2.0 * dx && b.max.z >= -self.params.size[2] - 2.0 * dx
         };
-        let touching = indenters
-            .iter()
-            .zip(&current)
-            .any(|(p, c)| c.is_some() && reach(p));
+        let touching = used.iter().any(|p| reach(p));
         let mut report = SolveReport {
             iterations: 0,
             converged: true,
@@ -681,7 +731,7 @@ impl Gel {
             det_f_max: 1.0,
             nonfinite_recovered: false,
             sweep_steps: 0,
-            indenters: used,
+            indenters: used.len(),
             restarted: false,
         };
         if self.clamped {
@@ -690,21 +740,24 @@ impl Gel {
             self.reset();
             report.restarted = true;
         }
+        // Identity: which previous indenter each one is (same shape, nearest pose).
+        let matched = match_indenters(&self.prev, &used);
+        self.remap_contacts(&matched);
+        let current: Vec<(Arc<dyn Sdf>, Isometry3<f64>)> =
+            used.iter().map(|p| (p.shape.clone(), p.pose)).collect();
         if !touching && self.resting {
-            self.prev_poses = current;
+            self.prev = current;
             self.force = Vector3::zeros();
             return report;
         }
 
         // Start pose of each indenter: its previous pose, or lifted clear of the surface.
-        let starts: Vec<Option<Isometry3<f64>>> = indenters
+        let starts: Vec<Isometry3<f64>> = used
             .iter()
-            .zip(&current)
-            .enumerate()
-            .map(|(i, (p, cur))| {
-                let cur = (*cur)?;
-                if let Some(Some(prev)) = self.prev_poses.get(i) {
-                    return Some(*prev);
+            .zip(&matched)
+            .map(|(p, m)| {
+                if let Some(j) = *m {
+                    return self.prev[j].1;
                 }
                 let lift = top_z - p.aabb().min.z;
                 let lift = if lift.is_finite() {
@@ -712,27 +765,17 @@ impl Gel {
                 } else {
                     0.0
                 };
-                let mut s = cur;
+                let mut s = p.pose;
                 s.translation.vector.z += lift;
-                Some(s)
+                s
             })
             .collect();
         // Sweep length: the largest displacement of a bounding-box corner, in steps.
-        let mut disp: f64 = 0.0;
-        for ((p, cur), start) in indenters.iter().zip(&current).zip(&starts) {
-            if let (Some(cur), Some(start)) = (cur, start) {
-                let b = p.shape.aabb();
-                for i in 0..8 {
-                    let c = Point3::new(
-                        if i & 1 == 0 { b.min.x } else { b.max.x },
-                        if i & 2 == 0 { b.min.y } else { b.max.y },
-                        if i & 4 == 0 { b.min.z } else { b.max.z },
-                    );
-                    let d = (cur * c - start * c).norm();
-                    disp = disp.max(if d.is_finite() { d } else { 0.0 });
-                }
-            }
-        }
+        let disp = used
+            .iter()
+            .zip(&starts)
+            .map(|(p, start)| corner_motion(p.shape.as_ref(), start, &p.pose))
+            .fold(0.0, f64::max);
         let cap = (self.options.max_iterations / 2).max(1);
         let sweep = ((disp / (self.options.sweep_rate * dx)).ceil() as usize).clamp(1, cap);
         report.sweep_steps = sweep;
@@ -750,20 +793,18 @@ impl Gel {
             let s_now = ((it + 1) as f64 / sweep as f64).min(1.0);
             let s_before = (it as f64 / sweep as f64).min(1.0);
             self.step_ind.clear();
-            for ((p, cur), start) in indenters.iter().zip(&current).zip(&starts) {
-                if let (Some(cur), Some(start)) = (cur, start) {
-                    let now = interp(start, cur, s_now);
-                    let before = interp(start, cur, s_before);
-                    let b0 = p.shape.aabb().transformed(&now);
-                    let b1 = p.shape.aabb().transformed(&before);
-                    let bounds = Aabb::new(b0.min.inf(&b1.min), b0.max.sup(&b1.max))
-                        .inflated((contact::CONTACT_BAND as f64 + 1.0) * dx);
-                    self.step_ind.push(StepIndenter {
-                        shape: p.shape.clone(),
-                        now,
-                        bounds,
-                    });
-                }
+            for (p, start) in used.iter().zip(&starts) {
+                let now = interp(start, &p.pose, s_now);
+                let before = interp(start, &p.pose, s_before);
+                let b0 = p.shape.aabb().transformed(&now);
+                let b1 = p.shape.aabb().transformed(&before);
+                let bounds = Aabb::new(b0.min.inf(&b1.min), b0.max.sup(&b1.max))
+                    .inflated((contact::CONTACT_BAND as f64 + 1.0) * dx);
+                self.step_ind.push(StepIndenter {
+                    shape: p.shape.clone(),
+                    now,
+                    bounds,
+                });
             }
             let (residual, nonfinite, det_min, det_max) = match self.params.material {
                 Material::FixedCorotated => {
@@ -802,16 +843,41 @@ impl Gel {
             report.det_f_min = lo;
             report.det_f_max = hi;
             self.force = Vector3::zeros();
-            self.prev_poses.clear();
+            self.prev.clear();
             self.last_reaction = 0.0;
         } else {
-            self.prev_poses = current;
+            self.prev = current;
             self.last_reaction = self.reaction;
         }
         self.update_surface();
         self.resting = !touching && self.surface_box.is_none();
         self.clamped = report.det_f_min <= J_MIN * 1.01 || report.det_f_max >= J_MAX * 0.99;
         report
+    }
+
+    /// Renumbers the indenter indices of the contact state from the previous solve's list
+    /// to this one's (`matched[i]`: the previous index of indenter `i`); the state held
+    /// by a previous indenter that has no successor is released.
+    fn remap_contacts(&mut self, matched: &[Option<usize>]) {
+        let mut new_index = vec![u32::MAX; self.prev.len()];
+        for (i, m) in matched.iter().enumerate() {
+            if let Some(j) = *m {
+                new_index[j] = i as u32;
+            }
+        }
+        let map = |k: u32| new_index.get(k as usize).copied().unwrap_or(u32::MAX);
+        for c in &mut self.contacts {
+            if c.owner == u32::MAX && c.indenter == u32::MAX {
+                continue;
+            }
+            let owner = map(c.owner);
+            if owner == u32::MAX {
+                *c = SlotContact::NONE;
+                continue;
+            }
+            c.owner = owner;
+            c.indenter = map(c.indenter);
+        }
     }
 
     /// Restores the state at the start of the solve, or the undeformed gel if that state is

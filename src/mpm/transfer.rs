@@ -306,6 +306,50 @@ pub(crate) fn grid_update(ctx: &StepCtx, grid: &mut [Node], stats: &mut Vec<Laye
         .collect_into_vec(stats);
 }
 
+/// Smallest and largest singular value that [`guard_det`] keeps.
+const SIGMA_RANGE: (f32, f32) = (0.05, 20.0);
+
+/// Relative margin inside `[J_MIN, J_MAX]` that [`guard_det`] aims for, so that the
+/// rounding of `U S V^T` and of its determinant (about 1e-6 relative) stays in bounds.
+const GUARD_MARGIN: f32 = 1.0 + 1e-4;
+
+/// Repairs a particle whose `det F` left `[J_MIN, J_MAX]`, inverted (`det F <= 0`) included,
+/// through the SVD `F = U S V^T` (Irving et al. 2004, "Invertible finite elements", Sec. 5):
+/// with `U`, `V` made proper rotations the smallest singular value takes the sign of
+/// `det F`; every singular value is then clamped to [`SIGMA_RANGE`] (an inverted or
+/// collapsed direction becomes the smallest allowed stretch) and all are scaled by
+/// `(J_MIN / prod S)^(1/3)` (times [`GUARD_MARGIN`]), so that `det F` lies just inside
+/// `[J_MIN, J_MAX]`. A uniform scaling of
+/// `F` alone cannot change the sign of `det F`, and for a nearly singular or hugely sheared
+/// `F` it leaves a `det F` dominated by rounding. The polar rotation `U V^T`
+/// replaces `q`.
+pub(crate) fn guard_det(f: &mut Matrix3<f32>, q: &mut UnitQuaternion<f32>) {
+    let svd = f.svd(true, true);
+    let (Some(mut u), Some(mut v_t)) = (svd.u, svd.v_t) else {
+        return;
+    };
+    let mut s = svd.singular_values;
+    // Proper rotations: move each reflection into the smallest singular value.
+    let k = s.imin();
+    if u.determinant() < 0.0 {
+        u.column_mut(k).neg_mut();
+        s[k] = -s[k];
+    }
+    if v_t.determinant() < 0.0 {
+        v_t.row_mut(k).neg_mut();
+        s[k] = -s[k];
+    }
+    let s = s.map(|x| x.clamp(SIGMA_RANGE.0, SIGMA_RANGE.1));
+    let prod = s.x * s.y * s.z;
+    let target = prod.clamp(J_MIN as f32 * GUARD_MARGIN, J_MAX as f32 / GUARD_MARGIN);
+    let s = s * (target / prod).cbrt();
+    *f = u * Matrix3::from_diagonal(&s) * v_t;
+    let r = u * v_t;
+    if r.iter().all(|x| x.is_finite()) {
+        *q = UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(r));
+    }
+}
+
 /// Per-chunk results of G2P.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ChunkStats {
@@ -317,7 +361,7 @@ pub(crate) struct ChunkStats {
 /// Grid to particle: `v_p = sum w v_i`, `C_p = 4 sum w v_i (x_i - x_p)^T` (APIC with
 /// `D^-1 = 4/dx^2`), `F <- (I + C) F`, `x <- x + v`; then `x` is clamped to the grid
 /// interior (`[1, n - 2]` cells, so the stencil never leaves the grid) and `det F` to
-/// `[J_MIN, J_MAX]` by a uniform scaling of `F`. The smoothed volume ratio `J_bar / J` of
+/// `[J_MIN, J_MAX]` by [`guard_det`] (inverted included). The smoothed volume ratio `J_bar / J` of
 /// the F-bar scheme is gathered from the nodes' `J` here too.
 pub(crate) fn grid_to_particle(
     ctx: &StepCtx,
@@ -370,15 +414,9 @@ pub(crate) fn grid_to_particle(
                 p.x = (p.x + v).sup(&Vector3::repeat(1.0)).inf(&hi);
                 p.f = (Matrix3::identity() + p.c) * p.f;
                 let mut j = p.f.determinant();
-                if j > J_MAX as f32 {
-                    p.f *= (J_MAX as f32 / j).cbrt();
-                } else if j < J_MIN as f32 {
-                    if j > 0.0 {
-                        p.f *= (J_MIN as f32 / j).cbrt();
-                    } else if j.is_finite() {
-                        // Inverted: fall back to the (proper) rotation, compressed to J_MIN.
-                        p.f = p.q.to_rotation_matrix().into_inner() * (J_MIN as f32).cbrt();
-                    }
+                if !(J_MIN as f32..=J_MAX as f32).contains(&j) && p.f.iter().all(|x| x.is_finite())
+                {
+                    guard_det(&mut p.f, &mut p.q);
                 }
                 if rot_iters > 0 {
                     extract_rotation(&p.f, &mut p.q, rot_iters);

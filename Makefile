@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build demo test test-rust test-python bench bench-quick bench-micro stability clean
+.PHONY: all venv build demo test test-rust test-python bench bench-quick bench-micro stability train-env gen-data train test-train clean
 
 all: build
 
@@ -32,7 +32,7 @@ build: venv
 	$(MAKE) --no-print-directory $(VENV)/.tacrom-installed
 
 demo: build
-	$(PY) examples/demo.py --out out/demo --physics rigid coarse
+	$(PY) examples/demo.py --out out/demo --physics rigid coarse rom
 
 test-rust: venv
 	$(CARGO) test --release
@@ -59,3 +59,35 @@ stability: venv
 
 clean:
 	rm -rf target out $(VENV) python/tacrom/_lib python/*.egg-info
+
+# --- Reduced-order model: data, training, export (PyTorch lives in its own .venv-train;
+# installing it takes about 5 minutes and 5.5 GB, so it is not part of `make test`).
+VENV_TRAIN := .venv-train
+PY_TRAIN := $(VENV_TRAIN)/bin/python
+ROM_DATA ?= data/rom-f0.7
+ROM_SAMPLES ?= 77
+ROM_SHARDS ?= 2
+
+$(VENV_TRAIN)/.installed: training/requirements.txt
+	python3 -m venv $(VENV_TRAIN)
+	$(VENV_TRAIN)/bin/pip install -q -r training/requirements.txt
+	touch $@
+
+train-env: $(VENV_TRAIN)/.installed
+
+# Paired coarse / reference presses, sharded (one shard per core) and resumable.
+gen-data: build
+	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
+	  target/release/tacrom gen-data --out $(ROM_DATA) --samples $(ROM_SAMPLES) --seed 1 \
+	    --fine-dx 7e-4 --fine-max-iterations 1000 --shard $$k/$(ROM_SHARDS) & \
+	done; wait
+
+# Trains and exports the shipped model and its two ablations into models/.
+train: train-env
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-default --steps 2500
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-latent16 --latent 16 --steps 2500
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-no-multiscale --no-multiscale --steps 2500
+
+# ONNX parity (ONNX Runtime against PyTorch) and a tiny train-and-export run.
+test-train: train-env
+	PYTHONPATH=training $(PY_TRAIN) -m pytest -q -p no:cacheprovider training/tests

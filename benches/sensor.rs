@@ -94,7 +94,11 @@ fn main() {
         "{:<8} {:<8} {:>8} {:>12} {:>12}",
         "physics", "indenter", "threads", "median ms", "p90 ms"
     );
-    let mut modes = vec![("rigid", if quick { 20 } else { 200 }), ("coarse", if quick { 5 } else { 20 })];
+    let mut modes = vec![
+        ("rigid", if quick { 20 } else { 200 }),
+        ("coarse", if quick { 5 } else { 20 }),
+        ("rom", if quick { 5 } else { 20 }),
+    ];
     if with_fine {
         modes.push(("fine", 3));
     }

@@ -32,6 +32,12 @@ pub const ATTR_FRICTION: &str = "friction";
 pub const ATTR_DX: &str = "dx";
 /// `threads`: worker threads of this sensor's solver.
 pub const ATTR_THREADS: &str = "threads";
+/// `model`: directory of the reduced-order model (`physics="rom"`); empty means the
+/// shipped model, found relative to the plugin library.
+pub const ATTR_MODEL: &str = "model";
+/// `refine`: latent refinement of the reduced-order model, `true` or `false` (the "w/o
+/// physics" ablation); empty means the model's manifest decides.
+pub const ATTR_REFINE: &str = "refine";
 
 /// Every attribute the plugin declares to MuJoCo, in table order.
 pub const ATTRIBUTES: &[&str] = &[
@@ -47,6 +53,8 @@ pub const ATTRIBUTES: &[&str] = &[
     ATTR_FRICTION,
     ATTR_DX,
     ATTR_THREADS,
+    ATTR_MODEL,
+    ATTR_REFINE,
 ];
 
 /// Largest image side accepted (pixels).
@@ -63,6 +71,8 @@ pub enum Physics {
     Coarse,
     /// Fine MPM (about 1e6 particles): the reference; slow.
     Fine,
+    /// Coarse MPM plus the neural decoder restoring fine detail (ONNX, `model`).
+    Rom,
 }
 
 impl Physics {
@@ -71,6 +81,7 @@ impl Physics {
         ("rigid", Physics::Rigid),
         ("coarse", Physics::Coarse),
         ("fine", Physics::Fine),
+        ("rom", Physics::Rom),
     ];
 
     /// The attribute value naming this mode.
@@ -87,7 +98,8 @@ impl Physics {
         match self {
             Physics::Rigid => None,
             // ~1e4 particles for the default 30 x 30 x 4 mm gel.
-            Physics::Coarse => Some(1.4e-3_f64.min(t / 2.0)),
+            // rom: the coarse grid its model was trained with (checked against the manifest).
+            Physics::Coarse | Physics::Rom => Some(1.4e-3_f64.min(t / 2.0)),
             // 100 x 100 x ~13 cells, ~1e6 particles for the default gel.
             Physics::Fine => Some(0.3e-3_f64.min(t / 4.0)),
         }
@@ -205,12 +217,16 @@ pub struct Config {
     pub dx: Option<f64>,
     /// Solver threads.
     pub threads: usize,
+    /// Reduced-order model directory (`physics="rom"`); `None`: the shipped model.
+    pub model: Option<std::path::PathBuf>,
+    /// Latent refinement on or off (`physics="rom"`); `None`: as the manifest says.
+    pub refine: Option<bool>,
 }
 
 /// The defaults (GelSight Mini-like gel, paper's material).
 pub mod defaults {
     /// Physics mode.
-    pub const PHYSICS: &str = "rigid";
+    pub const PHYSICS: &str = "rom";
     /// Outputs.
     pub const OUTPUTS: &str = "depth";
     /// Image width and height (pixels).
@@ -295,6 +311,15 @@ impl Config {
             }
         };
         let threads = p.int(ATTR_THREADS, defaults::THREADS, 1, MAX_THREADS)?;
+        let model = raw
+            .get(ATTR_MODEL)
+            .map(|v| std::path::PathBuf::from(v.trim()));
+        let refine = match raw.get(ATTR_REFINE).map(str::trim) {
+            None => None,
+            Some("true") => Some(true),
+            Some("false") => Some(false),
+            Some(_) => return Err(p.error(ATTR_REFINE, "expected true or false")),
+        };
         let indenters = raw
             .get(ATTR_INDENTERS)
             .map(|v| v.split_whitespace().map(str::to_owned).collect())
@@ -315,6 +340,8 @@ impl Config {
             friction,
             dx,
             threads,
+            model,
+            refine,
         })
     }
 
@@ -518,7 +545,7 @@ mod tests {
     #[test]
     fn defaults_match_design() {
         let c = parse(&[]).unwrap();
-        assert_eq!(c.physics, Physics::Rigid);
+        assert_eq!(c.physics, Physics::Rom);
         assert_eq!(c.outputs, vec![Output::Depth]);
         assert_eq!((c.width, c.height), (320, 240));
         assert_eq!(c.fov, [0.024, 0.018]);
@@ -527,7 +554,8 @@ mod tests {
         assert_eq!(c.poisson, 0.43);
         assert_eq!(c.density, 1050.0);
         assert_eq!(c.threads, 1);
-        assert_eq!(c.dx, None);
+        assert_eq!(c.dx, Some(1.4e-3));
+        assert_eq!(c.model, None);
         assert_eq!(c.sensordata_len(), 320 * 240);
     }
 
@@ -601,11 +629,16 @@ mod tests {
             (ATTR_DX, "0.003"),
             (ATTR_THREADS, "0"),
             (ATTR_THREADS, "two"),
+            (ATTR_REFINE, "maybe"),
         ];
         for &(attribute, value) in cases {
             let mut pairs = vec![(attribute, value)];
             if attribute == ATTR_DX {
                 pairs.push((ATTR_PHYSICS, "coarse"));
+            }
+            if value == "depth force" {
+                // Force without a gel model.
+                pairs.push((ATTR_PHYSICS, "rigid"));
             }
             let e = err(&pairs);
             assert_eq!(e.attribute, attribute, "{value}");

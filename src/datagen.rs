@@ -12,7 +12,8 @@
 //!   written last (by rename), so a sample counts as done only when both exist.
 //!
 //! and `dataset.json` records the settings (gel, material, coarse and reference grid
-//! spacings, lattice, seed, held-out families). Sample `i` is drawn from its own random
+//! spacings, lattice, seed, held-out families; not the sample count, so that a larger
+//! `--samples` extends a data set). Sample `i` is drawn from its own random
 //! stream seeded by `(seed, i)`, so a run is reproducible whatever the sharding: shard
 //! `k/N` does the samples with `i % N == k`, skipping those already on disk (resumable).
 //! `numpy.load` reads every file; `training/dataset.py` loads a directory.
@@ -110,9 +111,19 @@ pub fn parse_args(args: &[String]) -> Result<GenConfig, String> {
     let mut c = GenConfig::default();
     let mut it = args.iter();
     while let Some(a) = it.next() {
-        let mut val = || it.next().cloned().ok_or_else(|| format!("{a} needs a value\n{USAGE}"));
-        let num = |s: String| s.parse::<f64>().map_err(|_| format!("{a}: bad number '{s}'"));
-        let int = |s: String| s.parse::<usize>().map_err(|_| format!("{a}: bad integer '{s}'"));
+        let mut val = || {
+            it.next()
+                .cloned()
+                .ok_or_else(|| format!("{a} needs a value\n{USAGE}"))
+        };
+        let num = |s: String| {
+            s.parse::<f64>()
+                .map_err(|_| format!("{a}: bad number '{s}'"))
+        };
+        let int = |s: String| {
+            s.parse::<usize>()
+                .map_err(|_| format!("{a}: bad integer '{s}'"))
+        };
         match a.as_str() {
             "--out" => c.out = PathBuf::from(val()?),
             "--samples" => c.samples = int(val()?)?,
@@ -124,7 +135,11 @@ pub fn parse_args(args: &[String]) -> Result<GenConfig, String> {
             "--patterns" => c.patterns = PathBuf::from(val()?),
             "--fine-max-iterations" => c.fine_max_iterations = int(val()?)?.max(1),
             "--families" => {
-                c.families = val()?.split(',').filter(|s| !s.is_empty()).map(str::to_owned).collect()
+                c.families = val()?
+                    .split(',')
+                    .filter(|s| !s.is_empty())
+                    .map(str::to_owned)
+                    .collect()
             }
             "--shard" => {
                 let v = val()?;
@@ -139,7 +154,11 @@ pub fn parse_args(args: &[String]) -> Result<GenConfig, String> {
             other => return Err(format!("unknown argument '{other}'\n{USAGE}")),
         }
     }
-    for (name, v) in [("--fine-dx", c.fine_dx), ("--coarse-dx", c.coarse_dx), ("--pitch", c.pitch)] {
+    for (name, v) in [
+        ("--fine-dx", c.fine_dx),
+        ("--coarse-dx", c.coarse_dx),
+        ("--pitch", c.pitch),
+    ] {
         if !(v > 0.0 && v.is_finite()) {
             return Err(format!("{name} must be positive"));
         }
@@ -332,7 +351,10 @@ impl MeshLibrary {
         }
         let path = self.dir.join(format!("{name}.stl"));
         let data = crate::geometry::load_stl(&path, 1e-3).map_err(|e| e.to_string())?;
-        let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
         for v in &data.vertices {
             lo = lo.inf(&v.coords);
             hi = hi.sup(&v.coords);
@@ -345,7 +367,8 @@ impl MeshLibrary {
             .map(|v| Point3::new(v.x - c.x, -(v.y - c.y), hi.z - v.z))
             .collect();
         // A rotation: the triangles keep their winding.
-        let mesh = TriMesh::new(vertices, data.faces).map_err(|e| format!("{}: {e}", path.display()))?;
+        let mesh =
+            TriMesh::new(vertices, data.faces).map_err(|e| format!("{}: {e}", path.display()))?;
         let s: Arc<dyn Sdf> = Arc::new(mesh);
         let _ = self.cache.insert(name.to_owned(), s.clone());
         Ok(s)
@@ -389,7 +412,11 @@ fn families(meshes: &MeshLibrary) -> Vec<(String, f64)> {
     .iter()
     .map(|(n, w)| (n.to_string(), *w))
     .collect();
-    let per_mesh = if meshes.names().is_empty() { 0.0 } else { 4.0 / meshes.names().len() as f64 };
+    let per_mesh = if meshes.names().is_empty() {
+        0.0
+    } else {
+        4.0 / meshes.names().len() as f64
+    };
     for n in meshes.names() {
         f.push((format!("mesh:{n}"), per_mesh));
     }
@@ -420,7 +447,10 @@ fn draw_shape(
             let r = rng.uniform(1.5, 5.0) * mm;
             let h = rng.uniform(3.0, 8.0) * mm;
             let lying = rng.uniform(0.0, 1.0) < 0.5;
-            let _ = write!(params, "\"radius\": {r:e}, \"half_length\": {h:e}, \"lying\": {lying}, ");
+            let _ = write!(
+                params,
+                "\"radius\": {r:e}, \"half_length\": {h:e}, \"lying\": {lying}, "
+            );
             let q = if lying {
                 UnitQuaternion::from_axis_angle(&Vector3::x_axis(), half_pi)
             } else {
@@ -430,9 +460,16 @@ fn draw_shape(
         }
         "box" | "edge" => {
             let he = Vector3::new(rng.uniform(1.0, 6.0), rng.uniform(1.0, 6.0), 3.0) * mm;
-            let _ = write!(params, "\"half_extents\": [{:e}, {:e}, {:e}], ", he.x, he.y, he.z);
+            let _ = write!(
+                params,
+                "\"half_extents\": [{:e}, {:e}, {:e}], ",
+                he.x, he.y, he.z
+            );
             let q = if family == "edge" {
-                UnitQuaternion::from_axis_angle(&Vector3::x_axis(), rng.uniform(0.6, 0.97) * half_pi)
+                UnitQuaternion::from_axis_angle(
+                    &Vector3::x_axis(),
+                    rng.uniform(0.6, 0.97) * half_pi,
+                )
             } else {
                 id
             };
@@ -449,7 +486,10 @@ fn draw_shape(
                     rng.uniform(-spread, spread),
                     rng.uniform(0.0, 0.8) * mm + r,
                 );
-                parts.push((Arc::new(Sphere::new(r)), Isometry3::from_parts(Translation3::from(c), id)));
+                parts.push((
+                    Arc::new(Sphere::new(r)),
+                    Isometry3::from_parts(Translation3::from(c), id),
+                ));
             }
             let _ = write!(params, "\"count\": {n}, \"spread\": {spread:e}, ");
             (Arc::new(Union { parts }), id)
@@ -469,7 +509,10 @@ fn draw_shape(
                     Isometry3::from_parts(Translation3::new(0.0, y, z), along_x),
                 ));
             }
-            let _ = write!(params, "\"count\": {n}, \"radius\": {r:e}, \"gap\": {gap:e}, ");
+            let _ = write!(
+                params,
+                "\"count\": {n}, \"radius\": {r:e}, \"gap\": {gap:e}, "
+            );
             (Arc::new(Union { parts }), id)
         }
         "heightfield" => {
@@ -480,17 +523,39 @@ fn draw_shape(
                 let wavelength = rng.uniform(1.0, 5.0) * mm;
                 let k = 2.0 * std::f64::consts::PI / wavelength;
                 let dir = rng.uniform(0.0, std::f64::consts::PI);
-                modes.push((rng.uniform(0.1, 0.5) * mm, k * dir.cos(), k * dir.sin(), rng.uniform(0.0, 6.3)));
+                modes.push((
+                    rng.uniform(0.1, 0.5) * mm,
+                    k * dir.cos(),
+                    k * dir.sin(),
+                    rng.uniform(0.0, 6.3),
+                ));
             }
-            let _ = write!(params, "\"half\": [{:e}, {:e}], \"modes\": {n}, ", half[0], half[1]);
-            (Arc::new(HeightField { half, top: 3.0 * mm, modes }), id)
+            let _ = write!(
+                params,
+                "\"half\": [{:e}, {:e}], \"modes\": {n}, ",
+                half[0], half[1]
+            );
+            (
+                Arc::new(HeightField {
+                    half,
+                    top: 3.0 * mm,
+                    modes,
+                }),
+                id,
+            )
         }
         f if f.starts_with("mesh:") => {
             let name = &f[5..];
             let mesh = meshes.get(name)?;
             let s = rng.uniform(0.4, 0.9);
             let _ = write!(params, "\"mesh\": \"{name}\", \"scale\": {s}, ");
-            (Arc::new(Scaled { inner: mesh, scale: s }), id)
+            (
+                Arc::new(Scaled {
+                    inner: mesh,
+                    scale: s,
+                }),
+                id,
+            )
         }
         other => return Err(format!("unknown indenter family '{other}'")),
     })
@@ -504,7 +569,10 @@ fn lowest_point(shape: &Arc<dyn Sdf>, pose: &Isometry3<f64>, size: [f64; 3]) -> 
         fov_x: size[0],
         fov_y: size[1],
     };
-    let placed = [Placed { shape: shape.clone(), pose: *pose }];
+    let placed = [Placed {
+        shape: shape.clone(),
+        pose: *pose,
+    }];
     let (mut zmin, mut pen) = (Vec::new(), Vec::new());
     // The shape's bounding-box bottom put 0.5 m deep into a gel 1 m thick.
     let lift = placed[0].aabb().min.z + 0.5;
@@ -527,7 +595,10 @@ pub fn draw_press(
     let mut rng = Rng::new(seed, index);
     let mut fams = families(meshes);
     if !only.is_empty() {
-        fams.retain(|(n, _)| only.iter().any(|o| o == n || (o == "mesh" && n.starts_with("mesh:"))));
+        fams.retain(|(n, _)| {
+            only.iter()
+                .any(|o| o == n || (o == "mesh" && n.starts_with("mesh:")))
+        });
         if fams.is_empty() {
             return Err(format!("no family matches {only:?}"));
         }
@@ -564,7 +635,8 @@ pub fn draw_press(
         None
     };
     let mut pose = Isometry3::from_parts(Translation3::new(x, y, 0.0), rot);
-    let low = lowest_point(&shape, &pose, size).ok_or_else(|| format!("{family}: misses the gel"))?;
+    let low =
+        lowest_point(&shape, &pose, size).ok_or_else(|| format!("{family}: misses the gel"))?;
     pose.translation.vector.z -= low + depth;
     let mut poses = vec![pose];
     if let Some(s) = slide {
@@ -577,7 +649,12 @@ pub fn draw_press(
         "\"x\": {x:e}, \"y\": {y:e}, \"depth\": {depth:e}, \"yaw\": {yaw}, \"tilt\": {tilt}, \"slide\": {}",
         slide.map(|s| format!("[{:e}, {:e}]", s.x, s.y)).unwrap_or_else(|| "null".into())
     );
-    Ok(Press { family, shape, poses, params })
+    Ok(Press {
+        family,
+        shape,
+        poses,
+        params,
+    })
 }
 
 /// Solves `press` on `gel` from the undeformed state, pose by pose.
@@ -588,14 +665,21 @@ pub fn solve_press(gel: &mut Gel, press: &Press) -> (SolveReport, f64) {
     for k in 0..press.poses.len() {
         report = Some(gel.solve(&[press.placed(k)]));
     }
-    (report.expect("a press has a pose"), t0.elapsed().as_secs_f64())
+    (
+        report.expect("a press has a pose"),
+        t0.elapsed().as_secs_f64(),
+    )
 }
 
 /// Writes a float32 array as `.npy` (C order).
 pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
     assert_eq!(shape.iter().product::<usize>(), data.len());
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let tuple = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
+    let tuple = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
     let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {tuple}, }}");
     let unpadded = 10 + header.len() + 1;
     header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
@@ -628,7 +712,11 @@ fn report_json(r: &SolveReport, seconds: f64) -> String {
 
 /// The reference gel's and the coarse gel's parameters.
 fn gel_params(config: &GenConfig, dx: f64) -> GelParams {
-    GelParams { dx, material: Material::FixedCorotated, ..config.gel }
+    GelParams {
+        dx,
+        material: Material::FixedCorotated,
+        ..config.gel
+    }
 }
 
 /// Generates this shard's missing samples; `progress` gets one line per sample. Returns
@@ -638,7 +726,10 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
     let spec = LatticeSpec::with_pitch(config.gel.size, config.pitch);
     let mut meshes = MeshLibrary::new(&config.patterns);
     if meshes.names().is_empty() {
-        progress(&format!("warning: no STL patterns in {}; mesh families skipped", config.patterns.display()));
+        progress(&format!(
+            "warning: no STL patterns in {}; mesh families skipped",
+            config.patterns.display()
+        ));
     }
     let g = &config.gel;
     let held: Vec<String> = HELD_OUT.iter().map(|s| format!("\"{s}\"")).collect();
@@ -646,10 +737,10 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         "{{\n  \"format\": \"tacrom-rom-pairs-1\",\n  \"channels\": [\"coarse\", \"penetration\", \"reference\"],\n  \
          \"units\": \"m\",\n  \"size\": [{:e}, {:e}, {:e}],\n  \"young\": {:e},\n  \"poisson\": {},\n  \"density\": {},\n  \
          \"friction\": {},\n  \"material\": \"fixed_corotated\",\n  \"coarse_dx\": {:e},\n  \"fine_dx\": {:e},\n  \
-         \"pitch\": {:e},\n  \"lattice\": [{}, {}],\n  \"samples\": {},\n  \"seed\": {},\n  \"held_out\": [{}],\n  \
+         \"pitch\": {:e},\n  \"lattice\": [{}, {}],\n  \"seed\": {},\n  \"held_out\": [{}],\n  \
          \"fine_max_iterations\": {}\n}}\n",
         g.size[0], g.size[1], g.size[2], g.young, g.poisson, g.density, g.friction, config.coarse_dx,
-        config.fine_dx, config.pitch, spec.ny, spec.nx, config.samples, config.seed, held.join(", "),
+        config.fine_dx, config.pitch, spec.ny, spec.nx, config.seed, held.join(", "),
         config.fine_max_iterations
     );
     let ds_path = config.out.join("dataset.json");
@@ -663,10 +754,18 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         Ok(_) => {}
         Err(_) => write_atomic(&ds_path, dataset.as_bytes()).map_err(|e| e.to_string())?,
     }
-    let options = SolverOptions { threads: config.threads, ..SolverOptions::default() };
-    let mut coarse = Gel::new(gel_params(config, config.coarse_dx), options).map_err(|e| e.to_string())?;
-    let fine_options = SolverOptions { max_iterations: config.fine_max_iterations, ..options };
-    let mut fine = Gel::new(gel_params(config, config.fine_dx), fine_options).map_err(|e| e.to_string())?;
+    let options = SolverOptions {
+        threads: config.threads,
+        ..SolverOptions::default()
+    };
+    let mut coarse =
+        Gel::new(gel_params(config, config.coarse_dx), options).map_err(|e| e.to_string())?;
+    let fine_options = SolverOptions {
+        max_iterations: config.fine_max_iterations,
+        ..options
+    };
+    let mut fine =
+        Gel::new(gel_params(config, config.fine_dx), fine_options).map_err(|e| e.to_string())?;
     let (k, n) = config.shard;
     let (mut done, mut skipped) = (0usize, 0usize);
     let (mut t_coarse, mut t_fine) = (0.0, 0.0);
@@ -679,7 +778,13 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             skipped += 1;
             continue;
         }
-        let press = draw_press(config.seed, index as u64, &mut meshes, &config.families, g.size)?;
+        let press = draw_press(
+            config.seed,
+            index as u64,
+            &mut meshes,
+            &config.families,
+            g.size,
+        )?;
         let last = press.poses.len() - 1;
         let placed = [press.placed(last)];
         let (rc, sc) = solve_press(&mut coarse, &press);
@@ -695,7 +800,8 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             let v = if r.is_finite() { r.max(p) } else { p };
             v.clamp(0.0, t) as f32
         }));
-        write_npy(&npy, &[3, spec.ny, spec.nx], &data).map_err(|e| format!("{}: {e}", npy.display()))?;
+        write_npy(&npy, &[3, spec.ny, spec.nx], &data)
+            .map_err(|e| format!("{}: {e}", npy.display()))?;
         let meta = format!(
             "{{\"index\": {index}, \"family\": \"{}\", \"held_out\": {}, {}, \"coarse\": {}, \"reference\": {}}}\n",
             press.family,

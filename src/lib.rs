@@ -8,8 +8,10 @@
 
 pub mod bench;
 pub mod config;
+pub mod datagen;
 pub mod geometry;
 pub mod mpm;
 pub mod mujoco;
+pub mod rom;
 pub mod sensor;
 pub mod stability;

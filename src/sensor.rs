@@ -11,6 +11,7 @@ use nalgebra::Vector3;
 use crate::config::{Config, Output, Physics};
 use crate::geometry::{Aabb, PixelGrid, Placed};
 use crate::mpm::{Gel, GelParams, Material, SolveReport, SolverOptions};
+use crate::rom::{Rom, RomOptions, RomReport};
 
 /// Failure to build a sensor from a valid configuration.
 #[derive(Debug, thiserror::Error)]
@@ -47,6 +48,8 @@ pub struct Evaluation {
     pub times: StageTimes,
     /// Messages for the user (the solver hit its iteration cap, ...).
     pub warnings: Vec<String>,
+    /// The reduced-order model's report, when it ran (`physics="rom"`).
+    pub rom: Option<RomReport>,
 }
 
 /// The gel's model.
@@ -60,6 +63,8 @@ enum GelModel {
         options: SolverOptions,
         gel: Option<Box<Gel>>,
         deformed: bool,
+        /// The reduced-order model (`physics="rom"`), loaded with the sensor.
+        rom: Option<Box<Rom>>,
     },
 }
 
@@ -86,7 +91,7 @@ impl TactileSensor {
         };
         let gel = match (config.physics, config.dx) {
             (Physics::Rigid, _) | (_, None) => GelModel::Rigid,
-            (Physics::Coarse | Physics::Fine, Some(dx)) => {
+            (Physics::Coarse | Physics::Fine | Physics::Rom, Some(dx)) => {
                 let params = GelParams {
                     size: config.size,
                     young: config.young,
@@ -106,11 +111,17 @@ impl TactileSensor {
                     sensor: config.name.clone(),
                     message: e.to_string(),
                 })?;
+                let rom = if config.physics == Physics::Rom {
+                    Some(Box::new(load_rom(&config, dx)?))
+                } else {
+                    None
+                };
                 GelModel::Mpm {
                     params,
                     options,
                     gel: None,
                     deformed: false,
+                    rom,
                 }
             }
         };
@@ -221,6 +232,7 @@ impl TactileSensor {
                 options,
                 gel,
                 deformed,
+                rom,
             } => {
                 let gel = match gel {
                     Some(g) => g,
@@ -258,7 +270,24 @@ impl TactileSensor {
                     *deformed = false;
                 }
                 // The surface is interpolated only when the image is asked for.
-                if self.config.wants(Output::Depth) {
+                // rom: encoder, latent refinement, decoder (coarse depth if it fails).
+                let mut rom_done = false;
+                if let (Some(rom), true, true) =
+                    (rom, eval.contact, self.config.wants(Output::Depth))
+                {
+                    match rom.evaluate(gel, &touching, &self.grid, &self.zmin, &mut self.depth) {
+                        Ok(report) => {
+                            eval.rom = Some(report);
+                            rom_done = true;
+                        }
+                        Err(e) => eval.warnings.push(format!(
+                            "tacrom.tactile sensor '{}': reduced-order model failed ({e}); \
+                             coarse depth used",
+                            self.config.name
+                        )),
+                    }
+                }
+                if self.config.wants(Output::Depth) && !rom_done {
                     gel.surface_depth(&self.grid, &mut self.depth);
                     // Two bounds from the contact problem itself. Below: the surface cannot
                     // pass into an indenter, so where one reaches below the undeformed face
@@ -316,4 +345,45 @@ impl TactileSensor {
             at += n;
         }
     }
+}
+
+/// Loads the reduced-order model of a `physics="rom"` sensor: the `model` directory or the
+/// shipped one, checked against the sensor's gel and coarse grid.
+fn load_rom(config: &Config, dx: f64) -> Result<Rom, SensorError> {
+    let attr = crate::config::ATTR_MODEL;
+    let fail = |message: String| SensorError::Physics {
+        sensor: config.name.clone(),
+        message,
+    };
+    let dir = match &config.model {
+        Some(d) => d.clone(),
+        None => crate::rom::default_model_dir().ok_or_else(|| {
+            fail(format!(
+                "attribute '{attr}': the shipped model models/{} was not found beside the \
+                 plugin library; set '{attr}' to a model directory",
+                crate::rom::DEFAULT_MODEL
+            ))
+        })?,
+    };
+    let in_dir =
+        |e: crate::rom::RomError| fail(format!("attribute '{attr}' = \"{}\": {e}", dir.display()));
+    let rom = Rom::load(
+        &dir,
+        RomOptions {
+            refine: config.refine,
+            threads: config.threads,
+        },
+    )
+    .map_err(in_dir)?;
+    let m = rom.manifest();
+    m.check_gel(config.size, config.young, config.poisson, config.friction)
+        .map_err(in_dir)?;
+    if (dx - m.gel.coarse_dx).abs() > 1e-9 {
+        return Err(fail(format!(
+            "attribute 'dx' = {dx}: the model {} expects the coarse grid dx = {}",
+            dir.display(),
+            m.gel.coarse_dx
+        )));
+    }
+    Ok(rom)
 }

@@ -20,8 +20,16 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
     ("rigid", &[("physics", "rigid")]),
     ("coarse", &[("physics", "coarse")]),
     ("rom", &[("physics", "rom")]),
-    // Ablations of rom go here once it exists, e.g.
-    // ("rom-norefine", &[("physics", "rom"), ("refine", "0")]),
+    // Ablations of rom: no latent refinement ("w/o physics"), latent 16, no multi-scale loss.
+    ("rom-norefine", &[("physics", "rom"), ("refine", "false")]),
+    (
+        "rom-latent16",
+        &[("physics", "rom"), ("model", "models/rom-latent16")],
+    ),
+    (
+        "rom-no-multiscale",
+        &[("physics", "rom"), ("model", "models/rom-no-multiscale")],
+    ),
 ];
 
 /// A physics mode to benchmark: a label and the sensor attributes that select it.

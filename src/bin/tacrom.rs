@@ -4,6 +4,7 @@
 //! tacrom bench  [--quick | --full] [options]   error against run time of every mode
 //! tacrom render [options]                      press one indenter, write its depth PNG
 //! tacrom stability [--physics P] [--dx MM]     the stability suite's table
+//! tacrom gen-data [options]                    paired coarse/reference presses for training
 //! tacrom help
 //! ```
 //!
@@ -27,6 +28,7 @@ USAGE:
   tacrom bench  [--quick | --full] [OPTIONS]
   tacrom render [OPTIONS]
   tacrom stability [--physics P,...] [--dx MM]
+  tacrom gen-data [OPTIONS]         (see `tacrom gen-data --help`)
   tacrom help
 
 BENCH presses indenters on a grid of positions through increasing depths with every
@@ -81,6 +83,7 @@ fn main() -> ExitCode {
         Some("bench") => bench(&args[1..]),
         Some("render") => render(&args[1..]),
         Some("stability") => stability(&args[1..]),
+        Some("gen-data") => tacrom::datagen::run_cli(&args[1..]).map_err(BenchError::Usage),
         Some("help" | "--help" | "-h") | None => {
             print!("{USAGE}");
             Ok(())

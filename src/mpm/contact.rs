@@ -33,7 +33,7 @@ use std::sync::Arc;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::transfer::{Node, Particle, StepCtx};
+use super::transfer::{Node, Particle, Stencil, StepCtx};
 use super::Layout;
 use crate::geometry::{Aabb, Sdf};
 
@@ -202,17 +202,17 @@ pub(crate) fn update_contacts(
 /// docs), in slot order (deterministic). Returns the total force on the gel.
 pub(crate) fn scatter_contacts(
     ctx: &StepCtx,
-    particles: &[Particle],
+    stencils: &[Stencil],
     active: &[Option<ActiveContact>],
     grid: &mut [Node],
 ) -> [f64; 3] {
     let [_, ny, nz] = ctx.dims;
     let mut total = [0.0f64; 3];
     for a in active.iter().flatten() {
-        let p = &particles[a.particle as usize];
-        let (bx, fx, wx) = super::transfer::weights(p.x.x);
-        let (by, fy, wy) = super::transfer::weights(p.x.y);
-        let (bz, fz, wz) = super::transfer::weights(p.x.z);
+        let st = &stencils[a.particle as usize];
+        let (bx, fx, wx) = st.axis(0);
+        let (by, fy, wy) = st.axis(1);
+        let (bz, fz, wz) = st.axis(2);
         for (i, &wxi) in wx.iter().enumerate() {
             let ax = 4.0 * a.d.x * (i as f32 - fx);
             for (jy, &wyj) in wy.iter().enumerate() {
@@ -220,7 +220,7 @@ pub(crate) fn scatter_contacts(
                 let row = ((bx + i) * ny + by + jy) * nz + bz;
                 for (kz, &wzk) in wz.iter().enumerate() {
                     let s = wxi * wyj * wzk * (1.0 + axy + 4.0 * a.d.z * (kz as f32 - fz));
-                    grid[row + kz].f += a.f * s;
+                    grid[row + kz].add_f(a.f * s);
                 }
             }
         }

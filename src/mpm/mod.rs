@@ -107,7 +107,10 @@ use crate::geometry::{Aabb, PixelGrid, Placed, Sdf};
 
 use contact::{ActiveContact, ContactInput, SlotContact, StepIndenter};
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-use transfer::{ChunkStats, LayerStats, Node, P2gInput, Particle, StepCtx};
+use transfer::{ChunkStats, LayerStats, Node, P2gInput, Particle, Stencil, StepCtx};
+
+/// Rotation-extraction steps per time step (fixed corotated), warm-started.
+const ROT_ITERS: usize = 1;
 
 /// Smallest `det F` a particle may reach; below it (inverted included) `F` is repaired
 /// through its SVD.
@@ -264,6 +267,44 @@ struct Layout {
     spacing: [f64; 3],
 }
 
+impl Layout {
+    /// Undeformed position (cells) of lattice particle `(ix, iy, iz)`.
+    fn rest_position(&self, size: &[f64; 3], ix: usize, iy: usize, iz: usize) -> Vector3<f32> {
+        let [lx, ly, t] = *size;
+        let p = Vector3::new(
+            -0.5 * lx + (ix as f64 + 0.5) * self.spacing[0],
+            -0.5 * ly + (iy as f64 + 0.5) * self.spacing[1],
+            -t + (iz as f64 + 0.5) * self.spacing[2],
+        );
+        ((p - self.origin) / self.dx).cast::<f32>()
+    }
+}
+
+/// The part of a particle's state that a solve starts from (its velocity and `C` are zero
+/// then).
+#[derive(Clone, Copy, Debug)]
+struct Snapshot {
+    x: Vector3<f32>,
+    f: nalgebra::Matrix3<f32>,
+    q: nalgebra::UnitQuaternion<f32>,
+    jr: f32,
+}
+
+impl Snapshot {
+    fn of(p: &Particle) -> Self {
+        Self {
+            x: p.x,
+            f: p.f,
+            q: p.q,
+            jr: p.jr,
+        }
+    }
+
+    fn is_finite(&self) -> bool {
+        (self.x.sum() + self.f.sum() + self.jr + self.q.coords.sum()).is_finite()
+    }
+}
+
 /// The gel's own worker threads. Cloning a gel (for `mj_copyData`) gives the copy a pool
 /// of its own with the same number of threads.
 struct Pool {
@@ -310,8 +351,14 @@ pub struct Gel {
     /// P-wave modulus `M = lambda + 2 mu` (Pa).
     modulus: f64,
     particles: Vec<Particle>,
-    rest: Vec<Particle>,
-    snapshot: Vec<Particle>,
+    /// Elastic state at the start of the solve (velocities are zero then), for
+    /// [`Gel::recover`]. The undeformed state is not stored: it follows from the lattice
+    /// ([`Layout::rest_position`]).
+    snapshot: Vec<Snapshot>,
+    /// Stencil (base node, offsets) of each particle at its current position.
+    stencils: Vec<Stencil>,
+    /// Whether `order` / `offsets` still bin the particles by their current base x cell.
+    binned: bool,
     /// Top-surface slot -> particle index; slots row-major `iy * nx_top + ix`.
     top: Vec<u32>,
     /// Reference surface point of each slot (cells).
@@ -576,7 +623,7 @@ impl Gel {
             damping: damping as f32,
             fbar: options.fbar && params.poisson >= FBAR_POISSON,
             rot_iters: if params.material == Material::FixedCorotated {
-                2
+                ROT_ITERS
             } else {
                 0
             },
@@ -592,12 +639,7 @@ impl Gel {
         for ix in 0..nxp {
             for iy in 0..nyp {
                 for iz in 0..nzp {
-                    let p = Vector3::new(
-                        -0.5 * lx + (ix as f64 + 0.5) * spacing[0],
-                        -0.5 * ly + (iy as f64 + 0.5) * spacing[1],
-                        -t + (iz as f64 + 0.5) * spacing[2],
-                    );
-                    let x = ((p - origin) / dx).cast::<f32>();
+                    let x = layout.rest_position(&params.size, ix, iy, iz);
                     if iz + 1 == nzp {
                         let slot = iy * nxp + ix;
                         top[slot] = particles.len() as u32;
@@ -618,8 +660,9 @@ impl Gel {
             mu: mu as f32,
             lambda: lambda as f32,
             modulus,
-            rest: particles.clone(),
-            snapshot: particles.clone(),
+            snapshot: particles.iter().map(Snapshot::of).collect(),
+            stencils: Vec::with_capacity(n),
+            binned: false,
             particles,
             top,
             top_ref,
@@ -666,7 +709,7 @@ impl Gel {
 
     /// Back to the undeformed gel at rest, forgetting the previous indenter poses.
     pub fn reset(&mut self) {
-        self.particles.copy_from_slice(&self.rest);
+        self.restore_rest();
         self.prev.clear();
         self.force = Vector3::zeros();
         self.surface_u
@@ -690,10 +733,22 @@ impl Gel {
         self.force
     }
 
-    /// Bytes held per particle (state, rest state, snapshot, sort index), not
-    /// counting the grid.
+    /// Bytes held per particle (state, snapshot of the elastic state, stencil, sort
+    /// index), not counting the grid.
     pub fn bytes_per_particle() -> usize {
-        3 * std::mem::size_of::<Particle>() + std::mem::size_of::<u32>()
+        std::mem::size_of::<Particle>()
+            + std::mem::size_of::<Snapshot>()
+            + std::mem::size_of::<Stencil>()
+            + std::mem::size_of::<u32>()
+    }
+
+    /// Puts every particle back at its undeformed lattice position, at rest.
+    fn restore_rest(&mut self) {
+        let [_, nyp, nzp] = self.layout.lattice;
+        for (i, p) in self.particles.iter_mut().enumerate() {
+            let (ix, iy, iz) = (i / (nyp * nzp), i / nzp % nyp, i % nzp);
+            *p = Particle::at_rest(self.layout.rest_position(&self.params.size, ix, iy, iz));
+        }
     }
 
     /// Bytes held by the grid.
@@ -780,11 +835,13 @@ impl Gel {
         let sweep = ((disp / (self.options.sweep_rate * dx)).ceil() as usize).clamp(1, cap);
         report.sweep_steps = sweep;
 
-        self.snapshot.copy_from_slice(&self.particles);
-        for p in &mut self.particles {
+        for (s, p) in self.snapshot.iter_mut().zip(&mut self.particles) {
+            *s = Snapshot::of(p);
             p.v = Vector3::zeros();
             p.c = nalgebra::Matrix3::zeros();
         }
+        transfer::compute_stencils(&self.particles, &mut self.stencils);
+        self.binned = false;
         let interp = |a: &Isometry3<f64>, b: &Isometry3<f64>, s: f64| {
             a.try_lerp_slerp(b, s, 1e-9).unwrap_or(*b)
         };
@@ -883,20 +940,24 @@ impl Gel {
     /// Restores the state at the start of the solve, or the undeformed gel if that state is
     /// itself not finite; zero velocities either way.
     fn recover(&mut self) {
-        let good = self.snapshot.iter().all(|p| {
-            let s = p.x.sum() + p.f.sum() + p.jr + p.q.coords.sum();
-            s.is_finite()
-        });
+        let good = self.snapshot.iter().all(Snapshot::is_finite);
         if good {
-            self.particles.copy_from_slice(&self.snapshot);
+            for (p, s) in self.particles.iter_mut().zip(&self.snapshot) {
+                *p = Particle {
+                    x: s.x,
+                    v: Vector3::zeros(),
+                    c: nalgebra::Matrix3::zeros(),
+                    f: s.f,
+                    q: s.q,
+                    jr: s.jr,
+                };
+            }
         } else {
-            self.particles.copy_from_slice(&self.rest);
+            self.restore_rest();
         }
         self.contacts.fill(SlotContact::NONE);
-        for p in &mut self.particles {
-            p.v = Vector3::zeros();
-            p.c = nalgebra::Matrix3::zeros();
-        }
+        transfer::compute_stencils(&self.particles, &mut self.stencils);
+        self.binned = false;
     }
 
     fn det_range(&self) -> (f64, f64) {
@@ -924,6 +985,8 @@ impl Gel {
             order,
             offsets,
             cursor,
+            stencils,
+            binned,
             layer_stats,
             chunk_stats,
             step_ind,
@@ -948,16 +1011,20 @@ impl Gel {
                 friction: params.friction as f32,
             };
             contact::update_contacts(&input, contacts, active);
-            transfer::bin_particles(particles, layout.dims[0], order, offsets, cursor);
+            if !*binned {
+                transfer::bin_particles(stencils, layout.dims[0], order, offsets, cursor);
+                *binned = true;
+            }
             let input = P2gInput {
                 particles,
+                stencils,
                 order,
                 offsets,
             };
             transfer::particle_to_grid(&ctx, model, &input, grid);
-            let f = contact::scatter_contacts(&ctx, particles, active, grid);
+            let f = contact::scatter_contacts(&ctx, stencils, active, grid);
             transfer::grid_update(&ctx, grid, layer_stats);
-            transfer::grid_to_particle(&ctx, grid, particles, chunk_stats);
+            transfer::grid_to_particle(&ctx, grid, particles, stencils, chunk_stats);
             f
         });
         let mut residual = 0.0f32;
@@ -987,6 +1054,7 @@ impl Gel {
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
         for s in chunk_stats.iter() {
             nonfinite |= s.nonfinite;
+            *binned &= !s.moved;
             lo = lo.min(s.det_min);
             hi = hi.max(s.det_max);
         }

@@ -2,7 +2,8 @@
 //! in cells, `dt = 1`, stresses divided by `lambda + 2 mu`):
 //!
 //! 1. [`bin_particles`]: counting sort of the particles by the x index of their stencil
-//!    base cell (what makes the scatter deterministic and race free);
+//!    base cell (what makes the scatter deterministic and race free); redone only when a
+//!    particle changed that cell (G2P reports it), since the sort is then unchanged;
 //! 2. [`particle_to_grid`]: clear the grid, scatter mass, APIC momentum and the MLS-MPM
 //!    stress force (Hu et al. 2018, "A moving least squares material point method", Eq. 18
 //!    and 29); the contact forces of the top particles are added after it
@@ -10,7 +11,13 @@
 //! 3. [`grid_update`]: momentum to velocity, bonded bottom, damping, and the
 //!    out-of-balance force that the convergence test reads;
 //! 4. [`grid_to_particle`]: velocity and affine `C` (APIC, Jiang et al. 2015), then
-//!    `F <- (I + dt C) F`, `x <- x + dt v`, with clamps on `x` and `det F`.
+//!    `F <- (I + dt C) F`, `x <- x + dt v`, with clamps on `x` and `det F`, one warm-started
+//!    step of the rotation extraction, and the [`Stencil`] of the new position.
+//!
+//! Each particle's stencil (base node, offsets) is computed once per position and shared
+//! by P2G, the contact scatter and G2P. The scatter and gather work on whole nodes as
+//! eight-lane arrays (see [`Node`]) and, on x86-64 CPUs with AVX2 (detected at run time),
+//! run in a copy compiled for it: same operations, same order, same bits.
 //!
 //! Determinism: the scatter is the only step where several particles write one node. The
 //! grid is x-major, and the particles are binned by the x index of their base cell into
@@ -24,7 +31,7 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use super::material::{extract_rotation, ConstitutiveModel};
+use super::material::ConstitutiveModel;
 use super::{J_MAX, J_MIN};
 
 /// Width, in cells along x, of one scatter block. Must be at least 2 (a block writes
@@ -66,32 +73,60 @@ impl Particle {
         }
     }
 
+    /// Whether every component is finite (a sum, summed as a shallow tree: it is on every
+    /// particle's path in G2P; a finite overflow to infinity also counts as non-finite).
+    #[inline(always)]
     fn is_finite(&self) -> bool {
-        let s = self.x.sum() + self.v.sum() + self.c.sum() + self.f.sum() + self.jr;
-        s.is_finite() && self.q.coords.sum().is_finite()
+        let m = self.c + self.f;
+        let t = (self.x + self.v) + (m.column(0) + m.column(1) + m.column(2));
+        let q = self.q.coords;
+        let s = ((t.x + q.x) + (t.y + q.y)) + ((t.z + q.z) + (self.jr + q.w));
+        s.is_finite()
     }
 }
 
-/// One grid node: what P2G accumulates, and what the grid update leaves for G2P.
+/// One grid node: what P2G accumulates, and what the grid update leaves for G2P, as eight
+/// lanes (so that the scatter and gather run on whole SIMD vectors, and a node never
+/// straddles a cache line):
+/// * `[MV, MV + 3)`: APIC momentum `sum w (m v + m C (x_i - x_p))`; the velocity after the
+///   grid update;
+/// * `MJ`: `sum w m J`; the node's smoothed `J` after the grid update;
+/// * `[F, F + 3)`: stress force times `dt`: `-sum w V tau M^-1 (x_i - x_p)`;
+/// * `M`: mass.
+///
+/// G2P reads the first four lanes only.
 #[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
 pub(crate) struct Node {
-    /// Mass.
-    pub m: f32,
-    /// APIC momentum `sum w (m v + m C (x_i - x_p))`; the velocity after the grid update.
-    pub mv: Vector3<f32>,
-    /// Stress force times `dt`: `-sum w V tau M^-1 (x_i - x_p)`.
-    pub f: Vector3<f32>,
-    /// `sum w m J`; the node's smoothed `J` after the grid update.
-    pub mj: f32,
+    pub a: [f32; 8],
 }
 
 impl Node {
-    pub const ZERO: Node = Node {
-        m: 0.0,
-        mv: Vector3::new(0.0, 0.0, 0.0),
-        f: Vector3::new(0.0, 0.0, 0.0),
-        mj: 0.0,
-    };
+    pub const MV: usize = 0;
+    pub const MJ: usize = 3;
+    pub const F: usize = 4;
+    pub const M: usize = 7;
+    pub const ZERO: Node = Node { a: [0.0; 8] };
+
+    #[inline(always)]
+    fn vec(&self, at: usize) -> Vector3<f32> {
+        Vector3::new(self.a[at], self.a[at + 1], self.a[at + 2])
+    }
+
+    #[inline(always)]
+    fn set_vec(&mut self, at: usize, v: Vector3<f32>) {
+        self.a[at] = v.x;
+        self.a[at + 1] = v.y;
+        self.a[at + 2] = v.z;
+    }
+
+    /// Adds `v` to the stress force lanes.
+    #[inline(always)]
+    pub fn add_f(&mut self, v: Vector3<f32>) {
+        self.a[Self::F] += v.x;
+        self.a[Self::F + 1] += v.y;
+        self.a[Self::F + 2] += v.z;
+    }
 }
 
 /// Fixed quantities of a step, bundled.
@@ -120,26 +155,70 @@ pub(crate) struct StepCtx {
 /// target has no SSE4.1 `roundss`, and `floorf` is a library call).
 #[inline(always)]
 pub(crate) fn weights(x: f32) -> (usize, f32, [f32; 3]) {
-    let base = (x - 0.5).max(0.0) as usize as f32;
+    // `as i32` is one cvttss2si (NaN and overflow saturate); `x` is clamped to the grid.
+    let bi = (x - 0.5).max(0.0) as i32;
+    let base = bi as f32;
     let fx = x - base;
     let w = [
         0.5 * (1.5 - fx) * (1.5 - fx),
         0.75 - (fx - 1.0) * (fx - 1.0),
         0.5 * (fx - 0.5) * (fx - 0.5),
     ];
-    (base.max(0.0) as usize, fx, w)
+    (bi.max(0) as usize, fx, w)
 }
 
-/// Stencil base x index of a particle.
-#[inline(always)]
-fn base_x(x: f32) -> usize {
-    (x - 0.5).max(0.0) as usize
+/// Stencil of a particle: base node and offset `x - base` per axis (see [`weights`]).
+/// Computed once per position (by G2P for the next step, or by [`compute_stencils`] at the
+/// start of a solve) and shared by P2G, the contact scatter and G2P; the weights follow
+/// from the offsets in a few flops ([`Stencil::weights`], the same values as [`weights`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Stencil {
+    pub base: [u32; 3],
+    pub fx: [f32; 3],
+}
+
+impl Stencil {
+    #[inline(always)]
+    pub fn of(x: &Vector3<f32>) -> Self {
+        let (bx, fx, _) = weights(x.x);
+        let (by, fy, _) = weights(x.y);
+        let (bz, fz, _) = weights(x.z);
+        Self {
+            base: [bx as u32, by as u32, bz as u32],
+            fx: [fx, fy, fz],
+        }
+    }
+
+    /// Base index and weights along axis `d`, as [`weights`] gives them.
+    #[inline(always)]
+    pub fn axis(&self, d: usize) -> (usize, f32, [f32; 3]) {
+        let fx = self.fx[d];
+        let w = [
+            0.5 * (1.5 - fx) * (1.5 - fx),
+            0.75 - (fx - 1.0) * (fx - 1.0),
+            0.5 * (fx - 0.5) * (fx - 0.5),
+        ];
+        (self.base[d] as usize, fx, w)
+    }
+}
+
+/// Recomputes every particle's stencil from its position.
+pub(crate) fn compute_stencils(particles: &[Particle], stencils: &mut Vec<Stencil>) {
+    stencils.resize(particles.len(), Stencil::default());
+    stencils
+        .par_chunks_mut(CHUNK)
+        .zip(particles.par_chunks(CHUNK))
+        .for_each(|(s, p)| {
+            for (s, p) in s.iter_mut().zip(p) {
+                *s = Stencil::of(&p.x);
+            }
+        });
 }
 
 /// Stable counting sort of particle indices by base x cell: afterwards the particles whose
 /// base is `bx` are `order[offsets[bx]..offsets[bx + 1]]`, in increasing index.
 pub(crate) fn bin_particles(
-    particles: &[Particle],
+    stencils: &[Stencil],
     nx: usize,
     order: &mut Vec<u32>,
     offsets: &mut Vec<u32>,
@@ -147,17 +226,17 @@ pub(crate) fn bin_particles(
 ) {
     offsets.clear();
     offsets.resize(nx + 1, 0);
-    for p in particles {
-        offsets[base_x(p.x.x).min(nx - 1) + 1] += 1;
+    for s in stencils {
+        offsets[(s.base[0] as usize).min(nx - 1) + 1] += 1;
     }
     for i in 0..nx {
         offsets[i + 1] += offsets[i];
     }
     cursor.clear();
     cursor.extend_from_slice(&offsets[..nx]);
-    order.resize(particles.len(), 0);
-    for (i, p) in particles.iter().enumerate() {
-        let b = base_x(p.x.x).min(nx - 1);
+    order.resize(stencils.len(), 0);
+    for (i, s) in stencils.iter().enumerate() {
+        let b = (s.base[0] as usize).min(nx - 1);
         order[cursor[b] as usize] = i as u32;
         cursor[b] += 1;
     }
@@ -166,6 +245,7 @@ pub(crate) fn bin_particles(
 /// Everything P2G reads, bundled.
 pub(crate) struct P2gInput<'a> {
     pub particles: &'a [Particle],
+    pub stencils: &'a [Stencil],
     pub order: &'a [u32],
     pub offsets: &'a [u32],
 }
@@ -183,6 +263,7 @@ pub(crate) fn particle_to_grid<M: ConstitutiveModel>(
     let [_, ny, nz] = ctx.dims;
     let nyz = ny * nz;
     let nbx = input.offsets.len() - 1;
+    let avx2 = has_avx2();
     grid.par_chunks_mut(nyz * 8)
         .for_each(|c| c.fill(Node::ZERO));
     for parity in 0..2 {
@@ -199,11 +280,67 @@ pub(crate) fn particle_to_grid<M: ConstitutiveModel>(
                 let bx0 = layer0.min(nbx);
                 let bx1 = (layer0 + BLOCK).min(nbx);
                 let range = input.offsets[bx0] as usize..input.offsets[bx1] as usize;
-                for &pi in &input.order[range] {
-                    scatter_particle(ctx, model, &input.particles[pi as usize], layer0, gc);
+                let order = &input.order[range];
+                #[cfg(target_arch = "x86_64")]
+                if avx2 {
+                    // SAFETY: the CPU supports AVX2 (detected at run time above).
+                    unsafe { scatter_block_avx2(ctx, model, input, order, layer0, gc) };
+                    return;
                 }
+                scatter_block(ctx, model, input, order, layer0, gc);
             });
     }
+}
+
+/// Whether the running CPU has AVX2: the hot kernels then run in a copy compiled for it
+/// (wider vectors, no FMA contraction, so the same IEEE operations in the same order and
+/// bit-identical results).
+#[inline]
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[inline(always)]
+fn scatter_block<M: ConstitutiveModel>(
+    ctx: &StepCtx,
+    model: &M,
+    input: &P2gInput<'_>,
+    order: &[u32],
+    layer0: usize,
+    gc: &mut [Node],
+) {
+    for &pi in order {
+        let pi = pi as usize;
+        scatter_particle(
+            ctx,
+            model,
+            &input.particles[pi],
+            &input.stencils[pi],
+            layer0,
+            gc,
+        );
+    }
+}
+
+/// [`scatter_block`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn scatter_block_avx2<M: ConstitutiveModel>(
+    ctx: &StepCtx,
+    model: &M,
+    input: &P2gInput<'_>,
+    order: &[u32],
+    layer0: usize,
+    gc: &mut [Node],
+) {
+    scatter_block(ctx, model, input, order, layer0, gc);
 }
 
 #[inline(always)]
@@ -211,13 +348,14 @@ fn scatter_particle<M: ConstitutiveModel>(
     ctx: &StepCtx,
     model: &M,
     p: &Particle,
+    st: &Stencil,
     layer0: usize,
     g: &mut [Node],
 ) {
     let [_, ny, nz] = ctx.dims;
-    let (bx, fx, wx) = weights(p.x.x);
-    let (by, fy, wy) = weights(p.x.y);
-    let (bz, fz, wz) = weights(p.x.z);
+    let (bx, fx, wx) = st.axis(0);
+    let (by, fy, wy) = st.axis(1);
+    let (bz, fz, wz) = st.axis(2);
     let j = p.f.determinant();
     // Volume smoothing: the volumetric (pressure) term sees the kernel-smoothed J.
     let jb = if ctx.fbar { j * p.jr } else { j };
@@ -231,24 +369,54 @@ fn scatter_particle<M: ConstitutiveModel>(
     let affine = p.c * ctx.pmass;
     let mv = p.v * ctx.pmass;
     let m = ctx.pmass;
-    let mj = m * j;
+    // The node's contribution is `w (p0 + sum_d pc[d] (x_i - x_p)_d)`, lanes as in `Node`.
+    let p0 = [mv.x, mv.y, mv.z, m * j, 0.0, 0.0, 0.0, m];
+    let pc: [[f32; 8]; 3] = std::array::from_fn(|d| {
+        let (a, s) = (affine.column(d), stress.column(d));
+        [a.x, a.y, a.z, 0.0, s.x, s.y, s.z, 0.0]
+    });
+    // z terms per stencil node, the same for every row.
+    let qz: [[f32; 8]; 3] = std::array::from_fn(|k| {
+        let dzk = k as f32 - fz;
+        std::array::from_fn(|l| pc[2][l] * dzk)
+    });
+    let first = (bx - layer0) * ny * nz + by * nz + bz;
+    scatter_stencil(g, first, ny * nz, nz, [fx, fy], [wx, wy, wz], &p0, &pc, &qz);
+}
+
+/// Adds `w (p0 + pc[0] dx + pc[1] dy + qz[k])` to the 27 stencil nodes (first node
+/// `first`, x and y strides `sx`, `sy`), in a fixed order, each lane as
+/// `n += w * ((p0 + pc[0] dx + pc[1] dy) + qz[k])` (the compiler vectorises this one
+/// well, eight lanes at a time in the AVX2 copy).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn scatter_stencil(
+    g: &mut [Node],
+    first: usize,
+    sx: usize,
+    sy: usize,
+    f: [f32; 2],
+    w: [[f32; 3]; 3],
+    p0: &[f32; 8],
+    pc: &[[f32; 8]; 3],
+    qz: &[[f32; 8]; 3],
+) {
+    let [fx, fy] = f;
+    let [wx, wy, wz] = w;
     for (i, &wxi) in wx.iter().enumerate() {
         let dxi = i as f32 - fx;
-        let lx = bx + i - layer0;
+        let rx: [f32; 8] = std::array::from_fn(|l| p0[l] + pc[0][l] * dxi);
         for (jy, &wyj) in wy.iter().enumerate() {
             let dyj = jy as f32 - fy;
             let wxy = wxi * wyj;
-            let row = (lx * ny + by + jy) * nz + bz;
-            let a_xy = affine.column(0) * dxi + affine.column(1) * dyj;
-            let s_xy = stress.column(0) * dxi + stress.column(1) * dyj;
-            for (k, &wzk) in wz.iter().enumerate() {
-                let dzk = k as f32 - fz;
+            let row = first + i * sx + jy * sy;
+            let r: [f32; 8] = std::array::from_fn(|l| rx[l] + pc[1][l] * dyj);
+            let line = &mut g[row..row + 3];
+            for ((n, &wzk), q) in line.iter_mut().zip(wz.iter()).zip(qz.iter()) {
                 let w = wxy * wzk;
-                let n = &mut g[row + k];
-                n.m += w * m;
-                n.mv += (mv + a_xy + affine.column(2) * dzk) * w;
-                n.f += (s_xy + stress.column(2) * dzk) * w;
-                n.mj += w * mj;
+                for l in 0..8 {
+                    n.a[l] += w * (r[l] + q[l]);
+                }
             }
         }
     }
@@ -282,23 +450,24 @@ pub(crate) fn grid_update(ctx: &StepCtx, grid: &mut [Node], stats: &mut Vec<Laye
             for (iy, gc) in g.chunks_exact_mut(nz).enumerate() {
                 let wall_y = wall_x || iy == 0 || iy + 1 == ny;
                 for (iz, n) in gc.iter_mut().enumerate() {
-                    if n.m <= 0.0 {
-                        n.mv = Vector3::zeros();
-                        n.mj = 1.0;
+                    let m = n.a[Node::M];
+                    if m <= 0.0 {
+                        n.set_vec(Node::MV, Vector3::zeros());
+                        n.a[Node::MJ] = 1.0;
                         continue;
                     }
-                    let inv = 1.0 / n.m;
-                    let v_apic = n.mv * inv;
-                    let v = v_apic + n.f * inv;
-                    n.mj *= inv;
+                    let inv = 1.0 / m;
+                    let v_apic = n.vec(Node::MV) * inv;
+                    let v = v_apic + n.vec(Node::F) * inv;
+                    n.a[Node::MJ] *= inv;
                     if iz <= ctx.iz_bottom || wall_y || iz + 1 == nz {
-                        st.reaction = st.reaction.max(n.m * v.norm());
-                        n.mv = Vector3::zeros();
+                        st.reaction = st.reaction.max(m * v.norm());
+                        n.set_vec(Node::MV, Vector3::zeros());
                         continue;
                     }
-                    let r = ((v - v_apic).norm() + c * v.norm()) * n.m;
+                    let r = ((v - v_apic).norm() + c * v.norm()) * m;
                     st.residual = st.residual.max(r);
-                    n.mv = v / (1.0 + c);
+                    n.set_vec(Node::MV, v / (1.0 + c));
                 }
             }
             st
@@ -350,12 +519,40 @@ pub(crate) fn guard_det(f: &mut Matrix3<f32>, q: &mut UnitQuaternion<f32>) {
     }
 }
 
+/// One warm-started step of the rotation extraction of Mueller et al. 2016 (see
+/// [`super::material::extract_rotation`]): `omega = sum_i r_i x a_i / (|sum_i r_i . a_i| +
+/// eps)`, with the exponential `exp(omega)` replaced by the normalised first-order
+/// quaternion `(1, omega / 2)` (no trigonometry; same direction, angle `2 atan(|omega| / 2)`,
+/// so the same fixed point, the polar rotation). `F` changes by `dt C F` per step, so the
+/// rotation carried from the previous step is already close and one step per time step
+/// tracks it. Non-finite input leaves `q` unchanged.
+#[inline(always)]
+fn rotation_step(a: &Matrix3<f32>, q: &mut UnitQuaternion<f32>) {
+    let r = q.to_rotation_matrix();
+    let r = r.matrix();
+    let (c0, c1, c2) = (r.column(0), r.column(1), r.column(2));
+    let num = c0.cross(&a.column(0)) + c1.cross(&a.column(1)) + c2.cross(&a.column(2));
+    let den = c0.dot(&a.column(0)) + c1.dot(&a.column(1)) + c2.dot(&a.column(2));
+    let h = num * (0.5 / (den.abs() + 1e-9));
+    if !(h.x.is_finite() && h.y.is_finite() && h.z.is_finite()) {
+        return;
+    }
+    let dq = nalgebra::Quaternion::new(1.0, h.x, h.y, h.z);
+    let nq = dq * q.into_inner();
+    let n2 = nq.coords.norm_squared();
+    if n2 > 0.0 && n2.is_finite() {
+        *q = UnitQuaternion::new_unchecked(nq * (1.0 / n2.sqrt()));
+    }
+}
+
 /// Per-chunk results of G2P.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ChunkStats {
     pub det_min: f32,
     pub det_max: f32,
     pub nonfinite: bool,
+    /// Whether a particle changed its base x cell (the binning must be redone).
+    pub moved: bool,
 }
 
 /// Grid to particle: `v_p = sum w v_i`, `C_p = 4 sum w v_i (x_i - x_p)^T` (APIC with
@@ -367,69 +564,197 @@ pub(crate) fn grid_to_particle(
     ctx: &StepCtx,
     grid: &[Node],
     particles: &mut [Particle],
+    stencils: &mut [Stencil],
     stats: &mut Vec<ChunkStats>,
 ) {
     let [nx, ny, nz] = ctx.dims;
     let hi = Vector3::new(nx as f32 - 2.0, ny as f32 - 2.0, nz as f32 - 2.0);
-    let rot_iters = ctx.rot_iters;
+    let avx2 = has_avx2();
     particles
         .par_chunks_mut(CHUNK)
-        .map(|chunk| {
-            let mut st = ChunkStats {
-                det_min: f32::INFINITY,
-                det_max: f32::NEG_INFINITY,
-                nonfinite: false,
-            };
-            for p in chunk.iter_mut() {
-                let (bx, fx, wx) = weights(p.x.x);
-                let (by, fy, wy) = weights(p.x.y);
-                let (bz, fz, wz) = weights(p.x.z);
-                let mut v = Vector3::zeros();
-                let mut b = Matrix3::zeros();
-                let mut jbar = 0.0f32;
-                for (i, &wxi) in wx.iter().enumerate() {
-                    let dxi = i as f32 - fx;
-                    for (jy, &wyj) in wy.iter().enumerate() {
-                        let dyj = jy as f32 - fy;
-                        let wxy = wxi * wyj;
-                        let row = ((bx + i) * ny + by + jy) * nz + bz;
-                        for (k, &wzk) in wz.iter().enumerate() {
-                            let n = &grid[row + k];
-                            let w = wxy * wzk;
-                            let wv = n.mv * w;
-                            v += wv;
-                            b += wv * Vector3::new(dxi, dyj, k as f32 - fz).transpose();
-                            jbar += w * n.mj;
-                        }
-                    }
-                }
-                let j_old = p.f.determinant();
-                p.jr = if ctx.fbar {
-                    (jbar / j_old).clamp(0.25, 4.0)
-                } else {
-                    1.0
-                };
-                p.v = v;
-                p.c = b * 4.0;
-                p.x = (p.x + v).sup(&Vector3::repeat(1.0)).inf(&hi);
-                p.f = (Matrix3::identity() + p.c) * p.f;
-                let mut j = p.f.determinant();
-                if !(J_MIN as f32..=J_MAX as f32).contains(&j) && p.f.iter().all(|x| x.is_finite())
-                {
-                    guard_det(&mut p.f, &mut p.q);
-                }
-                if rot_iters > 0 {
-                    extract_rotation(&p.f, &mut p.q, rot_iters);
-                }
-                if !p.is_finite() {
-                    st.nonfinite = true;
-                    continue;
-                }
-                j = p.f.determinant();
-                st.det_min = st.det_min.min(j);
-                st.det_max = st.det_max.max(j);
+        .zip(stencils.par_chunks_mut(CHUNK))
+        .map(|(chunk, sten)| {
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: the CPU supports AVX2 (detected at run time above).
+                return unsafe { gather_chunk_avx2(ctx, grid, chunk, sten, &hi) };
             }
-            st
+            gather_chunk(ctx, grid, chunk, sten, &hi)
         })
         .collect_into_vec(stats);
+}
+
+/// Sums over the 27 stencil nodes (first node `base`, x and y strides `sx`, `sy`) of the
+/// first four lanes of each node (velocity, smoothed J): `acc[0] = sum w n`,
+/// `acc[1 + d] = sum w (x_i - x_p)_d n`. Summed along z first, then y, then x, each row in a
+/// fixed order, so every implementation gives the same bits.
+#[cfg(not(target_arch = "x86_64"))]
+#[inline(always)]
+fn gather_stencil(
+    grid: &[Node],
+    base: usize,
+    sx: usize,
+    sy: usize,
+    f: [f32; 3],
+    w: [[f32; 3]; 3],
+) -> [[f32; 4]; 4] {
+    let [fx, fy, fz] = f;
+    let [wx, wy, wz] = w;
+    let mut acc = [[0.0f32; 4]; 4];
+    let wzd: [f32; 3] = std::array::from_fn(|k| wz[k] * (k as f32 - fz));
+    for (i, &wxi) in wx.iter().enumerate() {
+        let dxi = i as f32 - fx;
+        for (jy, &wyj) in wy.iter().enumerate() {
+            let dyj = jy as f32 - fy;
+            let wxy = wxi * wyj;
+            let row = base + i * sx + jy * sy;
+            let line = &grid[row..row + 3];
+            let mut s0 = [0.0f32; 4];
+            let mut s1 = [0.0f32; 4];
+            for ((n, &wk), &wdk) in line.iter().zip(wz.iter()).zip(wzd.iter()) {
+                for l in 0..4 {
+                    s0[l] += wk * n.a[l];
+                    s1[l] += wdk * n.a[l];
+                }
+            }
+            let (wx0, wx1) = (wxy * dxi, wxy * dyj);
+            for l in 0..4 {
+                acc[0][l] += wxy * s0[l];
+                acc[1][l] += wx0 * s0[l];
+                acc[2][l] += wx1 * s0[l];
+                acc[3][l] += wxy * s1[l];
+            }
+        }
+    }
+    acc
+}
+
+/// See the portable version; the same operations in the same order on SSE vectors (the
+/// compiler's own vectorisation of it spilled most of the accumulators).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn gather_stencil(
+    grid: &[Node],
+    base: usize,
+    sx: usize,
+    sy: usize,
+    f: [f32; 3],
+    w: [[f32; 3]; 3],
+) -> [[f32; 4]; 4] {
+    use std::arch::x86_64::*;
+    let [fx, fy, fz] = f;
+    let [wx, wy, wz] = w;
+    let wzd: [f32; 3] = std::array::from_fn(|k| wz[k] * (k as f32 - fz));
+    let mut out = [[0.0f32; 4]; 4];
+    // SAFETY: SSE is part of the x86-64 baseline, so the intrinsics are available; every
+    // load reads the first four lanes of a `Node` taken from a bounds-checked slice (32-byte
+    // aligned, so `_mm_load_ps` is aligned), every store writes four f32 of `out`.
+    unsafe {
+        let wk = [_mm_set1_ps(wz[0]), _mm_set1_ps(wz[1]), _mm_set1_ps(wz[2])];
+        let wdk = [
+            _mm_set1_ps(wzd[0]),
+            _mm_set1_ps(wzd[1]),
+            _mm_set1_ps(wzd[2]),
+        ];
+        let zero = _mm_setzero_ps();
+        let mut acc = [zero; 4];
+        for (i, &wxi) in wx.iter().enumerate() {
+            let dxi = i as f32 - fx;
+            for (jy, &wyj) in wy.iter().enumerate() {
+                let dyj = jy as f32 - fy;
+                let wxy = wxi * wyj;
+                let row = base + i * sx + jy * sy;
+                let line = &grid[row..row + 3];
+                let mut s0 = zero;
+                let mut s1 = zero;
+                for (n, (&a, &b)) in line.iter().zip(wk.iter().zip(wdk.iter())) {
+                    let n = _mm_load_ps(n.a.as_ptr());
+                    s0 = _mm_add_ps(s0, _mm_mul_ps(a, n));
+                    s1 = _mm_add_ps(s1, _mm_mul_ps(b, n));
+                }
+                let (wx0, wx1) = (wxy * dxi, wxy * dyj);
+                let (vxy, v0, v1) = (_mm_set1_ps(wxy), _mm_set1_ps(wx0), _mm_set1_ps(wx1));
+                acc[0] = _mm_add_ps(acc[0], _mm_mul_ps(vxy, s0));
+                acc[1] = _mm_add_ps(acc[1], _mm_mul_ps(v0, s0));
+                acc[2] = _mm_add_ps(acc[2], _mm_mul_ps(v1, s0));
+                acc[3] = _mm_add_ps(acc[3], _mm_mul_ps(vxy, s1));
+            }
+        }
+        for (o, a) in out.iter_mut().zip(acc) {
+            _mm_storeu_ps(o.as_mut_ptr(), a);
+        }
+    }
+    out
+}
+
+/// [`gather_chunk`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn gather_chunk_avx2(
+    ctx: &StepCtx,
+    grid: &[Node],
+    chunk: &mut [Particle],
+    sten: &mut [Stencil],
+    hi: &Vector3<f32>,
+) -> ChunkStats {
+    gather_chunk(ctx, grid, chunk, sten, hi)
+}
+
+/// G2P of one chunk of particles (see [`grid_to_particle`]).
+#[inline(always)]
+fn gather_chunk(
+    ctx: &StepCtx,
+    grid: &[Node],
+    chunk: &mut [Particle],
+    sten: &mut [Stencil],
+    hi: &Vector3<f32>,
+) -> ChunkStats {
+    let [_, ny, nz] = ctx.dims;
+    let rot_iters = ctx.rot_iters;
+    let mut st = ChunkStats {
+        det_min: f32::INFINITY,
+        det_max: f32::NEG_INFINITY,
+        nonfinite: false,
+        moved: false,
+    };
+    for (p, sp) in chunk.iter_mut().zip(sten.iter_mut()) {
+        let (bx, fx, wx) = sp.axis(0);
+        let (by, fy, wy) = sp.axis(1);
+        let (bz, fz, wz) = sp.axis(2);
+        // acc[0] = sum w n, acc[1 + d] = sum w (x_i - x_p)_d n over the first four
+        // lanes of each node (velocity, smoothed J).
+        let base = (bx * ny + by) * nz + bz;
+        let acc = gather_stencil(grid, base, ny * nz, nz, [fx, fy, fz], [wx, wy, wz]);
+        let v = Vector3::new(acc[0][0], acc[0][1], acc[0][2]);
+        let jbar = acc[0][3];
+        let b = Matrix3::from_fn(|r, c| acc[1 + c][r]);
+        let j_old = p.f.determinant();
+        p.jr = if ctx.fbar {
+            (jbar / j_old).clamp(0.25, 4.0)
+        } else {
+            1.0
+        };
+        p.v = v;
+        p.c = b * 4.0;
+        p.x = (p.x + v).sup(&Vector3::repeat(1.0)).inf(hi);
+        let ns = Stencil::of(&p.x);
+        st.moved |= ns.base[0] != sp.base[0];
+        *sp = ns;
+        p.f = (Matrix3::identity() + p.c) * p.f;
+        let mut j = p.f.determinant();
+        if !(J_MIN as f32..=J_MAX as f32).contains(&j) && p.f.iter().all(|x| x.is_finite()) {
+            guard_det(&mut p.f, &mut p.q);
+            j = p.f.determinant();
+        }
+        for _ in 0..rot_iters {
+            rotation_step(&p.f, &mut p.q);
+        }
+        if !p.is_finite() {
+            st.nonfinite = true;
+            continue;
+        }
+        st.det_min = st.det_min.min(j);
+        st.det_max = st.det_max.max(j);
+    }
+    st
 }

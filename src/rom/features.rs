@@ -16,8 +16,8 @@
 //! * **Decoder query** at lattice point `(row, col)`: the normalised position
 //!   `(x / (Lx/2), y / (Ly/2))`, then a `patch x patch` window of `c` and one of `p`
 //!   centred on the point with `patch_step` lattice steps between samples (zero outside
-//!   the gel), in model units. The centre of the `c` window is feature
-//!   [`COARSE_CENTRE_FEATURE`]... no: see [`query_features`] for the exact order.
+//!   the gel), in model units; see [`query_features`] for the exact order and
+//!   [`coarse_centre_feature`] for the coarse depth at the point itself.
 
 use crate::geometry::{PixelGrid, Placed};
 use crate::mpm::Gel;
@@ -111,7 +111,13 @@ pub struct Observation {
 
 /// Rigid penetration of `indenters` on `grid` (m), `clamp(-z_lowest, 0, t)`; `zmin` is
 /// scratch space of the grid's size.
-pub fn penetration(indenters: &[Placed], grid: &PixelGrid, t: f64, zmin: &mut Vec<f64>, out: &mut Vec<f64>) {
+pub fn penetration(
+    indenters: &[Placed],
+    grid: &PixelGrid,
+    t: f64,
+    zmin: &mut Vec<f64>,
+    out: &mut Vec<f64>,
+) {
     let n = grid.width * grid.height;
     zmin.clear();
     zmin.resize(n, f64::INFINITY);
@@ -137,7 +143,13 @@ impl Observation {
     }
 
     /// As [`Observation::from_gel`], reusing the buffers; `zmin` is scratch space.
-    pub fn update(&mut self, gel: &Gel, indenters: &[Placed], spec: &LatticeSpec, zmin: &mut Vec<f64>) {
+    pub fn update(
+        &mut self,
+        gel: &Gel,
+        indenters: &[Placed],
+        spec: &LatticeSpec,
+        zmin: &mut Vec<f64>,
+    ) {
         let grid = spec.grid();
         let t = spec.size[2];
         penetration(indenters, &grid, t, zmin, &mut self.pen);
@@ -169,7 +181,13 @@ impl Observation {
 /// `[x / (Lx/2), y / (Ly/2)]`, then the `patch x patch` window of coarse depth, then the
 /// window of rigid penetration (row-major windows, row offset outer, zero outside the gel),
 /// in model units.
-pub fn query_features(obs: &Observation, spec: &LatticeSpec, row: usize, col: usize, out: &mut Vec<f32>) {
+pub fn query_features(
+    obs: &Observation,
+    spec: &LatticeSpec,
+    row: usize,
+    col: usize,
+    out: &mut Vec<f32>,
+) {
     let grid = spec.grid();
     out.push((grid.x(col) / (0.5 * spec.size[0])) as f32);
     out.push((grid.y(row) / (0.5 * spec.size[1])) as f32);

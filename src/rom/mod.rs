@@ -1,2 +1,888 @@
-//! Reduced-order neural model (stub while building).
+//! The reduced-order neural model (`physics="rom"`): a coarse MPM carries the mechanics; a
+//! decoder run through ONNX Runtime restores the detail only a finer simulation resolves.
+//!
+//! # What the networks see and predict
+//!
+//! Everything lives on the model's *surface lattice* ([`features::LatticeSpec`]): points
+//! `pitch` apart (0.3 mm for the shipped model) over the gel's top face. After the coarse
+//! MPM has reached equilibrium:
+//!
+//! * the **encoder** sees the coarse depth `c` and the rigid penetration `p` of the
+//!   indenters on a sub-lattice (every `encoder_stride`-th point, 1.2 mm) and gives the
+//!   latent state `z` (64 numbers);
+//! * the **decoder** is a field `g(z, x)`: at a surface point `x` it takes `z`, the
+//!   normalised position and the local geometry, 5 x 5 windows of `c` and `p` around `x`
+//!   (1.2 mm either side), and predicts the depth there, as the coarse depth plus a learnt
+//!   correction. Conditioning on the local shape of the indenter is what lets the detail
+//!   generalise to objects it never saw; `z` carries the global state of the press.
+//!
+//! # Latent refinement: the reduced energy (the paper's Eq. 4)
+//!
+//! `z` from the encoder is refined by L-BFGS (at most 10 iterations, gradient tolerance
+//! 1e-5) on the reduced energy of the decoded surface `d(z)`, in model units (mm):
+//!
+//! ```text
+//! E(z) = w_in / (2 |A|) sum_{i in A} (d_i(z) - c_i)^2                inertial term
+//!      + w_el / (2 |P|) sum_{(i,j) in P} ((d_j(z) - d_i(z)) / h)^2     elastic potential
+//!      + w_c  / (2 |C|) sum_{k in C} max(0, p_k - d_k(z))^2            contact potential
+//! ```
+//!
+//! * inertial term: a quasi-static step from a predicted state (the `x_pred` of the
+//!   incremental-potential form `|x - x_pred|^2_M / 2h^2`), on the sub-lattice `A` (stride
+//!   `refinement.stride`) of the deformable region. The prediction `c` is the coarse
+//!   solver's depth (manifest `refinement.anchor = "coarse"`) or the encoder's decoded
+//!   prediction `d(z0)` (`"encoder"`: the network predicts, the potential corrects);
+//! * elastic potential: the membrane energy of the surface, the squared out-of-plane row of
+//!   its deformation gradient (depth slopes over `h`, one stride, between neighbours `P`);
+//! * contact potential: a penalty on the surface passing into the indenters, on the points
+//!   `C` (stride `refinement.contact_stride`) where the indenters pierce the undeformed gel.
+//!
+//! The gradient is exact: `dE/dz = J^T dE/dd`, with `J = dd/dz` from the exported graph
+//! `decoder_jacobian.onnx` (an explicit backward pass of the decoder, checked against
+//! autograd in `training/tests`). The weights are the manifest's (`refinement`).
+//!
+//! # Decoding and the image
+//!
+//! The decoder is then evaluated densely on the lattice points of the deformable region:
+//! where the coarse depth exceeds `region.eps_mm` or the indenters pierce the gel, grown by
+//! `region.grow` points (elsewhere the surface is the coarse one). The lattice is the
+//! field's resolution, set from the reference simulation's (finer detail is not in the
+//! training data); the image's pixels interpolate it bilinearly, and the contact constraint
+//! `depth >= p` is applied at every pixel, so the indenter's own sharp edges come through at
+//! full image resolution. Depths are clamped to `[0, T]`.
+//!
+//! # Model directory
+//!
+//! `manifest.json` (format `tacrom-rom-1`: gel size and material, lattice, latent size,
+//! ONNX files with their named inputs and outputs and shapes, refinement settings, training
+//! command, data and validation metrics) and the three ONNX files. [`Rom::load`] checks all
+//! of it and says what is wrong. Ablations: [`RomOptions::refine`] switches the refinement
+//! off ("w/o physics"); latent 16 and "no multi-scale loss" are models of their own
+//! (`models/rom-latent16`, `models/rom-no-multiscale`).
+
 pub mod features;
+pub mod json;
+pub mod lbfgs;
+pub mod runtime;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use ort::value::TensorRef;
+
+use crate::geometry::{PixelGrid, Placed};
+use crate::mpm::Gel;
+use features::{query_features, LatticeSpec, Observation};
+use json::Json;
+use lbfgs::{LbfgsOptions, LbfgsReport};
+use runtime::{load_graph, Graph};
+
+/// Format tag of the manifests this build reads.
+pub const FORMAT: &str = "tacrom-rom-1";
+/// Name of the shipped model's directory under `models/`.
+pub const DEFAULT_MODEL: &str = "rom-default";
+
+/// Errors of the reduced-order model.
+#[derive(Debug, thiserror::Error)]
+pub enum RomError {
+    /// A file of the model directory is missing.
+    #[error("model file missing: {}", .0.display())]
+    MissingFile(PathBuf),
+    /// The manifest is unreadable or inconsistent.
+    #[error("bad model manifest {}: {message}", path.display())]
+    Manifest {
+        /// The manifest.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// An ONNX file does not load or has other inputs or outputs than the manifest says.
+    #[error("bad ONNX graph {}: {message}", path.display())]
+    Graph {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// ONNX Runtime could not be found or started.
+    #[error("{0}")]
+    Runtime(String),
+    /// The sensor's gel is not the one the model was trained for.
+    #[error("the model {} was trained for {expected}, but the sensor has {actual}", model.display())]
+    Mismatch {
+        /// The model directory.
+        model: PathBuf,
+        /// What the manifest says.
+        expected: String,
+        /// What the sensor has.
+        actual: String,
+    },
+    /// Running a graph failed.
+    #[error("ONNX Runtime failed running {graph}: {message}")]
+    Run {
+        /// Which graph.
+        graph: &'static str,
+        /// The message.
+        message: String,
+    },
+}
+
+/// Refinement settings (manifest `refinement`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Refinement {
+    /// Whether the model refines `z` (an ablation may switch it off).
+    pub enabled: bool,
+    /// L-BFGS settings.
+    pub lbfgs: LbfgsOptions,
+    /// Sub-lattice stride of the inertial and elastic terms.
+    pub stride: usize,
+    /// Sub-lattice stride of the contact term.
+    pub contact_stride: usize,
+    /// Weight of the inertial term.
+    pub w_inertia: f64,
+    /// Weight of the elastic term.
+    pub w_elastic: f64,
+    /// Weight of the contact term.
+    pub w_contact: f64,
+    /// What the inertial term pulls towards: the coarse depth (`false`) or the encoder's
+    /// prediction `d(z0)` (`true`, manifest `anchor: "encoder"`).
+    pub anchor_encoder: bool,
+}
+
+/// The gel a model was trained for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GelSpec {
+    /// `[Lx, Ly, T]` (m).
+    pub size: [f64; 3],
+    /// Young's modulus (Pa).
+    pub young: f64,
+    /// Poisson's ratio.
+    pub poisson: f64,
+    /// Friction coefficient.
+    pub friction: f64,
+    /// Coarse MPM grid spacing the model expects (m).
+    pub coarse_dx: f64,
+}
+
+/// A model directory's manifest, checked.
+#[derive(Clone, Debug)]
+pub struct Manifest {
+    /// The directory.
+    pub dir: PathBuf,
+    /// The gel and coarse solver it was trained for.
+    pub gel: GelSpec,
+    /// Reference grid spacing of the training data (m).
+    pub reference_dx: f64,
+    /// Surface lattice and features.
+    pub lattice: LatticeSpec,
+    /// Latent size.
+    pub latent: usize,
+    /// Deformable region: coarse depth threshold (model units) and growth (points).
+    pub region: (f64, usize),
+    /// Refinement settings.
+    pub refinement: Refinement,
+    /// `(path, inputs, outputs)` of encoder, decoder, Jacobian.
+    pub files: [(PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>); 3],
+    /// The whole document (training, data, validation records).
+    pub json: Json,
+}
+
+impl Manifest {
+    /// Reads and checks `dir/manifest.json`.
+    pub fn load(dir: &Path) -> Result<Manifest, RomError> {
+        let path = dir.join("manifest.json");
+        if !dir.is_dir() {
+            return Err(RomError::MissingFile(dir.to_owned()));
+        }
+        let text =
+            std::fs::read_to_string(&path).map_err(|_| RomError::MissingFile(path.clone()))?;
+        let bad = |message: String| RomError::Manifest {
+            path: path.clone(),
+            message,
+        };
+        let json = Json::parse(&text).map_err(bad)?;
+        let num = |v: &Json, what: &str| -> Result<f64, RomError> {
+            let mut cur = v;
+            for k in what.split('.') {
+                cur = cur.get(k).ok_or_else(|| bad(format!("missing '{what}'")))?;
+            }
+            cur.num()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| bad(format!("'{what}' is not a number")))
+        };
+        let int = |v: &Json, what: &str| -> Result<usize, RomError> {
+            let x = num(v, what)?;
+            (x >= 1.0 && x.fract() == 0.0 && x < 1e9)
+                .then_some(x as usize)
+                .ok_or_else(|| bad(format!("'{what}' must be a positive integer")))
+        };
+        match json.get("format").and_then(Json::str) {
+            Some(FORMAT) => {}
+            other => {
+                return Err(bad(format!(
+                    "format {other:?}, this build reads \"{FORMAT}\""
+                )))
+            }
+        }
+        let size_arr = json
+            .get("gel")
+            .and_then(|g| g.get("size"))
+            .and_then(Json::arr)
+            .filter(|a| a.len() == 3)
+            .ok_or_else(|| bad("'gel.size' must hold three numbers".into()))?;
+        let mut size = [0.0; 3];
+        for (s, v) in size.iter_mut().zip(size_arr) {
+            *s = v
+                .num()
+                .filter(|x| *x > 0.0)
+                .ok_or_else(|| bad("'gel.size' must be positive".into()))?;
+        }
+        let gel = GelSpec {
+            size,
+            young: num(&json, "gel.young")?,
+            poisson: num(&json, "gel.poisson")?,
+            friction: num(&json, "gel.friction")?,
+            coarse_dx: num(&json, "coarse_dx")?,
+        };
+        let l = json
+            .get("lattice")
+            .ok_or_else(|| bad("missing 'lattice'".into()))?;
+        let lattice = LatticeSpec {
+            size,
+            nx: int(l, "nx")?,
+            ny: int(l, "ny")?,
+            encoder_stride: int(l, "encoder_stride")?,
+            patch: int(l, "patch")?,
+            patch_step: int(l, "patch_step")?,
+            depth_scale: num(l, "depth_scale")?,
+        };
+        if lattice.patch % 2 == 0 {
+            return Err(bad("'lattice.patch' must be odd".into()));
+        }
+        let latent = int(&json, "latent")?;
+        let r = latent as i64;
+        let e = lattice.encoder_len() as i64;
+        let f = lattice.query_len() as i64;
+        if int(&json, "encoder_input")? as i64 != e || int(&json, "query_features")? as i64 != f {
+            return Err(bad(format!(
+                "'encoder_input' / 'query_features' disagree with the lattice ({e} / {f})"
+            )));
+        }
+        let rf = json
+            .get("refinement")
+            .ok_or_else(|| bad("missing 'refinement'".into()))?;
+        let refinement = Refinement {
+            enabled: rf.get("enabled").and_then(Json::bool).unwrap_or(true),
+            lbfgs: LbfgsOptions {
+                max_iterations: int(rf, "max_iterations")?.min(10),
+                tolerance: num(rf, "tolerance")?,
+                ..LbfgsOptions::default()
+            },
+            stride: int(rf, "stride")?,
+            contact_stride: int(rf, "contact_stride")?,
+            w_inertia: num(rf, "w_inertia")?,
+            w_elastic: num(rf, "w_elastic")?,
+            w_contact: num(rf, "w_contact")?,
+            anchor_encoder: match rf.get("anchor").and_then(Json::str) {
+                None | Some("coarse") => false,
+                Some("encoder") => true,
+                Some(other) => {
+                    return Err(bad(format!(
+                        "'refinement.anchor' is \"{other}\", expected \"coarse\" or \"encoder\""
+                    )))
+                }
+            },
+        };
+        let rg = json
+            .get("region")
+            .ok_or_else(|| bad("missing 'region'".into()))?;
+        let region = (num(rg, "eps_mm")?, num(rg, "grow")? as usize);
+        // Expected graph signatures, from the lattice and the latent size; the manifest's
+        // own listing must agree.
+        let want: [(&str, Vec<(&str, Vec<i64>)>, Vec<(&str, Vec<i64>)>); 3] = [
+            (
+                "encoder",
+                vec![("observation", vec![1, e])],
+                vec![("z", vec![1, r])],
+            ),
+            (
+                "decoder",
+                vec![("z", vec![1, r]), ("query", vec![-1, f])],
+                vec![("depth", vec![-1, 1])],
+            ),
+            (
+                "jacobian",
+                vec![("z", vec![1, r]), ("query", vec![-1, f])],
+                vec![("depth", vec![-1, 1]), ("jacobian", vec![-1, r])],
+            ),
+        ];
+        let files_json = json
+            .get("files")
+            .ok_or_else(|| bad("missing 'files'".into()))?;
+        let mut files: Vec<(PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>)> =
+            Vec::new();
+        for (key, ins, outs) in want {
+            let fj = files_json
+                .get(key)
+                .ok_or_else(|| bad(format!("missing 'files.{key}'")))?;
+            let rel = fj
+                .get("path")
+                .and_then(Json::str)
+                .ok_or_else(|| bad(format!("missing 'files.{key}.path'")))?;
+            for (section, list) in [("inputs", &ins), ("outputs", &outs)] {
+                for (name, shape) in list {
+                    let listed: Option<Vec<i64>> = fj
+                        .get(section)
+                        .and_then(|s| s.get(name))
+                        .and_then(Json::arr)
+                        .map(|a| {
+                            a.iter()
+                                .map(|v| v.num().unwrap_or(f64::NAN) as i64)
+                                .collect()
+                        });
+                    if listed.as_ref() != Some(shape) {
+                        return Err(bad(format!(
+                            "'files.{key}.{section}.{name}' is {listed:?}, expected {shape:?} for \
+                             latent {latent} and the lattice"
+                        )));
+                    }
+                }
+            }
+            let own =
+                |l: Vec<(&str, Vec<i64>)>| l.into_iter().map(|(n, s)| (n.to_owned(), s)).collect();
+            files.push((dir.join(rel), own(ins), own(outs)));
+        }
+        let files: [_; 3] = files.try_into().expect("three graphs");
+        Ok(Manifest {
+            dir: dir.to_owned(),
+            gel,
+            reference_dx: num(&json, "reference_dx")?,
+            lattice,
+            latent,
+            region,
+            refinement,
+            files,
+            json,
+        })
+    }
+
+    /// Checks that a sensor's gel is the one the model was trained for (relative
+    /// tolerance 1e-6; the density does not change the equilibrium).
+    pub fn check_gel(
+        &self,
+        size: [f64; 3],
+        young: f64,
+        poisson: f64,
+        friction: f64,
+    ) -> Result<(), RomError> {
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1e-12);
+        let g = &self.gel;
+        let mismatch = |what: &str, e: String, a: String| RomError::Mismatch {
+            model: self.dir.clone(),
+            expected: format!("{what} {e}"),
+            actual: format!("{what} {a}"),
+        };
+        if !(0..3).all(|k| close(size[k], g.size[k])) {
+            return Err(mismatch(
+                "gel size",
+                format!("{:?} m", g.size),
+                format!("{size:?} m"),
+            ));
+        }
+        if !close(young, g.young) {
+            return Err(mismatch(
+                "Young's modulus",
+                format!("{} Pa", g.young),
+                format!("{young} Pa"),
+            ));
+        }
+        if !close(poisson, g.poisson) {
+            return Err(mismatch(
+                "Poisson's ratio",
+                format!("{}", g.poisson),
+                format!("{poisson}"),
+            ));
+        }
+        if !close(friction, g.friction) {
+            return Err(mismatch(
+                "friction",
+                format!("{}", g.friction),
+                format!("{friction}"),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Run-time options (the benchmark's ablations).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RomOptions {
+    /// Overrides the manifest's `refinement.enabled` (`Some(false)`: "w/o physics").
+    pub refine: Option<bool>,
+    /// ONNX Runtime intra-op threads (default 1).
+    pub threads: usize,
+}
+
+/// What one inference did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RomReport {
+    /// The refinement's L-BFGS report (`None` when off or nothing to refine).
+    pub refinement: Option<LbfgsReport>,
+    /// Lattice points decoded.
+    pub decoded: usize,
+    /// Energy points of the refinement.
+    pub energy_points: usize,
+    /// Wall time: observation and encoder (s).
+    pub encode_s: f64,
+    /// Wall time: refinement (s).
+    pub refine_s: f64,
+    /// Wall time: dense decoding and image (s).
+    pub decode_s: f64,
+}
+
+/// Points and weights of the reduced energy.
+#[derive(Clone, Debug, Default)]
+struct EnergySet {
+    /// Query features, `points x F`.
+    query: Vec<f32>,
+    /// Per point: inertial weight, coarse depth, contact weight, penetration (model units).
+    terms: Vec<[f64; 4]>,
+    /// Elastic pairs (indices into the points) and their weight / h^2.
+    pairs: Vec<(usize, usize)>,
+    pair_weight: f64,
+}
+
+/// A loaded model: manifest and ONNX sessions, with reusable buffers. One per sensor
+/// state (sessions run with `&mut`).
+#[derive(Debug)]
+pub struct Rom {
+    manifest: Manifest,
+    options: RomOptions,
+    encoder: Graph,
+    decoder: Graph,
+    jacobian: Graph,
+    obs: Observation,
+    zmin: Vec<f64>,
+    enc_in: Vec<f32>,
+    query: Vec<f32>,
+    region: Vec<bool>,
+    lattice_depth: Vec<f64>,
+    z: Vec<f32>,
+}
+
+/// The shipped model's directory, found relative to the plugin library (or this crate's
+/// source tree): `models/rom-default` beside the library, in the Python package's `_lib`,
+/// or at the root of the checkout that built it.
+pub fn default_model_dir() -> Option<PathBuf> {
+    let mut candidates = Vec::new();
+    if let Some(lib) = runtime::own_library_path() {
+        for dir in lib.ancestors().skip(1).take(4) {
+            candidates.push(dir.join("models").join(DEFAULT_MODEL));
+        }
+    }
+    candidates.push(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("models")
+            .join(DEFAULT_MODEL),
+    );
+    candidates
+        .into_iter()
+        .find(|d| d.join("manifest.json").is_file())
+}
+
+impl Rom {
+    /// Loads the model in `dir`: manifest, then the three graphs with their inputs and
+    /// outputs checked.
+    pub fn load(dir: &Path, options: RomOptions) -> Result<Rom, RomError> {
+        let manifest = Manifest::load(dir)?;
+        let threads = options.threads.max(1);
+        let [enc, dec, jac] = &manifest.files;
+        let encoder = load_graph(&enc.0, &enc.1, &enc.2, threads)?;
+        let decoder = load_graph(&dec.0, &dec.1, &dec.2, threads)?;
+        let jacobian = load_graph(&jac.0, &jac.1, &jac.2, threads)?;
+        Ok(Rom {
+            z: vec![0.0; manifest.latent],
+            manifest,
+            options,
+            encoder,
+            decoder,
+            jacobian,
+            obs: Observation::default(),
+            zmin: Vec::new(),
+            enc_in: Vec::new(),
+            query: Vec::new(),
+            region: Vec::new(),
+            lattice_depth: Vec::new(),
+        })
+    }
+
+    /// The manifest.
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// The latent state of the last inference.
+    pub fn latent(&self) -> &[f32] {
+        &self.z
+    }
+
+    /// The depth on the lattice of the last inference (m, row-major `ny x nx`).
+    pub fn lattice_depth(&self) -> &[f64] {
+        &self.lattice_depth
+    }
+
+    fn refine_enabled(&self) -> bool {
+        self.options
+            .refine
+            .unwrap_or(self.manifest.refinement.enabled)
+    }
+
+    /// Runs the encoder on an observation: `z` [latent].
+    pub fn encode(&mut self, obs: &Observation) -> Result<Vec<f32>, RomError> {
+        let spec = self.manifest.lattice;
+        obs.encoder_input(&spec, &mut self.enc_in);
+        let e = self.enc_in.len();
+        let input = TensorRef::from_array_view(([1usize, e], &self.enc_in[..]))
+            .map_err(|e| run_err("encoder", e))?;
+        let out = self
+            .encoder
+            .session
+            .run(ort::inputs!["observation" => input])
+            .map_err(|e| run_err("encoder", e))?;
+        let (_, z) = out["z"]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| run_err("encoder", e))?;
+        Ok(z.to_vec())
+    }
+
+    /// Runs the decoder at `points` query rows of `query`: depth (model units).
+    pub fn decode(&mut self, z: &[f32], query: &[f32]) -> Result<Vec<f32>, RomError> {
+        let f = self.manifest.lattice.query_len();
+        let n = query.len() / f;
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let zt = TensorRef::from_array_view(([1usize, z.len()], z))
+            .map_err(|e| run_err("decoder", e))?;
+        let qt = TensorRef::from_array_view(([n, f], query)).map_err(|e| run_err("decoder", e))?;
+        let out = self
+            .decoder
+            .session
+            .run(ort::inputs!["z" => zt, "query" => qt])
+            .map_err(|e| run_err("decoder", e))?;
+        let (_, d) = out["depth"]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| run_err("decoder", e))?;
+        Ok(d.to_vec())
+    }
+
+    /// Runs the Jacobian graph: depth [N] and d depth / dz [N x latent].
+    pub fn decode_with_jacobian(
+        &mut self,
+        z: &[f32],
+        query: &[f32],
+    ) -> Result<(Vec<f32>, Vec<f32>), RomError> {
+        let f = self.manifest.lattice.query_len();
+        let n = query.len() / f;
+        let zt = TensorRef::from_array_view(([1usize, z.len()], z))
+            .map_err(|e| run_err("jacobian", e))?;
+        let qt = TensorRef::from_array_view(([n, f], query)).map_err(|e| run_err("jacobian", e))?;
+        let out = self
+            .jacobian
+            .session
+            .run(ort::inputs!["z" => zt, "query" => qt])
+            .map_err(|e| run_err("jacobian", e))?;
+        let (_, d) = out["depth"]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| run_err("jacobian", e))?;
+        let (_, j) = out["jacobian"]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| run_err("jacobian", e))?;
+        Ok((d.to_vec(), j.to_vec()))
+    }
+
+    /// The deformable region of an observation (see the module docs).
+    fn compute_region(&mut self, obs: &Observation) {
+        let spec = &self.manifest.lattice;
+        let (eps, grow) = self.manifest.region;
+        let eps_m = eps / spec.depth_scale;
+        let (nx, ny) = (spec.nx, spec.ny);
+        self.region.clear();
+        self.region.extend(
+            obs.coarse
+                .iter()
+                .zip(&obs.pen)
+                .map(|(&c, &p)| c > eps_m || p > 0.0),
+        );
+        let mut next = self.region.clone();
+        for _ in 0..grow {
+            next.copy_from_slice(&self.region);
+            for r in 0..ny {
+                for c in 0..nx {
+                    let i = r * nx + c;
+                    if self.region[i] {
+                        continue;
+                    }
+                    next[i] = (r > 0 && self.region[i - nx])
+                        || (r + 1 < ny && self.region[i + nx])
+                        || (c > 0 && self.region[i - 1])
+                        || (c + 1 < nx && self.region[i + 1]);
+                }
+            }
+            std::mem::swap(&mut self.region, &mut next);
+        }
+    }
+
+    fn energy_set(&self, obs: &Observation) -> EnergySet {
+        let spec = &self.manifest.lattice;
+        let rf = &self.manifest.refinement;
+        let (nx, ny) = (spec.nx, spec.ny);
+        let ds = spec.depth_scale;
+        let mut set = EnergySet::default();
+        let mut index = vec![usize::MAX; nx * ny];
+        let s = rf.stride;
+        let mut a_count = 0usize;
+        for r in (s / 2..ny).step_by(s) {
+            for c in (s / 2..nx).step_by(s) {
+                let i = r * nx + c;
+                if self.region[i] {
+                    index[i] = set.terms.len();
+                    set.terms
+                        .push([1.0, obs.coarse[i] * ds, 0.0, obs.pen[i] * ds]);
+                    query_features(obs, spec, r, c, &mut set.query);
+                    a_count += 1;
+                }
+            }
+        }
+        for r in (s / 2..ny).step_by(s) {
+            for c in (s / 2..nx).step_by(s) {
+                let i = r * nx + c;
+                if index[i] == usize::MAX {
+                    continue;
+                }
+                if c + s < nx && index[i + s] != usize::MAX {
+                    set.pairs.push((index[i], index[i + s]));
+                }
+                if r + s < ny && index[i + s * nx] != usize::MAX {
+                    set.pairs.push((index[i], index[i + s * nx]));
+                }
+            }
+        }
+        let cs = rf.contact_stride;
+        let mut c_count = 0usize;
+        for r in (cs / 2..ny).step_by(cs) {
+            for c in (cs / 2..nx).step_by(cs) {
+                let i = r * nx + c;
+                if obs.pen[i] > 0.0 {
+                    if index[i] != usize::MAX {
+                        set.terms[index[i]][2] = 1.0;
+                    } else {
+                        index[i] = set.terms.len();
+                        set.terms
+                            .push([0.0, obs.coarse[i] * ds, 1.0, obs.pen[i] * ds]);
+                        query_features(obs, spec, r, c, &mut set.query);
+                    }
+                    c_count += 1;
+                }
+            }
+        }
+        let wa = if a_count > 0 {
+            rf.w_inertia / a_count as f64
+        } else {
+            0.0
+        };
+        let wc = if c_count > 0 {
+            rf.w_contact / c_count as f64
+        } else {
+            0.0
+        };
+        for t in &mut set.terms {
+            t[0] *= wa;
+            t[2] *= wc;
+        }
+        let h = s as f64 * spec.size[0] / nx as f64 * ds;
+        set.pair_weight = if set.pairs.is_empty() {
+            0.0
+        } else {
+            rf.w_elastic / (set.pairs.len() as f64 * h * h)
+        };
+        set
+    }
+
+    /// The reduced energy at depths `d` and its derivative with respect to `d`.
+    fn energy(set: &EnergySet, d: &[f32], dd: &mut [f64]) -> f64 {
+        let mut e = 0.0;
+        for (k, (t, &di)) in set.terms.iter().zip(d).enumerate() {
+            let di = di as f64;
+            let r = di - t[1];
+            let gap = (t[3] - di).max(0.0);
+            e += 0.5 * t[0] * r * r + 0.5 * t[2] * gap * gap;
+            dd[k] = t[0] * r - t[2] * gap;
+        }
+        for &(i, j) in &set.pairs {
+            let s = d[j] as f64 - d[i] as f64;
+            e += 0.5 * set.pair_weight * s * s;
+            dd[j] += set.pair_weight * s;
+            dd[i] -= set.pair_weight * s;
+        }
+        e
+    }
+
+    /// Encoder, refinement and dense decoding for an observation; fills the lattice depth
+    /// (m). The observation is kept for [`Rom::render`].
+    pub fn infer(&mut self, obs: &Observation) -> Result<RomReport, RomError> {
+        let mut report = RomReport::default();
+        let t0 = Instant::now();
+        self.z = self.encode(obs)?;
+        self.compute_region(obs);
+        let t1 = Instant::now();
+        report.encode_s = (t1 - t0).as_secs_f64();
+        if self.refine_enabled() {
+            let mut set = self.energy_set(obs);
+            report.energy_points = set.terms.len();
+            if self.manifest.refinement.anchor_encoder && !set.terms.is_empty() {
+                let z0 = self.z.clone();
+                let d0 = self.decode(&z0, &set.query)?;
+                for (t, &d) in set.terms.iter_mut().zip(&d0) {
+                    t[1] = d as f64;
+                }
+            }
+            if !set.terms.is_empty() {
+                let r = self.manifest.latent;
+                let mut zf: Vec<f64> = self.z.iter().map(|&v| v as f64).collect();
+                let mut dd = vec![0.0; set.terms.len()];
+                let mut z32 = vec![0.0f32; r];
+                let options = self.manifest.refinement.lbfgs;
+                let lb = lbfgs::minimize(&mut zf, &options, |z, grad| {
+                    for (a, &b) in z32.iter_mut().zip(z) {
+                        *a = b as f32;
+                    }
+                    let (d, jac) = self.decode_with_jacobian(&z32, &set.query)?;
+                    let e = Self::energy(&set, &d, &mut dd);
+                    grad.iter_mut().for_each(|g| *g = 0.0);
+                    for (k, &w) in dd.iter().enumerate() {
+                        if w != 0.0 {
+                            for (g, &j) in grad.iter_mut().zip(&jac[k * r..(k + 1) * r]) {
+                                *g += w * j as f64;
+                            }
+                        }
+                    }
+                    Ok::<f64, RomError>(e)
+                })?;
+                if lb.last.is_finite() && lb.last <= lb.initial {
+                    self.z = zf.iter().map(|&v| v as f32).collect();
+                }
+                report.refinement = Some(lb);
+            }
+        }
+        let t2 = Instant::now();
+        report.refine_s = (t2 - t1).as_secs_f64();
+        // Dense decoding on the region.
+        let spec = self.manifest.lattice;
+        let t = spec.size[2];
+        self.query.clear();
+        let mut points = Vec::new();
+        for (i, &inside) in self.region.iter().enumerate() {
+            if inside {
+                query_features(obs, &spec, i / spec.nx, i % spec.nx, &mut self.query);
+                points.push(i);
+            }
+        }
+        self.lattice_depth.clear();
+        self.lattice_depth.extend_from_slice(&obs.coarse);
+        let query = std::mem::take(&mut self.query);
+        let z = self.z.clone();
+        let d = self.decode(&z, &query);
+        self.query = query;
+        let d = d?;
+        for (&i, &v) in points.iter().zip(&d) {
+            let v = v as f64 / spec.depth_scale;
+            self.lattice_depth[i] = if v.is_finite() { v } else { obs.coarse[i] };
+        }
+        for (v, &p) in self.lattice_depth.iter_mut().zip(&obs.pen) {
+            *v = v.max(p).clamp(0.0, t);
+        }
+        report.decoded = points.len();
+        report.decode_s = t2.elapsed().as_secs_f64();
+        Ok(report)
+    }
+
+    /// Renders the last inference's lattice onto `grid`: bilinear interpolation, then the
+    /// contact constraint with the full-resolution rigid surface `zmin` (sensor-frame z of
+    /// the lowest indenter surface per pixel, +inf where none), clamped to `[0, T]`.
+    pub fn render(&self, grid: &PixelGrid, zmin: &[f64], out: &mut [f64]) {
+        let spec = &self.manifest.lattice;
+        let (nx, ny) = (spec.nx, spec.ny);
+        let [lx, ly, t] = spec.size;
+        let (px, py) = (lx / nx as f64, ly / ny as f64);
+        let lat = &self.lattice_depth;
+        for row in 0..grid.height {
+            let fy = ((0.5 * ly - grid.y(row)) / py - 0.5).clamp(0.0, (ny - 1) as f64);
+            let r0 = (fy.floor() as usize).min(ny.saturating_sub(2));
+            let wy = fy - r0 as f64;
+            let r1 = (r0 + 1).min(ny - 1);
+            for col in 0..grid.width {
+                let fx = ((grid.x(col) + 0.5 * lx) / px - 0.5).clamp(0.0, (nx - 1) as f64);
+                let c0 = (fx.floor() as usize).min(nx.saturating_sub(2));
+                let wx = fx - c0 as f64;
+                let c1 = (c0 + 1).min(nx - 1);
+                let v = (1.0 - wy) * ((1.0 - wx) * lat[r0 * nx + c0] + wx * lat[r0 * nx + c1])
+                    + wy * ((1.0 - wx) * lat[r1 * nx + c0] + wx * lat[r1 * nx + c1]);
+                let i = row * grid.width + col;
+                let z = zmin[i];
+                let rigid = if z.is_finite() { -z } else { 0.0 };
+                out[i] = if v.is_finite() { v.max(rigid) } else { rigid }.clamp(0.0, t);
+            }
+        }
+    }
+
+    /// One sensor evaluation: observation of the solved coarse `gel` under `indenters`,
+    /// inference, and the depth image on `grid` (`zmin` as in [`Rom::render`]).
+    pub fn evaluate(
+        &mut self,
+        gel: &Gel,
+        indenters: &[Placed],
+        grid: &PixelGrid,
+        zmin: &[f64],
+        out: &mut [f64],
+    ) -> Result<RomReport, RomError> {
+        let t0 = Instant::now();
+        let mut obs = std::mem::take(&mut self.obs);
+        let spec = self.manifest.lattice;
+        obs.update(gel, indenters, &spec, &mut self.zmin);
+        let observe_s = t0.elapsed().as_secs_f64();
+        let result = self.infer(&obs);
+        self.obs = obs;
+        let mut report = result?;
+        report.encode_s += observe_s;
+        let t1 = Instant::now();
+        self.render(grid, zmin, out);
+        report.decode_s += t1.elapsed().as_secs_f64();
+        Ok(report)
+    }
+}
+
+impl Clone for Rom {
+    /// A copy with sessions of its own (ONNX Runtime sessions run with `&mut`), loaded again
+    /// from the model directory: for `mj_copyData`. A failure to reload panics; the plugin's
+    /// FFI edge reports it as a failed copy.
+    fn clone(&self) -> Self {
+        let mut copy = Rom::load(&self.manifest.dir, self.options)
+            .unwrap_or_else(|e| panic!("cannot copy the reduced-order model: {e}"));
+        copy.z.clone_from(&self.z);
+        copy.lattice_depth.clone_from(&self.lattice_depth);
+        copy
+    }
+}
+
+const _: fn() = || {
+    fn assert_send<T: Send>() {}
+    assert_send::<Rom>();
+};
+
+fn run_err(graph: &'static str, e: impl std::fmt::Display) -> RomError {
+    RomError::Run {
+        graph,
+        message: e.to_string(),
+    }
+}

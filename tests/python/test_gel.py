@@ -77,3 +77,27 @@ def test_python_threads_match_sequential(press_xml):
         t.join()
     for a, b in zip(sequential, results):
         np.testing.assert_array_equal(a, b)
+
+
+def test_rom_through_mujoco(press_xml):
+    """The default physics (rom: coarse MPM + ONNX decoder) loads the shipped model and
+    gives a bounded image whose peak is the press depth."""
+    xml = with_config(press_xml, outputs="depth contact", resolution="64 48")  # physics: default
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    for d in (0.2e-3, 0.5e-3):
+        out = evaluate(model, data, d)
+        depth = out["depth"]
+        assert np.all(np.isfinite(depth)) and depth.min() >= 0.0 and depth.max() <= 0.004
+        assert abs(depth.max() - d) < 0.05e-3
+        # Where the sphere touches, the image is at least its penetration.
+        assert np.all(depth[out["contact"] == 1] > 0.0)
+
+
+def test_rom_bad_model_directory_names_the_attribute(press_xml, tmp_path):
+    import pytest
+
+    xml = with_config(press_xml, physics="rom", model=str(tmp_path / "nowhere"))
+    with pytest.raises(ValueError) as err:
+        mujoco.MjModel.from_xml_string(xml)
+    assert "'model'" in str(err.value) and "'touch'" in str(err.value)

@@ -1,0 +1,1 @@
+"""tacrom's reduced-order model: data loading, autoencoder, training and ONNX export."""

@@ -1,0 +1,142 @@
+"""Paired data written by `tacrom gen-data` (src/datagen.rs) and the network inputs.
+
+A data directory holds `dataset.json` and per sample `sample-NNNNNN.npy` (float32
+[3, ny, nx], metres: coarse depth, rigid penetration, reference depth on the surface
+lattice) with `sample-NNNNNN.json` (family, parameters, solver reports).
+
+The features here are computed exactly as in src/rom/features.rs: keep the two in step.
+"""
+from __future__ import annotations
+
+import dataclasses
+import glob
+import json
+import os
+
+import numpy as np
+import torch
+
+
+@dataclasses.dataclass
+class Spec:
+    size: tuple  # (Lx, Ly, T), m
+    nx: int
+    ny: int
+    encoder_stride: int = 4
+    patch: int = 5
+    patch_step: int = 2
+    depth_scale: float = 1000.0
+
+    @property
+    def pitch(self):
+        return self.size[0] / self.nx
+
+    @property
+    def encoder_offset(self):
+        return self.encoder_stride // 2
+
+    def encoder_dims(self):
+        s, o = self.encoder_stride, self.encoder_offset
+        return len(range(o, self.ny, s)), len(range(o, self.nx, s))
+
+    @property
+    def encoder_len(self):
+        r, c = self.encoder_dims()
+        return 2 * r * c
+
+    @property
+    def query_len(self):
+        return 2 + 2 * self.patch * self.patch
+
+    @property
+    def coarse_index(self):
+        return 2 + (self.patch * self.patch) // 2
+
+    def to_json(self):
+        return dict(size=list(self.size), nx=self.nx, ny=self.ny, encoder_stride=self.encoder_stride,
+                    patch=self.patch, patch_step=self.patch_step, depth_scale=self.depth_scale)
+
+
+def load_dir(path, drop_unconverged=True):
+    """(spec, dataset meta, arrays [S, 3, ny, nx] in model units, list of sample metas)."""
+    with open(os.path.join(path, "dataset.json")) as f:
+        ds = json.load(f)
+    ny, nx = ds["lattice"]
+    spec = Spec(size=tuple(ds["size"]), nx=nx, ny=ny)
+    arrays, metas = [], []
+    for npy in sorted(glob.glob(os.path.join(path, "sample-*.npy"))):
+        js = npy[:-4] + ".json"
+        if not os.path.exists(js):
+            continue
+        with open(js) as f:
+            meta = json.load(f)
+        if drop_unconverged and not meta["reference"]["converged"]:
+            continue
+        a = np.load(npy).astype(np.float32) * spec.depth_scale
+        if not np.isfinite(a).all():
+            continue
+        arrays.append(a)
+        metas.append(meta)
+    if not arrays:
+        raise SystemExit(f"no usable samples in {path}")
+    return spec, ds, np.stack(arrays), metas
+
+
+def encoder_input(spec: Spec, lattice: torch.Tensor) -> torch.Tensor:
+    """lattice [B, >=2, ny, nx] (coarse, pen, ...) -> [B, encoder_len]."""
+    s, o = spec.encoder_stride, spec.encoder_offset
+    sub = lattice[:, :2, o::s, o::s]
+    return sub.reshape(sub.shape[0], -1)
+
+
+def positions(spec: Spec):
+    """Normalised (x, y) of every lattice point: two [ny, nx] arrays."""
+    lx, ly = spec.size[0], spec.size[1]
+    x = -0.5 * lx + (np.arange(spec.nx) + 0.5) * lx / spec.nx
+    y = 0.5 * ly - (np.arange(spec.ny) + 0.5) * ly / spec.ny
+    X, Y = np.meshgrid(x / (0.5 * lx), y / (0.5 * ly))
+    return X.astype(np.float32), Y.astype(np.float32)
+
+
+class QueryBuilder:
+    """Decoder query features at lattice points, batched."""
+
+    def __init__(self, spec: Spec):
+        self.spec = spec
+        h = spec.patch // 2
+        self.R = h * spec.patch_step
+        off = torch.arange(-h, h + 1) * spec.patch_step
+        self.dr = off[:, None].expand(-1, spec.patch).reshape(-1)
+        self.dc = off[None, :].expand(spec.patch, -1).reshape(-1)
+        X, Y = positions(spec)
+        self.X = torch.from_numpy(X)
+        self.Y = torch.from_numpy(Y)
+
+    def pad(self, lattice):
+        """[B, C, ny, nx] -> zero padded by the window radius."""
+        return torch.nn.functional.pad(lattice[:, :2], (self.R, self.R, self.R, self.R))
+
+    def __call__(self, padded, b, rows, cols):
+        """padded [B, 2, ny+2R, nx+2R]; b, rows, cols: index tensors of one shape S -> [S..., F]."""
+        r = rows[..., None] + self.R + self.dr
+        c = cols[..., None] + self.R + self.dc
+        bb = b[..., None].expand_as(r)
+        coarse = padded[bb, 0, r, c]
+        pen = padded[bb, 1, r, c]
+        pos = torch.stack([self.X[rows, cols], self.Y[rows, cols]], dim=-1)
+        return torch.cat([pos, coarse, pen], dim=-1)
+
+
+def region_mask(lattice: np.ndarray, grow: int, eps_mm: float = 1e-3) -> np.ndarray:
+    """Where the surface can be deformed: coarse depth or penetration above eps (mm),
+    grown by `grow` lattice steps. lattice [..., C, ny, nx] -> bool [..., ny, nx].
+    Matches `region` in src/rom/mod.rs."""
+    m = (lattice[..., 0, :, :] > eps_mm) | (lattice[..., 1, :, :] > 0)
+    for _ in range(grow):
+        g = m.copy()
+        g[..., 1:, :] |= m[..., :-1, :]
+        g[..., :-1, :] |= m[..., 1:, :]
+        g[..., :, 1:] |= m[..., :, :-1]
+        g[..., :, :-1] |= m[..., :, 1:]
+        m = g
+    return m

@@ -1,0 +1,299 @@
+"""Train the reduced-order model on paired data and export it (manifest + ONNX).
+
+    python -m tacrom_rom.train --data data/rom-f0.7 --out models/rom-default [--steps N]
+        [--latent 64] [--no-multiscale] [--points 96] [--seed 0]
+
+Losses (model units: millimetres of depth):
+* reconstruction: mean squared error of the decoded depth against the reference (finer
+  MPM) depth at query points drawn mostly from where the surface can deform;
+* multi-scale supervision: the decoded depth differences between each query point and a
+  neighbour k lattice steps away, k in {1, 2, 4} (detail at several scales), against the
+  reference's (off with --no-multiscale);
+* consistency with the coarse solver (weight 0.1): 0.4 |v_hat - v|^2 + 0.6 |F_hat - F|^2
+  at the encoder's sub-lattice points of the deformable region, where v is the coarse
+  surface's vertical displacement (its depth) and F its surface deformation gradient's
+  out-of-plane row (the depth slopes along x and y, over one encoder stride); the hats
+  are the decoder's.
+Adam, lr 1e-4, betas (0.9, 0.999), batch 32 presses.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+import time
+
+import numpy as np
+import torch
+
+from . import data as D
+from .export import export_model
+from .model import Autoencoder
+
+CONSISTENCY_WEIGHT = 0.1
+MULTISCALE_WEIGHT = 1.0
+REGION_GROW = 4
+REGION_EPS_MM = 1e-3
+
+
+def augment(arrays):
+    """The 8 symmetries of the square lattice (mirrors and quarter turns) of every sample:
+    the gel, its grid and an isotropic material are symmetric under them, so each is
+    another valid pair. [S, C, n, n] -> [8 S, C, n, n] (sample-major)."""
+    if arrays.shape[-1] != arrays.shape[-2]:
+        return arrays, 1
+    out = []
+    for a in arrays:
+        for k in range(4):
+            r = np.rot90(a, k, axes=(1, 2))
+            out.append(r)
+            out.append(r[:, :, ::-1])
+    return np.ascontiguousarray(np.stack(out)), 8
+
+
+def split(metas, held_out):
+    val = np.array([m["family"] in held_out for m in metas])
+    return np.where(~val)[0], np.where(val)[0]
+
+
+class Batcher:
+    def __init__(self, spec, arrays, rng):
+        self.spec = spec
+        self.arrays = torch.from_numpy(arrays)
+        self.rng = rng
+        self.qb = D.QueryBuilder(spec)
+        self.region = D.region_mask(arrays, REGION_GROW, REGION_EPS_MM)
+        self.region_idx = [np.flatnonzero(r) for r in self.region]
+        s, o = spec.encoder_stride, spec.encoder_offset
+        enc = np.zeros((spec.ny, spec.nx), bool)
+        enc[o::s, o::s] = True
+        # Encoder points whose +x and -y (row+s) neighbours exist.
+        enc[:, spec.nx - s:] = False
+        enc[spec.ny - s:, :] = False
+        self.enc_idx = [np.flatnonzero(r & enc) for r in self.region]
+
+    def draw(self, idx, n_points):
+        """Random query points per sample: 80% in the region, 20% anywhere."""
+        rows, cols = [], []
+        nx, ny = self.spec.nx, self.spec.ny
+        for i in idx:
+            reg = self.region_idx[i]
+            k_reg = int(0.8 * n_points) if len(reg) else 0
+            a = reg[self.rng.integers(0, len(reg), k_reg)] if k_reg else np.zeros(0, int)
+            b = self.rng.integers(0, nx * ny, n_points - k_reg)
+            flat = np.concatenate([a, b])
+            rows.append(flat // nx)
+            cols.append(flat % nx)
+        return torch.from_numpy(np.stack(rows)), torch.from_numpy(np.stack(cols))
+
+    def draw_enc(self, idx, n_points):
+        rows, cols = [], []
+        nx = self.spec.nx
+        for i in idx:
+            e = self.enc_idx[i]
+            if len(e) == 0:
+                e = np.array([self.spec.encoder_offset * (nx + 1)])
+            flat = e[self.rng.integers(0, len(e), n_points)]
+            rows.append(flat // nx)
+            cols.append(flat % nx)
+        return torch.from_numpy(np.stack(rows)), torch.from_numpy(np.stack(cols))
+
+
+def losses(model, batcher, idx, n_points, multiscale, rng):
+    spec = batcher.spec
+    lat = batcher.arrays[idx]  # [B, 3, ny, nx]
+    B = lat.shape[0]
+    z = model.encoder(D.encoder_input(spec, lat))
+    padded = batcher.qb.pad(lat)
+    bidx = torch.arange(B)[:, None]
+    rows, cols = batcher.draw(idx, n_points)
+    bb = bidx.expand_as(rows)
+    q = batcher.qb(padded, bb, rows, cols)
+    pred = model.decoder.forward_batched(z, q)
+    ref = lat[bb, 2, rows, cols]
+    loss_rec = ((pred - ref) ** 2).mean()
+    out = {"rec": loss_rec}
+    total = loss_rec
+    if multiscale:
+        k = int(rng.choice([1, 2, 4]))
+        along_x = torch.from_numpy(rng.random(rows.shape) < 0.5)
+        r2 = torch.where(along_x, rows, (rows + k).clamp(max=spec.ny - 1))
+        c2 = torch.where(along_x, (cols + k).clamp(max=spec.nx - 1), cols)
+        q2 = batcher.qb(padded, bb, r2, c2)
+        pred2 = model.decoder.forward_batched(z, q2)
+        ref2 = lat[bb, 2, r2, c2]
+        loss_ms = (((pred2 - pred) - (ref2 - ref)) ** 2).mean() + ((pred2 - ref2) ** 2).mean()
+        out["ms"] = loss_ms
+        total = total + MULTISCALE_WEIGHT * loss_ms
+    # Consistency with the coarse solver at encoder points.
+    s = spec.encoder_stride
+    er, ec = batcher.draw_enc(idx, 32)
+    eb = bidx.expand_as(er)
+    d0 = model.decoder.forward_batched(z, batcher.qb(padded, eb, er, ec))
+    dx_ = model.decoder.forward_batched(z, batcher.qb(padded, eb, er, ec + s))
+    dy_ = model.decoder.forward_batched(z, batcher.qb(padded, eb, er + s, ec))
+    c0, cx, cy = lat[eb, 0, er, ec], lat[eb, 0, er, ec + s], lat[eb, 0, er + s, ec]
+    h = spec.pitch * spec.depth_scale * s
+    f_hat = torch.stack([(dx_ - d0) / h, (dy_ - d0) / h], -1)
+    f = torch.stack([(cx - c0) / h, (cy - c0) / h], -1)
+    loss_cons = 0.4 * ((d0 - c0) ** 2).mean() + 0.6 * ((f_hat - f) ** 2).sum(-1).mean()
+    out["cons"] = loss_cons
+    total = total + CONSISTENCY_WEIGHT * loss_cons
+    out["total"] = total
+    return out
+
+
+@torch.no_grad()
+def decode_lattice(model, spec, lat_np, chunk=8192):
+    """Full decode (region only, coarse elsewhere) of samples [S, 3, ny, nx] -> [S, ny, nx],
+    then the contact constraint max(d, p) and the clamp to [0, T], as in src/rom."""
+    qb = D.QueryBuilder(spec)
+    lat = torch.from_numpy(lat_np)
+    z = model.encoder(D.encoder_input(spec, lat))
+    region = D.region_mask(lat_np, REGION_GROW, REGION_EPS_MM)
+    out = lat_np[:, 0].copy()
+    padded = qb.pad(lat)
+    for s in range(lat.shape[0]):
+        flat = np.flatnonzero(region[s])
+        for a in range(0, len(flat), chunk):
+            f = torch.from_numpy(flat[a : a + chunk])
+            rows, cols = f // spec.nx, f % spec.nx
+            q = qb(padded, torch.full_like(rows, s), rows, cols)
+            out[s].reshape(-1)[flat[a : a + chunk]] = model.decoder(z[s : s + 1], q)[:, 0].numpy()
+    t_mm = spec.size[2] * spec.depth_scale
+    return np.clip(np.maximum(out, lat_np[:, 1]), 0.0, t_mm)
+
+
+def fov_crop(spec, a, fov=(0.024, 0.018)):
+    """The central image field of view (the sensor's default) of [..., ny, nx] arrays."""
+    cx = int(round(fov[0] / spec.pitch))
+    cy = int(round(fov[1] / spec.pitch))
+    x0 = (spec.nx - cx) // 2
+    y0 = (spec.ny - cy) // 2
+    return a[..., y0 : y0 + cy, x0 : x0 + cx]
+
+
+def metrics(model, spec, arrays, metas, idx):
+    if len(idx) == 0:
+        return {}
+    lat = arrays[idx]
+    rom = decode_lattice(model, spec, lat)
+    ref, coarse, pen = lat[:, 2], lat[:, 0], lat[:, 1]
+    mae = lambda a: float(np.abs(fov_crop(spec, a - ref)).mean())  # noqa: E731
+    per_family = {}
+    for fam in sorted({metas[i]["family"] for i in idx}):
+        sel = [k for k, i in enumerate(idx) if metas[i]["family"] == fam]
+        per_family[fam] = {
+            "samples": len(sel),
+            "mae_coarse_mm": float(np.abs(fov_crop(spec, coarse[sel] - ref[sel])).mean()),
+            "mae_rom_mm": float(np.abs(fov_crop(spec, rom[sel] - ref[sel])).mean()),
+        }
+    return {
+        "samples": int(len(idx)),
+        "mae_coarse_mm": mae(coarse),
+        "mae_rom_no_refinement_mm": mae(rom),
+        "mae_rigid_mm": mae(pen),
+        "per_family": per_family,
+    }
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--steps", type=int, default=2000)
+    p.add_argument("--latent", type=int, default=64)
+    p.add_argument("--points", type=int, default=96, help="query points per press per step")
+    p.add_argument("--batch", type=int, default=32)
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--no-multiscale", action="store_true")
+    p.add_argument("--no-refinement", action="store_true", help="ablation 'w/o physics': manifest disables latent refinement")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-augment", action="store_true", help="no mirror / quarter-turn augmentation")
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--max-seconds", type=float, default=None, help="stop training after this wall time")
+    p.add_argument("--validation-samples", type=int, default=6, help="held-out pairs copied into the model for tests")
+    a = p.parse_args(argv)
+
+    torch.set_num_threads(a.threads)
+    torch.manual_seed(a.seed)
+    rng = np.random.default_rng(a.seed)
+    spec, ds, arrays, metas = D.load_dir(a.data)
+    held_out = set(ds["held_out"])
+    tr, va = split(metas, held_out)
+    if len(tr) == 0:
+        tr = np.arange(len(metas))
+    print(f"{len(metas)} pairs: {len(tr)} train, {len(va)} held-out validation", flush=True)
+    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, a.latent)
+    opt = torch.optim.Adam(model.parameters(), lr=a.lr, betas=(0.9, 0.999))
+    if a.no_augment:
+        train_arrays, n_aug = arrays, 1
+    else:
+        train_arrays, n_aug = augment(arrays)
+    tr_aug = (tr[:, None] * n_aug + np.arange(n_aug)[None, :]).reshape(-1)
+    batcher = Batcher(spec, train_arrays, rng)
+    t0 = time.time()
+    step = 0
+    for step in range(1, a.steps + 1):
+        idx = rng.choice(tr_aug, size=min(a.batch, len(tr_aug)), replace=len(tr_aug) < a.batch)
+        out = losses(model, batcher, idx, a.points, not a.no_multiscale, rng)
+        opt.zero_grad()
+        out["total"].backward()
+        opt.step()
+        if step % 100 == 0 or step == 1:
+            parts = " ".join(f"{k} {v.item():.3e}" for k, v in out.items())
+            print(f"step {step} {parts} ({time.time() - t0:.0f}s)", flush=True)
+        if a.max_seconds and time.time() - t0 > a.max_seconds:
+            break
+    seconds = time.time() - t0
+    model.eval()
+    val = metrics(model, spec, arrays, metas, va)
+    train_m = metrics(model, spec, arrays, metas, tr[: min(len(tr), 64)])
+    print("validation", json.dumps(val, indent=1), flush=True)
+    os.makedirs(a.out, exist_ok=True)
+    training = {
+        "command": "python -m tacrom_rom.train " + " ".join(shlex.quote(x) for x in (argv if argv is not None else sys.argv[1:])),
+        "steps": step,
+        "seconds": round(seconds, 1),
+        "threads": a.threads,
+        "batch": a.batch,
+        "points_per_press": a.points,
+        "augmentation": "none" if a.no_augment else "8 lattice symmetries",
+        "optimizer": {"name": "adam", "lr": a.lr, "betas": [0.9, 0.999]},
+        "losses": {"reconstruction": 1.0, "multiscale": 0.0 if a.no_multiscale else MULTISCALE_WEIGHT,
+                   "consistency": CONSISTENCY_WEIGHT, "consistency_v": 0.4, "consistency_F": 0.6},
+        "torch": torch.__version__,
+    }
+    indices = sorted(m["index"] for m in metas)
+    all_idx = sorted(int(os.path.basename(f)[7:13]) for f in os.listdir(a.data)
+                     if f.startswith("sample-") and f.endswith(".json"))
+    n_gen = (max(all_idx) + 1) if all_idx else 0
+    regenerate = (f"tacrom gen-data --out {a.data} --samples {n_gen} --seed {ds.get('seed')} "
+                  f"--coarse-dx {ds.get('coarse_dx')} --fine-dx {ds.get('fine_dx')} --pitch {ds.get('pitch')} "
+                  f"--fine-max-iterations {ds.get('fine_max_iterations')} [--shard K/N for parallel shards]")
+    data_info = {"command": regenerate, "generated": len(all_idx),
+                 "contiguous": all_idx == list(range(n_gen)),
+                 "dropped_unconverged_reference": len(all_idx) - len(indices),
+                 "path": a.data, "pairs": len(metas), "train": int(len(tr)), "validation": int(len(va)),
+                 "families_train": sorted({metas[i]["family"] for i in tr}),
+                 "families_validation": sorted({metas[i]["family"] for i in va}), "dataset": ds}
+    export_model(model, spec, ds, a.out, training=training, data=data_info,
+                 validation={"held_out": val, "train_subset": train_m},
+                 refinement=not a.no_refinement)
+    # A few held-out pairs, for the Rust test that compares rom and coarse against the reference.
+    vdir = os.path.join(a.out, "validation")
+    os.makedirs(vdir, exist_ok=True)
+    picks = [i for i in va if metas[i]["family"] in ("mesh:hexagon", "ridges")][: a.validation_samples]
+    if len(picks) < a.validation_samples:
+        picks += [i for i in va if i not in picks][: a.validation_samples - len(picks)]
+    for k, i in enumerate(picks):
+        np.save(os.path.join(vdir, f"pair-{k}.npy"), (arrays[i] / spec.depth_scale).astype(np.float32))
+        with open(os.path.join(vdir, f"pair-{k}.json"), "w") as f:
+            json.dump(metas[i], f)
+    print(f"wrote {a.out} in {seconds:.0f}s of training", flush=True)
+
+
+if __name__ == "__main__":
+    main()

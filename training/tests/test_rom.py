@@ -1,0 +1,129 @@
+"""Training side: a tiny train-and-export run on synthetic pairs, ONNX Runtime parity
+with PyTorch (max error < 1e-4), and the exported Jacobian against autograd."""
+import json
+import os
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from tacrom_rom import data as D
+from tacrom_rom.model import Autoencoder, DecoderJacobian
+from tacrom_rom.train import main as train_main
+
+PARITY_TOL = 1e-4
+
+
+def write_synthetic(path, n=12, nx=40, ny=40, seed=0):
+    """Pairs in gen-data's format: a smooth bowl (coarse), a sharper one (reference)."""
+    os.makedirs(path, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    ds = {"size": [0.012, 0.012, 0.004], "young": 1.19e5, "poisson": 0.43, "density": 1050.0,
+          "friction": 0.5, "material": "fixed_corotated", "coarse_dx": 1.4e-3, "fine_dx": 7e-4,
+          "pitch": 3e-4, "lattice": [ny, nx], "samples": n, "seed": seed,
+          "held_out": ["ridges"]}
+    with open(os.path.join(path, "dataset.json"), "w") as f:
+        json.dump(ds, f)
+    y, x = np.mgrid[0:ny, 0:nx].astype(np.float32)
+    for i in range(n):
+        cx, cy, r, d = rng.uniform(10, 30), rng.uniform(10, 30), rng.uniform(3, 8), rng.uniform(2e-4, 8e-4)
+        rr = np.hypot(x - cx, y - cy) / r
+        pen = np.clip(d - d * rr**2, 0, None)
+        fine = np.maximum(pen, d * np.exp(-rr**2))
+        coarse = np.maximum(pen, 0.8 * d * np.exp(-0.7 * rr**2))
+        np.save(os.path.join(path, f"sample-{i:06d}.npy"), np.stack([coarse, pen, fine]).astype(np.float32))
+        fam = "ridges" if i % 4 == 0 else "sphere"
+        with open(os.path.join(path, f"sample-{i:06d}.json"), "w") as f:
+            json.dump({"index": i, "family": fam, "reference": {"converged": True}}, f)
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rom")
+    data = root / "data"
+    out = root / "model"
+    write_synthetic(str(data))
+    train_main(["--data", str(data), "--out", str(out), "--steps", "3", "--batch", "4",
+                "--points", "16", "--latent", "16", "--validation-samples", "2"])
+    return out
+
+
+def test_tiny_train_and_export_writes_a_complete_model(tiny_model):
+    m = json.load(open(tiny_model / "manifest.json"))
+    for f in m["files"].values():
+        assert (tiny_model / f["path"]).is_file()
+    assert m["latent"] == 16
+    assert "mae_coarse_mm" in m["validation"]["held_out"]
+    assert (tiny_model / "validation" / "pair-0.npy").is_file()
+
+
+def _sessions(model_dir):
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    return {k: ort.InferenceSession(str(model_dir / v), opts, providers=["CPUExecutionProvider"])
+            for k, v in [("enc", "encoder.onnx"), ("dec", "decoder.onnx"), ("jac", "decoder_jacobian.onnx")]}
+
+
+def _load_torch(model_dir):
+    m = json.load(open(model_dir / "manifest.json"))
+    L = m["lattice"]
+    spec = D.Spec(size=tuple(L["size"]), nx=L["nx"], ny=L["ny"])
+    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, m["latent"])
+    model.load_state_dict(torch.load(model_dir / "weights.pt"))
+    model.eval()
+    return spec, model
+
+
+def test_onnx_parity_with_pytorch(tiny_model):
+    spec, model = _load_torch(tiny_model)
+    s = _sessions(tiny_model)
+    g = torch.Generator().manual_seed(1)
+    obs = torch.rand(1, spec.encoder_len, generator=g)
+    q = torch.rand(300, spec.query_len, generator=g)
+    with torch.no_grad():
+        z = model.encoder(obs)
+        d = model.decoder(z, q)
+        d2, jac = DecoderJacobian(model.decoder)(z, q)
+    z_ort = s["enc"].run(["z"], {"observation": obs.numpy()})[0]
+    d_ort = s["dec"].run(["depth"], {"z": z.numpy(), "query": q.numpy()})[0]
+    dj, jac_ort = s["jac"].run(["depth", "jacobian"], {"z": z.numpy(), "query": q.numpy()})
+    errs = [np.abs(z_ort - z.numpy()).max(), np.abs(d_ort - d.numpy()).max(),
+            np.abs(dj - d2.numpy()).max(), np.abs(jac_ort - jac.numpy()).max()]
+    print("parity max errors (z, depth, jacobian depth, jacobian):", errs)
+    assert max(errs) < PARITY_TOL, errs
+
+
+def test_exported_jacobian_is_the_exact_gradient(tiny_model):
+    spec, model = _load_torch(tiny_model)
+    g = torch.Generator().manual_seed(2)
+    z = torch.randn(1, model.decoder.latent, generator=g, dtype=torch.float64)
+    q = torch.rand(20, spec.query_len, generator=g, dtype=torch.float64)
+    dec = model.decoder.double()
+    _, jac = DecoderJacobian(dec)(z, q)
+    auto = torch.autograd.functional.jacobian(lambda zz: dec(zz, q)[:, 0], z)[:, 0, :]
+    assert torch.allclose(jac, auto, atol=1e-9, rtol=1e-7), (jac - auto).abs().max()
+
+
+SHIPPED = os.path.join(os.path.dirname(__file__), "..", "..", "models", "rom-default")
+
+
+@pytest.mark.skipif(not os.path.exists(os.path.join(SHIPPED, "weights.pt")), reason="no shipped model")
+def test_shipped_model_onnx_parity_with_pytorch():
+    import pathlib
+    d = pathlib.Path(SHIPPED)
+    spec, model = _load_torch(d)
+    s = _sessions(d)
+    g = torch.Generator().manual_seed(3)
+    obs = torch.rand(1, spec.encoder_len, generator=g) * 0.5
+    q = torch.rand(2000, spec.query_len, generator=g) * 0.5
+    with torch.no_grad():
+        z = model.encoder(obs)
+        d_t = model.decoder(z, q)
+        _, jac = DecoderJacobian(model.decoder)(z, q)
+    z_ort = s["enc"].run(["z"], {"observation": obs.numpy()})[0]
+    d_ort = s["dec"].run(["depth"], {"z": z.numpy(), "query": q.numpy()})[0]
+    _, jac_ort = s["jac"].run(["depth", "jacobian"], {"z": z.numpy(), "query": q.numpy()})
+    errs = [np.abs(z_ort - z.numpy()).max(), np.abs(d_ort - d_t.numpy()).max(), np.abs(jac_ort - jac.numpy()).max()]
+    print("shipped model parity max errors (z, depth, jacobian):", errs)
+    assert max(errs) < PARITY_TOL, errs

@@ -283,15 +283,23 @@ pub fn run_sequence(
         let eval = sensor.evaluate(&placed, &mut out);
         let seconds = t0.elapsed().as_secs_f64();
         let f = sensor.force();
-        let nan = f64::NAN;
-        // scene, SDF, MPM, encoder, refinement, decoder, render.
+        // scene, SDF, MPM, encoder, refinement, decoder, render; the rom stages are part of
+        // the sensor's physics time, so MPM is what remains of it.
+        let (encoder, refinement, decoder) = match &eval.rom {
+            Some(r) => (r.encode_s, r.refine_s, r.decode_s),
+            None => (f64::NAN, f64::NAN, f64::NAN),
+        };
+        let rom_total = [encoder, refinement, decoder]
+            .iter()
+            .filter(|t| t.is_finite())
+            .sum::<f64>();
         let stages = [
             scene,
             eval.times.geometry,
-            eval.times.physics,
-            nan,
-            nan,
-            nan,
+            eval.times.physics - rom_total,
+            encoder,
+            refinement,
+            decoder,
             eval.times.render,
         ];
         let frame = Frame {

@@ -107,10 +107,10 @@ use crate::geometry::{Aabb, PixelGrid, Placed, Sdf};
 
 use contact::{ActiveContact, ContactInput, SlotContact, StepIndenter};
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-use transfer::{ChunkStats, LayerStats, Node, P2gInput, Particle, Stencil, StepCtx};
+use transfer::{ChunkStats, LayerStats, Node, P2gInput, Particle, StepCtx, Stencil};
 
 /// Rotation-extraction steps per time step (fixed corotated), warm-started.
-const ROT_ITERS: usize = 1;
+const ROT_ITERS: usize = 2;
 
 /// Smallest `det F` a particle may reach; below it (inverted included) `F` is repaired
 /// through its SVD.

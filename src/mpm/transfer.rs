@@ -11,8 +11,8 @@
 //! 3. [`grid_update`]: momentum to velocity, bonded bottom, damping, and the
 //!    out-of-balance force that the convergence test reads;
 //! 4. [`grid_to_particle`]: velocity and affine `C` (APIC, Jiang et al. 2015), then
-//!    `F <- (I + dt C) F`, `x <- x + dt v`, with clamps on `x` and `det F`, one warm-started
-//!    step of the rotation extraction, and the [`Stencil`] of the new position.
+//!    `F <- (I + dt C) F`, `x <- x + dt v`, with clamps on `x` and `det F`, the warm-started
+//!    rotation extraction, and the [`Stencil`] of the new position.
 //!
 //! Each particle's stencil (base node, offsets) is computed once per position and shared
 //! by P2G, the contact scatter and G2P. The scatter and gather work on whole nodes as
@@ -31,7 +31,7 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use super::material::ConstitutiveModel;
+use super::material::{extract_rotation, ConstitutiveModel};
 use super::{J_MAX, J_MIN};
 
 /// Width, in cells along x, of one scatter block. Must be at least 2 (a block writes
@@ -318,14 +318,7 @@ fn scatter_block<M: ConstitutiveModel>(
 ) {
     for &pi in order {
         let pi = pi as usize;
-        scatter_particle(
-            ctx,
-            model,
-            &input.particles[pi],
-            &input.stencils[pi],
-            layer0,
-            gc,
-        );
+        scatter_particle(ctx, model, &input.particles[pi], &input.stencils[pi], layer0, gc);
     }
 }
 
@@ -519,32 +512,6 @@ pub(crate) fn guard_det(f: &mut Matrix3<f32>, q: &mut UnitQuaternion<f32>) {
     }
 }
 
-/// One warm-started step of the rotation extraction of Mueller et al. 2016 (see
-/// [`super::material::extract_rotation`]): `omega = sum_i r_i x a_i / (|sum_i r_i . a_i| +
-/// eps)`, with the exponential `exp(omega)` replaced by the normalised first-order
-/// quaternion `(1, omega / 2)` (no trigonometry; same direction, angle `2 atan(|omega| / 2)`,
-/// so the same fixed point, the polar rotation). `F` changes by `dt C F` per step, so the
-/// rotation carried from the previous step is already close and one step per time step
-/// tracks it. Non-finite input leaves `q` unchanged.
-#[inline(always)]
-fn rotation_step(a: &Matrix3<f32>, q: &mut UnitQuaternion<f32>) {
-    let r = q.to_rotation_matrix();
-    let r = r.matrix();
-    let (c0, c1, c2) = (r.column(0), r.column(1), r.column(2));
-    let num = c0.cross(&a.column(0)) + c1.cross(&a.column(1)) + c2.cross(&a.column(2));
-    let den = c0.dot(&a.column(0)) + c1.dot(&a.column(1)) + c2.dot(&a.column(2));
-    let h = num * (0.5 / (den.abs() + 1e-9));
-    if !(h.x.is_finite() && h.y.is_finite() && h.z.is_finite()) {
-        return;
-    }
-    let dq = nalgebra::Quaternion::new(1.0, h.x, h.y, h.z);
-    let nq = dq * q.into_inner();
-    let n2 = nq.coords.norm_squared();
-    if n2 > 0.0 && n2.is_finite() {
-        *q = UnitQuaternion::new_unchecked(nq * (1.0 / n2.sqrt()));
-    }
-}
-
 /// Per-chunk results of G2P.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct ChunkStats {
@@ -651,11 +618,7 @@ fn gather_stencil(
     // aligned, so `_mm_load_ps` is aligned), every store writes four f32 of `out`.
     unsafe {
         let wk = [_mm_set1_ps(wz[0]), _mm_set1_ps(wz[1]), _mm_set1_ps(wz[2])];
-        let wdk = [
-            _mm_set1_ps(wzd[0]),
-            _mm_set1_ps(wzd[1]),
-            _mm_set1_ps(wzd[2]),
-        ];
+        let wdk = [_mm_set1_ps(wzd[0]), _mm_set1_ps(wzd[1]), _mm_set1_ps(wzd[2])];
         let zero = _mm_setzero_ps();
         let mut acc = [zero; 4];
         for (i, &wxi) in wx.iter().enumerate() {
@@ -742,12 +705,13 @@ fn gather_chunk(
         *sp = ns;
         p.f = (Matrix3::identity() + p.c) * p.f;
         let mut j = p.f.determinant();
-        if !(J_MIN as f32..=J_MAX as f32).contains(&j) && p.f.iter().all(|x| x.is_finite()) {
+        if !(J_MIN as f32..=J_MAX as f32).contains(&j) && p.f.iter().all(|x| x.is_finite())
+        {
             guard_det(&mut p.f, &mut p.q);
             j = p.f.determinant();
         }
-        for _ in 0..rot_iters {
-            rotation_step(&p.f, &mut p.q);
+        if rot_iters > 0 {
+            extract_rotation(&p.f, &mut p.q, rot_iters);
         }
         if !p.is_finite() {
             st.nonfinite = true;

@@ -33,7 +33,7 @@ use std::sync::Arc;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::transfer::{Node, Particle, StepCtx, Stencil};
+use super::transfer::{Node, Particle, Stencil, StepCtx};
 use super::Layout;
 use crate::geometry::{Aabb, Sdf};
 

@@ -107,7 +107,7 @@ use crate::geometry::{Aabb, PixelGrid, Placed, Sdf};
 
 use contact::{ActiveContact, ContactInput, SlotContact, StepIndenter};
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-use transfer::{ChunkStats, LayerStats, Node, P2gInput, Particle, StepCtx, Stencil};
+use transfer::{ChunkStats, LayerStats, Node, P2gInput, Particle, Stencil, StepCtx};
 
 /// Rotation-extraction steps per time step (fixed corotated), warm-started.
 const ROT_ITERS: usize = 2;

@@ -318,7 +318,14 @@ fn scatter_block<M: ConstitutiveModel>(
 ) {
     for &pi in order {
         let pi = pi as usize;
-        scatter_particle(ctx, model, &input.particles[pi], &input.stencils[pi], layer0, gc);
+        scatter_particle(
+            ctx,
+            model,
+            &input.particles[pi],
+            &input.stencils[pi],
+            layer0,
+            gc,
+        );
     }
 }
 
@@ -618,7 +625,11 @@ fn gather_stencil(
     // aligned, so `_mm_load_ps` is aligned), every store writes four f32 of `out`.
     unsafe {
         let wk = [_mm_set1_ps(wz[0]), _mm_set1_ps(wz[1]), _mm_set1_ps(wz[2])];
-        let wdk = [_mm_set1_ps(wzd[0]), _mm_set1_ps(wzd[1]), _mm_set1_ps(wzd[2])];
+        let wdk = [
+            _mm_set1_ps(wzd[0]),
+            _mm_set1_ps(wzd[1]),
+            _mm_set1_ps(wzd[2]),
+        ];
         let zero = _mm_setzero_ps();
         let mut acc = [zero; 4];
         for (i, &wxi) in wx.iter().enumerate() {
@@ -705,8 +716,7 @@ fn gather_chunk(
         *sp = ns;
         p.f = (Matrix3::identity() + p.c) * p.f;
         let mut j = p.f.determinant();
-        if !(J_MIN as f32..=J_MAX as f32).contains(&j) && p.f.iter().all(|x| x.is_finite())
-        {
+        if !(J_MIN as f32..=J_MAX as f32).contains(&j) && p.f.iter().all(|x| x.is_finite()) {
             guard_det(&mut p.f, &mut p.q);
             j = p.f.determinant();
         }

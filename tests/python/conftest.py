@@ -19,3 +19,15 @@ def with_config(xml: str, **config: str) -> str:
     head = xml[start : xml.index(">", start) + 1]
     body = "".join(f'<config key="{k}" value="{v}"/>' for k, v in config.items())
     return xml[:start] + head + body + xml[end:]
+
+
+def evaluate(model, data, depth_m):
+    """Places the press joint at ``depth_m`` (positive into the gel), evaluates the sensor
+    and returns all its outputs."""
+    import mujoco
+
+    import tacrom
+
+    data.qpos[0] = depth_m
+    mujoco.mj_forward(model, data)
+    return tacrom.outputs(model, data, "touch")

@@ -7,15 +7,9 @@ import mujoco
 import numpy as np
 
 import tacrom
-from conftest import with_config
+from conftest import evaluate, with_config
 
 COARSE = dict(physics="coarse", outputs="depth force contact", resolution="64 48")
-
-
-def evaluate(model, data, depth_m):
-    data.qpos[0] = depth_m
-    mujoco.mj_forward(model, data)
-    return tacrom.outputs(model, data, "touch")
 
 
 def test_coarse_press_physics(press_xml):

@@ -8,16 +8,14 @@ import numpy as np
 import pytest
 
 import tacrom
-from conftest import with_config
+from conftest import evaluate, with_config
 
 DEFAULT = dict(physics="rigid", outputs="depth", resolution="320 240")
 
 
 def press(model, data, depth_m):
-    """Places the press joint and evaluates the sensor."""
-    data.qpos[0] = depth_m
-    mujoco.mj_forward(model, data)
-    return tacrom.depth(model, data, "touch")
+    """The depth image with the press joint at ``depth_m``."""
+    return evaluate(model, data, depth_m)["depth"]
 
 
 def test_import_mujoco_registers_the_plugin(press_xml):

@@ -31,3 +31,20 @@ def evaluate(model, data, depth_m):
     data.qpos[0] = depth_m
     mujoco.mj_forward(model, data)
     return tacrom.outputs(model, data, "touch")
+
+
+def in_threads(fn, args):
+    """``[fn(a) for a in args]``, each call in its own thread, all running at once."""
+    import threading
+
+    results = [None] * len(args)
+
+    def worker(i):
+        results[i] = fn(args[i])
+
+    threads = [threading.Thread(target=worker, args=(i,)) for i in range(len(args))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return results

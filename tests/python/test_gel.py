@@ -1,13 +1,11 @@
 """The coarse MPM gel through the real `mujoco` Python package: physics sanity, state
 handling per MjData, determinism across solver threads and Python threads."""
 
-import threading
-
 import mujoco
 import numpy as np
 
 import tacrom
-from conftest import evaluate, with_config
+from conftest import evaluate, in_threads, with_config
 
 COARSE = dict(physics="coarse", outputs="depth force contact", resolution="64 48")
 
@@ -59,16 +57,7 @@ def test_python_threads_match_sequential(press_xml):
     model = mujoco.MjModel.from_xml_string(with_config(press_xml, **COARSE))
     depths = [0.2e-3, 0.45e-3]
     sequential = [evaluate(model, mujoco.MjData(model), d)["depth"] for d in depths]
-    results = [None] * len(depths)
-
-    def worker(i):
-        results[i] = evaluate(model, mujoco.MjData(model), depths[i])["depth"]
-
-    threads = [threading.Thread(target=worker, args=(i,)) for i in range(len(depths))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    results = in_threads(lambda d: evaluate(model, mujoco.MjData(model), d)["depth"], depths)
     for a, b in zip(sequential, results):
         np.testing.assert_array_equal(a, b)
 

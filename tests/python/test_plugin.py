@@ -1,14 +1,12 @@
 """The plugin through the real `mujoco` Python package: registration by entry point, the
 press example, state handling, threads, and bad input."""
 
-import threading
-
 import mujoco
 import numpy as np
 import pytest
 
 import tacrom
-from conftest import evaluate, with_config
+from conftest import evaluate, in_threads, with_config
 
 DEFAULT = dict(physics="rigid", outputs="depth", resolution="320 240")
 
@@ -70,16 +68,7 @@ def test_two_threads_match_sequential(press_xml):
     model = mujoco.MjModel.from_xml_string(with_config(press_xml, **{**DEFAULT, "resolution": "80 60"}))
     depths = [0.15e-3, 0.35e-3, 0.55e-3, 0.8e-3]
     sequential = [press(model, mujoco.MjData(model), d) for d in depths]
-    results = [None] * len(depths)
-
-    def worker(i):
-        results[i] = press(model, mujoco.MjData(model), depths[i])
-
-    threads = [threading.Thread(target=worker, args=(i,)) for i in range(len(depths))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    results = in_threads(lambda d: press(model, mujoco.MjData(model), d), depths)
     for a, b in zip(sequential, results):
         np.testing.assert_array_equal(a, b)
 

@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build demo test test-rust test-python bench bench-quick bench-micro stability train-env gen-data train test-train clean
+.PHONY: all venv build demo test test-rust test-python bench bench-quick bench-micro bench-mpm stability train-env gen-data train test-train clean
 
 all: build
 
@@ -44,6 +44,7 @@ test: build test-rust test-python bench-quick
 
 # The press benchmark (error against run time of every mode; README "Benchmarks").
 bench: build
+	$(CARGO) run --release --bin tacrom -- mpm --fine
 	$(CARGO) run --release --bin tacrom -- bench --full
 
 bench-quick: venv
@@ -52,6 +53,10 @@ bench-quick: venv
 # Micro-benchmarks of one sensor evaluation per mode and indenter.
 bench-micro: build
 	$(CARGO) bench --bench sensor
+
+# Hertz validation and solver cost per grid spacing, without the fine spacing.
+bench-mpm: build
+	$(CARGO) run --release --bin tacrom -- mpm
 
 # The stability suite's table.
 stability: venv

@@ -22,6 +22,7 @@
 pub mod cache;
 pub mod draw;
 pub mod metrics;
+pub mod mpm;
 pub mod plot;
 pub mod protocol;
 pub mod report;

@@ -4,6 +4,7 @@
 //! tacrom bench  [--quick | --full] [options]   error against run time of every mode
 //! tacrom render [options]                      press one indenter, write its depth PNG
 //! tacrom stability [--physics P] [--dx MM]     the stability suite's table
+//! tacrom mpm [--fine] [options]                Hertz validation and solver cost per dx
 //! tacrom gen-data [options]                    paired coarse/reference presses for training
 //! tacrom help
 //! ```
@@ -28,6 +29,7 @@ USAGE:
   tacrom bench  [--quick | --full] [OPTIONS]
   tacrom render [OPTIONS]
   tacrom stability [--physics P,...] [--dx MM]
+  tacrom mpm [--fine] [OPTIONS]
   tacrom gen-data [OPTIONS]         (see `tacrom gen-data --help`)
   tacrom help
 
@@ -75,6 +77,18 @@ jumping, rotating, sliding, through-the-gel presses, non-finite poses; see
 src/stability.rs) and prints one markdown table per mode; exits non-zero if a case fails.
   --physics P,...         modes to run [rigid,coarse]
   --dx MM                 MPM grid spacing [the mode's default]
+
+MPM validates the gel against Hertz contact on a bonded layer (frictionless sphere,
+R = 5 mm, force error per depth and grid spacing) and measures the solver's cost in a
+moving press (ms per frame, iterations, particle-steps/s, bytes per particle) per grid
+spacing and thread count. Writes report.md, hertz.csv and speed.csv into --out.
+  --fine                  add the fine spacing 0.3 mm (about 1e6 particles; 30-60 min)
+  --dx MM,...             spacings of both parts [1.4,1.0,0.7,0.5]
+  --depths MM,...         Hertz depths [0.1,0.2,0.3,0.4,0.5]
+  --threads N,...         thread counts of the cost runs [1,2]
+  --frames N              measured frames per cost run [12; 3 below 0.5 mm]
+  --out DIR               report folder [out/bench/mpm]
+  --quiet                 no progress lines
 ";
 
 fn main() -> ExitCode {
@@ -83,6 +97,7 @@ fn main() -> ExitCode {
         Some("bench") => bench(&args[1..]),
         Some("render") => render(&args[1..]),
         Some("stability") => stability(&args[1..]),
+        Some("mpm") => mpm(&args[1..]),
         Some("gen-data") => tacrom::datagen::run_cli(&args[1..]).map_err(BenchError::Usage),
         Some("help" | "--help" | "-h") | None => {
             print!("{USAGE}");
@@ -348,6 +363,62 @@ fn render(args: &[String]) -> Result<(), BenchError> {
 }
 
 /// `tacrom stability`: the stability suite's table per mode.
+fn mm_list(args: &mut Args<'_>, flag: &str) -> Result<Vec<f64>, BenchError> {
+    let v = args.value(flag)?;
+    v.split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .map(|x| x * 1e-3)
+                .ok_or_else(|| usage(format!("{flag}: '{x}' is not a positive length in mm")))
+        })
+        .collect()
+}
+
+fn mpm(args: &[String]) -> Result<(), BenchError> {
+    use tacrom::bench::mpm::{markdown, run, MpmBenchOptions};
+    let mut options = MpmBenchOptions::standard();
+    let mut fine = false;
+    let mut a = Args::new(args);
+    while let Some(flag) = a.next_flag() {
+        match flag {
+            "--fine" => fine = true,
+            "--dx" => {
+                let dx = mm_list(&mut a, flag)?;
+                options.hertz_dx = dx.clone();
+                options.speed_dx = dx;
+            }
+            "--depths" => options.depths = mm_list(&mut a, flag)?,
+            "--threads" => {
+                let v = a.value(flag)?;
+                options.threads = v
+                    .split(',')
+                    .map(|x| {
+                        x.trim()
+                            .parse::<usize>()
+                            .ok()
+                            .filter(|&n| n > 0)
+                            .ok_or_else(|| usage(format!("--threads: '{x}' is not a thread count")))
+                    })
+                    .collect::<Result<_, _>>()?;
+            }
+            "--frames" => options.frames = a.count(flag)?.max(1),
+            "--out" => options.out = PathBuf::from(a.value(flag)?),
+            "--quiet" => options.progress = false,
+            other => return Err(usage(format!("mpm: unknown option '{other}'"))),
+        }
+    }
+    if fine {
+        options = options.with_fine();
+    }
+    let result = run(&options)?;
+    print!("{}", markdown(&result));
+    println!("\nwritten to {}", options.out.display());
+    Ok(())
+}
+
 fn stability(args: &[String]) -> Result<(), BenchError> {
     let mut modes = vec!["rigid".to_owned(), "coarse".to_owned()];
     let mut dx = None;

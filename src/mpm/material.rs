@@ -83,27 +83,47 @@ impl ConstitutiveModel for NeoHookeanModel {
 /// where `r_i`, `a_i` are the columns of `R(q)` and `a`. Warm-started from the previous
 /// step's rotation, one or two iterations per time step suffice because `F` changes by
 /// `dt C F` only. Non-finite input leaves `q` unchanged.
+///
+/// The exponential is taken to first order, `exp(omega) ~ normalize(1, omega / 2)` (a
+/// rotation by `2 atan(|omega| / 2)` about `omega`): no trigonometry, the same fixed point
+/// (`omega = 0`), and for the small `omega` of a warm start the same step to third order.
 #[inline]
 pub fn extract_rotation(a: &Matrix3<f32>, q: &mut UnitQuaternion<f32>, iterations: usize) {
+    let c = q.as_ref().coords;
+    let (mut x, mut y, mut z, mut w) = (c[0], c[1], c[2], c[3]);
     for _ in 0..iterations {
-        let r = q.to_rotation_matrix();
-        let r = r.matrix();
+        let (x2, y2, z2) = (x + x, y + y, z + z);
+        let (xx, yy, zz) = (x * x2, y * y2, z * z2);
+        let (xy, xz, yz) = (x * y2, x * z2, y * z2);
+        let (wx, wy, wz) = (w * x2, w * y2, w * z2);
+        let r = [
+            Vector3::new(1.0 - yy - zz, xy + wz, xz - wy),
+            Vector3::new(xy - wz, 1.0 - xx - zz, yz + wx),
+            Vector3::new(xz + wy, yz - wx, 1.0 - xx - yy),
+        ];
         let mut num = Vector3::zeros();
         let mut den = 0.0f32;
-        for k in 0..3 {
-            let rk = r.column(k);
+        for (k, rk) in r.iter().enumerate() {
             let ak = a.column(k);
             num += rk.cross(&ak);
             den += rk.dot(&ak);
         }
-        let omega = num / (den.abs() + 1e-9);
-        let w = omega.norm();
-        if !(w > 1e-7 && w.is_finite()) {
+        let o = num * (0.5 / (den.abs() + 1e-9));
+        let w2 = o.norm_squared();
+        if !(w2 > 2.5e-15 && w2.is_finite()) {
             break;
         }
-        let dq = UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_unchecked(omega / w), w);
-        *q = UnitQuaternion::new_normalize((dq * *q).into_inner());
+        // q + (0, o) q, then normalised.
+        let (nx, ny, nz, nw) = (
+            x + w * o.x + o.y * z - o.z * y,
+            y + w * o.y + o.z * x - o.x * z,
+            z + w * o.z + o.x * y - o.y * x,
+            w - (o.x * x + o.y * y + o.z * z),
+        );
+        let inv = 1.0 / (nx * nx + ny * ny + nz * nz + nw * nw).sqrt();
+        (x, y, z, w) = (nx * inv, ny * inv, nz * inv, nw * inv);
     }
+    *q = UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(w, x, y, z));
 }
 
 #[cfg(test)]

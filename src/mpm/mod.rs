@@ -92,6 +92,7 @@
 //! ([`SolveReport::restarted`]).
 
 mod contact;
+pub mod hertz;
 mod material;
 mod surface;
 mod transfer;

@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::geometry::{Aabb, Sdf, Sphere};
+use crate::mpm::hertz::hertz_bonded;
 use std::sync::Arc;
 
 const R: f64 = 5e-3;
@@ -35,19 +36,6 @@ fn frictionless(dx: f64) -> GelParams {
         friction: 0.0,
         ..Default::default()
     }
-}
-
-/// Hertz force with the bonded-layer correction of Dimitriadis et al. (2002), Eq. 12.
-fn hertz_bonded(e: f64, nu: f64, r: f64, d: f64, h: f64) -> f64 {
-    use std::f64::consts::PI;
-    let es = e / (1.0 - nu * nu);
-    let a0 = -(1.2876 - 1.4678 * nu + 1.3442 * nu * nu) / (1.0 - nu);
-    let b0 = (0.6387 - 1.0277 * nu + 1.5164 * nu * nu) / (1.0 - nu);
-    let c = (r * d).sqrt() / h;
-    let bracket = 1.0 - 2.0 * a0 / PI * c + 4.0 * a0 * a0 / (PI * PI) * c * c
-        - 8.0 / PI.powi(3) * (a0.powi(3) + 4.0 * PI * PI * b0 / 15.0) * c.powi(3)
-        + 16.0 * a0 / PI.powi(4) * (a0.powi(3) + 3.0 * PI * PI * b0 / 5.0) * c.powi(4);
-    4.0 * es / 3.0 * r.sqrt() * d.powf(1.5) * bracket
 }
 
 /// Relative force errors against Hertz for the given depths, pressing progressively.

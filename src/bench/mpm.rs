@@ -1,0 +1,451 @@
+//! The gel's own benchmark (`tacrom mpm`): Hertz validation per resolution, and the
+//! solver's cost per resolution and thread count.
+//!
+//! * **Hertz.** A frictionless rigid sphere (R = 5 mm) pressed at the centre of the
+//!   default gel through increasing depths, one continuous sequence per grid spacing (the
+//!   first press starts from the flat gel, every later one from the previous equilibrium).
+//!   The total contact force is compared with [`hertz_bonded`] (Hertz with the bonded-layer
+//!   correction of Dimitriadis et al. 2002).
+//! * **Cost.** A moving press with friction (the default gel): after one warm-up press at
+//!   0.1 mm, each frame presses 0.05 mm deeper and slides 0.02 mm along x, the kind of
+//!   motion an arm makes between two sensor readings. Per spacing and thread count: median
+//!   and 90th percentile of the solve time per frame, iterations per frame,
+//!   particle-steps per second (particles times iterations over solve time), and memory per
+//!   particle (particle state plus the grid's share).
+//!
+//! The fine spacing (0.3 mm, about 1e6 particles) takes minutes per frame; it runs with
+//! `--fine`, a few frames only.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::Isometry3;
+
+use super::BenchError;
+use crate::geometry::{Placed, Sdf, Sphere};
+use crate::mpm::hertz::hertz_bonded;
+use crate::mpm::{Gel, GelParams, SolverOptions};
+
+/// Radius of the validation sphere (m).
+pub const SPHERE_RADIUS: f64 = 5e-3;
+
+/// What `tacrom mpm` runs.
+#[derive(Clone, Debug)]
+pub struct MpmBenchOptions {
+    /// Grid spacings of the Hertz sequences (m).
+    pub hertz_dx: Vec<f64>,
+    /// Depths of each Hertz sequence (m), increasing.
+    pub depths: Vec<f64>,
+    /// Grid spacings of the cost runs (m).
+    pub speed_dx: Vec<f64>,
+    /// Thread counts of the cost runs.
+    pub threads: Vec<usize>,
+    /// Measured frames of a cost run (after the warm-up), for spacings of at least 0.5 mm.
+    pub frames: usize,
+    /// Measured frames below 0.5 mm.
+    pub fine_frames: usize,
+    /// Report folder.
+    pub out: PathBuf,
+    /// Progress lines on stderr.
+    pub progress: bool,
+}
+
+impl MpmBenchOptions {
+    /// Coarse to 0.5 mm: a few minutes on two cores.
+    pub fn standard() -> Self {
+        Self {
+            hertz_dx: vec![1.4e-3, 1.0e-3, 0.7e-3, 0.5e-3],
+            depths: vec![0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3, 0.5e-3],
+            speed_dx: vec![1.4e-3, 1.0e-3, 0.7e-3, 0.5e-3],
+            threads: vec![1, 2],
+            frames: 12,
+            fine_frames: 3,
+            out: PathBuf::from("out/bench/mpm"),
+            progress: true,
+        }
+    }
+
+    /// The standard runs plus the fine spacing (0.3 mm) in both parts.
+    pub fn with_fine(mut self) -> Self {
+        self.hertz_dx.push(0.3e-3);
+        self.speed_dx.push(0.3e-3);
+        self
+    }
+}
+
+/// One Hertz press.
+#[derive(Clone, Debug)]
+pub struct HertzRow {
+    /// Grid spacing (m).
+    pub dx: f64,
+    /// Particles.
+    pub particles: usize,
+    /// Indentation (m).
+    pub depth: f64,
+    /// Simulated force (N).
+    pub force: f64,
+    /// Analytic force (N).
+    pub reference: f64,
+    /// Iterations of this press.
+    pub iterations: usize,
+    /// Whether the solve converged.
+    pub converged: bool,
+    /// Solve time (s).
+    pub seconds: f64,
+}
+
+impl HertzRow {
+    /// Relative force error.
+    pub fn error(&self) -> f64 {
+        self.force / self.reference - 1.0
+    }
+}
+
+/// One cost run.
+#[derive(Clone, Debug)]
+pub struct SpeedRow {
+    /// Grid spacing (m).
+    pub dx: f64,
+    /// Particles.
+    pub particles: usize,
+    /// Solver threads.
+    pub threads: usize,
+    /// Measured frames.
+    pub frames: usize,
+    /// Median and 90th-percentile solve time per frame (ms).
+    pub median_ms: f64,
+    /// See `median_ms`.
+    pub p90_ms: f64,
+    /// Median iterations per frame.
+    pub median_iterations: usize,
+    /// Particle-steps per second over the measured frames.
+    pub particle_steps_per_s: f64,
+    /// Frames that hit the iteration cap.
+    pub unconverged: usize,
+    /// Bytes per particle, the grid's share included.
+    pub bytes_per_particle: f64,
+}
+
+/// Everything `tacrom mpm` measured.
+#[derive(Clone, Debug, Default)]
+pub struct MpmBenchResult {
+    /// Hertz presses, per spacing then depth.
+    pub hertz: Vec<HertzRow>,
+    /// Cost runs, per spacing then thread count.
+    pub speed: Vec<SpeedRow>,
+}
+
+fn sphere() -> Arc<dyn Sdf> {
+    Arc::new(Sphere::new(SPHERE_RADIUS))
+}
+
+fn at(shape: &Arc<dyn Sdf>, x: f64, depth: f64) -> [Placed; 1] {
+    [Placed {
+        shape: shape.clone(),
+        pose: Isometry3::translation(x, 0.0, SPHERE_RADIUS - depth),
+    }]
+}
+
+fn gel(dx: f64, friction: f64, threads: usize) -> Result<Gel, BenchError> {
+    let params = GelParams {
+        dx,
+        friction,
+        ..Default::default()
+    };
+    let options = SolverOptions {
+        threads,
+        ..Default::default()
+    };
+    Gel::new(params, options).map_err(|e| BenchError::Usage(format!("dx {dx:e} m: {e}")))
+}
+
+fn note(progress: bool, line: &str) {
+    if progress {
+        eprintln!("{line}");
+    }
+}
+
+/// The Hertz sequence at spacing `dx` with `threads` solver threads.
+pub fn hertz_sequence(
+    dx: f64,
+    depths: &[f64],
+    threads: usize,
+    progress: bool,
+) -> Result<Vec<HertzRow>, BenchError> {
+    let mut g = gel(dx, 0.0, threads)?;
+    let p = *g.params();
+    let ball = sphere();
+    let mut rows = Vec::with_capacity(depths.len());
+    for &d in depths {
+        let t0 = Instant::now();
+        let rep = g.solve(&at(&ball, 0.0, d));
+        let row = HertzRow {
+            dx,
+            particles: g.num_particles(),
+            depth: d,
+            force: g.force().z,
+            reference: hertz_bonded(p.young, p.poisson, SPHERE_RADIUS, d, p.size[2]),
+            iterations: rep.iterations,
+            converged: rep.converged,
+            seconds: t0.elapsed().as_secs_f64(),
+        };
+        note(
+            progress,
+            &format!(
+                "hertz dx {:.2} mm d {:.2} mm: {:+.1} % ({} it, {:.1} s)",
+                dx * 1e3,
+                d * 1e3,
+                100.0 * row.error(),
+                row.iterations,
+                row.seconds
+            ),
+        );
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+/// The moving press at spacing `dx`: `frames` measured frames after a warm-up.
+pub fn speed_run(dx: f64, threads: usize, frames: usize) -> Result<SpeedRow, BenchError> {
+    let mut g = gel(dx, GelParams::default().friction, threads)?;
+    let ball = sphere();
+    g.solve(&at(&ball, 0.0, 0.1e-3));
+    let n = g.num_particles();
+    let (mut times, mut iters) = (Vec::new(), Vec::new());
+    let mut unconverged = 0;
+    for f in 1..=frames.max(1) {
+        let placed = at(&ball, 0.02e-3 * f as f64, 0.1e-3 + 0.05e-3 * f as f64);
+        let t0 = Instant::now();
+        let rep = g.solve(&placed);
+        times.push(t0.elapsed().as_secs_f64());
+        iters.push(rep.iterations);
+        unconverged += usize::from(!rep.converged);
+    }
+    let total_time: f64 = times.iter().sum();
+    let total_steps: f64 = iters.iter().map(|&i| (i * n) as f64).sum();
+    times.sort_by(f64::total_cmp);
+    let mut sorted_iters = iters.clone();
+    sorted_iters.sort_unstable();
+    Ok(SpeedRow {
+        dx,
+        particles: n,
+        threads,
+        frames: times.len(),
+        median_ms: quantile(&times, 0.5) * 1e3,
+        p90_ms: quantile(&times, 0.9) * 1e3,
+        median_iterations: sorted_iters[sorted_iters.len() / 2],
+        particle_steps_per_s: total_steps / total_time,
+        unconverged,
+        bytes_per_particle: Gel::bytes_per_particle() as f64 + g.grid_bytes() as f64 / n as f64,
+    })
+}
+
+/// Runs both parts and writes `report.md`, `hertz.csv` and `speed.csv` into
+/// `options.out`.
+pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
+    let mut result = MpmBenchResult::default();
+    let most_threads = options.threads.iter().copied().max().unwrap_or(1);
+    for &dx in &options.hertz_dx {
+        let rows = hertz_sequence(dx, &options.depths, most_threads, options.progress)?;
+        result.hertz.extend(rows);
+    }
+    for &dx in &options.speed_dx {
+        let frames = if dx < 0.5e-3 {
+            options.fine_frames
+        } else {
+            options.frames
+        };
+        for &threads in &options.threads {
+            let row = speed_run(dx, threads, frames)?;
+            note(
+                options.progress,
+                &format!(
+                    "speed dx {:.2} mm, {} thread(s): median {:.1} ms/frame, {} it, {:.2e} particle-steps/s",
+                    dx * 1e3,
+                    threads,
+                    row.median_ms,
+                    row.median_iterations,
+                    row.particle_steps_per_s
+                ),
+            );
+            result.speed.push(row);
+        }
+    }
+    write_report(&options.out, &result)?;
+    Ok(result)
+}
+
+fn io_error(path: &Path, e: std::io::Error) -> BenchError {
+    BenchError::Usage(format!("cannot write {}: {e}", path.display()))
+}
+
+/// Distinct values in first-seen order.
+fn distinct(values: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut out: Vec<f64> = Vec::new();
+    for v in values {
+        if !out.contains(&v) {
+            out.push(v);
+        }
+    }
+    out
+}
+
+/// The markdown report: the Hertz error table (spacing by depth) and the cost table.
+pub fn markdown(result: &MpmBenchResult) -> String {
+    let mut s = String::new();
+    if !result.hertz.is_empty() {
+        let depths = distinct(result.hertz.iter().map(|r| r.depth));
+        let dxs = distinct(result.hertz.iter().map(|r| r.dx));
+        s.push_str(
+            "## Hertz (bonded layer), force error per depth\n\nFrictionless sphere R = 5 mm \
+             on the default gel (30 x 30 x 4 mm, E = 1.19e5 Pa, Poisson 0.43); Dimitriadis et \
+             al. 2002. `*`: hit the iteration cap.\n\n| dx (mm) | particles |",
+        );
+        for d in &depths {
+            let _ = write!(s, " d = {:.2} mm |", d * 1e3);
+        }
+        s.push_str(" iterations | solve s |\n|---|---|");
+        s.push_str(&"---|".repeat(depths.len() + 2));
+        s.push('\n');
+        for dx in &dxs {
+            let rows: Vec<&HertzRow> = result.hertz.iter().filter(|r| r.dx == *dx).collect();
+            let _ = write!(s, "| {:.2} | {} |", dx * 1e3, rows[0].particles);
+            for d in &depths {
+                match rows.iter().find(|r| r.depth == *d) {
+                    Some(r) => {
+                        let star = if r.converged { "" } else { "*" };
+                        let _ = write!(s, " {:+.1} %{star} |", 100.0 * r.error());
+                    }
+                    None => s.push_str(" – |"),
+                }
+            }
+            let its: Vec<String> = rows.iter().map(|r| r.iterations.to_string()).collect();
+            let secs: f64 = rows.iter().map(|r| r.seconds).sum();
+            let _ = writeln!(s, " {} | {:.1} |", its.join(" / "), secs);
+        }
+        s.push('\n');
+    }
+    if !result.speed.is_empty() {
+        s.push_str(
+            "## Cost of a moving press\n\nDefault gel with friction 0.5, sphere R = 5 mm; each \
+             frame 0.05 mm deeper and 0.02 mm along x, after a warm-up press at 0.1 mm. \
+             Solve time only (no image).\n\n| dx (mm) | particles | threads | frames | median \
+             ms | p90 ms | iterations (median) | particle-steps/s | unconverged | bytes/particle \
+             |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        );
+        for r in &result.speed {
+            let _ = writeln!(
+                s,
+                "| {:.2} | {} | {} | {} | {:.1} | {:.1} | {} | {:.2e} | {} | {:.0} |",
+                r.dx * 1e3,
+                r.particles,
+                r.threads,
+                r.frames,
+                r.median_ms,
+                r.p90_ms,
+                r.median_iterations,
+                r.particle_steps_per_s,
+                r.unconverged,
+                r.bytes_per_particle
+            );
+        }
+    }
+    s
+}
+
+fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
+    std::fs::create_dir_all(out).map_err(|e| io_error(out, e))?;
+    let md = out.join("report.md");
+    std::fs::write(&md, markdown(result)).map_err(|e| io_error(&md, e))?;
+    let mut hertz =
+        String::from("dx_m,particles,depth_m,force_n,hertz_n,error,iterations,converged,seconds\n");
+    for r in &result.hertz {
+        let _ = writeln!(
+            hertz,
+            "{:e},{},{:e},{:e},{:e},{:.5},{},{},{:.3}",
+            r.dx,
+            r.particles,
+            r.depth,
+            r.force,
+            r.reference,
+            r.error(),
+            r.iterations,
+            r.converged,
+            r.seconds
+        );
+    }
+    let path = out.join("hertz.csv");
+    std::fs::write(&path, hertz).map_err(|e| io_error(&path, e))?;
+    let mut speed = String::from(
+        "dx_m,particles,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
+    );
+    for r in &result.speed {
+        let _ = writeln!(
+            speed,
+            "{:e},{},{},{},{:.3},{:.3},{},{:.4e},{},{:.1}",
+            r.dx,
+            r.particles,
+            r.threads,
+            r.frames,
+            r.median_ms,
+            r.p90_ms,
+            r.median_iterations,
+            r.particle_steps_per_s,
+            r.unconverged,
+            r.bytes_per_particle
+        );
+    }
+    let path = out.join("speed.csv");
+    std::fs::write(&path, speed).map_err(|e| io_error(&path, e))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    // The report has one Hertz row per spacing with one cell per depth, and marks
+    // unconverged presses.
+    #[test]
+    fn markdown_tables_have_one_row_per_spacing() {
+        let row = |dx: f64, depth: f64, converged: bool| HertzRow {
+            dx,
+            particles: 10,
+            depth,
+            force: 1.1,
+            reference: 1.0,
+            iterations: 5,
+            converged,
+            seconds: 0.1,
+        };
+        let result = MpmBenchResult {
+            hertz: vec![
+                row(1e-3, 2e-4, true),
+                row(1e-3, 5e-4, false),
+                row(5e-4, 2e-4, true),
+            ],
+            speed: Vec::new(),
+        };
+        let md = markdown(&result);
+        let lines: Vec<&str> = md.lines().filter(|l| l.starts_with("| ")).collect();
+        assert_eq!(lines.len(), 3, "{md}");
+        assert!(lines[1].contains("+10.0 %*"), "{md}");
+        assert!(lines[2].contains("– |"), "{md}");
+    }
+
+    // The cost run at a coarse spacing reports consistent figures.
+    #[test]
+    fn speed_run_counts_particle_steps() {
+        let r = speed_run(2e-3, 1, 2).expect("run");
+        assert_eq!(r.frames, 2);
+        assert!(r.median_iterations > 0 && r.particle_steps_per_s > 0.0);
+        assert!(r.bytes_per_particle >= Gel::bytes_per_particle() as f64);
+        assert!(r.p90_ms >= r.median_ms);
+    }
+}

@@ -70,7 +70,7 @@ clean:
 VENV_TRAIN := .venv-train
 PY_TRAIN := $(VENV_TRAIN)/bin/python
 ROM_DATA ?= data/rom-f0.7
-ROM_SAMPLES ?= 77
+ROM_SAMPLES ?= 190
 ROM_SHARDS ?= 2
 
 $(VENV_TRAIN)/.installed: training/requirements.txt
@@ -89,9 +89,9 @@ gen-data: build
 
 # Trains and exports the shipped model and its two ablations into models/.
 train: train-env
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-default --steps 2500
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-latent16 --latent 16 --steps 2500
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-no-multiscale --no-multiscale --steps 2500
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-default --steps 3500
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-latent16 --latent 16 --steps 3500
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-no-multiscale --no-multiscale --steps 3500
 
 # ONNX parity (ONNX Runtime against PyTorch) and a tiny train-and-export run.
 test-train: train-env

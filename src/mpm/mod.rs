@@ -1010,6 +1010,7 @@ impl Gel {
                 top,
                 indenters: step_ind,
                 friction: params.friction as f32,
+                gain: contact::multiplier_gain(params.size[2] / layout.dx),
             };
             contact::update_contacts(&input, contacts, active);
             if !*binned {

@@ -78,7 +78,7 @@ fn hertz_reference_matches_quoted_bracket() {
 }
 
 // Medium resolution (dx = 1 mm, 4 cells through the layer): within 10 % of Hertz with
-// the bonded-layer correction for d in [0.2, 0.5] mm (measured: +2.4, -4.0, -0.4 %).
+// the bonded-layer correction for d in [0.2, 0.5] mm (measured: +2.4, -4.1, -0.7 %).
 #[test]
 fn hertz_medium_resolution() {
     for (d, _, err) in hertz_errors(1.0e-3, &[0.2e-3, 0.35e-3, 0.5e-3]) {
@@ -87,7 +87,7 @@ fn hertz_medium_resolution() {
 }
 
 // The force error at d = 0.4 mm shrinks from dx = 1.4 mm to 1 mm to 0.7 mm (2.9, 4 and
-// 5.7 cells through the layer; measured +10.4, -4.7, +2.3 %). The grid-node contact
+// 5.7 cells through the layer; measured +10.4, -4.7, +2.1 %). The grid-node contact
 // constraint this replaced gave +13, +13, +11 % here.
 #[test]
 fn hertz_error_shrinks_with_resolution() {

@@ -359,10 +359,14 @@ pub fn markdown(result: &MpmBenchResult) -> String {
     s
 }
 
+fn write_file(out: &Path, name: &str, text: String) -> Result<(), BenchError> {
+    let path = out.join(name);
+    std::fs::write(&path, text).map_err(|e| io_error(&path, e))
+}
+
 fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     std::fs::create_dir_all(out).map_err(|e| io_error(out, e))?;
-    let md = out.join("report.md");
-    std::fs::write(&md, markdown(result)).map_err(|e| io_error(&md, e))?;
+    write_file(out, "report.md", markdown(result))?;
     let mut hertz =
         String::from("dx_m,particles,depth_m,force_n,hertz_n,error,iterations,converged,seconds\n");
     for r in &result.hertz {
@@ -380,8 +384,7 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
             r.seconds
         );
     }
-    let path = out.join("hertz.csv");
-    std::fs::write(&path, hertz).map_err(|e| io_error(&path, e))?;
+    write_file(out, "hertz.csv", hertz)?;
     let mut speed = String::from(
         "dx_m,particles,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
     );
@@ -401,9 +404,7 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
             r.bytes_per_particle
         );
     }
-    let path = out.join("speed.csv");
-    std::fs::write(&path, speed).map_err(|e| io_error(&path, e))?;
-    Ok(())
+    write_file(out, "speed.csv", speed)
 }
 
 #[cfg(test)]

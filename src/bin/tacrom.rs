@@ -87,6 +87,7 @@ spacing and thread count. Writes report.md, hertz.csv and speed.csv into --out.
   --depths MM,...         Hertz depths [0.1,0.2,0.3,0.4,0.5]
   --threads N,...         thread counts of the cost runs [1,2]
   --frames N              measured frames per cost run [12; 3 below 0.5 mm]
+  --only hertz|speed      run one part only
   --out DIR               report folder [out/bench/mpm]
   --quiet                 no progress lines
 ";
@@ -381,6 +382,7 @@ fn mpm(args: &[String]) -> Result<(), BenchError> {
     use tacrom::bench::mpm::{markdown, run, MpmBenchOptions};
     let mut options = MpmBenchOptions::standard();
     let mut fine = false;
+    let mut only = None;
     let mut a = Args::new(args);
     while let Some(flag) = a.next_flag() {
         match flag {
@@ -405,6 +407,11 @@ fn mpm(args: &[String]) -> Result<(), BenchError> {
                     .collect::<Result<_, _>>()?;
             }
             "--frames" => options.frames = a.count(flag)?.max(1),
+            "--only" => match a.value(flag)? {
+                "hertz" => only = Some(true),
+                "speed" => only = Some(false),
+                other => return Err(usage(format!("--only: '{other}' is not hertz or speed"))),
+            },
             "--out" => options.out = PathBuf::from(a.value(flag)?),
             "--quiet" => options.progress = false,
             other => return Err(usage(format!("mpm: unknown option '{other}'"))),
@@ -412,6 +419,11 @@ fn mpm(args: &[String]) -> Result<(), BenchError> {
     }
     if fine {
         options = options.with_fine();
+    }
+    match only {
+        Some(true) => options.speed_dx.clear(),
+        Some(false) => options.hertz_dx.clear(),
+        None => {}
     }
     let result = run(&options)?;
     print!("{}", markdown(&result));

@@ -103,6 +103,7 @@ impl TactileSensor {
                 };
                 let options = SolverOptions {
                     threads: config.threads,
+                    tolerance: config.tolerance,
                     ..SolverOptions::default()
                 };
                 // Validate now, so a bad combination fails at model load; the gel itself is

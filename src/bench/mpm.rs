@@ -42,6 +42,9 @@ pub struct MpmBenchOptions {
     pub speed_dx: Vec<f64>,
     /// Thread counts of the cost runs.
     pub threads: Vec<usize>,
+    /// Solver tolerances of the cost runs (the fine mode's 1e-3 and the coarse and rom
+    /// modes' 1e-2, [`crate::config::Physics::default_tolerance`]).
+    pub tolerances: Vec<f64>,
     /// Measured frames of a cost run (after the warm-up), for spacings of at least 0.5 mm.
     pub frames: usize,
     /// Measured frames below 0.5 mm.
@@ -60,6 +63,7 @@ impl MpmBenchOptions {
             depths: vec![0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3, 0.5e-3],
             speed_dx: vec![1.4e-3, 1.0e-3, 0.7e-3, 0.5e-3],
             threads: vec![1, 2],
+            tolerances: vec![1e-3, 1e-2],
             frames: 12,
             fine_frames: 3,
             out: PathBuf::from("out/bench/mpm"),
@@ -112,6 +116,8 @@ pub struct SpeedRow {
     pub particles: usize,
     /// Solver threads.
     pub threads: usize,
+    /// Solver tolerance.
+    pub tolerance: f64,
     /// Measured frames.
     pub frames: usize,
     /// Median and 90th-percentile solve time per frame (ms).
@@ -148,7 +154,7 @@ fn at(shape: &Arc<dyn Sdf>, x: f64, depth: f64) -> [Placed; 1] {
     }]
 }
 
-fn gel(dx: f64, friction: f64, threads: usize) -> Result<Gel, BenchError> {
+fn gel(dx: f64, friction: f64, threads: usize, tolerance: f64) -> Result<Gel, BenchError> {
     let params = GelParams {
         dx,
         friction,
@@ -156,6 +162,7 @@ fn gel(dx: f64, friction: f64, threads: usize) -> Result<Gel, BenchError> {
     };
     let options = SolverOptions {
         threads,
+        tolerance,
         ..Default::default()
     };
     Gel::new(params, options).map_err(|e| BenchError::Usage(format!("dx {dx:e} m: {e}")))
@@ -174,7 +181,7 @@ pub fn hertz_sequence(
     threads: usize,
     progress: bool,
 ) -> Result<Vec<HertzRow>, BenchError> {
-    let mut g = gel(dx, 0.0, threads)?;
+    let mut g = gel(dx, 0.0, threads, SolverOptions::default().tolerance)?;
     let p = *g.params();
     let ball = sphere();
     let mut rows = Vec::with_capacity(depths.len());
@@ -211,9 +218,15 @@ fn quantile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
 
-/// The moving press at spacing `dx`: `frames` measured frames after a warm-up.
-pub fn speed_run(dx: f64, threads: usize, frames: usize) -> Result<SpeedRow, BenchError> {
-    let mut g = gel(dx, GelParams::default().friction, threads)?;
+/// The moving press at spacing `dx` and solver `tolerance`: `frames` measured frames after
+/// a warm-up.
+pub fn speed_run(
+    dx: f64,
+    threads: usize,
+    tolerance: f64,
+    frames: usize,
+) -> Result<SpeedRow, BenchError> {
+    let mut g = gel(dx, GelParams::default().friction, threads, tolerance)?;
     let ball = sphere();
     g.solve(&at(&ball, 0.0, 0.1e-3));
     let n = g.num_particles();
@@ -236,6 +249,7 @@ pub fn speed_run(dx: f64, threads: usize, frames: usize) -> Result<SpeedRow, Ben
         dx,
         particles: n,
         threads,
+        tolerance,
         frames: times.len(),
         median_ms: quantile(&times, 0.5) * 1e3,
         p90_ms: quantile(&times, 0.9) * 1e3,
@@ -261,20 +275,22 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
         } else {
             options.frames
         };
-        for &threads in &options.threads {
-            let row = speed_run(dx, threads, frames)?;
-            note(
-                options.progress,
-                &format!(
-                    "speed dx {:.2} mm, {} thread(s): median {:.1} ms/frame, {} it, {:.2e} particle-steps/s",
-                    dx * 1e3,
-                    threads,
-                    row.median_ms,
-                    row.median_iterations,
-                    row.particle_steps_per_s
-                ),
-            );
-            result.speed.push(row);
+        for &tolerance in &options.tolerances {
+            for &threads in &options.threads {
+                let row = speed_run(dx, threads, tolerance, frames)?;
+                note(
+                    options.progress,
+                    &format!(
+                        "speed dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s): \
+                         median {:.1} ms/frame, {} it, {:.2e} particle-steps/s",
+                        dx * 1e3,
+                        row.median_ms,
+                        row.median_iterations,
+                        row.particle_steps_per_s
+                    ),
+                );
+                result.speed.push(row);
+            }
         }
     }
     write_report(&options.out, &result)?;
@@ -335,16 +351,17 @@ pub fn markdown(result: &MpmBenchResult) -> String {
         s.push_str(
             "## Cost of a moving press\n\nDefault gel with friction 0.5, sphere R = 5 mm; each \
              frame 0.05 mm deeper and 0.02 mm along x, after a warm-up press at 0.1 mm. \
-             Solve time only (no image).\n\n| dx (mm) | particles | threads | frames | median \
-             ms | p90 ms | iterations (median) | particle-steps/s | unconverged | bytes/particle \
-             |\n|---|---|---|---|---|---|---|---|---|---|\n",
+             Solve time only (no image).\n\n| dx (mm) | particles | tolerance | threads | frames | \
+             median ms | p90 ms | iterations (median) | particle-steps/s | unconverged | \
+             bytes/particle |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &result.speed {
             let _ = writeln!(
                 s,
-                "| {:.2} | {} | {} | {} | {:.1} | {:.1} | {} | {:.2e} | {} | {:.0} |",
+                "| {:.2} | {} | {:.0e} | {} | {} | {:.1} | {:.1} | {} | {:.2e} | {} | {:.0} |",
                 r.dx * 1e3,
                 r.particles,
+                r.tolerance,
                 r.threads,
                 r.frames,
                 r.median_ms,
@@ -386,14 +403,15 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     }
     write_file(out, "hertz.csv", hertz)?;
     let mut speed = String::from(
-        "dx_m,particles,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
+        "dx_m,particles,tolerance,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
     );
     for r in &result.speed {
         let _ = writeln!(
             speed,
-            "{:e},{},{},{},{:.3},{:.3},{},{:.4e},{},{:.1}",
+            "{:e},{},{:e},{},{},{:.3},{:.3},{},{:.4e},{},{:.1}",
             r.dx,
             r.particles,
+            r.tolerance,
             r.threads,
             r.frames,
             r.median_ms,
@@ -443,7 +461,7 @@ mod tests {
     // The cost run at a coarse spacing reports consistent figures.
     #[test]
     fn speed_run_counts_particle_steps() {
-        let r = speed_run(2e-3, 1, 2).expect("run");
+        let r = speed_run(2e-3, 1, 1e-3, 2).expect("run");
         assert_eq!(r.frames, 2);
         assert!(r.median_iterations > 0 && r.particle_steps_per_s > 0.0);
         assert!(r.bytes_per_particle >= Gel::bytes_per_particle() as f64);

@@ -87,6 +87,7 @@ spacing and thread count. Writes report.md, hertz.csv and speed.csv into --out.
   --depths MM,...         Hertz depths [0.1,0.2,0.3,0.4,0.5]
   --threads N,...         thread counts of the cost runs [1,2]
   --frames N              measured frames per cost run [12; 3 below 0.5 mm]
+  --tolerances T,...      solver tolerances of the cost runs [1e-3,1e-2]
   --only hertz|speed      run one part only
   --out DIR               report folder [out/bench/mpm]
   --quiet                 no progress lines
@@ -407,6 +408,19 @@ fn mpm(args: &[String]) -> Result<(), BenchError> {
                     .collect::<Result<_, _>>()?;
             }
             "--frames" => options.frames = a.count(flag)?.max(1),
+            "--tolerances" => {
+                let v = a.value(flag)?;
+                options.tolerances = v
+                    .split(',')
+                    .map(|x| {
+                        x.trim()
+                            .parse::<f64>()
+                            .ok()
+                            .filter(|t| *t > 0.0 && *t < 1.0)
+                            .ok_or_else(|| usage(format!("--tolerances: '{x}' is not in (0, 1)")))
+                    })
+                    .collect::<Result<_, _>>()?;
+            }
             "--only" => match a.value(flag)? {
                 "hertz" => only = Some(true),
                 "speed" => only = Some(false),

@@ -111,7 +111,7 @@ pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, Neo
 use transfer::{ChunkStats, LayerStats, Node, P2gInput, Particle, Stencil, StepCtx};
 
 /// Rotation-extraction steps per time step (fixed corotated), warm-started.
-const ROT_ITERS: usize = 2;
+const ROT_ITERS: usize = 1;
 
 /// Smallest `det F` a particle may reach; below it (inverted included) `F` is repaired
 /// through its SVD.

@@ -22,7 +22,10 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
     ("rom", &[("physics", "rom")]),
     // The solver's tolerance at the fine mode's 1e-3 instead of the default 1e-2: what
     // the looser default costs in accuracy and saves in time.
-    ("coarse-tol1e-3", &[("physics", "coarse"), ("tolerance", "1e-3")]),
+    (
+        "coarse-tol1e-3",
+        &[("physics", "coarse"), ("tolerance", "1e-3")],
+    ),
     ("rom-tol1e-3", &[("physics", "rom"), ("tolerance", "1e-3")]),
     // Ablations of rom: no latent refinement ("w/o physics"), latent 16, no multi-scale loss.
     ("rom-norefine", &[("physics", "rom"), ("refine", "false")]),

@@ -31,7 +31,7 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use super::material::{extract_rotation, ConstitutiveModel};
+use super::material::{extract_rotation_lanes, ConstitutiveModel};
 use super::{J_MAX, J_MIN};
 
 /// Width, in cells along x, of one scatter block. Must be at least 2 (a block writes
@@ -720,9 +720,6 @@ fn gather_chunk(
             guard_det(&mut p.f, &mut p.q);
             j = p.f.determinant();
         }
-        if rot_iters > 0 {
-            extract_rotation(&p.f, &mut p.q, rot_iters);
-        }
         if !p.is_finite() {
             st.nonfinite = true;
             continue;
@@ -730,5 +727,31 @@ fn gather_chunk(
         st.det_min = st.det_min.min(j);
         st.det_max = st.det_max.max(j);
     }
+    if rot_iters > 0 {
+        // The rotations, eight particles at a time (a finite `F` gives a finite rotation,
+        // a non-finite one leaves it as it was, so the checks above stand).
+        for group in chunk.chunks_mut(ROT_LANES) {
+            let mut a = [[0.0f32; ROT_LANES]; 9];
+            let mut q = [[0.0f32; ROT_LANES]; 4];
+            q[3] = [1.0; ROT_LANES];
+            for (l, p) in group.iter().enumerate() {
+                for (k, v) in p.f.as_slice().iter().enumerate() {
+                    a[k][l] = *v;
+                }
+                for (k, v) in p.q.as_ref().coords.iter().enumerate() {
+                    q[k][l] = *v;
+                }
+            }
+            extract_rotation_lanes(&a, &mut q, rot_iters);
+            for (l, p) in group.iter_mut().enumerate() {
+                p.q = UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(
+                    q[3][l], q[0][l], q[1][l], q[2][l],
+                ));
+            }
+        }
+    }
     st
 }
+
+/// Particles per group of the vectorised rotation extraction.
+const ROT_LANES: usize = 8;

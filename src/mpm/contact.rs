@@ -158,7 +158,7 @@ pub(crate) fn update_contacts(
                     }
                     let local = ind.now.inverse_transform_point(&s);
                     let dist = ind.shape.distance(&local);
-                    if dist.is_finite() && best.is_none_or(|b| dist < b.1) {
+                    if dist.is_finite() && best.map_or(true, |b| dist < b.1) {
                         best = Some((i, dist, local));
                     }
                 }

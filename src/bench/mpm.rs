@@ -10,7 +10,7 @@
 //!   0.1 mm, each frame presses 0.05 mm deeper and slides 0.02 mm along x, the kind of
 //!   motion an arm makes between two sensor readings. Per spacing and thread count: median
 //!   and 90th percentile of the solve time per frame, iterations per frame,
-//!   particle-steps per second (particles times iterations over solve time), and memory per
+//!   particle-steps per second (active particles times iterations over solve time), and memory per
 //!   particle (particle state plus the grid's share).
 //!
 //! The fine spacing (0.3 mm, about 1e6 particles) takes minutes per frame; it runs with
@@ -126,6 +126,8 @@ pub struct SpeedRow {
     pub p90_ms: f64,
     /// Median iterations per frame.
     pub median_iterations: usize,
+    /// Median particles moved per frame (the solver's active region).
+    pub median_active: usize,
     /// Particle-steps per second over the measured frames.
     pub particle_steps_per_s: f64,
     /// Frames that hit the iteration cap.
@@ -230,7 +232,7 @@ pub fn speed_run(
     let ball = sphere();
     g.solve(&at(&ball, 0.0, 0.1e-3));
     let n = g.num_particles();
-    let (mut times, mut iters) = (Vec::new(), Vec::new());
+    let (mut times, mut iters, mut active) = (Vec::new(), Vec::new(), Vec::new());
     let mut unconverged = 0;
     for f in 1..=frames.max(1) {
         let placed = at(&ball, 0.02e-3 * f as f64, 0.1e-3 + 0.05e-3 * f as f64);
@@ -238,10 +240,16 @@ pub fn speed_run(
         let rep = g.solve(&placed);
         times.push(t0.elapsed().as_secs_f64());
         iters.push(rep.iterations);
+        active.push(rep.active_particles);
         unconverged += usize::from(!rep.converged);
     }
     let total_time: f64 = times.iter().sum();
-    let total_steps: f64 = iters.iter().map(|&i| (i * n) as f64).sum();
+    let total_steps: f64 = iters
+        .iter()
+        .zip(&active)
+        .map(|(&i, &a)| (i * a) as f64)
+        .sum();
+    active.sort_unstable();
     times.sort_by(f64::total_cmp);
     let mut sorted_iters = iters.clone();
     sorted_iters.sort_unstable();
@@ -254,6 +262,7 @@ pub fn speed_run(
         median_ms: quantile(&times, 0.5) * 1e3,
         p90_ms: quantile(&times, 0.9) * 1e3,
         median_iterations: sorted_iters[sorted_iters.len() / 2],
+        median_active: active[active.len() / 2],
         particle_steps_per_s: total_steps / total_time,
         unconverged,
         bytes_per_particle: Gel::bytes_per_particle() as f64 + g.grid_bytes() as f64 / n as f64,
@@ -351,16 +360,19 @@ pub fn markdown(result: &MpmBenchResult) -> String {
         s.push_str(
             "## Cost of a moving press\n\nDefault gel with friction 0.5, sphere R = 5 mm; each \
              frame 0.05 mm deeper and 0.02 mm along x, after a warm-up press at 0.1 mm. \
-             Solve time only (no image).\n\n| dx (mm) | particles | tolerance | threads | frames | \
-             median ms | p90 ms | iterations (median) | particle-steps/s | unconverged | \
-             bytes/particle |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+             Solve time only (no image). Active: particles the solve moved (median; the rest \
+             of the gel keeps its state). Particle-steps count active particles.\n\n| dx \
+             (mm) | particles | active | tolerance | threads | frames | median ms | p90 ms | \
+             iterations (median) | particle-steps/s | unconverged | bytes/particle |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &result.speed {
             let _ = writeln!(
                 s,
-                "| {:.2} | {} | {:.0e} | {} | {} | {:.1} | {:.1} | {} | {:.2e} | {} | {:.0} |",
+                "| {:.2} | {} | {} | {:.0e} | {} | {} | {:.1} | {:.1} | {} | {:.2e} | {} | {:.0} |",
                 r.dx * 1e3,
                 r.particles,
+                r.median_active,
                 r.tolerance,
                 r.threads,
                 r.frames,
@@ -403,14 +415,15 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     }
     write_file(out, "hertz.csv", hertz)?;
     let mut speed = String::from(
-        "dx_m,particles,tolerance,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
+        "dx_m,particles,median_active,tolerance,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
     );
     for r in &result.speed {
         let _ = writeln!(
             speed,
-            "{:e},{},{:e},{},{},{:.3},{:.3},{},{:.4e},{},{:.1}",
+            "{:e},{},{},{:e},{},{},{:.3},{:.3},{},{:.4e},{},{:.1}",
             r.dx,
             r.particles,
+            r.median_active,
             r.tolerance,
             r.threads,
             r.frames,

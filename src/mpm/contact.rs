@@ -33,7 +33,7 @@ use std::sync::Arc;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::transfer::{Node, Particle, Stencil, StepCtx};
+use super::transfer::{Node, Particle, Region, Stencil, StepCtx};
 use super::Layout;
 use crate::geometry::{Aabb, Sdf};
 
@@ -121,6 +121,8 @@ pub(crate) struct ContactInput<'a> {
     pub friction: f32,
     /// Multiplier gain `k_i / k` ([`multiplier_gain`]).
     pub gain: f32,
+    /// The solve's active region: slots outside it keep their state and get no force.
+    pub region: &'a Region,
 }
 
 /// Updates every top particle's contact (multiplier, anchor) against `indenters` and
@@ -136,6 +138,7 @@ pub(crate) fn update_contacts(
     let k = STIFFNESS;
     let ki = STIFFNESS * input.gain;
     let mu = input.friction;
+    let nxp = layout.lattice[0];
     state
         .par_chunks_mut(256)
         .zip(out.par_chunks_mut(256))
@@ -143,7 +146,11 @@ pub(crate) fn update_contacts(
         .for_each(|(ci, (st, o))| {
             for (j, (c, out)) in st.iter_mut().zip(o.iter_mut()).enumerate() {
                 *out = None;
-                let pi = input.top[ci * 256 + j];
+                let slot = ci * 256 + j;
+                if !input.region.holds(slot % nxp, slot / nxp) {
+                    continue;
+                }
+                let pi = input.top[slot];
                 let p = &input.particles[pi as usize];
                 let d = p.f.column(2) * input.half_top;
                 let s = (p.x + d).cast::<f64>();

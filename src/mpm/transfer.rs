@@ -76,7 +76,7 @@ impl Particle {
     /// Whether every component is finite (a sum, summed as a shallow tree: it is on every
     /// particle's path in G2P; a finite overflow to infinity also counts as non-finite).
     #[inline(always)]
-    fn is_finite(&self) -> bool {
+    pub(crate) fn is_finite(&self) -> bool {
         let m = self.c + self.f;
         let t = (self.x + self.v) + (m.column(0) + m.column(1) + m.column(2));
         let q = self.q.coords;
@@ -146,6 +146,48 @@ pub(crate) struct StepCtx {
     pub fbar: bool,
     /// Iterations of the rotation extraction per step.
     pub rot_iters: usize,
+    /// Particles per lattice row along x (`ny * nz` of the particle lattice): G2P works
+    /// on rows.
+    pub row_len: usize,
+    /// Particles per lattice column (`nz` of the particle lattice).
+    pub column_len: usize,
+    /// The solve's active region (see [`Region`]).
+    pub region: Region,
+}
+
+/// The part of the gel a solve moves: the particle lattice box `[ix0, ix1) x [iy0, iy1)`
+/// (every z), and the grid nodes that are free to move, `free_x` and `free_y`
+/// (`[lo, hi)` node indices). A node with mass outside them has an inactive particle in
+/// its support and is held fixed, like a bonded node: the inactive gel is a rigid wall
+/// around the active part.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Region {
+    pub lattice: [usize; 4],
+    pub free_x: [usize; 2],
+    pub free_y: [usize; 2],
+}
+
+impl Region {
+    /// The whole gel: every particle, every node free.
+    pub fn whole(lattice: [usize; 3], dims: [usize; 3]) -> Self {
+        Self {
+            lattice: [0, lattice[0], 0, lattice[1]],
+            free_x: [0, dims[0]],
+            free_y: [0, dims[1]],
+        }
+    }
+
+    /// Whether top-surface slot `(ix, iy)` is active.
+    #[inline]
+    pub fn holds(&self, ix: usize, iy: usize) -> bool {
+        (self.lattice[0]..self.lattice[1]).contains(&ix)
+            && (self.lattice[2]..self.lattice[3]).contains(&iy)
+    }
+
+    /// Number of active particles for columns of `column_len`.
+    pub fn particles(&self, column_len: usize) -> usize {
+        (self.lattice[1] - self.lattice[0]) * (self.lattice[3] - self.lattice[2]) * column_len
+    }
 }
 
 /// Quadratic B-spline weights (Steffen et al. 2008) of a particle at coordinate `x` (cells):
@@ -215,28 +257,37 @@ pub(crate) fn compute_stencils(particles: &[Particle], stencils: &mut Vec<Stenci
         });
 }
 
-/// Stable counting sort of particle indices by base x cell: afterwards the particles whose
-/// base is `bx` are `order[offsets[bx]..offsets[bx + 1]]`, in increasing index.
+/// Stable counting sort of the active particles' indices ([`StepCtx::region`]) by base x
+/// cell: afterwards the particles whose base is `bx` are
+/// `order[offsets[bx]..offsets[bx + 1]]`, in increasing index.
 pub(crate) fn bin_particles(
+    ctx: &StepCtx,
     stencils: &[Stencil],
-    nx: usize,
     order: &mut Vec<u32>,
     offsets: &mut Vec<u32>,
     cursor: &mut Vec<u32>,
 ) {
+    let nx = ctx.dims[0];
+    let [ix0, ix1, iy0, iy1] = ctx.region.lattice;
+    let active = || {
+        (ix0..ix1).flat_map(move |ix| {
+            let start = ix * ctx.row_len;
+            start + iy0 * ctx.column_len..start + iy1 * ctx.column_len
+        })
+    };
     offsets.clear();
     offsets.resize(nx + 1, 0);
-    for s in stencils {
-        offsets[(s.base[0] as usize).min(nx - 1) + 1] += 1;
+    for i in active() {
+        offsets[(stencils[i].base[0] as usize).min(nx - 1) + 1] += 1;
     }
     for i in 0..nx {
         offsets[i + 1] += offsets[i];
     }
     cursor.clear();
     cursor.extend_from_slice(&offsets[..nx]);
-    order.resize(stencils.len(), 0);
-    for (i, s) in stencils.iter().enumerate() {
-        let b = (s.base[0] as usize).min(nx - 1);
+    order.resize(offsets[nx] as usize, 0);
+    for i in active() {
+        let b = (stencils[i].base[0] as usize).min(nx - 1);
         order[cursor[b] as usize] = i as u32;
         cursor[b] += 1;
     }
@@ -442,13 +493,15 @@ pub(crate) fn grid_update(ctx: &StepCtx, grid: &mut [Node], stats: &mut Vec<Laye
     let [nx, ny, nz] = ctx.dims;
     let nyz = ny * nz;
     let c = ctx.damping;
+    let [fx0, fx1] = ctx.region.free_x;
+    let [fy0, fy1] = ctx.region.free_y;
     grid.par_chunks_mut(nyz)
         .enumerate()
         .map(|(ix, g)| {
             let mut st = LayerStats::default();
-            let wall_x = ix == 0 || ix + 1 == nx;
+            let wall_x = ix == 0 || ix + 1 == nx || ix < fx0 || ix >= fx1;
             for (iy, gc) in g.chunks_exact_mut(nz).enumerate() {
-                let wall_y = wall_x || iy == 0 || iy + 1 == ny;
+                let wall_y = wall_x || iy == 0 || iy + 1 == ny || iy < fy0 || iy >= fy1;
                 for (iz, n) in gc.iter_mut().enumerate() {
                     let m = n.a[Node::M];
                     if m <= 0.0 {
@@ -529,6 +582,16 @@ pub(crate) struct ChunkStats {
     pub moved: bool,
 }
 
+impl ChunkStats {
+    /// Nothing seen (an inactive row).
+    const EMPTY: ChunkStats = ChunkStats {
+        det_min: f32::INFINITY,
+        det_max: f32::NEG_INFINITY,
+        nonfinite: false,
+        moved: false,
+    };
+}
+
 /// Grid to particle: `v_p = sum w v_i`, `C_p = 4 sum w v_i (x_i - x_p)^T` (APIC with
 /// `D^-1 = 4/dx^2`), `F <- (I + C) F`, `x <- x + v`; then `x` is clamped to the grid
 /// interior (`[1, n - 2]` cells, so the stencil never leaves the grid) and `det F` to
@@ -544,10 +607,17 @@ pub(crate) fn grid_to_particle(
     let [nx, ny, nz] = ctx.dims;
     let hi = Vector3::new(nx as f32 - 2.0, ny as f32 - 2.0, nz as f32 - 2.0);
     let avx2 = has_avx2();
+    let [ix0, ix1, iy0, iy1] = ctx.region.lattice;
+    let (a, b) = (iy0 * ctx.column_len, iy1 * ctx.column_len);
     particles
-        .par_chunks_mut(CHUNK)
-        .zip(stencils.par_chunks_mut(CHUNK))
-        .map(|(chunk, sten)| {
+        .par_chunks_mut(ctx.row_len)
+        .zip(stencils.par_chunks_mut(ctx.row_len))
+        .enumerate()
+        .map(|(ix, (row, sten))| {
+            if !(ix0..ix1).contains(&ix) {
+                return ChunkStats::EMPTY;
+            }
+            let (chunk, sten) = (&mut row[a..b], &mut sten[a..b]);
             #[cfg(target_arch = "x86_64")]
             if avx2 {
                 // SAFETY: the CPU supports AVX2 (detected at run time above).
@@ -685,12 +755,7 @@ fn gather_chunk(
 ) -> ChunkStats {
     let [_, ny, nz] = ctx.dims;
     let rot_iters = ctx.rot_iters;
-    let mut st = ChunkStats {
-        det_min: f32::INFINITY,
-        det_max: f32::NEG_INFINITY,
-        nonfinite: false,
-        moved: false,
-    };
+    let mut st = ChunkStats::EMPTY;
     for (p, sp) in chunk.iter_mut().zip(sten.iter_mut()) {
         let (bx, fx, wx) = sp.axis(0);
         let (by, fy, wy) = sp.axis(1);

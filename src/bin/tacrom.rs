@@ -87,7 +87,7 @@ spacing and thread count. Writes report.md, hertz.csv and speed.csv into --out.
   --depths MM,...         Hertz depths [0.1,0.2,0.3,0.4,0.5]
   --threads N,...         thread counts of the cost runs [1,2]
   --frames N              measured frames per cost run [12; 3 below 0.5 mm]
-  --tolerances T,...      solver tolerances of the cost runs [1e-3,1e-2]
+  --tolerances T,...      solver tolerances of the cost runs [1e-3,3e-3,1e-2]
   --only hertz|speed      run one part only
   --out DIR               report folder [out/bench/mpm]
   --quiet                 no progress lines

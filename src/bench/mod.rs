@@ -236,11 +236,20 @@ fn code_version() -> String {
         .field("crate", env!("CARGO_PKG_VERSION").as_bytes())
         .field("mpm", include_str!("../mpm/mod.rs").as_bytes())
         .field("mpm/contact", include_str!("../mpm/contact.rs").as_bytes())
-        .field("mpm/material", include_str!("../mpm/material.rs").as_bytes())
+        .field(
+            "mpm/material",
+            include_str!("../mpm/material.rs").as_bytes(),
+        )
         .field("mpm/surface", include_str!("../mpm/surface.rs").as_bytes())
-        .field("mpm/transfer", include_str!("../mpm/transfer.rs").as_bytes())
+        .field(
+            "mpm/transfer",
+            include_str!("../mpm/transfer.rs").as_bytes(),
+        )
         .field("geometry", include_str!("../geometry/mod.rs").as_bytes())
-        .field("geometry/mesh", include_str!("../geometry/mesh.rs").as_bytes())
+        .field(
+            "geometry/mesh",
+            include_str!("../geometry/mesh.rs").as_bytes(),
+        )
         .field("sensor", include_str!("../sensor.rs").as_bytes())
         .field(
             "solver",

@@ -396,30 +396,14 @@ fn mpm(args: &[String]) -> Result<(), BenchError> {
             "--depths" => options.depths = mm_list(&mut a, flag)?,
             "--threads" => {
                 let v = a.value(flag)?;
-                options.threads = v
-                    .split(',')
-                    .map(|x| {
-                        x.trim()
-                            .parse::<usize>()
-                            .ok()
-                            .filter(|&n| n > 0)
-                            .ok_or_else(|| usage(format!("--threads: '{x}' is not a thread count")))
-                    })
-                    .collect::<Result<_, _>>()?;
+                options.threads = list(flag, v, |x| x.parse().ok().filter(|&n: &usize| n > 0))?;
             }
             "--frames" => options.frames = a.count(flag)?.max(1),
             "--tolerances" => {
                 let v = a.value(flag)?;
-                options.tolerances = v
-                    .split(',')
-                    .map(|x| {
-                        x.trim()
-                            .parse::<f64>()
-                            .ok()
-                            .filter(|t| *t > 0.0 && *t < 1.0)
-                            .ok_or_else(|| usage(format!("--tolerances: '{x}' is not in (0, 1)")))
-                    })
-                    .collect::<Result<_, _>>()?;
+                options.tolerances = list(flag, v, |x| {
+                    x.parse().ok().filter(|t: &f64| *t > 0.0 && *t < 1.0)
+                })?;
             }
             "--only" => match a.value(flag)? {
                 "hertz" => only = Some(true),

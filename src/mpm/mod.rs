@@ -482,6 +482,19 @@ fn corner_motion(shape: &dyn Sdf, a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64
         .fold(0.0, f64::max)
 }
 
+/// A lattice box `[ix0, ix1, iy0, iy1)` that holds nothing yet.
+const EMPTY_BOX: [usize; 4] = [usize::MAX, 0, usize::MAX, 0];
+
+/// Widens the lattice box `b` to hold slot `(ix, iy)`.
+fn add_to_box(b: &mut [usize; 4], ix: usize, iy: usize) {
+    *b = [
+        b[0].min(ix),
+        b[1].max(ix + 1),
+        b[2].min(iy),
+        b[3].max(iy + 1),
+    ];
+}
+
 /// Matches the indenters of this solve to those of the previous one: same shape (the
 /// same `Arc`), and among several sharing a shape, nearest pose first (greedy on the
 /// largest bounding-box corner motion, ties in index order). Returns, for each current
@@ -595,7 +608,7 @@ impl Gel {
             options.sweep_rate > 0.0,
             "must be positive",
         )?;
-        if !(options.active_margin > 0.0) {
+        if options.active_margin.is_nan() || options.active_margin <= 0.0 {
             return Err(MpmError::InvalidParameter {
                 name: "active_margin",
                 value: options.active_margin,
@@ -1029,20 +1042,11 @@ impl Gel {
         let last = self.last_footprint.unwrap_or([0; 4]);
         let umax = self.surface_u.iter().map(|u| u.z.abs()).fold(0.0, f64::max);
         let deformed = (DEFORMED * umax).max(DEPTH_EPS);
-        let add = |b: &mut [usize; 4], ix: usize, iy: usize| {
-            *b = [
-                b[0].min(ix),
-                b[1].max(ix + 1),
-                b[2].min(iy),
-                b[3].max(iy + 1),
-            ];
-        };
-        let empty = [usize::MAX, 0, usize::MAX, 0];
-        let (mut fp, mut zone) = (empty, empty);
+        let (mut fp, mut zone) = (EMPTY_BOX, EMPTY_BOX);
         for slot in 0..self.top.len() {
             let (ix, iy) = (slot % nxp, slot / nxp);
             if self.surface_u[slot].z.abs() > deformed {
-                add(&mut zone, ix, iy);
+                add_to_box(&mut zone, ix, iy);
             }
             let c = &self.contacts[slot];
             let mut hit = (last[0]..last[1]).contains(&ix) && (last[2]..last[3]).contains(&iy)
@@ -1061,7 +1065,7 @@ impl Gel {
                 });
             }
             if hit {
-                add(&mut fp, ix, iy);
+                add_to_box(&mut fp, ix, iy);
             }
         }
         if fp[0] == usize::MAX {
@@ -1113,16 +1117,10 @@ impl Gel {
     /// multiplier.
     fn footprint(&self) -> Option<[usize; 4]> {
         let nxp = self.layout.lattice[0];
-        let mut bx = [usize::MAX, 0, usize::MAX, 0];
+        let mut bx = EMPTY_BOX;
         for (slot, (a, c)) in self.active.iter().zip(&self.contacts).enumerate() {
             if a.is_some() || c.lambda > 0.0 {
-                let (ix, iy) = (slot % nxp, slot / nxp);
-                bx = [
-                    bx[0].min(ix),
-                    bx[1].max(ix + 1),
-                    bx[2].min(iy),
-                    bx[3].max(iy + 1),
-                ];
+                add_to_box(&mut bx, slot % nxp, slot / nxp);
             }
         }
         (bx[0] != usize::MAX).then_some(bx)
@@ -1289,7 +1287,7 @@ impl Gel {
     fn update_surface(&mut self) {
         let [nxp, nyp, _] = self.layout.lattice;
         let dx = self.layout.dx;
-        let mut bx = [usize::MAX, 0, usize::MAX, 0];
+        let mut bx = EMPTY_BOX;
         for (slot, u) in self.surface_u.iter_mut().enumerate() {
             let p = &self.particles[self.top[slot] as usize];
             let s = p.x + p.f.column(2) * self.half_top;
@@ -1300,13 +1298,7 @@ impl Gel {
                 Vector3::zeros()
             };
             if u.amax() > DEPTH_EPS {
-                let (ix, iy) = (slot % nxp, slot / nxp);
-                bx = [
-                    bx[0].min(ix),
-                    bx[1].max(ix + 1),
-                    bx[2].min(iy),
-                    bx[3].max(iy + 1),
-                ];
+                add_to_box(&mut bx, slot % nxp, slot / nxp);
             }
         }
         self.surface_box = (bx[0] != usize::MAX).then(|| [bx[0], bx[1], bx[2], bx[3]]);

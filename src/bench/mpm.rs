@@ -136,6 +136,50 @@ pub struct SpeedRow {
     pub bytes_per_particle: f64,
 }
 
+impl SpeedRow {
+    /// The row's values in column order, for `speed.csv` (`csv`: full precision, SI) or
+    /// the markdown table (rounded, dx in mm).
+    fn cells(&self, csv: bool) -> [String; 12] {
+        let r = self;
+        let (dx, ms, p90, steps, bytes) = if csv {
+            (
+                format!("{:e}", r.dx),
+                format!("{:.3}", r.median_ms),
+                format!("{:.3}", r.p90_ms),
+                format!("{:.4e}", r.particle_steps_per_s),
+                format!("{:.1}", r.bytes_per_particle),
+            )
+        } else {
+            (
+                format!("{:.2}", r.dx * 1e3),
+                format!("{:.1}", r.median_ms),
+                format!("{:.1}", r.p90_ms),
+                format!("{:.2e}", r.particle_steps_per_s),
+                format!("{:.0}", r.bytes_per_particle),
+            )
+        };
+        let tolerance = if csv {
+            format!("{:e}", r.tolerance)
+        } else {
+            format!("{:.0e}", r.tolerance)
+        };
+        [
+            dx,
+            r.particles.to_string(),
+            r.median_active.to_string(),
+            tolerance,
+            r.threads.to_string(),
+            r.frames.to_string(),
+            ms,
+            p90,
+            r.median_iterations.to_string(),
+            steps,
+            r.unconverged.to_string(),
+            bytes,
+        ]
+    }
+}
+
 /// Everything `tacrom mpm` measured.
 #[derive(Clone, Debug, Default)]
 pub struct MpmBenchResult {
@@ -367,22 +411,7 @@ pub fn markdown(result: &MpmBenchResult) -> String {
              |---|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &result.speed {
-            let _ = writeln!(
-                s,
-                "| {:.2} | {} | {} | {:.0e} | {} | {} | {:.1} | {:.1} | {} | {:.2e} | {} | {:.0} |",
-                r.dx * 1e3,
-                r.particles,
-                r.median_active,
-                r.tolerance,
-                r.threads,
-                r.frames,
-                r.median_ms,
-                r.p90_ms,
-                r.median_iterations,
-                r.particle_steps_per_s,
-                r.unconverged,
-                r.bytes_per_particle
-            );
+            let _ = writeln!(s, "| {} |", r.cells(false).join(" | "));
         }
     }
     s
@@ -418,22 +447,7 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
         "dx_m,particles,median_active,tolerance,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
     );
     for r in &result.speed {
-        let _ = writeln!(
-            speed,
-            "{:e},{},{},{:e},{},{},{:.3},{:.3},{},{:.4e},{},{:.1}",
-            r.dx,
-            r.particles,
-            r.median_active,
-            r.tolerance,
-            r.threads,
-            r.frames,
-            r.median_ms,
-            r.p90_ms,
-            r.median_iterations,
-            r.particle_steps_per_s,
-            r.unconverged,
-            r.bytes_per_particle
-        );
+        let _ = writeln!(speed, "{}", r.cells(true).join(","));
     }
     write_file(out, "speed.csv", speed)
 }

@@ -75,6 +75,9 @@ pub struct GenConfig {
     pub gel: GelParams,
     /// Reference solver iteration cap.
     pub fine_max_iterations: usize,
+    /// Generate only the samples whose family is held out (a validation set at a costlier
+    /// reference resolution, with the same presses as the full set of the same seed).
+    pub held_out_only: bool,
 }
 
 impl Default for GenConfig {
@@ -92,6 +95,7 @@ impl Default for GenConfig {
             families: Vec::new(),
             gel: GelParams::default(),
             fine_max_iterations: 6000,
+            held_out_only: false,
         }
     }
 }
@@ -100,9 +104,11 @@ impl Default for GenConfig {
 pub const USAGE: &str = "\
 tacrom gen-data --out DIR --samples N [--shard K/N] [--seed S] [--fine-dx M] [--coarse-dx M]
                 [--pitch M] [--threads T] [--patterns DIR] [--families a,b,...]
-                [--fine-max-iterations N]
+                [--fine-max-iterations N] [--held-out-only]
   Paired coarse / reference presses for the reduced-order model (see src/datagen.rs).
-  Resumable: samples already in DIR are skipped. Defaults: --samples 100 --shard 0/1
+  Resumable: samples already in DIR are skipped. --held-out-only writes only the samples
+  of held-out families (the same presses as a full set of the same seed), for a validation
+  set at a finer --fine-dx. Defaults: --samples 100 --shard 0/1
   --seed 1 --coarse-dx 1.4e-3 --fine-dx 7e-4 --pitch 3e-4 --threads 1
   --patterns ../shared/indenters/patterns";
 
@@ -134,6 +140,7 @@ pub fn parse_args(args: &[String]) -> Result<GenConfig, String> {
             "--threads" => c.threads = int(val()?)?.max(1),
             "--patterns" => c.patterns = PathBuf::from(val()?),
             "--fine-max-iterations" => c.fine_max_iterations = int(val()?)?.max(1),
+            "--held-out-only" => c.held_out_only = true,
             "--families" => {
                 c.families = val()?
                     .split(',')
@@ -694,6 +701,39 @@ pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<
     write_atomic(path, &bytes)
 }
 
+/// Reads a float32 C-order `.npy` file as written by [`write_npy`]: shape and values.
+pub fn read_npy(path: &Path) -> Result<(Vec<usize>, Vec<f32>), String> {
+    let b = std::fs::read(path).map_err(|e| e.to_string())?;
+    if b.len() < 10 || &b[..6] != b"\x93NUMPY" {
+        return Err("not a .npy file".to_owned());
+    }
+    let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
+    let header = b
+        .get(10..10 + hlen)
+        .and_then(|h| std::str::from_utf8(h).ok())
+        .ok_or("truncated .npy header")?;
+    if !(header.contains("'<f4'") && header.contains("'fortran_order': False")) {
+        return Err(format!("not a float32 C-order array: {}", header.trim()));
+    }
+    let shape: Vec<usize> = header
+        .split("'shape': (")
+        .nth(1)
+        .and_then(|t| t.split(')').next())
+        .ok_or("no shape in the .npy header")?
+        .split(',')
+        .filter_map(|s| s.trim().parse().ok())
+        .collect();
+    let body = &b[10 + hlen..];
+    if body.len() != 4 * shape.iter().product::<usize>() {
+        return Err(format!("{} bytes of data for shape {shape:?}", body.len()));
+    }
+    let data = body
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    Ok((shape, data))
+}
+
 /// Writes `bytes` to `path` through a temporary file named for this process, so that
 /// shards started together never rename each other's file.
 fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
@@ -787,6 +827,10 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             &config.families,
             g.size,
         )?;
+        let held_out = HELD_OUT.contains(&press.family.as_str());
+        if config.held_out_only && !held_out {
+            continue;
+        }
         let last = press.poses.len() - 1;
         let placed = [press.placed(last)];
         let (rc, sc) = solve_press(&mut coarse, &press);
@@ -807,7 +851,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         let meta = format!(
             "{{\"index\": {index}, \"family\": \"{}\", \"held_out\": {}, {}, \"coarse\": {}, \"reference\": {}}}\n",
             press.family,
-            HELD_OUT.contains(&press.family.as_str()),
+            held_out,
             press.params,
             report_json(&rc, sc),
             report_json(&rf, sf)

@@ -38,32 +38,8 @@ fn copy_model(to: &Path) {
     }
 }
 
-/// A float32 `.npy` file: shape and values.
 fn read_npy(path: &Path) -> (Vec<usize>, Vec<f32>) {
-    let b = std::fs::read(path).unwrap();
-    assert_eq!(&b[..6], b"\x93NUMPY");
-    let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
-    let header = std::str::from_utf8(&b[10..10 + hlen]).unwrap();
-    assert!(
-        header.contains("'<f4'") && header.contains("'fortran_order': False"),
-        "{header}"
-    );
-    let shape_txt = header
-        .split("'shape': (")
-        .nth(1)
-        .unwrap()
-        .split(')')
-        .next()
-        .unwrap();
-    let shape: Vec<usize> = shape_txt
-        .split(',')
-        .filter_map(|s| s.trim().parse().ok())
-        .collect();
-    let data = b[10 + hlen..]
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    (shape, data)
+    datagen::read_npy(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 #[test]
@@ -385,4 +361,88 @@ fn gen_data_writes_numpy_pairs_and_resumes() {
     assert_eq!(a.family, "sphere");
     assert!(a.poses[0].translation.vector.iter().all(|v| v.is_finite()));
     let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
+    let out = scratch("heldout");
+    let families: Vec<String> = vec!["sphere".into(), "ridges".into()];
+    let config = GenConfig {
+        out: out.clone(),
+        samples: 6,
+        coarse_dx: 2e-3,
+        fine_dx: 2e-3,
+        pitch: 3e-4,
+        families: families.clone(),
+        held_out_only: true,
+        ..GenConfig::default()
+    };
+    datagen::generate(&config, |_| {}).unwrap();
+    // Exactly the held-out presses of the full set of the same seed.
+    let mut expected = Vec::new();
+    for i in 0..6u64 {
+        let p = datagen::draw_press(
+            1,
+            i,
+            &mut datagen::MeshLibrary::default(),
+            &families,
+            [0.03, 0.03, 0.004],
+        )
+        .unwrap();
+        let written = out.join(format!("sample-{i:06}.npy")).is_file();
+        assert_eq!(written, p.family == "ridges", "sample {i}: {}", p.family);
+        if written {
+            expected.push(i);
+        }
+    }
+    assert!(!expected.is_empty(), "no ridges among six draws");
+    // The coarse and the reference spacing are equal here, so coarse matches the
+    // reference exactly: the evaluation compares the right channels.
+    let options = tacrom::bench::heldout::EvalOptions {
+        data: vec![out.clone()],
+        models: vec![model_dir()],
+        all: false,
+        out: out.join("report"),
+    };
+    let r = tacrom::bench::heldout::run(&options).unwrap();
+    assert_eq!(r.samples, expected.len());
+    let row = |l: &str| r.rows.iter().find(|m| m.label == l).unwrap();
+    assert_eq!(row("coarse").mae, 0.0);
+    assert!((row("coarse").ssim - 1.0).abs() < 1e-9);
+    assert!(row("rigid").mae > 1e-7, "rigid MAE {}", row("rigid").mae);
+    for l in ["rom", "rom-norefine"] {
+        let m = row(l);
+        assert!(
+            m.mae.is_finite() && m.rmse >= m.mae && m.ssim <= 1.0,
+            "{l}: {m:?}"
+        );
+    }
+    assert!(out.join("report/report.md").is_file());
+    // A data set on another lattice is refused with the folder in the message.
+    let other = scratch("heldout-lattice");
+    datagen::generate(
+        &GenConfig {
+            out: other.clone(),
+            samples: 1,
+            pitch: 1e-3,
+            coarse_dx: 2e-3,
+            fine_dx: 2e-3,
+            families: vec!["sphere".into()],
+            ..GenConfig::default()
+        },
+        |_| {},
+    )
+    .unwrap();
+    let e = tacrom::bench::heldout::run(&tacrom::bench::heldout::EvalOptions {
+        data: vec![other.clone()],
+        all: true,
+        ..options
+    })
+    .unwrap_err();
+    assert!(
+        e.to_string().contains("lattice") && e.to_string().contains("heldout-lattice"),
+        "{e}"
+    );
+    let _ = std::fs::remove_dir_all(&out);
+    let _ = std::fs::remove_dir_all(&other);
 }

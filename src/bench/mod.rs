@@ -21,6 +21,7 @@
 
 pub mod cache;
 pub mod draw;
+pub mod heldout;
 pub mod metrics;
 pub mod mpm;
 pub mod plot;

@@ -31,6 +31,7 @@ USAGE:
   tacrom stability [--physics P,...] [--dx MM]
   tacrom mpm [--fine] [OPTIONS]
   tacrom gen-data [OPTIONS]         (see `tacrom gen-data --help`)
+  tacrom eval-rom --data DIR,... [OPTIONS]
   tacrom help
 
 BENCH presses indenters on a grid of positions through increasing depths with every
@@ -91,6 +92,15 @@ spacing and thread count. Writes report.md, hertz.csv and speed.csv into --out.
   --only hertz|speed      run one part only
   --out DIR               report folder [out/bench/mpm]
   --quiet                 no progress lines
+
+EVAL-ROM compares rigid, coarse and reduced-order models with the reference of gen-data
+sets on their held-out families (depth MAE, RMSE, SSIM over the 24 x 18 mm field of view;
+inference time). Writes report.md and results.csv into --out.
+  --data DIR,...          data sets (gen-data --out)
+  --models DIR,...        model folders; the first also runs without refinement
+                          [models/rom-default,models/rom-latent16,models/rom-no-multiscale]
+  --all                   every sample, not only held-out families
+  --out DIR               report folder [out/bench/eval-rom]
 ";
 
 fn main() -> ExitCode {
@@ -101,6 +111,7 @@ fn main() -> ExitCode {
         Some("stability") => stability(&args[1..]),
         Some("mpm") => mpm(&args[1..]),
         Some("gen-data") => tacrom::datagen::run_cli(&args[1..]).map_err(BenchError::Usage),
+        Some("eval-rom") => eval_rom(&args[1..]),
         Some("help" | "--help" | "-h") | None => {
             print!("{USAGE}");
             Ok(())
@@ -422,6 +433,48 @@ fn mpm(args: &[String]) -> Result<(), BenchError> {
         Some(true) => options.speed_dx.clear(),
         Some(false) => options.hertz_dx.clear(),
         None => {}
+    }
+    let result = run(&options)?;
+    print!("{}", markdown(&result));
+    println!("\nwritten to {}", options.out.display());
+    Ok(())
+}
+
+fn eval_rom(args: &[String]) -> Result<(), BenchError> {
+    use tacrom::bench::heldout::{markdown, run, EvalOptions};
+    let paths = |v: &str| {
+        v.split(',')
+            .filter(|s| !s.is_empty())
+            .map(PathBuf::from)
+            .collect()
+    };
+    let models = ["rom-default", "rom-latent16", "rom-no-multiscale"];
+    let mut options = EvalOptions {
+        data: Vec::new(),
+        models: tacrom::rom::default_model_dir()
+            .and_then(|d| {
+                d.parent()
+                    .map(|p| models.iter().map(|m| p.join(m)).collect::<Vec<_>>())
+            })
+            .unwrap_or_default()
+            .into_iter()
+            .filter(|m: &PathBuf| m.is_dir())
+            .collect(),
+        all: false,
+        out: PathBuf::from("out/bench/eval-rom"),
+    };
+    let mut a = Args::new(args);
+    while let Some(flag) = a.next_flag() {
+        match flag {
+            "--data" => options.data = paths(a.value(flag)?),
+            "--models" => options.models = paths(a.value(flag)?),
+            "--all" => options.all = true,
+            "--out" => options.out = PathBuf::from(a.value(flag)?),
+            other => return Err(usage(format!("eval-rom: unknown option '{other}'"))),
+        }
+    }
+    if options.data.is_empty() {
+        return Err(usage("eval-rom: --data is required".to_owned()));
     }
     let result = run(&options)?;
     print!("{}", markdown(&result));

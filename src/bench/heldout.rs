@@ -1,0 +1,443 @@
+//! `tacrom eval-rom`: depth error of rigid, coarse and reduced-order models against the
+//! reference of a `gen-data` data set, on its held-out indenter families.
+//!
+//! Every sample holds three lattice images (coarse depth, rigid penetration, reference
+//! depth; see [`crate::datagen`]). Each model's encoder, refinement and decoder run on the
+//! coarse image and penetration exactly as in the sensor, and the result is compared with
+//! the reference over the sensor's default field of view (24 x 18 mm, the centre of the
+//! lattice): depth MAE and RMSE, and SSIM with the reference's peak depth as its range
+//! (the metrics of the press benchmark). Costs: the median wall time of one inference on
+//! the 100 x 100 lattice (one ONNX Runtime thread), and the data set's own solve times of
+//! the coarse and the reference press.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use super::metrics;
+use super::BenchError;
+use crate::datagen::read_npy;
+use crate::rom::features::{LatticeSpec, Observation};
+use crate::rom::json::Json;
+use crate::rom::{Rom, RomOptions};
+
+/// Field of view the metrics cover (m), centred on the lattice.
+pub const FOV: [f64; 2] = [0.024, 0.018];
+
+/// What `tacrom eval-rom` runs.
+#[derive(Clone, Debug)]
+pub struct EvalOptions {
+    /// Data set folders (`gen-data --out`).
+    pub data: Vec<PathBuf>,
+    /// Model folders; each gives a row with refinement, the first also one without.
+    pub models: Vec<PathBuf>,
+    /// Every sample, not only held-out ones.
+    pub all: bool,
+    /// Where report.md and results.csv go.
+    pub out: PathBuf,
+}
+
+/// Error of one method, averaged over the samples.
+#[derive(Clone, Debug, Default)]
+pub struct MethodRow {
+    /// Label (rigid, coarse, a model folder's name, `-norefine` for the ablation).
+    pub label: String,
+    /// Depth MAE (m).
+    pub mae: f64,
+    /// Depth RMSE (m).
+    pub rmse: f64,
+    /// Mean SSIM.
+    pub ssim: f64,
+    /// Median wall time of one inference (s; 0 for rigid and coarse).
+    pub infer_s: f64,
+    /// Depth MAE per family (m), in [`EvalResult::families`] order.
+    pub per_family: Vec<f64>,
+}
+
+/// The evaluation's result.
+#[derive(Clone, Debug, Default)]
+pub struct EvalResult {
+    /// Samples evaluated.
+    pub samples: usize,
+    /// Families, sorted, with their sample counts.
+    pub families: Vec<(String, usize)>,
+    /// One row per method.
+    pub rows: Vec<MethodRow>,
+    /// Median solve time of the coarse and of the reference press (s).
+    pub solve_s: [f64; 2],
+    /// Reference grid spacing of each data set (m).
+    pub reference_dx: Vec<f64>,
+    /// Every sample was evaluated, not only held-out ones.
+    pub all: bool,
+}
+
+struct Sample {
+    family: String,
+    obs: Observation,
+    reference: Vec<f64>,
+    solve_s: [f64; 2],
+}
+
+fn bad(path: &Path, what: impl std::fmt::Display) -> BenchError {
+    BenchError::Usage(format!("{}: {what}", path.display()))
+}
+
+fn read_json(path: &Path) -> Result<Json, BenchError> {
+    let text = std::fs::read_to_string(path).map_err(|e| bad(path, e))?;
+    Json::parse(&text).map_err(|e| bad(path, e))
+}
+
+/// The samples of `dir` (held-out ones unless `all`), and the data set's reference spacing.
+fn load_samples(
+    dir: &Path,
+    spec: &LatticeSpec,
+    all: bool,
+) -> Result<(Vec<Sample>, f64), BenchError> {
+    let dataset = read_json(&dir.join("dataset.json"))?;
+    let fine_dx = dataset
+        .get("fine_dx")
+        .and_then(Json::num)
+        .unwrap_or(f64::NAN);
+    let lattice: Vec<usize> = dataset
+        .get("lattice")
+        .and_then(Json::arr)
+        .map(|a| {
+            a.iter()
+                .filter_map(|v| v.num())
+                .map(|v| v as usize)
+                .collect()
+        })
+        .unwrap_or_default();
+    if lattice != [spec.ny, spec.nx] {
+        return Err(bad(
+            dir,
+            format!(
+                "lattice {lattice:?}, the model's is [{}, {}]",
+                spec.ny, spec.nx
+            ),
+        ));
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| bad(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension().is_some_and(|x| x == "npy")
+                && p.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with("sample-"))
+                && p.with_extension("json").is_file()
+        })
+        .collect();
+    files.sort();
+    let n = spec.points();
+    let mut out = Vec::new();
+    for npy in files {
+        let meta = read_json(&npy.with_extension("json"))?;
+        if !all && meta.get("held_out").and_then(Json::bool) != Some(true) {
+            continue;
+        }
+        let (shape, data) = read_npy(&npy).map_err(|e| bad(&npy, e))?;
+        if shape != [3, spec.ny, spec.nx] {
+            return Err(bad(
+                &npy,
+                format!("shape {shape:?}, expected [3, {}, {}]", spec.ny, spec.nx),
+            ));
+        }
+        let chan = |k: usize| {
+            data[k * n..(k + 1) * n]
+                .iter()
+                .map(|&v| v as f64)
+                .collect::<Vec<_>>()
+        };
+        let seconds = |k: &str| {
+            meta.get(k)
+                .and_then(|r| r.get("seconds"))
+                .and_then(Json::num)
+                .unwrap_or(f64::NAN)
+        };
+        out.push(Sample {
+            family: meta
+                .get("family")
+                .and_then(Json::str)
+                .unwrap_or("?")
+                .to_owned(),
+            obs: Observation {
+                coarse: chan(0),
+                pen: chan(1),
+            },
+            reference: chan(2),
+            solve_s: [seconds("coarse"), seconds("reference")],
+        });
+    }
+    Ok((out, fine_dx))
+}
+
+/// The field of view's lattice window: `(x0, y0, width, height)`.
+fn window(spec: &LatticeSpec) -> (usize, usize, usize, usize) {
+    let pitch = spec.size[0] / spec.nx as f64;
+    let w = ((FOV[0] / pitch).round() as usize).min(spec.nx);
+    let h = ((FOV[1] / pitch).round() as usize).min(spec.ny);
+    ((spec.nx - w) / 2, (spec.ny - h) / 2, w, h)
+}
+
+fn crop(spec: &LatticeSpec, img: &[f64]) -> Vec<f64> {
+    let (x0, y0, w, h) = window(spec);
+    (y0..y0 + h)
+        .flat_map(|r| img[r * spec.nx + x0..r * spec.nx + x0 + w].iter().copied())
+        .collect()
+}
+
+/// MAE, RMSE and SSIM of `img` against `reference` over the field of view.
+fn score(spec: &LatticeSpec, img: &[f64], reference: &[f64]) -> [f64; 3] {
+    let (_, _, w, h) = window(spec);
+    let (a, r) = (crop(spec, img), crop(spec, reference));
+    let peak = r.iter().copied().fold(0.0f64, f64::max);
+    [
+        metrics::mae(&a, &r),
+        metrics::rmse(&a, &r),
+        metrics::ssim(&a, &r, w, h, peak).unwrap_or(f64::NAN),
+    ]
+}
+
+/// Accumulates one method's scores.
+struct Acc {
+    row: MethodRow,
+    ssim_n: usize,
+    times: Vec<f64>,
+    family_sum: Vec<f64>,
+}
+
+impl Acc {
+    fn new(label: &str, families: usize) -> Self {
+        Acc {
+            row: MethodRow {
+                label: label.to_owned(),
+                ..Default::default()
+            },
+            ssim_n: 0,
+            times: Vec::new(),
+            family_sum: vec![0.0; families],
+        }
+    }
+
+    fn add(&mut self, s: [f64; 3], family: usize) {
+        self.row.mae += s[0];
+        self.row.rmse += s[1];
+        if s[2].is_finite() {
+            self.row.ssim += s[2];
+            self.ssim_n += 1;
+        }
+        self.family_sum[family] += s[0];
+    }
+
+    fn finish(mut self, samples: usize, counts: &[usize]) -> MethodRow {
+        let k = samples.max(1) as f64;
+        self.row.mae /= k;
+        self.row.rmse /= k;
+        self.row.ssim = if self.ssim_n > 0 {
+            self.row.ssim / self.ssim_n as f64
+        } else {
+            f64::NAN
+        };
+        self.times.sort_by(f64::total_cmp);
+        self.row.infer_s = if self.times.is_empty() {
+            0.0
+        } else {
+            metrics::median(&self.times)
+        };
+        self.row.per_family = self
+            .family_sum
+            .iter()
+            .zip(counts)
+            .map(|(s, &c)| s / c.max(1) as f64)
+            .collect();
+        self.row
+    }
+}
+
+fn label_of(dir: &Path) -> String {
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| dir.display().to_string());
+    match name.strip_prefix("rom-") {
+        Some("default") => "rom".to_owned(),
+        Some(rest) => format!("rom-{rest}"),
+        None => name,
+    }
+}
+
+/// Runs the evaluation and writes report.md and results.csv into `options.out`.
+pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
+    let Some(first) = options.models.first() else {
+        return Err(BenchError::Usage("eval-rom: no model given".to_owned()));
+    };
+    let load = |dir: &Path, refine: Option<bool>| {
+        Rom::load(dir, RomOptions { refine, threads: 1 })
+            .map_err(|e| BenchError::Config(e.to_string()))
+    };
+    let spec = load(first, None)?.manifest().lattice;
+    let mut samples = Vec::new();
+    let mut result = EvalResult::default();
+    for dir in &options.data {
+        let (s, dx) = load_samples(dir, &spec, options.all)?;
+        samples.extend(s);
+        result.reference_dx.push(dx);
+    }
+    if samples.is_empty() {
+        return Err(BenchError::Usage(format!(
+            "eval-rom: no {}samples in {:?}",
+            if options.all { "" } else { "held-out " },
+            options.data
+        )));
+    }
+    let mut names: Vec<String> = samples.iter().map(|s| s.family.clone()).collect();
+    names.sort();
+    names.dedup();
+    let fam: Vec<usize> = samples
+        .iter()
+        .map(|s| names.binary_search(&s.family).unwrap_or(0))
+        .collect();
+    let mut counts = vec![0usize; names.len()];
+    for &f in &fam {
+        counts[f] += 1;
+    }
+
+    let mut rigid = Acc::new("rigid", names.len());
+    let mut coarse = Acc::new("coarse", names.len());
+    for (s, &f) in samples.iter().zip(&fam) {
+        rigid.add(score(&spec, &s.obs.pen, &s.reference), f);
+        coarse.add(score(&spec, &s.obs.coarse, &s.reference), f);
+    }
+    result.rows.push(rigid.finish(samples.len(), &counts));
+    result.rows.push(coarse.finish(samples.len(), &counts));
+    let mut runs: Vec<(String, &PathBuf, Option<bool>)> = options
+        .models
+        .iter()
+        .map(|m| (label_of(m), m, None))
+        .collect();
+    runs.insert(
+        1.min(runs.len()),
+        (format!("{}-norefine", label_of(first)), first, Some(false)),
+    );
+    for (label, dir, refine) in runs {
+        let mut rom = load(dir, refine)?;
+        if rom.manifest().lattice != spec {
+            return Err(bad(dir, "its lattice differs from the first model's"));
+        }
+        let mut acc = Acc::new(&label, names.len());
+        for (s, &f) in samples.iter().zip(&fam) {
+            let t0 = Instant::now();
+            rom.infer(&s.obs)
+                .map_err(|e| BenchError::Config(e.to_string()))?;
+            acc.times.push(t0.elapsed().as_secs_f64());
+            acc.add(score(&spec, rom.lattice_depth(), &s.reference), f);
+        }
+        result.rows.push(acc.finish(samples.len(), &counts));
+    }
+    let median_of = |k: usize| {
+        let mut v: Vec<f64> = samples
+            .iter()
+            .map(|s| s.solve_s[k])
+            .filter(|t| t.is_finite())
+            .collect();
+        v.sort_by(f64::total_cmp);
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            metrics::median(&v)
+        }
+    };
+    result.solve_s = [median_of(0), median_of(1)];
+    result.samples = samples.len();
+    result.all = options.all;
+    result.families = names.into_iter().zip(counts).collect();
+    write(options, &result)?;
+    Ok(result)
+}
+
+/// The report as markdown.
+pub fn markdown(r: &EvalResult) -> String {
+    let mut s = String::new();
+    let dx: Vec<String> = r
+        .reference_dx
+        .iter()
+        .map(|d| format!("{:.2} mm", d * 1e3))
+        .collect();
+    let _ = writeln!(
+        s,
+        "## Reduced-order model on {}\n\n{} samples, reference dx {}; \
+         field of view {} x {} mm. Solve times (median, from the data set): coarse {:.2} s, \
+         reference {:.1} s per press from rest.\n",
+        if r.all {
+            "all families"
+        } else {
+            "held-out families"
+        },
+        r.samples,
+        dx.join(", "),
+        FOV[0] * 1e3,
+        FOV[1] * 1e3,
+        r.solve_s[0],
+        r.solve_s[1]
+    );
+    let _ = writeln!(
+        s,
+        "| method | MAE um | RMSE um | SSIM | MAE / coarse | inference ms |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|");
+    let coarse = r
+        .rows
+        .iter()
+        .find(|m| m.label == "coarse")
+        .map_or(f64::NAN, |m| m.mae);
+    for m in &r.rows {
+        let _ = writeln!(
+            s,
+            "| {} | {:.2} | {:.2} | {:.4} | {:.2} | {:.1} |",
+            m.label,
+            m.mae * 1e6,
+            m.rmse * 1e6,
+            m.ssim,
+            m.mae / coarse,
+            m.infer_s * 1e3
+        );
+    }
+    let _ = write!(s, "\nMAE um per family:\n\n| family | samples |");
+    for m in &r.rows {
+        let _ = write!(s, " {} |", m.label);
+    }
+    let _ = write!(s, "\n|---|---|");
+    for _ in &r.rows {
+        let _ = write!(s, "---|");
+    }
+    s.push('\n');
+    for (i, (name, count)) in r.families.iter().enumerate() {
+        let _ = write!(s, "| {name} | {count} |");
+        for m in &r.rows {
+            let _ = write!(s, " {:.2} |", m.per_family[i] * 1e6);
+        }
+        s.push('\n');
+    }
+    s
+}
+
+fn write(options: &EvalOptions, r: &EvalResult) -> Result<(), BenchError> {
+    let out = &options.out;
+    let fail = |p: &Path, e: std::io::Error| BenchError::Output {
+        path: p.to_owned(),
+        message: e.to_string(),
+    };
+    std::fs::create_dir_all(out).map_err(|e| fail(out, e))?;
+    let md = out.join("report.md");
+    std::fs::write(&md, markdown(r)).map_err(|e| fail(&md, e))?;
+    let mut csv = String::from("method,mae_m,rmse_m,ssim,inference_s\n");
+    for m in &r.rows {
+        let _ = writeln!(
+            csv,
+            "{},{:e},{:e},{},{:e}",
+            m.label, m.mae, m.rmse, m.ssim, m.infer_s
+        );
+    }
+    let path = out.join("results.csv");
+    std::fs::write(&path, csv).map_err(|e| fail(&path, e))
+}

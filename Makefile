@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build demo test test-rust test-python bench bench-quick bench-micro bench-mpm stability train-env gen-data train test-train clean
+.PHONY: all venv build demo test test-rust test-python bench bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-fine train eval-rom test-train clean
 
 all: build
 
@@ -69,9 +69,13 @@ clean:
 # installing it takes about 5 minutes and 5.5 GB, so it is not part of `make test`).
 VENV_TRAIN := .venv-train
 PY_TRAIN := $(VENV_TRAIN)/bin/python
-ROM_DATA ?= data/rom-f0.7
-ROM_SAMPLES ?= 190
+ROM_DATA ?= data/rom-v2
+ROM_SAMPLES ?= 300
 ROM_SHARDS ?= 2
+ROM_STEPS ?= 5000
+# Held-out presses of the same seed at the fine spacing (validation only).
+ROM_FINE_DATA ?= data/rom-v2-f0.3-held
+ROM_FINE_SAMPLES ?= 120
 
 $(VENV_TRAIN)/.installed: training/requirements.txt
 	python3 -m venv $(VENV_TRAIN)
@@ -89,9 +93,22 @@ gen-data: build
 
 # Trains and exports the shipped model and its two ablations into models/.
 train: train-env
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-default --steps 3500
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-latent16 --latent 16 --steps 3500
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-no-multiscale --no-multiscale --steps 3500
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-default --steps $(ROM_STEPS)
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-latent16 --latent 16 --steps $(ROM_STEPS)
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-no-multiscale --no-multiscale --steps $(ROM_STEPS)
+
+# The held-out presses of ROM_DATA again, with the reference at the fine 0.3 mm spacing
+# (each takes 10 to 300 s on one core); resumable like gen-data.
+gen-data-fine: build
+	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
+	  target/release/tacrom gen-data --out $(ROM_FINE_DATA) --samples $(ROM_FINE_SAMPLES) --seed 1 \
+	    --fine-dx 3e-4 --fine-max-iterations 3000 --held-out-only --shard $$k/$(ROM_SHARDS) & \
+	done; wait
+
+# rigid, coarse, rom and its ablations against both references on the held-out families.
+eval-rom: build
+	target/release/tacrom eval-rom --data $(ROM_DATA) --out out/bench/eval-rom-f0.7
+	target/release/tacrom eval-rom --data $(ROM_FINE_DATA) --out out/bench/eval-rom-f0.3
 
 # ONNX parity (ONNX Runtime against PyTorch) and a tiny train-and-export run.
 test-train: train-env

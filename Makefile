@@ -108,7 +108,7 @@ gen-data-fine: build
 # rigid, coarse, rom and its ablations against both references on the held-out families.
 eval-rom: build
 	target/release/tacrom eval-rom --data $(ROM_DATA) --out out/bench/eval-rom-f0.7
-	target/release/tacrom eval-rom --data $(ROM_FINE_DATA) --out out/bench/eval-rom-f0.3
+	target/release/tacrom eval-rom --data $(ROM_FINE_DATA) --compare $(ROM_DATA) --out out/bench/eval-rom-f0.3
 
 # ONNX parity (ONNX Runtime against PyTorch) and a tiny train-and-export run.
 test-train: train-env

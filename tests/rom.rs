@@ -403,12 +403,15 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
         data: vec![out.clone()],
         models: vec![model_dir()],
         all: false,
+        compare: Some(out.clone()),
         out: out.join("report"),
     };
     let r = tacrom::bench::heldout::run(&options).unwrap();
     assert_eq!(r.samples, expected.len());
     let row = |l: &str| r.rows.iter().find(|m| m.label == l).unwrap();
     assert_eq!(row("coarse").mae, 0.0);
+    // The data set compared with itself.
+    assert_eq!(row("reference-2.0mm").mae, 0.0);
     assert!((row("coarse").ssim - 1.0).abs() < 1e-9);
     assert!(row("rigid").mae > 1e-7, "rigid MAE {}", row("rigid").mae);
     for l in ["rom", "rom-norefine"] {
@@ -437,6 +440,7 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
     let e = tacrom::bench::heldout::run(&tacrom::bench::heldout::EvalOptions {
         data: vec![other.clone()],
         all: true,
+        compare: None,
         ..options
     })
     .unwrap_err();

@@ -33,6 +33,10 @@ pub struct EvalOptions {
     pub models: Vec<PathBuf>,
     /// Every sample, not only held-out ones.
     pub all: bool,
+    /// Another data set of the same presses (same seed and indices, e.g. the full set
+    /// whose held-out presses `data` recomputes at a finer spacing): its reference gets a
+    /// row of its own, to measure that reference against this one.
+    pub compare: Option<PathBuf>,
     /// Where report.md and results.csv go.
     pub out: PathBuf,
 }
@@ -72,6 +76,7 @@ pub struct EvalResult {
 }
 
 struct Sample {
+    file: std::ffi::OsString,
     family: String,
     obs: Observation,
     reference: Vec<f64>,
@@ -155,6 +160,7 @@ fn load_samples(
                 .unwrap_or(f64::NAN)
         };
         out.push(Sample {
+            file: npy.file_name().unwrap_or_default().to_owned(),
             family: meta
                 .get("family")
                 .and_then(Json::str)
@@ -310,6 +316,25 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
     }
     result.rows.push(rigid.finish(samples.len(), &counts));
     result.rows.push(coarse.finish(samples.len(), &counts));
+    if let Some(dir) = &options.compare {
+        let dataset = read_json(&dir.join("dataset.json"))?;
+        let dx = dataset
+            .get("fine_dx")
+            .and_then(Json::num)
+            .unwrap_or(f64::NAN);
+        let mut other = Acc::new(&format!("reference-{:.1}mm", dx * 1e3), names.len());
+        for (s, &f) in samples.iter().zip(&fam) {
+            let path = dir.join(&s.file);
+            let (shape, data) = read_npy(&path).map_err(|e| bad(&path, e))?;
+            if shape != [3, spec.ny, spec.nx] {
+                return Err(bad(&path, format!("shape {shape:?}")));
+            }
+            let n = spec.points();
+            let r: Vec<f64> = data[2 * n..].iter().map(|&v| v as f64).collect();
+            other.add(score(&spec, &r, &s.reference), f);
+        }
+        result.rows.push(other.finish(samples.len(), &counts));
+    }
     let mut runs: Vec<(String, &PathBuf, Option<bool>)> = options
         .models
         .iter()

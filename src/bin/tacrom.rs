@@ -100,6 +100,8 @@ inference time). Writes report.md and results.csv into --out.
   --models DIR,...        model folders; the first also runs without refinement
                           [models/rom-default,models/rom-latent16,models/rom-no-multiscale]
   --all                   every sample, not only held-out families
+  --compare DIR           a data set of the same presses (same seed and indices) whose
+                          reference gets a row, e.g. the 0.7 mm set against the 0.3 mm one
   --out DIR               report folder [out/bench/eval-rom]
 ";
 
@@ -461,6 +463,7 @@ fn eval_rom(args: &[String]) -> Result<(), BenchError> {
             .filter(|m: &PathBuf| m.is_dir())
             .collect(),
         all: false,
+        compare: None,
         out: PathBuf::from("out/bench/eval-rom"),
     };
     let mut a = Args::new(args);
@@ -469,6 +472,7 @@ fn eval_rom(args: &[String]) -> Result<(), BenchError> {
             "--data" => options.data = paths(a.value(flag)?),
             "--models" => options.models = paths(a.value(flag)?),
             "--all" => options.all = true,
+            "--compare" => options.compare = Some(PathBuf::from(a.value(flag)?)),
             "--out" => options.out = PathBuf::from(a.value(flag)?),
             other => return Err(usage(format!("eval-rom: unknown option '{other}'"))),
         }

@@ -1,6 +1,6 @@
 """Train the reduced-order model on paired data and export it (manifest + ONNX).
 
-    python -m tacrom_rom.train --data data/rom-f0.7 --out models/rom-default [--steps N]
+    python -m tacrom_rom.train --data data/rom-v2 --out models/rom-default [--steps N]
         [--latent 64] [--no-multiscale] [--points 96] [--seed 0]
 
 Losses (model units: millimetres of depth):

@@ -73,9 +73,12 @@ ROM_DATA ?= data/rom-v2
 ROM_SAMPLES ?= 300
 ROM_SHARDS ?= 2
 ROM_STEPS ?= 5000
-# Held-out presses of the same seed at the fine spacing (validation only).
-ROM_FINE_DATA ?= data/rom-v2-f0.3-held
+# The presses of ROM_DATA at the fine 0.3 mm spacing: by default only the held-out ones
+# (validation); `make gen-data-fine ROM_FINE_FLAGS= ROM_FINE_SAMPLES=300` fills in the rest
+# (training against the fine mode).
+ROM_FINE_DATA ?= data/rom-v2-f0.3
 ROM_FINE_SAMPLES ?= 120
+ROM_FINE_FLAGS ?= --held-out-only
 
 $(VENV_TRAIN)/.installed: training/requirements.txt
 	python3 -m venv $(VENV_TRAIN)
@@ -97,12 +100,12 @@ train: train-env
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-latent16 --latent 16 --steps $(ROM_STEPS)
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-no-multiscale --no-multiscale --steps $(ROM_STEPS)
 
-# The held-out presses of ROM_DATA again, with the reference at the fine 0.3 mm spacing
-# (each takes 10 to 300 s on one core); resumable like gen-data.
+# The presses of ROM_DATA again, with the reference at the fine 0.3 mm spacing (each takes
+# 10 s to 20 min on one core); resumable like gen-data.
 gen-data-fine: build
 	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
 	  target/release/tacrom gen-data --out $(ROM_FINE_DATA) --samples $(ROM_FINE_SAMPLES) --seed 1 \
-	    --fine-dx 3e-4 --fine-max-iterations 3000 --held-out-only --shard $$k/$(ROM_SHARDS) & \
+	    --fine-dx 3e-4 --fine-max-iterations 3000 $(ROM_FINE_FLAGS) --shard $$k/$(ROM_SHARDS) & \
 	done; wait
 
 # rigid, coarse, rom and its ablations against both references on the held-out families.

@@ -244,7 +244,6 @@ impl Acc {
         } else {
             f64::NAN
         };
-        self.times.sort_by(f64::total_cmp);
         self.row.infer_s = if self.times.is_empty() {
             0.0
         } else {
@@ -360,17 +359,12 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
         result.rows.push(acc.finish(samples.len(), &counts));
     }
     let median_of = |k: usize| {
-        let mut v: Vec<f64> = samples
+        let v: Vec<f64> = samples
             .iter()
             .map(|s| s.solve_s[k])
             .filter(|t| t.is_finite())
             .collect();
-        v.sort_by(f64::total_cmp);
-        if v.is_empty() {
-            f64::NAN
-        } else {
-            metrics::median(&v)
-        }
+        metrics::median(&v)
     };
     result.solve_s = [median_of(0), median_of(1)];
     result.samples = samples.len();

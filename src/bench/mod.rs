@@ -231,31 +231,26 @@ pub fn status_bytes(field: &str) -> Option<u64> {
 /// A hash of the solver's, the geometry's and the sensor's source, so that the cache
 /// notices their changes.
 fn code_version() -> String {
+    let sources: [(&str, &str); 10] = [
+        ("version", CACHE_VERSION),
+        ("crate", env!("CARGO_PKG_VERSION")),
+        ("mpm", include_str!("../mpm/mod.rs")),
+        ("mpm/contact", include_str!("../mpm/contact.rs")),
+        ("mpm/material", include_str!("../mpm/material.rs")),
+        ("mpm/surface", include_str!("../mpm/surface.rs")),
+        ("mpm/transfer", include_str!("../mpm/transfer.rs")),
+        ("geometry", include_str!("../geometry/mod.rs")),
+        ("geometry/mesh", include_str!("../geometry/mesh.rs")),
+        ("sensor", include_str!("../sensor.rs")),
+    ];
     let mut k = CacheKey::new();
-    let _ = k
-        .field("version", CACHE_VERSION.as_bytes())
-        .field("crate", env!("CARGO_PKG_VERSION").as_bytes())
-        .field("mpm", include_str!("../mpm/mod.rs").as_bytes())
-        .field("mpm/contact", include_str!("../mpm/contact.rs").as_bytes())
-        .field(
-            "mpm/material",
-            include_str!("../mpm/material.rs").as_bytes(),
-        )
-        .field("mpm/surface", include_str!("../mpm/surface.rs").as_bytes())
-        .field(
-            "mpm/transfer",
-            include_str!("../mpm/transfer.rs").as_bytes(),
-        )
-        .field("geometry", include_str!("../geometry/mod.rs").as_bytes())
-        .field(
-            "geometry/mesh",
-            include_str!("../geometry/mesh.rs").as_bytes(),
-        )
-        .field("sensor", include_str!("../sensor.rs").as_bytes())
-        .field(
-            "solver",
-            format!("{:?}", SolverOptions::default()).as_bytes(),
-        );
+    for (label, text) in sources {
+        k.field(label, text.as_bytes());
+    }
+    k.field(
+        "solver",
+        format!("{:?}", SolverOptions::default()).as_bytes(),
+    );
     k.hex()
 }
 

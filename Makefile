@@ -94,11 +94,16 @@ gen-data: build
 	    --fine-dx 7e-4 --fine-max-iterations 1000 --shard $$k/$(ROM_SHARDS) & \
 	done; wait
 
-# Trains and exports the shipped model and its two ablations into models/.
+# Trains and exports the shipped model and its two ablations into models/. With
+# ROM_REFERENCE set (a data set of the same presses with a finer reference, such as
+# ROM_FINE_DATA), its reference replaces ROM_DATA's wherever it holds the press.
+ROM_REFERENCE ?=
+TRAIN = PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --steps $(ROM_STEPS) \
+	$(if $(ROM_REFERENCE),--reference $(ROM_REFERENCE))
 train: train-env
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-default --steps $(ROM_STEPS)
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-latent16 --latent 16 --steps $(ROM_STEPS)
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --out models/rom-no-multiscale --no-multiscale --steps $(ROM_STEPS)
+	$(TRAIN) --out models/rom-default
+	$(TRAIN) --out models/rom-latent16 --latent 16
+	$(TRAIN) --out models/rom-no-multiscale --no-multiscale
 
 # The presses of ROM_DATA again, with the reference at the fine 0.3 mm spacing (each takes
 # 10 s to 20 min on one core); resumable like gen-data.

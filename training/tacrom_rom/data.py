@@ -82,6 +82,44 @@ def load_dir(path, drop_unconverged=True):
     return spec, ds, np.stack(arrays), metas
 
 
+def overlay_references(path, spec, ds, arrays, metas):
+    """Replaces the reference channel of `arrays` with the finer reference in `path`, for
+    each sample that `path` holds (same index, converged, finite).
+
+    `path` must hold the same presses (`tacrom gen-data` with the same seed, lattice and
+    coarse spacing, and another `--fine-dx`): a sample whose coarse channel differs from the
+    base one is refused. Returns the number of samples replaced; each replaced meta gets
+    `reference_dx`.
+    """
+    with open(os.path.join(path, "dataset.json")) as f:
+        fine = json.load(f)
+    for key in ("size", "lattice", "seed", "coarse_dx", "young", "poisson", "pitch"):
+        if fine.get(key) != ds.get(key):
+            raise SystemExit(f"{path}: dataset.json {key} = {fine.get(key)!r}, "
+                             f"but the base data set has {ds.get(key)!r}")
+    replaced = 0
+    for a, meta in zip(arrays, metas):
+        meta["reference_dx"] = ds.get("fine_dx")
+        stem = os.path.join(path, f"sample-{meta['index']:06d}")
+        if not (os.path.exists(stem + ".npy") and os.path.exists(stem + ".json")):
+            continue
+        with open(stem + ".json") as f:
+            m = json.load(f)
+        if not m["reference"]["converged"]:
+            continue
+        b = np.load(stem + ".npy").astype(np.float32) * spec.depth_scale
+        if b.shape != a.shape or not np.isfinite(b).all():
+            continue
+        diff = float(np.abs(b[0] - a[0]).max())
+        if diff > 1e-6:
+            raise SystemExit(f"{stem}.npy: coarse channel differs from the base data set's by "
+                             f"{diff:.3g} mm: not the same press")
+        a[2] = b[2]
+        meta["reference_dx"] = fine.get("fine_dx")
+        replaced += 1
+    return replaced
+
+
 def encoder_input(spec: Spec, lattice: torch.Tensor) -> torch.Tensor:
     """lattice [B, >=2, ny, nx] (coarse, pen, ...) -> [B, encoder_len]."""
     s, o = spec.encoder_stride, spec.encoder_offset

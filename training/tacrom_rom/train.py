@@ -199,10 +199,26 @@ def metrics(model, spec, arrays, metas, idx):
     }
 
 
+def sample_indices(path):
+    """Sorted indices of the samples written to a data directory."""
+    return sorted(int(f[7:13]) for f in os.listdir(path) if f.startswith("sample-") and f.endswith(".json"))
+
+
+def gen_command(path, ds):
+    """The `tacrom gen-data` command that regenerates the data set in `path`."""
+    n = max(sample_indices(path), default=-1) + 1
+    return (f"tacrom gen-data --out {path} --samples {n} --seed {ds.get('seed')} "
+            f"--coarse-dx {ds.get('coarse_dx')} --fine-dx {ds.get('fine_dx')} --pitch {ds.get('pitch')} "
+            f"--fine-max-iterations {ds.get('fine_max_iterations')} [--shard K/N for parallel shards]")
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", required=True)
     p.add_argument("--out", required=True)
+    p.add_argument("--reference", default=None,
+                   help="data set of the same presses with a finer reference (gen-data --fine-dx): "
+                        "its reference replaces --data's wherever it holds the sample")
     p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--latent", type=int, default=64)
     p.add_argument("--points", type=int, default=96, help="query points per press per step")
@@ -223,6 +239,18 @@ def main(argv=None):
     spec, ds, arrays, metas = D.load_dir(a.data)
     held_out = set(ds["held_out"])
     tr, va = split(metas, held_out)
+    references = None
+    if a.reference:
+        n_fine = D.overlay_references(a.reference, spec, ds, arrays, metas)
+        with open(os.path.join(a.reference, "dataset.json")) as f:
+            fine_ds = json.load(f)
+        count = lambda ids, dx: sum(1 for i in ids if metas[i]["reference_dx"] == dx)
+        references = {"path": a.reference, "replaced": n_fine,
+                      "train": {str(dx): count(tr, dx) for dx in (fine_ds["fine_dx"], ds["fine_dx"])},
+                      "validation": {str(dx): count(va, dx) for dx in (fine_ds["fine_dx"], ds["fine_dx"])}}
+        print(f"references from {a.reference} ({fine_ds['fine_dx']} m) for {n_fine} pairs: "
+              f"train {references['train']}, validation {references['validation']}", flush=True)
+        references["command"] = gen_command(a.reference, fine_ds)
     if len(tr) == 0:
         tr = np.arange(len(metas))
     print(f"{len(metas)} pairs: {len(tr)} train, {len(va)} held-out validation", flush=True)
@@ -267,19 +295,19 @@ def main(argv=None):
         "torch": torch.__version__,
     }
     indices = sorted(m["index"] for m in metas)
-    all_idx = sorted(int(os.path.basename(f)[7:13]) for f in os.listdir(a.data)
-                     if f.startswith("sample-") and f.endswith(".json"))
+    all_idx = sample_indices(a.data)
     n_gen = (max(all_idx) + 1) if all_idx else 0
-    regenerate = (f"tacrom gen-data --out {a.data} --samples {n_gen} --seed {ds.get('seed')} "
-                  f"--coarse-dx {ds.get('coarse_dx')} --fine-dx {ds.get('fine_dx')} --pitch {ds.get('pitch')} "
-                  f"--fine-max-iterations {ds.get('fine_max_iterations')} [--shard K/N for parallel shards]")
+    regenerate = gen_command(a.data, ds)
     data_info = {"command": regenerate, "generated": len(all_idx),
                  "contiguous": all_idx == list(range(n_gen)),
                  "dropped_unconverged_reference": len(all_idx) - len(indices),
                  "path": a.data, "pairs": len(metas), "train": int(len(tr)), "validation": int(len(va)),
                  "families_train": sorted({metas[i]["family"] for i in tr}),
                  "families_validation": sorted({metas[i]["family"] for i in va}), "dataset": ds}
-    export_model(model, spec, ds, a.out, training=training, data=data_info,
+    if references:
+        data_info["references"] = references
+    model_ds = dict(ds, fine_dx=fine_ds["fine_dx"]) if references else ds
+    export_model(model, spec, model_ds, a.out, training=training, data=data_info,
                  validation={"held_out": val, "train_subset": train_m},
                  refinement=not a.no_refinement)
     # A few held-out pairs, for the Rust test that compares rom and coarse against the reference.

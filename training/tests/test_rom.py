@@ -127,3 +127,62 @@ def test_shipped_model_onnx_parity_with_pytorch():
     errs = [np.abs(z_ort - z.numpy()).max(), np.abs(d_ort - d_t.numpy()).max(), np.abs(jac_ort - jac.numpy()).max()]
     print("shipped model parity max errors (z, depth, jacobian):", errs)
     assert max(errs) < PARITY_TOL, errs
+
+
+def _finer_copy(base, path, indices, ds_changes=None):
+    """A data set of `base`'s presses with a different reference for `indices` only."""
+    import shutil
+    os.makedirs(path, exist_ok=True)
+    ds = json.load(open(os.path.join(base, "dataset.json")))
+    ds.update({"fine_dx": 3e-4}, **(ds_changes or {}))
+    json.dump(ds, open(os.path.join(path, "dataset.json"), "w"))
+    for i in indices:
+        a = np.load(os.path.join(base, f"sample-{i:06d}.npy"))
+        a[2] = a[2] * 1.5
+        np.save(os.path.join(path, f"sample-{i:06d}.npy"), a)
+        shutil.copy(os.path.join(base, f"sample-{i:06d}.json"), path)
+
+
+def test_finer_references_replace_the_base_ones_where_present(tmp_path):
+    base = tmp_path / "base"
+    write_synthetic(str(base))
+    finer = tmp_path / "finer"
+    _finer_copy(str(base), str(finer), [0, 1, 2, 5])  # 0 is held out (ridges), 1, 2, 5 train
+    spec, ds, arrays, metas = D.load_dir(str(base))
+    before = arrays.copy()
+    assert D.overlay_references(str(finer), spec, ds, arrays, metas) == 4
+    for k, m in enumerate(metas):
+        if m["index"] in (0, 1, 2, 5):
+            np.testing.assert_allclose(arrays[k, 2], 1.5 * before[k, 2], rtol=1e-5, atol=1e-12)  # float32 roundings, denormals
+            assert m["reference_dx"] == 3e-4
+        else:
+            np.testing.assert_array_equal(arrays[k, 2], before[k, 2])
+            assert m["reference_dx"] == 7e-4
+        np.testing.assert_array_equal(arrays[k, :2], before[k, :2])
+    out = tmp_path / "model"
+    train_main(["--data", str(base), "--reference", str(finer), "--out", str(out), "--steps", "2",
+                "--batch", "4", "--points", "16", "--latent", "16", "--validation-samples", "1"])
+    m = json.load(open(out / "manifest.json"))
+    assert m["reference_dx"] == 3e-4
+    refs = m["data"]["references"]
+    assert refs["replaced"] == 4
+    assert refs["train"] == {"0.0003": 3, "0.0007": 6}
+    assert refs["validation"] == {"0.0003": 1, "0.0007": 2}
+    assert "--fine-dx 0.0007" in m["data"]["command"] and "--fine-dx 0.0003" in refs["command"]
+
+
+def test_finer_references_of_other_presses_are_refused(tmp_path):
+    base = tmp_path / "base"
+    write_synthetic(str(base))
+    other = tmp_path / "other"
+    _finer_copy(str(base), str(other), [3])
+    a = np.load(other / "sample-000003.npy")
+    a[0] += 1e-4
+    np.save(other / "sample-000003.npy", a)
+    spec, ds, arrays, metas = D.load_dir(str(base))
+    with pytest.raises(SystemExit, match="sample-000003.npy: coarse channel differs"):
+        D.overlay_references(str(other), spec, ds, arrays, metas)
+    seeded = tmp_path / "seeded"
+    _finer_copy(str(base), str(seeded), [3], {"seed": 7})
+    with pytest.raises(SystemExit, match="seed = 7"):
+        D.overlay_references(str(seeded), spec, ds, arrays, metas)

@@ -94,10 +94,11 @@ gen-data: build
 	    --fine-dx 7e-4 --fine-max-iterations 1000 --shard $$k/$(ROM_SHARDS) & \
 	done; wait
 
-# Trains and exports the shipped model and its two ablations into models/. With
-# ROM_REFERENCE set (a data set of the same presses with a finer reference, such as
-# ROM_FINE_DATA), its reference replaces ROM_DATA's wherever it holds the press.
-ROM_REFERENCE ?=
+# Trains and exports the shipped model and its two ablations into models/. The reference
+# of ROM_REFERENCE (the same presses at the fine spacing) replaces ROM_DATA's wherever it
+# holds the press, as for the shipped models; `make train ROM_REFERENCE=` trains against
+# ROM_DATA's 0.7 mm reference alone.
+ROM_REFERENCE ?= $(ROM_FINE_DATA)
 TRAIN = PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_DATA) --steps $(ROM_STEPS) \
 	$(if $(ROM_REFERENCE),--reference $(ROM_REFERENCE))
 train: train-env

@@ -91,7 +91,10 @@ def overlay_references(path, spec, ds, arrays, metas):
     base one is refused. Returns the number of samples replaced; each replaced meta gets
     `reference_dx`.
     """
-    with open(os.path.join(path, "dataset.json")) as f:
+    meta_path = os.path.join(path, "dataset.json")
+    if not os.path.isfile(meta_path):
+        raise SystemExit(f"{path}: no dataset.json; `tacrom gen-data --out {path} ...` writes one")
+    with open(meta_path) as f:
         fine = json.load(f)
     for key in ("size", "lattice", "seed", "coarse_dx", "young", "poisson", "pitch"):
         if fine.get(key) != ds.get(key):

@@ -246,6 +246,7 @@ def main(argv=None):
             fine_ds = json.load(f)
         count = lambda ids, dx: sum(1 for i in ids if metas[i]["reference_dx"] == dx)
         references = {"path": a.reference, "replaced": n_fine,
+                      "indices": sorted(m["index"] for m in metas if m["reference_dx"] == fine_ds["fine_dx"]),
                       "train": {str(dx): count(tr, dx) for dx in (fine_ds["fine_dx"], ds["fine_dx"])},
                       "validation": {str(dx): count(va, dx) for dx in (fine_ds["fine_dx"], ds["fine_dx"])}}
         print(f"references from {a.reference} ({fine_ds['fine_dx']} m) for {n_fine} pairs: "

@@ -165,7 +165,7 @@ def test_finer_references_replace_the_base_ones_where_present(tmp_path):
     m = json.load(open(out / "manifest.json"))
     assert m["reference_dx"] == 3e-4
     refs = m["data"]["references"]
-    assert refs["replaced"] == 4
+    assert refs["replaced"] == 4 and refs["indices"] == [0, 1, 2, 5]
     assert refs["train"] == {"0.0003": 3, "0.0007": 6}
     assert refs["validation"] == {"0.0003": 1, "0.0007": 2}
     assert "--fine-dx 0.0007" in m["data"]["command"] and "--fine-dx 0.0003" in refs["command"]

@@ -38,7 +38,7 @@ use cache::{Cache, CacheKey, CachedPress};
 use protocol::{Frame, Indenter, ModeSpec};
 
 /// The stages of the timing breakdown, in order. The rom stages (encoder, refinement,
-/// decoder) are empty until that mode exists.
+/// decoder) are empty for the other modes.
 pub const STAGES: [&str; 7] = [
     "scene",
     "SDF",

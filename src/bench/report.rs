@@ -180,8 +180,8 @@ pub fn markdown(r: &BenchResult) -> String {
         s,
         "\nscene: posing the indenters in the sensor frame; SDF: contact test and the \
          indenters' rigid surface; MPM: the gel solve (the rigid mode's penetration for \
-         rigid); render: writing the outputs. The rom stages are empty until that mode \
-         exists.\n"
+         rigid); encoder, refinement (L-BFGS on the latent), decoder: the rom stages, \
+         empty for the other modes; render: writing the outputs.\n"
     );
     if !r.unavailable.is_empty() {
         let _ = writeln!(s, "## Modes not available in this build\n");

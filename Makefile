@@ -107,7 +107,7 @@ train: train-env
 	$(TRAIN) --out models/rom-no-multiscale --no-multiscale
 
 # The presses of ROM_DATA again, with the reference at the fine 0.3 mm spacing (each takes
-# 10 s to 20 min on one core); resumable like gen-data.
+# 10 s to 22 min on one core); resumable like gen-data.
 gen-data-fine: build
 	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
 	  target/release/tacrom gen-data --out $(ROM_FINE_DATA) --samples $(ROM_FINE_SAMPLES) --seed 1 \

@@ -88,8 +88,8 @@ def overlay_references(path, spec, ds, arrays, metas):
 
     `path` must hold the same presses (`tacrom gen-data` with the same seed, lattice and
     coarse spacing, and another `--fine-dx`): a sample whose coarse channel differs from the
-    base one is refused. Returns the number of samples replaced; each replaced meta gets
-    `reference_dx`.
+    base one is refused. Every meta gets `reference_dx`, the spacing of its reference now.
+    Returns `path`'s dataset.json and the number of samples replaced.
     """
     meta_path = os.path.join(path, "dataset.json")
     if not os.path.isfile(meta_path):
@@ -120,7 +120,7 @@ def overlay_references(path, spec, ds, arrays, metas):
         a[2] = b[2]
         meta["reference_dx"] = fine.get("fine_dx")
         replaced += 1
-    return replaced
+    return fine, replaced
 
 
 def encoder_input(spec: Spec, lattice: torch.Tensor) -> torch.Tensor:

@@ -241,9 +241,7 @@ def main(argv=None):
     tr, va = split(metas, held_out)
     references = None
     if a.reference:
-        n_fine = D.overlay_references(a.reference, spec, ds, arrays, metas)
-        with open(os.path.join(a.reference, "dataset.json")) as f:
-            fine_ds = json.load(f)
+        fine_ds, n_fine = D.overlay_references(a.reference, spec, ds, arrays, metas)
         count = lambda ids, dx: sum(1 for i in ids if metas[i]["reference_dx"] == dx)
         references = {"path": a.reference, "replaced": n_fine,
                       "indices": sorted(m["index"] for m in metas if m["reference_dx"] == fine_ds["fine_dx"]),

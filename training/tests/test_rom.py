@@ -150,7 +150,8 @@ def test_finer_references_replace_the_base_ones_where_present(tmp_path):
     _finer_copy(str(base), str(finer), [0, 1, 2, 5])  # 0 is held out (ridges), 1, 2, 5 train
     spec, ds, arrays, metas = D.load_dir(str(base))
     before = arrays.copy()
-    assert D.overlay_references(str(finer), spec, ds, arrays, metas) == 4
+    fine_ds, replaced = D.overlay_references(str(finer), spec, ds, arrays, metas)
+    assert replaced == 4 and fine_ds["fine_dx"] == 3e-4
     for k, m in enumerate(metas):
         if m["index"] in (0, 1, 2, 5):
             np.testing.assert_allclose(arrays[k, 2], 1.5 * before[k, 2], rtol=1e-5, atol=1e-12)  # float32 roundings, denormals

@@ -6,7 +6,7 @@
 //! history), then both gels are brought to equilibrium. A sample is written as
 //!
 //! * `sample-NNNNNN.npy`: float32 `[3, ny, nx]`, metres, on the model's surface lattice
-//!   ([`crate::rom::features`]): channel 0 the coarse depth (`max(mpm, p)`), 1 the rigid
+//!   ([`tacrom::rom::features`]): channel 0 the coarse depth (`max(mpm, p)`), 1 the rigid
 //!   penetration `p`, 2 the reference depth (`max(mpm, p)`, finer MPM);
 //! * `sample-NNNNNN.json`: family, shape parameters, poses, solver reports, timings;
 //!   written last (by rename), so a sample counts as done only when both exist.
@@ -34,9 +34,9 @@ use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
-use crate::geometry::{Aabb, Capsule, Cuboid, Cylinder, PixelGrid, Placed, Sdf, Sphere, TriMesh};
-use crate::mpm::{Gel, GelParams, Material, SolveReport, SolverOptions};
-use crate::rom::features::{penetration, LatticeSpec, Observation};
+use tacrom::geometry::{Aabb, Capsule, Cuboid, Cylinder, PixelGrid, Placed, Sdf, Sphere, TriMesh};
+use tacrom::mpm::{Gel, GelParams, Material, SolveReport, SolverOptions};
+use tacrom::rom::features::{penetration, LatticeSpec, Observation};
 
 /// Families kept out of training, for validation (and the held-out test).
 pub const HELD_OUT: &[&str] = &[
@@ -357,7 +357,7 @@ impl MeshLibrary {
             return Ok(s.clone());
         }
         let path = self.dir.join(format!("{name}.stl"));
-        let data = crate::geometry::load_stl(&path, 1e-3).map_err(|e| e.to_string())?;
+        let data = tacrom::geometry::load_stl(&path, 1e-3).map_err(|e| e.to_string())?;
         let (mut lo, mut hi) = (
             Vector3::repeat(f64::INFINITY),
             Vector3::repeat(f64::NEG_INFINITY),

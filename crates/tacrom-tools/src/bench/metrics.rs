@@ -255,7 +255,7 @@ pub fn chamfer_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
 
 /// The deformed surface seen by the camera as points: each pixel centre of `grid`, lowered
 /// to `z = -depth`.
-pub fn surface_points(grid: &crate::geometry::PixelGrid, depth: &[f64]) -> Vec<[f64; 3]> {
+pub fn surface_points(grid: &tacrom::geometry::PixelGrid, depth: &[f64]) -> Vec<[f64; 3]> {
     let mut pts = Vec::with_capacity(grid.width * grid.height);
     for row in 0..grid.height {
         for col in 0..grid.width {

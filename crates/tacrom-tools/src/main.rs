@@ -15,12 +15,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 
-use tacrom::bench::plot::depth_image;
-use tacrom::bench::protocol::{Indenter, ModeSpec};
-use tacrom::bench::{BenchError, BenchOptions, IndenterSource};
 use tacrom::config::{Config, RawConfig};
 use tacrom::geometry::Placed;
 use tacrom::sensor::TactileSensor;
+use tacrom_tools::bench::plot::depth_image;
+use tacrom_tools::bench::protocol::{Indenter, ModeSpec};
+use tacrom_tools::bench::{BenchError, BenchOptions, IndenterSource};
 
 const USAGE: &str = "\
 tacrom: tools for the tacrom tactile sensor
@@ -112,7 +112,7 @@ fn main() -> ExitCode {
         Some("render") => render(&args[1..]),
         Some("stability") => stability(&args[1..]),
         Some("mpm") => mpm(&args[1..]),
-        Some("gen-data") => tacrom::datagen::run_cli(&args[1..]).map_err(BenchError::Usage),
+        Some("gen-data") => tacrom_tools::datagen::run_cli(&args[1..]).map_err(BenchError::Usage),
         Some("eval-rom") => eval_rom(&args[1..]),
         Some("help" | "--help" | "-h") | None => {
             print!("{USAGE}");
@@ -289,8 +289,8 @@ fn bench(args: &[String]) -> Result<(), BenchError> {
     if !out_given {
         o.out = PathBuf::from("out/bench").join(&o.profile);
     }
-    let r = tacrom::bench::run(&o)?;
-    println!("{}", tacrom::bench::report::markdown(&r));
+    let r = tacrom_tools::bench::run(&o)?;
+    println!("{}", tacrom_tools::bench::report::markdown(&r));
     Ok(())
 }
 
@@ -393,7 +393,7 @@ fn mm_list(args: &mut Args<'_>, flag: &str) -> Result<Vec<f64>, BenchError> {
 }
 
 fn mpm(args: &[String]) -> Result<(), BenchError> {
-    use tacrom::bench::mpm::{markdown, run, MpmBenchOptions};
+    use tacrom_tools::bench::mpm::{markdown, run, MpmBenchOptions};
     let mut options = MpmBenchOptions::standard();
     let mut fine = false;
     let mut only = None;
@@ -443,7 +443,7 @@ fn mpm(args: &[String]) -> Result<(), BenchError> {
 }
 
 fn eval_rom(args: &[String]) -> Result<(), BenchError> {
-    use tacrom::bench::heldout::{markdown, run, EvalOptions};
+    use tacrom_tools::bench::heldout::{markdown, run, EvalOptions};
     let paths = |v: &str| {
         v.split(',')
             .filter(|s| !s.is_empty())
@@ -516,7 +516,7 @@ fn stability(args: &[String]) -> Result<(), BenchError> {
             }
         }
     }
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let root = tacrom::checkout_root().to_path_buf();
     let shared = root.join("../shared/indenters/patterns");
     let patterns = if shared.is_dir() {
         shared
@@ -530,10 +530,10 @@ fn stability(args: &[String]) -> Result<(), BenchError> {
             raw = raw.with("dx", &dx.to_string());
         }
         Config::from_raw("stability", &raw).map_err(|e| BenchError::Config(e.to_string()))?;
-        let rows: Vec<_> = tacrom::stability::cases(Some(&patterns))
+        let rows: Vec<_> = tacrom_tools::stability::cases(Some(&patterns))
             .iter()
             .map(|case| {
-                let row = tacrom::stability::run_case(case, mode, dx);
+                let row = tacrom_tools::stability::run_case(case, mode, dx);
                 eprintln!(
                     "  {mode}: {} {}",
                     row.name,
@@ -545,7 +545,7 @@ fn stability(args: &[String]) -> Result<(), BenchError> {
         failed += rows.iter().filter(|r| !r.ok()).count();
         println!(
             "\n### physics = {mode}\n\n{}",
-            tacrom::stability::table(&rows)
+            tacrom_tools::stability::table(&rows)
         );
     }
     if failed > 0 {

@@ -32,10 +32,10 @@ use std::io::{IsTerminal, Write as _};
 use std::path::PathBuf;
 use std::time::Instant;
 
-use crate::config::RawConfig;
-use crate::mpm::SolverOptions;
 use cache::{Cache, CacheKey, CachedPress};
 use protocol::{Frame, Indenter, ModeSpec};
+use tacrom::config::RawConfig;
+use tacrom::mpm::SolverOptions;
 
 /// The stages of the timing breakdown, in order. The rom stages (encoder, refinement,
 /// decoder) are empty for the other modes.
@@ -231,17 +231,10 @@ pub fn status_bytes(field: &str) -> Option<u64> {
 /// A hash of the solver's, the geometry's and the sensor's source, so that the cache
 /// notices their changes.
 fn code_version() -> String {
-    let sources: [(&str, &str); 10] = [
+    let sources: [(&str, &str); 3] = [
         ("version", CACHE_VERSION),
         ("crate", env!("CARGO_PKG_VERSION")),
-        ("mpm", include_str!("../mpm/mod.rs")),
-        ("mpm/contact", include_str!("../mpm/contact.rs")),
-        ("mpm/material", include_str!("../mpm/material.rs")),
-        ("mpm/surface", include_str!("../mpm/surface.rs")),
-        ("mpm/transfer", include_str!("../mpm/transfer.rs")),
-        ("geometry", include_str!("../geometry/mod.rs")),
-        ("geometry/mesh", include_str!("../geometry/mesh.rs")),
-        ("sensor", include_str!("../sensor.rs")),
+        ("physics", tacrom::PHYSICS_FINGERPRINT),
     ];
     let mut k = CacheKey::new();
     for (label, text) in sources {
@@ -531,7 +524,7 @@ fn row_of(label: &str, threads: usize, t: &Timed) -> ModeResult {
     }
 }
 
-fn accuracy(frames: &Frames, reference: &Frames, grid: &crate::geometry::PixelGrid) -> Accuracy {
+fn accuracy(frames: &Frames, reference: &Frames, grid: &tacrom::geometry::PixelGrid) -> Accuracy {
     let (mut acc, mut n) = (Accuracy::default(), 0usize);
     let (mut fsum, mut fref) = (0.0, 0.0);
     let (mut psnr_n, mut ssim_n) = (0usize, 0usize);
@@ -594,7 +587,7 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     let base = opts.base_config();
     let ref_mode = opts.reference_mode();
     let ref_config = ref_mode.config(&base, opts.reference_threads)?;
-    let grid = crate::geometry::PixelGrid {
+    let grid = tacrom::geometry::PixelGrid {
         width: ref_config.width,
         height: ref_config.height,
         fov_x: ref_config.fov[0],

@@ -7,10 +7,10 @@ use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 use super::{PixelGrid, Sdf};
 
-/// `/work/shared` as seen from the crate: `CARGO_MANIFEST_DIR/../shared` when it exists
+/// `/work/shared` as seen from the crate: `../shared` beside the checkout when it exists
 /// (the main crate), `/work/shared` otherwise (scratch crates elsewhere).
 pub fn shared_dir() -> PathBuf {
-    let beside = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    let beside = crate::checkout_root().join("../shared");
     if beside.is_dir() {
         beside
     } else {

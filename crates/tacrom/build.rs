@@ -20,8 +20,14 @@ fn main() {
     println!("cargo:rerun-if-changed=include/tacrom.h");
     println!("cargo:rerun-if-changed=build.rs");
 
-    let root =
+    // The workspace root (two levels above this crate) holds the `.venv`.
+    let crate_dir =
         PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
+    let root = crate_dir
+        .ancestors()
+        .nth(2)
+        .unwrap_or(&crate_dir)
+        .to_path_buf();
     let mujoco = find_mujoco(&root);
     let include = mujoco.join("include");
     check_version(&include);
@@ -50,6 +56,60 @@ fn main() {
     }
 
     bindings(&include);
+    physics_fingerprint(&crate_dir);
+}
+
+/// FNV-1a (64 bit) of every source file of the physics (`src/mpm`, `src/geometry`,
+/// `src/sensor*`, `src/render*`), in path order, exported as `TACROM_PHYSICS_FINGERPRINT`:
+/// the benchmark's reference cache and the reduced-order model's recipe name the solver
+/// by it, so a change to the solver invalidates what was computed with the old one.
+fn physics_fingerprint(crate_dir: &Path) {
+    fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
+        let Ok(entries) = fs::read_dir(dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                walk(&p, out);
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.push(p);
+            }
+        }
+    }
+    let src = crate_dir.join("src");
+    let mut files = Vec::new();
+    for entry in [
+        "mpm",
+        "geometry",
+        "sensor",
+        "render",
+        "sensor.rs",
+        "render.rs",
+    ] {
+        let p = src.join(entry);
+        println!("cargo:rerun-if-changed={}", p.display());
+        if p.is_dir() {
+            walk(&p, &mut files);
+        } else if p.is_file() {
+            files.push(p);
+        }
+    }
+    files.sort();
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for f in &files {
+        let rel = f
+            .strip_prefix(&src)
+            .unwrap_or(f)
+            .to_string_lossy()
+            .into_owned();
+        let text = fs::read(f).unwrap_or_default();
+        for b in rel.bytes().chain([0]).chain(text).chain([0]) {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    println!("cargo:rustc-env=TACROM_PHYSICS_FINGERPRINT={h:016x}");
 }
 
 /// The folder with `libmujoco.so.<version>` and `include/mujoco`.

@@ -1,13 +1,13 @@
-//! The stability suite (see `tacrom::stability`): every case, rigid and coarse, must keep
+//! The stability suite (see `tacrom_tools::stability`): every case, rigid and coarse, must keep
 //! all outputs finite, depth within [0, T], det F within the clamp bounds, warn whenever
 //! equilibrium is not reached, and leave a sensor that still works.
 
 use std::path::PathBuf;
 
-use tacrom::stability::{cases, run_case, table};
+use tacrom_tools::stability::{cases, run_case, table};
 
 fn patterns() -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let root = tacrom::checkout_root().to_path_buf();
     let shared = root.join("../shared/indenters/patterns");
     if shared.is_dir() {
         shared

@@ -13,7 +13,7 @@ use tacrom::geometry::{load_mesh, MeshSdfOptions, Placed, Sdf, Sphere};
 use tacrom::sensor::TactileSensor;
 
 fn pattern(name: &str) -> std::path::PathBuf {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = tacrom::checkout_root();
     let shared = root.join("../shared/indenters/patterns").join(name);
     if shared.is_file() {
         shared

@@ -480,11 +480,7 @@ pub fn default_model_dir() -> Option<PathBuf> {
             candidates.push(dir.join("models").join(DEFAULT_MODEL));
         }
     }
-    candidates.push(
-        Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("models")
-            .join(DEFAULT_MODEL),
-    );
+    candidates.push(crate::checkout_root().join("models").join(DEFAULT_MODEL));
     candidates
         .into_iter()
         .find(|d| d.join("manifest.json").is_file())

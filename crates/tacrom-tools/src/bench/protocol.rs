@@ -8,9 +8,9 @@ use std::time::Instant;
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 use super::{BenchError, STAGES};
-use crate::config::{Config, RawConfig};
-use crate::geometry::{load_mesh, MeshSdfOptions, Placed, Sdf, Sphere, TriMesh};
-use crate::sensor::TactileSensor;
+use tacrom::config::{Config, RawConfig};
+use tacrom::geometry::{load_mesh, MeshSdfOptions, Placed, Sdf, Sphere, TriMesh};
+use tacrom::sensor::TactileSensor;
 
 /// The physics modes benchmarked by default, by label and configuration attributes. A new
 /// mode (or an ablation of one) is one line here; modes the build does not offer (their
@@ -146,7 +146,7 @@ impl Indenter {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;
-        let bad = |e: crate::geometry::GeometryError| BenchError::Indenter {
+        let bad = |e: tacrom::geometry::GeometryError| BenchError::Indenter {
             path: path.to_path_buf(),
             message: e.to_string(),
         };

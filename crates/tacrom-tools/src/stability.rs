@@ -12,10 +12,10 @@ use std::time::Instant;
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
-use crate::config::{Config, RawConfig};
-use crate::geometry::{Cuboid, Placed, Sdf, Sphere, TriMesh};
-use crate::mpm::{J_MAX, J_MIN};
-use crate::sensor::TactileSensor;
+use tacrom::config::{Config, RawConfig};
+use tacrom::geometry::{Cuboid, Placed, Sdf, Sphere, TriMesh};
+use tacrom::mpm::{J_MAX, J_MIN};
+use tacrom::sensor::TactileSensor;
 
 /// One indenter pose per frame; `None` frames have no indenter.
 pub type Sequence = Vec<Vec<Placed>>;
@@ -250,7 +250,7 @@ pub fn cases(patterns: Option<&std::path::Path>) -> Vec<Case> {
     if let Some(dir) = patterns {
         for name in ["cone", "dots", "cross_lines", "wave1"] {
             let path = dir.join(format!("{name}.stl"));
-            let Ok(mesh) = crate::geometry::load_mesh(&path, 1e-3) else {
+            let Ok(mesh) = tacrom::geometry::load_mesh(&path, 1e-3) else {
                 continue;
             };
             // Flip the patterned face (z = 20 mm) towards the gel, lowest point at z = 0.

@@ -24,9 +24,9 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use super::BenchError;
-use crate::geometry::{Placed, Sdf, Sphere};
-use crate::mpm::hertz::hertz_bonded;
-use crate::mpm::{Gel, GelParams, SolverOptions};
+use tacrom::geometry::{Placed, Sdf, Sphere};
+use tacrom::mpm::hertz::hertz_bonded;
+use tacrom::mpm::{Gel, GelParams, SolverOptions};
 
 /// Radius of the validation sphere (m).
 pub const SPHERE_RADIUS: f64 = 5e-3;
@@ -43,7 +43,7 @@ pub struct MpmBenchOptions {
     /// Thread counts of the cost runs.
     pub threads: Vec<usize>,
     /// Solver tolerances of the cost runs (the fine mode's 1e-3, the coarse and rom modes'
-    /// 3e-3, [`crate::config::Physics::default_tolerance`], and 1e-2).
+    /// 3e-3, [`tacrom::config::Physics::default_tolerance`], and 1e-2).
     pub tolerances: Vec<f64>,
     /// Measured frames of a cost run (after the warm-up), for spacings of at least 0.5 mm.
     pub frames: usize,

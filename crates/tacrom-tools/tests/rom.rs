@@ -6,11 +6,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use nalgebra::Isometry3;
-use tacrom::datagen::{self, GenConfig};
 use tacrom::geometry::{PixelGrid, Placed, Sphere};
 use tacrom::mpm::{Gel, GelParams, SolverOptions};
 use tacrom::rom::features::{LatticeSpec, Observation};
 use tacrom::rom::{default_model_dir, Rom, RomError, RomOptions};
+use tacrom_tools::datagen::{self, GenConfig};
 
 /// rom's depth MAE against the reference must be at most this fraction of coarse's on the
 /// held-out pairs: the target. The six pairs shipped with the model are held-out
@@ -400,14 +400,14 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
     assert!(!expected.is_empty(), "no ridges among six draws");
     // The coarse and the reference spacing are equal here, so coarse matches the
     // reference exactly: the evaluation compares the right channels.
-    let options = tacrom::bench::heldout::EvalOptions {
+    let options = tacrom_tools::bench::heldout::EvalOptions {
         data: vec![out.clone()],
         models: vec![model_dir()],
         all: false,
         compare: Some(out.clone()),
         out: out.join("report"),
     };
-    let r = tacrom::bench::heldout::run(&options).unwrap();
+    let r = tacrom_tools::bench::heldout::run(&options).unwrap();
     assert_eq!(r.samples, expected.len());
     let row = |l: &str| r.rows.iter().find(|m| m.label == l).unwrap();
     assert_eq!(row("coarse").mae, 0.0);
@@ -438,7 +438,7 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
         |_| {},
     )
     .unwrap();
-    let e = tacrom::bench::heldout::run(&tacrom::bench::heldout::EvalOptions {
+    let e = tacrom_tools::bench::heldout::run(&tacrom_tools::bench::heldout::EvalOptions {
         data: vec![other.clone()],
         all: true,
         compare: None,

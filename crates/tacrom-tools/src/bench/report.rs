@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use super::plot::{ErrorTimePlot, Marker, Panel, PanelImage, PlotPoint, PALETTE};
 use super::{metrics, BenchError, BenchResult, Frames, ModeResult, STAGES};
-use crate::geometry::PixelGrid;
+use tacrom::geometry::PixelGrid;
 
 /// What the figures are drawn from.
 pub struct Figures<'a> {

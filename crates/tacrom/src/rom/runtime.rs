@@ -104,9 +104,7 @@ pub fn library_candidates() -> Vec<PathBuf> {
             }
         }
     }
-    out.extend(ort_in_venv(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv"),
-    ));
+    out.extend(ort_in_venv(&crate::checkout_root().join(".venv")));
     let mut seen = Vec::new();
     out.retain(|p| {
         let keep = !seen.contains(p);

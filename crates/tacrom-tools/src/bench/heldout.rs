@@ -17,9 +17,9 @@ use std::time::Instant;
 use super::metrics;
 use super::BenchError;
 use crate::datagen::read_npy;
-use crate::rom::features::{LatticeSpec, Observation};
-use crate::rom::json::Json;
-use crate::rom::{Rom, RomOptions};
+use tacrom::rom::features::{LatticeSpec, Observation};
+use tacrom::rom::json::Json;
+use tacrom::rom::{Rom, RomOptions};
 
 /// Field of view the metrics cover (m), centred on the lattice.
 pub const FOV: [f64; 2] = [0.024, 0.018];

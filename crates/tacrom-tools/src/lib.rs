@@ -1,0 +1,8 @@
+//! The `tacrom` command's library: the press benchmark, training-data generation and the
+//! stability suite. Everything here runs outside MuJoCo and is kept out of the plugin
+//! library that MuJoCo loads.
+#![warn(missing_docs)]
+
+pub mod bench;
+pub mod datagen;
+pub mod stability;

@@ -1,0 +1,35 @@
+//! tacrom: a high-detail tactile sensor for MuJoCo.
+//!
+//! A rigid object presses a soft gel; the sensor reports the deformed surface as a depth
+//! image. `geometry`, `mpm`, `render` and `sensor` are plain Rust and know nothing of
+//! MuJoCo; only [`mujoco`] and the C shim in `include/` touch its C API.
+#![warn(missing_docs)]
+#![warn(clippy::undocumented_unsafe_blocks)]
+
+pub mod config;
+pub mod geometry;
+pub mod mpm;
+pub mod mujoco;
+pub mod rom;
+pub mod sensor;
+
+/// The root of the source checkout this library was built from (the workspace, two levels
+/// above this crate). Tests and tools find the checkout's `.venv`, `models/` and the
+/// benchmark meshes in `../shared` through it; an installed plugin looks beside itself
+/// first.
+pub fn checkout_root() -> &'static std::path::Path {
+    static ROOT: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+    ROOT.get_or_init(|| {
+        let crate_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        crate_dir
+            .ancestors()
+            .nth(2)
+            .unwrap_or(crate_dir)
+            .to_path_buf()
+    })
+}
+
+/// A fingerprint of the physics' source (solver, geometry, sensor), computed at build time:
+/// results cached or trained with one build are recognised as stale by another whose
+/// physics differs.
+pub const PHYSICS_FINGERPRINT: &str = env!("TACROM_PHYSICS_FINGERPRINT");

@@ -13,6 +13,7 @@ x to the right, y up.
 from __future__ import annotations
 
 import ctypes
+import json
 import os
 import pathlib
 import struct
@@ -21,10 +22,19 @@ from typing import Dict, Optional
 
 import numpy as np
 
-__all__ = ["load", "library_path", "layout", "outputs", "depth", "force", "contact", "save_png"]
+__all__ = [
+    "load",
+    "library_path",
+    "output_table",
+    "layout",
+    "outputs",
+    "depth",
+    "force",
+    "contact",
+    "save_png",
+]
 
 PLUGIN_NAME = "tacrom.tactile"
-_OUTPUT_NAMES = {0: "depth", 1: "force", 2: "contact"}
 _lib: Optional[ctypes.CDLL] = None
 
 
@@ -50,13 +60,15 @@ def load(path: Optional[os.PathLike] = None) -> pathlib.Path:
     # libmujoco is already loaded by `import mujoco`; the library's constructor registers
     # the plugin with it.
     _lib = ctypes.CDLL(str(lib_path))
-    _lib.tacrom_sensor_layout.restype = ctypes.c_int
-    _lib.tacrom_sensor_layout.argtypes = [
+    _lib.tacrom_sensor_outputs.restype = ctypes.c_int
+    _lib.tacrom_sensor_outputs.argtypes = [
         ctypes.c_void_p,
         ctypes.c_int,
-        ctypes.POINTER(ctypes.c_int),
+        ctypes.c_char_p,
         ctypes.c_int,
     ]
+    _lib.tacrom_output_table.restype = ctypes.c_int
+    _lib.tacrom_output_table.argtypes = [ctypes.c_char_p, ctypes.c_int]
     return lib_path
 
 
@@ -79,38 +91,57 @@ def _sensor_id(model, sensor) -> int:
     return sid
 
 
-def layout(model, sensor) -> Dict[str, object]:
-    """The sensordata layout of a tacrom sensor.
+def _json_from(call, what: str):
+    """Calls ``call(buf, len)`` of the library with a growing buffer and parses the JSON it
+    writes; a negative return raises ``ValueError`` with the library's reason."""
+    size = 4096
+    while True:
+        buf = ctypes.create_string_buffer(size)
+        n = call(buf, size)
+        if n < 0:
+            raise ValueError(f"{what}: {buf.value.decode(errors='replace')}")
+        if n < size:
+            return json.loads(buf.value.decode())
+        size = n + 1
 
-    Returns ``{"width", "height", "outputs": {name: (offset, length)}}``, offsets relative to
-    the sensor's first value.
+
+def output_table() -> list:
+    """Every output the plugin can produce, from its output table: a list of
+    ``{"name", "doc", "unit", "shape", "needs_gel"}`` (shape ``["H", "W"]`` for images)."""
+    load()
+    return _json_from(_lib.tacrom_output_table, "tacrom output table")
+
+
+def layout(model, sensor) -> Dict[str, object]:
+    """The sensordata layout of a tacrom sensor, as the plugin's output table declares it.
+
+    Returns ``{"width", "height", "size", "outputs": {name: {"offset", "shape", "unit"}}}``
+    with the outputs in sensordata order, offsets relative to the sensor's first value.
     """
     load()
     sid = _sensor_id(model, sensor)
-    buf = (ctypes.c_int * 16)()
-    n = _lib.tacrom_sensor_layout(ctypes.c_void_p(model._address), sid, buf, len(buf))
-    if n < 0:
-        raise ValueError(f"sensor {sensor!r} is not a valid {PLUGIN_NAME} sensor")
-    width, height, count = buf[0], buf[1], buf[2]
-    outs = {}
-    for i in range(count):
-        kind, offset, length = buf[3 + 3 * i : 6 + 3 * i]
-        outs[_OUTPUT_NAMES[kind]] = (offset, length)
-    return {"width": width, "height": height, "outputs": outs}
+    table = _json_from(
+        lambda buf, size: _lib.tacrom_sensor_outputs(ctypes.c_void_p(model._address), sid, buf, size),
+        f"sensor {sensor!r} is not a valid {PLUGIN_NAME} sensor",
+    )
+    table["outputs"] = {
+        o["name"]: {"offset": o["offset"], "shape": tuple(o["shape"]), "unit": o["unit"]}
+        for o in table["outputs"]
+    }
+    return table
 
 
 def outputs(model, data, sensor) -> Dict[str, np.ndarray]:
-    """All configured outputs of ``sensor``: depth and contact shaped (H, W), force (3,)."""
+    """All configured outputs of ``sensor``, each shaped as the plugin declares it: images
+    (H, W) (or (H, W, C)), vectors (n,)."""
     lay = layout(model, sensor)
     sid = _sensor_id(model, sensor)
     adr = model.sensor_adr[sid]
     values = data.sensordata[adr : adr + model.sensor_dim[sid]]
     result = {}
-    for name, (offset, length) in lay["outputs"].items():
-        v = np.array(values[offset : offset + length])
-        if name in ("depth", "contact"):
-            v = v.reshape(lay["height"], lay["width"])
-        result[name] = v
+    for name, o in lay["outputs"].items():
+        length = int(np.prod(o["shape"]))
+        result[name] = np.array(values[o["offset"] : o["offset"] + length]).reshape(o["shape"])
     return result
 
 

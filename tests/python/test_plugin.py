@@ -79,7 +79,11 @@ def test_layout_and_outputs(press_xml):
     data = mujoco.MjData(model)
     lay = tacrom.layout(model, "touch")
     assert lay["width"] == 40 and lay["height"] == 30
-    assert lay["outputs"] == {"contact": (0, 1200), "depth": (1200, 1200)}
+    assert lay["size"] == 2400
+    assert lay["outputs"] == {
+        "contact": {"offset": 0, "shape": (30, 40), "unit": "1"},
+        "depth": {"offset": 1200, "shape": (30, 40), "unit": "m"},
+    }
     img = press(model, data, 0.4e-3)
     mask = tacrom.contact(model, data, "touch")
     np.testing.assert_array_equal(mask, (img > 0).astype(float))
@@ -130,3 +134,48 @@ def test_nan_pose_gives_finite_output(press_xml):
     mujoco.mj_forward(model, data)
     assert np.all(np.isfinite(data.sensordata))
     assert press(model, data, 0.3e-3).max() > 0.29e-3
+
+
+def _ordered_subsets(names):
+    """Every non-empty subset of ``names`` in every order."""
+    import itertools
+
+    for k in range(1, len(names) + 1):
+        for combo in itertools.permutations(names, k):
+            yield combo
+
+
+def test_output_table_round_trip(press_xml):
+    """The layout Python reads from the library places every output where the plugin writes
+    it, for every combination and order of the table's outputs: each output read through
+    the combined layout equals the same output of a sensor configured with it alone. The
+    names, shapes and units come from the library's table; nothing is hard-coded here."""
+    table = tacrom.output_table()
+    names = [o["name"] for o in table]
+    assert "depth" in names and len(names) == len(set(names))
+    res = (20, 15)
+
+    def run(combo):
+        xml = with_config(
+            press_xml, physics="coarse", outputs=" ".join(combo), resolution=f"{res[0]} {res[1]}"
+        )
+        model = mujoco.MjModel.from_xml_string(xml)
+        data = mujoco.MjData(model)
+        out = evaluate(model, data, 0.4e-3)
+        lay = tacrom.layout(model, "touch")
+        return model, out, lay
+
+    alone = {name: run((name,))[1][name] for name in names}
+    for row in table:
+        shape = tuple(res[1] if d == "H" else res[0] if d == "W" else d for d in row["shape"])
+        assert alone[row["name"]].shape == shape, row
+    for combo in _ordered_subsets(names):
+        model, out, lay = run(combo)
+        assert list(lay["outputs"]) == list(combo)
+        assert lay["size"] == model.sensor_dim[0]
+        offset = 0
+        for name in combo:
+            assert lay["outputs"][name]["offset"] == offset
+            offset += int(np.prod(lay["outputs"][name]["shape"]))
+            np.testing.assert_array_equal(out[name], alone[name], err_msg=f"{name} in {combo}")
+        assert offset == model.sensor_dim[0]

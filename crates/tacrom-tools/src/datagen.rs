@@ -585,7 +585,8 @@ fn lowest_point(shape: &Arc<dyn Sdf>, pose: &Isometry3<f64>, size: [f64; 3]) -> 
     let lift = placed[0].aabb().min.z + 0.5;
     let mut lowered = placed.clone();
     lowered[0].pose.translation.vector.z -= lift;
-    penetration(&lowered, &grid, 1.0, &mut zmin, &mut pen);
+    let rule = tacrom::render::DepthRule::new(1.0, &lowered);
+    penetration(&lowered, &grid, &rule, &mut zmin, &mut pen);
     let _ = pen;
     let m = zmin.iter().cloned().fold(f64::INFINITY, f64::min);
     m.is_finite().then_some(m + lift)
@@ -838,14 +839,15 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         let (rf, sf) = solve_press(&mut fine, &press);
         let mut reference = vec![0.0; spec.points()];
         fine.surface_depth(&spec.grid(), &mut reference);
-        let t = g.size[2];
         let mut data: Vec<f32> = Vec::with_capacity(3 * spec.points());
         data.extend(obs.coarse.iter().map(|&v| v as f32));
         data.extend(obs.pen.iter().map(|&v| v as f32));
-        data.extend(reference.iter().zip(&obs.pen).map(|(&r, &p)| {
-            let v = if r.is_finite() { r.max(p) } else { p };
-            v.clamp(0.0, t) as f32
-        }));
+        data.extend(
+            reference
+                .iter()
+                .zip(&obs.pen)
+                .map(|(&r, &p)| obs.rule.depth(r, p) as f32),
+        );
         write_npy(&npy, &[3, spec.ny, spec.nx], &data)
             .map_err(|e| format!("{}: {e}", npy.display()))?;
         let meta = format!(

@@ -33,6 +33,10 @@ int tacrom_copy(mjData* dest, const mjModel* m, const mjData* src, int instance,
                 int len);
 void tacrom_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance);
 int tacrom_compute(const mjModel* m, mjData* d, int instance, char* msg, int len);
+/* The sensordata layout of a sensor as JSON (for the Python package); see plugin.rs. */
+int tacrom_sensor_outputs(const mjModel* m, int sensor_id, char* buf, int len);
+/* The output table as JSON (for the Python package); see plugin.rs. */
+int tacrom_output_table(char* buf, int len);
 
 #ifdef __cplusplus
 }

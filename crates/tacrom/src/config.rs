@@ -8,6 +8,8 @@
 
 use std::fmt;
 
+use crate::mpm::Material;
+
 /// `physics`: which model of the gel computes the surface.
 pub const ATTR_PHYSICS: &str = "physics";
 /// `outputs`: space-separated list of outputs, in sensordata order.
@@ -39,6 +41,10 @@ pub const ATTR_MODEL: &str = "model";
 /// physics" ablation); empty means the model's manifest decides.
 pub const ATTR_REFINE: &str = "refine";
 
+/// `material`: the gel's constitutive model, `corotated` (fixed corotated, the default) or
+/// `neohookean`; both share the same small-strain response.
+pub const ATTR_MATERIAL: &str = "material";
+
 /// `tolerance`: convergence threshold of the quasi-static MPM solve, the largest
 /// out-of-balance nodal force relative to the load; larger is faster and less exact.
 /// Empty means the mode's default ([`Physics::default_tolerance`]).
@@ -61,7 +67,23 @@ pub const ATTRIBUTES: &[&str] = &[
     ATTR_MODEL,
     ATTR_REFINE,
     ATTR_TOLERANCE,
+    ATTR_MATERIAL,
 ];
+
+/// The `material` attribute's values.
+pub const MATERIALS: &[(&str, Material)] = &[
+    ("corotated", Material::FixedCorotated),
+    ("neohookean", Material::NeoHookean),
+];
+
+/// The `material` attribute's value naming `material`.
+pub fn material_name(material: Material) -> &'static str {
+    MATERIALS
+        .iter()
+        .find(|(_, m)| *m == material)
+        .map(|(n, _)| *n)
+        .unwrap_or("?")
+}
 
 /// Largest image side accepted (pixels).
 pub const MAX_RESOLUTION: usize = 4096;
@@ -128,33 +150,7 @@ impl Physics {
     }
 }
 
-/// One sensor output.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Output {
-    /// Indentation depth image, H x W, metres, positive into the gel.
-    Depth,
-    /// Total force of the gel on the indenters, 3 numbers (N, sensor frame).
-    Force,
-    /// Contact mask, H x W, 1 where an indenter touches the gel, else 0.
-    Contact,
-}
-
-impl Output {
-    /// Every output, by name.
-    pub const ALL: &'static [(&'static str, Output)] = &[
-        ("depth", Output::Depth),
-        ("force", Output::Force),
-        ("contact", Output::Contact),
-    ];
-
-    /// Number of sensordata values of this output for an image of `pixels` pixels.
-    pub fn len(self, pixels: usize) -> usize {
-        match self {
-            Output::Depth | Output::Contact => pixels,
-            Output::Force => 3,
-        }
-    }
-}
+pub use crate::sensor::outputs::Output;
 
 /// The text of each attribute, as found in the MJCF; `None` when absent or empty.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -245,6 +241,8 @@ pub struct Config {
     pub refine: Option<bool>,
     /// Convergence threshold of the MPM solve (relative out-of-balance force).
     pub tolerance: f64,
+    /// Constitutive model of the gel.
+    pub material: Material,
 }
 
 /// The defaults (GelSight Mini-like gel, paper's material).
@@ -278,11 +276,17 @@ impl Config {
 
         let physics = p.physics()?;
         let outputs = p.outputs()?;
-        if physics == Physics::Rigid && outputs.contains(&Output::Force) {
+        if let Some(o) = outputs
+            .iter()
+            .find(|o| physics == Physics::Rigid && o.spec().needs_gel)
+        {
             return Err(p.error(
                 ATTR_OUTPUTS,
-                "output 'force' needs a gel model: set physics to coarse or fine (rigid \
-                 penetration has no stiffness)",
+                format!(
+                    "output '{}' needs a gel model: set physics to coarse, fine or rom (rigid \
+                     penetration has no stiffness)",
+                    o.name()
+                ),
             ));
         }
         let [width, height] = p.resolution()?;
@@ -350,6 +354,20 @@ impl Config {
             Some("false") => Some(false),
             Some(_) => return Err(p.error(ATTR_REFINE, "expected true or false")),
         };
+        let material = match raw.get(ATTR_MATERIAL).map(str::trim) {
+            None => Material::FixedCorotated,
+            Some(v) => MATERIALS
+                .iter()
+                .find(|(n, _)| *n == v)
+                .map(|(_, m)| *m)
+                .ok_or_else(|| {
+                    let valid: Vec<_> = MATERIALS.iter().map(|(n, _)| *n).collect();
+                    p.error(
+                        ATTR_MATERIAL,
+                        format!("unknown material; valid values: {}", valid.join(", ")),
+                    )
+                })?,
+        };
         let indenters = raw
             .get(ATTR_INDENTERS)
             .map(|v| v.split_whitespace().map(str::to_owned).collect())
@@ -373,6 +391,7 @@ impl Config {
             model,
             refine,
             tolerance,
+            material,
         })
     }
 
@@ -383,7 +402,7 @@ impl Config {
 
     /// Total sensordata length: the outputs' lengths added up.
     pub fn sensordata_len(&self) -> usize {
-        self.outputs.iter().map(|o| o.len(self.pixels())).sum()
+        self.outputs.iter().map(|o| o.spec().len(self)).sum()
     }
 
     /// Whether `output` was asked for.
@@ -440,22 +459,21 @@ impl Parser<'_> {
 
     fn outputs(&self) -> Result<Vec<Output>, ConfigError> {
         let value = self.raw.get(ATTR_OUTPUTS).unwrap_or(defaults::OUTPUTS);
-        let valid: Vec<_> = Output::ALL.iter().map(|(n, _)| *n).collect();
+        let valid: Vec<_> = crate::sensor::outputs::TABLE
+            .iter()
+            .map(|o| o.name())
+            .collect();
         let mut outputs = Vec::new();
         for word in value.split_whitespace() {
-            let out = Output::ALL
-                .iter()
-                .find(|(n, _)| *n == word)
-                .map(|(_, o)| *o)
-                .ok_or_else(|| {
-                    self.error(
-                        ATTR_OUTPUTS,
-                        format!(
-                            "unknown output '{word}'; valid values: {}",
-                            valid.join(", ")
-                        ),
-                    )
-                })?;
+            let out = Output::named(word).ok_or_else(|| {
+                self.error(
+                    ATTR_OUTPUTS,
+                    format!(
+                        "unknown output '{word}'; valid values: {}",
+                        valid.join(", ")
+                    ),
+                )
+            })?;
             if outputs.contains(&out) {
                 return Err(self.error(ATTR_OUTPUTS, format!("output '{word}' listed twice")));
             }
@@ -577,7 +595,7 @@ mod tests {
     fn defaults_match_design() {
         let c = parse(&[]).unwrap();
         assert_eq!(c.physics, Physics::Rom);
-        assert_eq!(c.outputs, vec![Output::Depth]);
+        assert_eq!(c.outputs, vec![Output::DEPTH]);
         assert_eq!((c.width, c.height), (320, 240));
         assert_eq!(c.fov, [0.024, 0.018]);
         assert_eq!(c.size, [0.03, 0.03, 0.004]);
@@ -614,7 +632,7 @@ mod tests {
         assert_eq!(c.tolerance, 0.01);
         assert_eq!(
             c.outputs,
-            vec![Output::Force, Output::Depth, Output::Contact]
+            vec![Output::FORCE, Output::DEPTH, Output::CONTACT]
         );
         assert_eq!(c.sensordata_len(), 3 + 2 * 64 * 48);
         assert_eq!(c.fov, [0.02, 0.02]);
@@ -634,6 +652,15 @@ mod tests {
             particles(coarse)
         );
         assert!((5e5..2e6).contains(&particles(fine)), "{}", particles(fine));
+    }
+
+    #[test]
+    fn material_attribute_selects_the_constitutive_model() {
+        assert_eq!(parse(&[]).unwrap().material, Material::FixedCorotated);
+        for &(name, m) in MATERIALS {
+            assert_eq!(parse(&[(ATTR_MATERIAL, name)]).unwrap().material, m);
+            assert_eq!(material_name(m), name);
+        }
     }
 
     #[test]
@@ -669,6 +696,7 @@ mod tests {
             (ATTR_TOLERANCE, "0"),
             (ATTR_TOLERANCE, "1"),
             (ATTR_TOLERANCE, "nan"),
+            (ATTR_MATERIAL, "rubber"),
         ];
         for &(attribute, value) in cases {
             let mut pairs = vec![(attribute, value)];

@@ -10,6 +10,7 @@ pub mod config;
 pub mod geometry;
 pub mod mpm;
 pub mod mujoco;
+pub mod render;
 pub mod rom;
 pub mod sensor;
 

@@ -166,9 +166,13 @@ fn load_samples(
                 .and_then(Json::str)
                 .unwrap_or("?")
                 .to_owned(),
-            obs: Observation {
-                coarse: chan(0),
-                pen: chan(1),
+            obs: {
+                let pen = chan(1);
+                Observation {
+                    coarse: chan(0),
+                    rule: tacrom::render::DepthRule::from_penetration(spec.size[2], &pen),
+                    pen,
+                }
             },
             reference: chan(2),
             solve_s: [seconds("coarse"), seconds("reference")],

@@ -109,6 +109,10 @@
 //! the gel) makes the next solve start from the undeformed gel
 //! ([`SolveReport::restarted`]).
 
+/// The quasi-static solver's name, recorded in a reduced-order model's recipe: a model
+/// trained on one solver's coarse solutions refuses another's.
+pub const SOLVER: &str = "relaxation";
+
 mod contact;
 pub mod hertz;
 mod material;

@@ -23,7 +23,7 @@ const ERROR: c_int = -1;
 const MAX_REPEATED_WARNINGS: u32 = 5;
 
 /// Everything one sensor instance owns in one `mjData` (behind `plugin_data`).
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 struct Instance {
     sensor_id: usize,
     scene: SceneSpec,
@@ -32,17 +32,25 @@ struct Instance {
     warnings_given: u32,
 }
 
+impl Instance {
+    /// A copy with the same gel state, for `mj_copyData`.
+    fn try_clone(&self) -> Result<Self, String> {
+        Ok(Self {
+            sensor_id: self.sensor_id,
+            scene: self.scene.clone(),
+            sensor: self.sensor.try_clone().map_err(|e| e.to_string())?,
+            placed: self.placed.clone(),
+            warnings_given: self.warnings_given,
+        })
+    }
+}
+
 /// Runs `f` at the FFI edge: its `Err` and any panic become `ERROR` with a message in
-/// `msg`; a warning becomes `WARN`.
+/// `msg`; a warning becomes `WARN`. Every exported callback that reports a status goes
+/// through it; those without a status go through [`guarded`].
 fn edge(msg: *mut c_char, len: c_int, f: impl FnOnce() -> Result<Option<String>, String>) -> c_int {
-    let outcome = catch_unwind(AssertUnwindSafe(f)).unwrap_or_else(|panic| {
-        let what = panic
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| panic.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "unknown panic".into());
-        Err(format!("tacrom.tactile: internal error: {what}"))
-    });
+    let outcome = catch_unwind(AssertUnwindSafe(f))
+        .unwrap_or_else(|panic| Err(format!("tacrom.tactile: internal error: {}", what(&*panic))));
     match outcome {
         Ok(None) => OK,
         Ok(Some(warning)) => {
@@ -54,6 +62,21 @@ fn edge(msg: *mut c_char, len: c_int, f: impl FnOnce() -> Result<Option<String>,
             ERROR
         }
     }
+}
+
+/// Runs a callback that cannot report failure: a panic is caught and gives `fallback`, so
+/// nothing unwinds into C.
+fn guarded<T>(fallback: T, f: impl FnOnce() -> T) -> T {
+    catch_unwind(AssertUnwindSafe(f)).unwrap_or(fallback)
+}
+
+/// The message of a caught panic.
+fn what(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
 }
 
 fn write_msg(msg: *mut c_char, len: c_int, text: &str) {
@@ -113,19 +136,21 @@ pub unsafe extern "C" fn tacrom_attributes(count: *mut c_int) -> *const *const c
     // SAFETY: as above, read-only after construction.
     unsafe impl Sync for Table {}
     static TABLE: OnceLock<Table> = OnceLock::new();
-    let table = TABLE.get_or_init(|| {
-        let names: Vec<CString> = ATTRIBUTES
-            .iter()
-            .map(|a| CString::new(*a).expect("attribute names have no NUL"))
-            .collect();
-        let ptrs = names.iter().map(|c| c.as_ptr()).collect();
-        Table(names, ptrs)
-    });
-    if !count.is_null() {
-        // SAFETY: the shim passes a valid int pointer.
-        unsafe { *count = table.1.len() as c_int };
-    }
-    table.1.as_ptr()
+    guarded(std::ptr::null(), || {
+        let table = TABLE.get_or_init(|| {
+            let names: Vec<CString> = ATTRIBUTES
+                .iter()
+                .map(|a| CString::new(*a).expect("attribute names have no NUL"))
+                .collect();
+            let ptrs = names.iter().map(|c| c.as_ptr()).collect();
+            Table(names, ptrs)
+        });
+        if !count.is_null() {
+            // SAFETY: the shim passes a valid int pointer.
+            unsafe { *count = table.1.len() as c_int };
+        }
+        table.1.as_ptr()
+    })
 }
 
 /// The sensor keeps no state in `plugin_state`: everything lives in `plugin_data`.
@@ -134,7 +159,7 @@ pub unsafe extern "C" fn tacrom_attributes(count: *mut c_int) -> *const *const c
 /// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
 pub unsafe extern "C" fn tacrom_nstate(_m: *const sys::mjModel, _instance: c_int) -> c_int {
-    0
+    guarded(0, || 0)
 }
 
 /// The sensor's dimension; called at compile time, before `init`, so it validates the
@@ -237,7 +262,7 @@ unsafe fn instance_mut<'a>(d: *mut sys::mjData, instance: c_int) -> Option<&'a m
 /// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
 pub unsafe extern "C" fn tacrom_destroy(d: *mut sys::mjData, instance: c_int) {
-    let _ = catch_unwind(AssertUnwindSafe(|| {
+    guarded((), || {
         // SAFETY: MuJoCo passes valid data.
         let Some(d) = (unsafe { d.as_mut() }) else {
             return;
@@ -250,7 +275,7 @@ pub unsafe extern "C" fn tacrom_destroy(d: *mut sys::mjData, instance: c_int) {
                 drop(unsafe { Box::from_raw(ptr) });
             }
         }
-    }));
+    });
 }
 
 /// Copies the source's state into the destination (for `mj_copyData`).
@@ -271,7 +296,7 @@ pub unsafe extern "C" fn tacrom_copy(
         let Some(source) = (unsafe { instance_mut(src as *mut sys::mjData, instance) }) else {
             return Ok(None);
         };
-        let copy = Box::new(source.clone());
+        let copy = Box::new(source.try_clone()?);
         // SAFETY: valid destination data.
         let d = unsafe { dest.as_mut() }.ok_or("null data")?;
         let slot = plugin_slot(d, instance)?;
@@ -295,12 +320,13 @@ pub unsafe extern "C" fn tacrom_reset(
     plugin_data: *mut c_void,
     _instance: c_int,
 ) {
-    let _ = catch_unwind(AssertUnwindSafe(|| {
+    guarded((), || {
         // SAFETY: `plugin_data` is this instance's pointer from tacrom_init (or null).
         if let Some(inst) = unsafe { (plugin_data as *mut Instance).as_mut() } {
             inst.sensor.reset();
+            inst.warnings_given = 0;
         }
-    }));
+    });
 }
 
 /// Evaluates the sensor and writes its sensordata. Failures write zeros and warn.
@@ -382,54 +408,62 @@ fn describe(issues: &GatherIssues, config: &Config) -> Vec<String> {
     w
 }
 
-/// The sensordata layout of sensor `sensor_id`, for the Python package:
-/// `[width, height, count, (kind, offset, length) x count]` with kind 0 depth, 1 force,
-/// 2 contact. Returns the number of ints written, or -1 if the sensor is not a valid
-/// tacrom sensor or the buffer is too small.
+/// The sensordata layout of sensor `sensor_id`, for the Python package: a JSON object with
+/// the image size and, per output in sensordata order, its name, offset, shape and unit
+/// (from the output table, [`crate::sensor::outputs`]). Writes it NUL-terminated into
+/// `buf` when it fits in `len` bytes; returns its length without the NUL (call again with
+/// a larger buffer when that is `>= len`), or -1 with the reason in `buf` when the sensor
+/// is not a valid tacrom sensor.
 ///
 /// # Safety
-/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
+/// `m` must be a live model (Python's `MjModel._address`) and `buf` hold `len` bytes.
 #[no_mangle]
-pub unsafe extern "C" fn tacrom_sensor_layout(
+pub unsafe extern "C" fn tacrom_sensor_outputs(
     m: *const sys::mjModel,
     sensor_id: c_int,
-    layout: *mut c_int,
-    n: c_int,
+    buf: *mut c_char,
+    len: c_int,
 ) -> c_int {
-    catch_unwind(AssertUnwindSafe(|| -> Option<c_int> {
-        // SAFETY: the caller passes a live model (Python's MjModel._address).
-        let m = Model(unsafe { m.as_ref() }?);
-        let sid = usize::try_from(sensor_id).ok()?;
-        let instance = *m.sensor_plugin().get(sid)?;
+    let mut size = 0;
+    let status = edge(buf, len, || {
+        // SAFETY: the caller passes a live model.
+        let m = Model(unsafe { m.as_ref() }.ok_or("null model")?);
+        let sid = usize::try_from(sensor_id).map_err(|_| "bad sensor id")?;
+        let instance = *m
+            .sensor_plugin()
+            .get(sid)
+            .ok_or_else(|| format!("no sensor {sensor_id}"))?;
         if instance < 0 {
-            return None;
+            return Err(format!("sensor {sensor_id} is not a plugin sensor"));
         }
-        let config = config_of(m, instance, sid).ok()?;
-        let mut v = vec![
-            config.width as c_int,
-            config.height as c_int,
-            config.outputs.len() as c_int,
-        ];
-        let mut offset = 0;
-        for o in &config.outputs {
-            let len = o.len(config.pixels());
-            let kind = match o {
-                crate::config::Output::Depth => 0,
-                crate::config::Output::Force => 1,
-                crate::config::Output::Contact => 2,
-            };
-            v.extend([kind, offset as c_int, len as c_int]);
-            offset += len;
+        let config = config_of(m, instance, sid)?;
+        let json = crate::sensor::outputs::layout_json(&config);
+        size = c_int::try_from(json.len()).map_err(|_| "layout too large")?;
+        if json.len() < usize::try_from(len).unwrap_or(0) {
+            write_msg(buf, len, &json);
         }
-        let n = usize::try_from(n).ok()?;
-        if layout.is_null() || v.len() > n {
-            return None;
+        Ok(None)
+    });
+    if status == ERROR {
+        ERROR
+    } else {
+        size
+    }
+}
+
+/// The output table as JSON (see [`crate::sensor::outputs::table_json`]), written
+/// NUL-terminated into `buf` when it fits in `len` bytes; returns its length without the
+/// NUL (call again with a larger buffer when that is `>= len`).
+///
+/// # Safety
+/// `buf` must hold `len` bytes.
+#[no_mangle]
+pub unsafe extern "C" fn tacrom_output_table(buf: *mut c_char, len: c_int) -> c_int {
+    guarded(ERROR, || {
+        let json = crate::sensor::outputs::table_json();
+        if json.len() < usize::try_from(len).unwrap_or(0) {
+            write_msg(buf, len, &json);
         }
-        // SAFETY: the caller's buffer holds n >= v.len() ints.
-        unsafe { std::ptr::copy_nonoverlapping(v.as_ptr(), layout, v.len()) };
-        Some(v.len() as c_int)
-    }))
-    .ok()
-    .flatten()
-    .unwrap_or(-1)
+        c_int::try_from(json.len()).unwrap_or(ERROR)
+    })
 }

@@ -7,10 +7,9 @@
 //! * The **lattice** is a [`PixelGrid`] over the whole top face of the gel with the
 //!   model's pitch (row 0 the +y edge, column 0 the -x edge, as images).
 //! * **Coarse depth** `c`: the coarse MPM's surface indentation at each lattice point,
-//!   combined with the rigid penetration as the coarse sensor mode does
-//!   (`max(mpm, p)` clamped to `[0, T]`).
+//!   bounded by the contact problem as the coarse sensor mode does ([`DepthRule`]).
 //! * **Rigid penetration** `p`: how far the undeformed gel would be pierced by the
-//!   indenters at that point, `clamp(-z_lowest, 0, T)`.
+//!   indenters at that point ([`DepthRule::penetration`]).
 //! * **Encoder input**: `c` and `p` on the sub-lattice of stride `encoder_stride`
 //!   (offset `encoder_stride / 2`), in model units (mm), channel-major.
 //! * **Decoder query** at lattice point `(row, col)`: the normalised position
@@ -21,6 +20,7 @@
 
 use crate::geometry::{PixelGrid, Placed};
 use crate::mpm::Gel;
+use crate::render::DepthRule;
 
 /// How the model samples the gel's surface: fixed by the model's manifest.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -101,20 +101,32 @@ pub fn coarse_centre_feature(spec: &LatticeSpec) -> usize {
 }
 
 /// The coarse solution and the rigid penetration on the lattice (m, row-major).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct Observation {
-    /// Coarse depth `max(mpm, p)`, clamped to `[0, T]`.
+    /// Coarse depth: the coarse gel's indentation under [`Observation::rule`].
     pub coarse: Vec<f64>,
     /// Rigid penetration.
     pub pen: Vec<f64>,
+    /// The bounds of the contact problem the indenters pose.
+    pub rule: DepthRule,
 }
 
-/// Rigid penetration of `indenters` on `grid` (m), `clamp(-z_lowest, 0, t)`; `zmin` is
-/// scratch space of the grid's size.
+impl Default for Observation {
+    fn default() -> Self {
+        Self {
+            coarse: Vec::new(),
+            pen: Vec::new(),
+            rule: DepthRule::new(0.0, &[]),
+        }
+    }
+}
+
+/// Rigid penetration of `indenters` on `grid` (m) under `rule`; `zmin` is scratch space
+/// of the grid's size.
 pub fn penetration(
     indenters: &[Placed],
     grid: &PixelGrid,
-    t: f64,
+    rule: &DepthRule,
     zmin: &mut Vec<f64>,
     out: &mut Vec<f64>,
 ) {
@@ -122,16 +134,10 @@ pub fn penetration(
     zmin.clear();
     zmin.resize(n, f64::INFINITY);
     for p in indenters {
-        p.lower_surface(grid, -t, 0.0, zmin);
+        p.lower_surface(grid, -rule.thickness(), 0.0, zmin);
     }
     out.clear();
-    out.extend(zmin.iter().map(|&z| {
-        if z.is_finite() {
-            (-z).clamp(0.0, t)
-        } else {
-            0.0
-        }
-    }));
+    out.extend(zmin.iter().map(|&z| rule.penetration(z)));
 }
 
 impl Observation {
@@ -151,15 +157,12 @@ impl Observation {
         zmin: &mut Vec<f64>,
     ) {
         let grid = spec.grid();
-        let t = spec.size[2];
-        penetration(indenters, &grid, t, zmin, &mut self.pen);
+        self.rule = DepthRule::new(spec.size[2], indenters);
+        penetration(indenters, &grid, &self.rule, zmin, &mut self.pen);
         self.coarse.clear();
         self.coarse.resize(spec.points(), 0.0);
         gel.surface_depth(&grid, &mut self.coarse);
-        for (c, &p) in self.coarse.iter_mut().zip(&self.pen) {
-            let v = if c.is_finite() { c.max(p) } else { p };
-            *c = v.clamp(0.0, t);
-        }
+        let _ = self.rule.apply(&mut self.coarse, &self.pen);
     }
 
     /// The encoder's input (model units), appended to `out` after clearing it.

@@ -73,7 +73,6 @@ use ort::value::TensorRef;
 use crate::geometry::{PixelGrid, Placed};
 use crate::mpm::Gel;
 use features::{query_features, LatticeSpec, Observation};
-use json::Json;
 use lbfgs::{LbfgsOptions, LbfgsReport};
 use runtime::{load_graph, Graph};
 
@@ -183,8 +182,104 @@ pub struct Manifest {
     pub refinement: Refinement,
     /// `(path, inputs, outputs)` of encoder, decoder, Jacobian.
     pub files: [(PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>); 3],
+    /// The coarse solve the model was trained on and accepts.
+    pub recipe: Recipe,
     /// The whole document (training, data, validation records).
-    pub json: Json,
+    pub json: serde_json::Value,
+}
+
+/// `manifest.json` as written by the training's export, read with serde; [`Manifest::load`]
+/// checks it and turns it into a [`Manifest`].
+mod document {
+    use std::collections::BTreeMap;
+
+    use serde::Deserialize;
+
+    #[derive(Deserialize)]
+    pub(super) struct Document {
+        pub format: String,
+        pub gel: Gel,
+        pub coarse_dx: f64,
+        pub reference_dx: f64,
+        pub lattice: Lattice,
+        pub latent: usize,
+        pub encoder_input: usize,
+        pub query_features: usize,
+        pub region: Region,
+        pub refinement: Refinement,
+        pub files: BTreeMap<String, File>,
+        /// The coarse solve the training data came from (absent in older manifests).
+        #[serde(default)]
+        pub recipe: Option<super::Recipe>,
+    }
+
+    #[derive(Deserialize)]
+    pub(super) struct Gel {
+        pub size: [f64; 3],
+        pub young: f64,
+        pub poisson: f64,
+        pub friction: f64,
+    }
+
+    #[derive(Deserialize)]
+    pub(super) struct Lattice {
+        pub nx: usize,
+        pub ny: usize,
+        pub encoder_stride: usize,
+        pub patch: usize,
+        pub patch_step: usize,
+        pub depth_scale: f64,
+    }
+
+    #[derive(Deserialize)]
+    pub(super) struct Region {
+        pub eps_mm: f64,
+        pub grow: usize,
+    }
+
+    #[derive(Deserialize)]
+    pub(super) struct Refinement {
+        #[serde(default = "yes")]
+        pub enabled: bool,
+        pub max_iterations: usize,
+        pub tolerance: f64,
+        pub stride: usize,
+        pub contact_stride: usize,
+        pub w_inertia: f64,
+        pub w_elastic: f64,
+        pub w_contact: f64,
+        #[serde(default)]
+        pub anchor: Option<String>,
+    }
+
+    fn yes() -> bool {
+        true
+    }
+
+    #[derive(Deserialize)]
+    pub(super) struct File {
+        pub path: String,
+        pub inputs: BTreeMap<String, Vec<i64>>,
+        pub outputs: BTreeMap<String, Vec<i64>>,
+    }
+}
+
+/// The coarse solve a model's training data came from, and which coarse solves the model
+/// accepts at run time (manifest `recipe`). The decoder reads the coarse solution as its
+/// input, so a sensor whose coarse solve differs feeds it inputs it never saw.
+#[derive(Clone, Debug, PartialEq, serde::Deserialize, serde::Serialize)]
+pub struct Recipe {
+    /// Coarse MPM grid spacing (m).
+    pub dx: f64,
+    /// Constitutive model (`material` attribute value).
+    pub material: String,
+    /// Coarse solver ([`crate::mpm::SOLVER`]).
+    pub solver: String,
+    /// Convergence tolerance of the coarse solves in the training data.
+    pub tolerance: f64,
+    /// Loosest tolerance of the run-time coarse solve the model accepts; the sensor's
+    /// default for `physics="rom"`.
+    pub max_tolerance: f64,
 }
 
 impl Manifest {
@@ -200,23 +295,9 @@ impl Manifest {
             path: path.clone(),
             message,
         };
-        let json = Json::parse(&text).map_err(bad)?;
-        let num = |v: &Json, what: &str| -> Result<f64, RomError> {
-            let mut cur = v;
-            for k in what.split('.') {
-                cur = cur.get(k).ok_or_else(|| bad(format!("missing '{what}'")))?;
-            }
-            cur.num()
-                .filter(|x| x.is_finite())
-                .ok_or_else(|| bad(format!("'{what}' is not a number")))
-        };
-        let int = |v: &Json, what: &str| -> Result<usize, RomError> {
-            let x = num(v, what)?;
-            (x >= 1.0 && x.fract() == 0.0 && x < 1e9)
-                .then_some(x as usize)
-                .ok_or_else(|| bad(format!("'{what}' must be a positive integer")))
-        };
-        match json.get("format").and_then(Json::str) {
+        let json: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        match json.get("format").and_then(serde_json::Value::as_str) {
             Some(FORMAT) => {}
             other => {
                 return Err(bad(format!(
@@ -224,66 +305,66 @@ impl Manifest {
                 )))
             }
         }
-        let size_arr = json
-            .get("gel")
-            .and_then(|g| g.get("size"))
-            .and_then(Json::arr)
-            .filter(|a| a.len() == 3)
-            .ok_or_else(|| bad("'gel.size' must hold three numbers".into()))?;
+        let doc: document::Document =
+            serde_json::from_value(json.clone()).map_err(|e| bad(e.to_string()))?;
+        debug_assert_eq!(doc.format, FORMAT);
+        let positive = |what: &str, x: f64| {
+            (x.is_finite() && x > 0.0)
+                .then_some(x)
+                .ok_or_else(|| bad(format!("'{what}' must be a positive number")))
+        };
+        let count = |what: &str, n: usize| {
+            (n >= 1)
+                .then_some(n)
+                .ok_or_else(|| bad(format!("'{what}' must be a positive integer")))
+        };
         let mut size = [0.0; 3];
-        for (s, v) in size.iter_mut().zip(size_arr) {
-            *s = v
-                .num()
-                .filter(|x| *x > 0.0)
-                .ok_or_else(|| bad("'gel.size' must be positive".into()))?;
+        for (s, &v) in size.iter_mut().zip(&doc.gel.size) {
+            *s = positive("gel.size", v)?;
         }
         let gel = GelSpec {
             size,
-            young: num(&json, "gel.young")?,
-            poisson: num(&json, "gel.poisson")?,
-            friction: num(&json, "gel.friction")?,
-            coarse_dx: num(&json, "coarse_dx")?,
+            young: positive("gel.young", doc.gel.young)?,
+            poisson: doc.gel.poisson,
+            friction: doc.gel.friction,
+            coarse_dx: positive("coarse_dx", doc.coarse_dx)?,
         };
-        let l = json
-            .get("lattice")
-            .ok_or_else(|| bad("missing 'lattice'".into()))?;
+        let l = &doc.lattice;
         let lattice = LatticeSpec {
             size,
-            nx: int(l, "nx")?,
-            ny: int(l, "ny")?,
-            encoder_stride: int(l, "encoder_stride")?,
-            patch: int(l, "patch")?,
-            patch_step: int(l, "patch_step")?,
-            depth_scale: num(l, "depth_scale")?,
+            nx: count("lattice.nx", l.nx)?,
+            ny: count("lattice.ny", l.ny)?,
+            encoder_stride: count("lattice.encoder_stride", l.encoder_stride)?,
+            patch: count("lattice.patch", l.patch)?,
+            patch_step: count("lattice.patch_step", l.patch_step)?,
+            depth_scale: positive("lattice.depth_scale", l.depth_scale)?,
         };
         if lattice.patch % 2 == 0 {
             return Err(bad("'lattice.patch' must be odd".into()));
         }
-        let latent = int(&json, "latent")?;
+        let latent = count("latent", doc.latent)?;
         let r = latent as i64;
         let e = lattice.encoder_len() as i64;
         let f = lattice.query_len() as i64;
-        if int(&json, "encoder_input")? as i64 != e || int(&json, "query_features")? as i64 != f {
+        if doc.encoder_input as i64 != e || doc.query_features as i64 != f {
             return Err(bad(format!(
                 "'encoder_input' / 'query_features' disagree with the lattice ({e} / {f})"
             )));
         }
-        let rf = json
-            .get("refinement")
-            .ok_or_else(|| bad("missing 'refinement'".into()))?;
+        let rf = &doc.refinement;
         let refinement = Refinement {
-            enabled: rf.get("enabled").and_then(Json::bool).unwrap_or(true),
+            enabled: rf.enabled,
             lbfgs: LbfgsOptions {
-                max_iterations: int(rf, "max_iterations")?.min(10),
-                tolerance: num(rf, "tolerance")?,
+                max_iterations: count("refinement.max_iterations", rf.max_iterations)?.min(10),
+                tolerance: rf.tolerance,
                 ..LbfgsOptions::default()
             },
-            stride: int(rf, "stride")?,
-            contact_stride: int(rf, "contact_stride")?,
-            w_inertia: num(rf, "w_inertia")?,
-            w_elastic: num(rf, "w_elastic")?,
-            w_contact: num(rf, "w_contact")?,
-            anchor_encoder: match rf.get("anchor").and_then(Json::str) {
+            stride: count("refinement.stride", rf.stride)?,
+            contact_stride: count("refinement.contact_stride", rf.contact_stride)?,
+            w_inertia: rf.w_inertia,
+            w_elastic: rf.w_elastic,
+            w_contact: rf.w_contact,
+            anchor_encoder: match rf.anchor.as_deref() {
                 None | Some("coarse") => false,
                 Some("encoder") => true,
                 Some(other) => {
@@ -293,10 +374,7 @@ impl Manifest {
                 }
             },
         };
-        let rg = json
-            .get("region")
-            .ok_or_else(|| bad("missing 'region'".into()))?;
-        let region = (num(rg, "eps_mm")?, num(rg, "grow")? as usize);
+        let region = (doc.region.eps_mm, doc.region.grow);
         // Expected graph signatures, from the lattice and the latent size; the manifest's
         // own listing must agree.
         let want: [(&str, Vec<(&str, Vec<i64>)>, Vec<(&str, Vec<i64>)>); 3] = [
@@ -316,33 +394,21 @@ impl Manifest {
                 vec![("depth", vec![-1, 1]), ("jacobian", vec![-1, r])],
             ),
         ];
-        let files_json = json
-            .get("files")
-            .ok_or_else(|| bad("missing 'files'".into()))?;
-        let mut files: Vec<(PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>)> =
-            Vec::new();
+        let mut files = Vec::new();
         for (key, ins, outs) in want {
-            let fj = files_json
+            let fj = doc
+                .files
                 .get(key)
                 .ok_or_else(|| bad(format!("missing 'files.{key}'")))?;
-            let rel = fj
-                .get("path")
-                .and_then(Json::str)
-                .ok_or_else(|| bad(format!("missing 'files.{key}.path'")))?;
-            for (section, list) in [("inputs", &ins), ("outputs", &outs)] {
-                for (name, shape) in list {
-                    let listed: Option<Vec<i64>> = fj
-                        .get(section)
-                        .and_then(|s| s.get(name))
-                        .and_then(Json::arr)
-                        .map(|a| {
-                            a.iter()
-                                .map(|v| v.num().unwrap_or(f64::NAN) as i64)
-                                .collect()
-                        });
-                    if listed.as_ref() != Some(shape) {
+            for (section, listed, wanted) in [
+                ("inputs", &fj.inputs, &ins),
+                ("outputs", &fj.outputs, &outs),
+            ] {
+                for (name, shape) in wanted {
+                    let got = listed.get(*name);
+                    if got != Some(shape) {
                         return Err(bad(format!(
-                            "'files.{key}.{section}.{name}' is {listed:?}, expected {shape:?} for \
+                            "'files.{key}.{section}.{name}' is {got:?}, expected {shape:?} for \
                              latent {latent} and the lattice"
                         )));
                     }
@@ -350,20 +416,77 @@ impl Manifest {
             }
             let own =
                 |l: Vec<(&str, Vec<i64>)>| l.into_iter().map(|(n, s)| (n.to_owned(), s)).collect();
-            files.push((dir.join(rel), own(ins), own(outs)));
+            files.push((dir.join(&fj.path), own(ins), own(outs)));
         }
         let files: [_; 3] = files.try_into().expect("three graphs");
+        let recipe = doc.recipe.ok_or_else(|| {
+            bad("missing 'recipe' (the coarse solve the model was trained on)".into())
+        })?;
+        if (recipe.dx - gel.coarse_dx).abs() > 1e-12 {
+            return Err(bad(format!(
+                "'recipe.dx' {} disagrees with 'coarse_dx' {}",
+                recipe.dx, gel.coarse_dx
+            )));
+        }
         Ok(Manifest {
             dir: dir.to_owned(),
             gel,
-            reference_dx: num(&json, "reference_dx")?,
+            reference_dx: positive("reference_dx", doc.reference_dx)?,
             lattice,
             latent,
             region,
             refinement,
+            recipe,
             files,
             json,
         })
+    }
+
+    /// Checks that a sensor's coarse solve is the one the model was trained on: grid
+    /// spacing, material and solver equal to the recipe's, tolerance at most its
+    /// `max_tolerance`. Errors name the attribute, the sensor's value and the model's.
+    pub fn check_recipe(
+        &self,
+        dx: f64,
+        material: &str,
+        solver: &str,
+        tolerance: f64,
+    ) -> Result<(), RomError> {
+        let r = &self.recipe;
+        let mismatch = |what: &str, e: String, a: String| RomError::Mismatch {
+            model: self.dir.clone(),
+            expected: format!("{what} {e}"),
+            actual: format!("{what} {a}"),
+        };
+        if (dx - r.dx).abs() > 1e-9 {
+            return Err(mismatch(
+                "coarse grid dx =",
+                format!("{} m", r.dx),
+                format!("{dx} m"),
+            ));
+        }
+        if material != r.material {
+            return Err(mismatch(
+                "material =",
+                r.material.clone(),
+                material.to_owned(),
+            ));
+        }
+        if solver != r.solver {
+            return Err(mismatch(
+                "coarse solver",
+                r.solver.clone(),
+                solver.to_owned(),
+            ));
+        }
+        if tolerance > r.max_tolerance * (1.0 + 1e-9) {
+            return Err(mismatch(
+                "coarse solve tolerance at most",
+                format!("{:e}", r.max_tolerance),
+                format!("tolerance = {tolerance:e}"),
+            ));
+        }
+        Ok(())
     }
 
     /// Checks that a sensor's gel is the one the model was trained for (relative
@@ -775,7 +898,6 @@ impl Rom {
         report.refine_s = (t2 - t1).as_secs_f64();
         // Dense decoding on the region.
         let spec = self.manifest.lattice;
-        let t = spec.size[2];
         self.query.clear();
         let mut points = Vec::new();
         for (i, &inside) in self.region.iter().enumerate() {
@@ -795,21 +917,18 @@ impl Rom {
             let v = v as f64 / spec.depth_scale;
             self.lattice_depth[i] = if v.is_finite() { v } else { obs.coarse[i] };
         }
-        for (v, &p) in self.lattice_depth.iter_mut().zip(&obs.pen) {
-            *v = v.max(p).clamp(0.0, t);
-        }
+        let _ = obs.rule.apply(&mut self.lattice_depth, &obs.pen);
         report.decoded = points.len();
         report.decode_s = t2.elapsed().as_secs_f64();
         Ok(report)
     }
 
-    /// Renders the last inference's lattice onto `grid`: bilinear interpolation, then the
-    /// contact constraint with the full-resolution rigid surface `zmin` (sensor-frame z of
-    /// the lowest indenter surface per pixel, +inf where none), clamped to `[0, T]`.
-    pub fn render(&self, grid: &PixelGrid, zmin: &[f64], out: &mut [f64]) {
+    /// Renders the last inference's lattice onto `grid` by bilinear interpolation; the
+    /// caller applies the depth rule with the full-resolution rigid surface.
+    pub fn render(&self, grid: &PixelGrid, out: &mut [f64]) {
         let spec = &self.manifest.lattice;
         let (nx, ny) = (spec.nx, spec.ny);
-        let [lx, ly, t] = spec.size;
+        let [lx, ly, _] = spec.size;
         let (px, py) = (lx / nx as f64, ly / ny as f64);
         let lat = &self.lattice_depth;
         for row in 0..grid.height {
@@ -824,22 +943,18 @@ impl Rom {
                 let c1 = (c0 + 1).min(nx - 1);
                 let v = (1.0 - wy) * ((1.0 - wx) * lat[r0 * nx + c0] + wx * lat[r0 * nx + c1])
                     + wy * ((1.0 - wx) * lat[r1 * nx + c0] + wx * lat[r1 * nx + c1]);
-                let i = row * grid.width + col;
-                let z = zmin[i];
-                let rigid = if z.is_finite() { -z } else { 0.0 };
-                out[i] = if v.is_finite() { v.max(rigid) } else { rigid }.clamp(0.0, t);
+                out[row * grid.width + col] = v;
             }
         }
     }
 
     /// One sensor evaluation: observation of the solved coarse `gel` under `indenters`,
-    /// inference, and the depth image on `grid` (`zmin` as in [`Rom::render`]).
+    /// inference, and the surface on `grid` as in [`Rom::render`].
     pub fn evaluate(
         &mut self,
         gel: &Gel,
         indenters: &[Placed],
         grid: &PixelGrid,
-        zmin: &[f64],
         out: &mut [f64],
     ) -> Result<RomReport, RomError> {
         let t0 = Instant::now();
@@ -852,22 +967,20 @@ impl Rom {
         let mut report = result?;
         report.encode_s += observe_s;
         let t1 = Instant::now();
-        self.render(grid, zmin, out);
+        self.render(grid, out);
         report.decode_s += t1.elapsed().as_secs_f64();
         Ok(report)
     }
 }
 
-impl Clone for Rom {
+impl Rom {
     /// A copy with sessions of its own (ONNX Runtime sessions run with `&mut`), loaded again
-    /// from the model directory: for `mj_copyData`. A failure to reload panics; the plugin's
-    /// FFI edge reports it as a failed copy.
-    fn clone(&self) -> Self {
-        let mut copy = Rom::load(&self.manifest.dir, self.options)
-            .unwrap_or_else(|e| panic!("cannot copy the reduced-order model: {e}"));
+    /// from the model directory: for `mj_copyData`.
+    pub fn try_clone(&self) -> Result<Self, RomError> {
+        let mut copy = Rom::load(&self.manifest.dir, self.options)?;
         copy.z.clone_from(&self.z);
         copy.lattice_depth.clone_from(&self.lattice_depth);
-        copy
+        Ok(copy)
     }
 }
 

@@ -1,0 +1,259 @@
+//! The tactile sensor: indenters in, depth image (and other outputs) out.
+//!
+//! [`TactileSensor`] owns everything one sensor needs in one `mjData`: the validated
+//! configuration, the gel's model, and reusable image buffers. It knows nothing of MuJoCo:
+//! the caller hands it the indenters posed in the sensor frame. One evaluation is a short
+//! pipeline: the scene (which indenters touch, their rigid surface, the depth rule), the
+//! physics mode ([`models::SurfaceModel`]), the outputs ([`outputs`]).
+
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use crate::config::Config;
+use crate::geometry::{Aabb, PixelGrid, Placed};
+use crate::mpm::SolveReport;
+use crate::render::DepthRule;
+use crate::rom::RomReport;
+
+pub mod models;
+pub mod outputs;
+
+use models::SurfaceModel;
+use outputs::{Frame, Needs};
+
+/// Failure to build a sensor from a valid configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum SensorError {
+    /// The gel simulation refused its parameters.
+    #[error("tacrom.tactile sensor '{sensor}': {message}")]
+    Physics {
+        /// Sensor name.
+        sensor: String,
+        /// What the solver said.
+        message: String,
+    },
+}
+
+/// Per-stage wall time of the last evaluation (seconds).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    /// Contact test and rigid surface of the indenters.
+    pub geometry: f64,
+    /// Gel simulation.
+    pub physics: f64,
+    /// Writing the outputs.
+    pub render: f64,
+}
+
+/// What one evaluation did, for warnings and benchmarks.
+#[derive(Clone, Debug, Default)]
+pub struct Evaluation {
+    /// Whether any indenter reached the gel.
+    pub contact: bool,
+    /// The gel solver's report, when it ran.
+    pub solve: Option<SolveReport>,
+    /// Stage timings.
+    pub times: StageTimes,
+    /// Messages for the user (the solver hit its iteration cap, ...).
+    pub warnings: Vec<String>,
+    /// The reduced-order model's report, when it ran (`physics="rom"`).
+    pub rom: Option<RomReport>,
+    /// How far the model's surface sank below the deepest indenter point before the depth
+    /// rule bounded it (m; 0 when it did not): no elastic gel can, so a value above the
+    /// grid's resolution is an error of the model.
+    pub bound_excess: f64,
+}
+
+/// What the physics modes see of one frame: the indenters that can touch the gel, the
+/// image grid, their rigid surface on it and the depth rule they imply.
+#[derive(Clone, Copy, Debug)]
+pub struct Scene<'a> {
+    /// Indenters whose bounding box meets the gel (sensor frame).
+    pub indenters: &'a [Placed],
+    /// The image's pixel grid.
+    pub grid: &'a PixelGrid,
+    /// Lowest indenter surface per pixel (sensor-frame z), `+inf` where none.
+    pub zmin: &'a [f64],
+    /// The bounds of the contact problem.
+    pub rule: DepthRule,
+}
+
+/// One tactile sensor's state in one simulation.
+#[derive(Debug)]
+pub struct TactileSensor {
+    config: Config,
+    grid: PixelGrid,
+    model: Box<dyn SurfaceModel>,
+    /// What the configured outputs need computed.
+    needs: Needs,
+    /// Lowest indenter surface per pixel (sensor frame z), +inf where none.
+    zmin: Vec<f64>,
+    /// Rigid penetration per pixel (m).
+    penetration: Vec<f64>,
+    depth: Vec<f64>,
+    force: Vector3<f64>,
+}
+
+impl TactileSensor {
+    /// A sensor in its undeformed state; loads what its physics mode needs (the ONNX model
+    /// for `rom` only).
+    pub fn new(config: Config) -> Result<Self, SensorError> {
+        let grid = PixelGrid {
+            width: config.width,
+            height: config.height,
+            fov_x: config.fov[0],
+            fov_y: config.fov[1],
+        };
+        let model = models::build(&config)?;
+        let needs = config
+            .outputs
+            .iter()
+            .fold(Needs::NONE, |n, o| n | o.spec().needs);
+        let pixels = config.pixels();
+        let image = |v: f64| {
+            if needs.depth {
+                vec![v; pixels]
+            } else {
+                Vec::new()
+            }
+        };
+        Ok(Self {
+            grid,
+            model,
+            needs,
+            zmin: vec![f64::INFINITY; pixels],
+            penetration: image(0.0),
+            depth: image(0.0),
+            force: Vector3::zeros(),
+            config,
+        })
+    }
+
+    /// A copy with the same state, for `mj_copyData`; fails (rather than panics) when the
+    /// model's resources cannot be duplicated.
+    pub fn try_clone(&self) -> Result<Self, SensorError> {
+        Ok(Self {
+            config: self.config.clone(),
+            grid: self.grid,
+            model: self.model.try_clone()?,
+            needs: self.needs,
+            zmin: self.zmin.clone(),
+            penetration: self.penetration.clone(),
+            depth: self.depth.clone(),
+            force: self.force,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// The image's pixel grid.
+    pub fn grid(&self) -> &PixelGrid {
+        &self.grid
+    }
+
+    /// The depth image of the last evaluation (H x W, row-major, m); empty when no
+    /// configured output needs it.
+    pub fn depth(&self) -> &[f64] {
+        &self.depth
+    }
+
+    /// The force of the last evaluation (N, sensor frame); zero when not asked for.
+    pub fn force(&self) -> Vector3<f64> {
+        self.force
+    }
+
+    /// Back to the undeformed gel.
+    pub fn reset(&mut self) {
+        self.model.reset();
+        self.depth.fill(0.0);
+        self.force = Vector3::zeros();
+    }
+
+    /// The gel's bounding box in the sensor frame.
+    pub fn gel_box(&self) -> Aabb {
+        let [lx, ly, t] = self.config.size;
+        Aabb::new(
+            [-0.5 * lx, -0.5 * ly, -t].into(),
+            [0.5 * lx, 0.5 * ly, 0.0].into(),
+        )
+    }
+
+    /// Evaluates the sensor for `indenters` (posed in the sensor frame) and writes the
+    /// configured outputs, concatenated in order, into `out`
+    /// (`out.len() == config.sensordata_len()`).
+    pub fn evaluate(&mut self, indenters: &[Placed], out: &mut [f64]) -> Evaluation {
+        let mut eval = Evaluation::default();
+        let t0 = Instant::now();
+        let gel_box = self.gel_box();
+        let touching: Vec<Placed> = indenters
+            .iter()
+            .filter(|p| p.aabb().intersects(&gel_box))
+            .cloned()
+            .collect();
+        eval.contact = !touching.is_empty();
+        if !eval.contact && self.model.at_rest() {
+            // No contact and a flat gel: zeros, nothing else.
+            self.depth.fill(0.0);
+            self.force = Vector3::zeros();
+            out.fill(0.0);
+            eval.times.geometry = t0.elapsed().as_secs_f64();
+            return eval;
+        }
+        let t = self.config.size[2];
+        self.zmin.fill(f64::INFINITY);
+        for p in &touching {
+            p.lower_surface(&self.grid, -t, 0.0, &mut self.zmin);
+        }
+        let scene = Scene {
+            indenters: &touching,
+            grid: &self.grid,
+            zmin: &self.zmin,
+            rule: DepthRule::new(t, &touching),
+        };
+        let t1 = Instant::now();
+        eval.times.geometry = (t1 - t0).as_secs_f64();
+
+        self.model.solve(&scene, &mut eval);
+        if self.needs.depth {
+            self.model.depth(&scene, &mut self.depth, &mut eval);
+            for (p, &z) in self.penetration.iter_mut().zip(scene.zmin) {
+                *p = scene.rule.penetration(z);
+            }
+            eval.bound_excess = scene.rule.apply(&mut self.depth, &self.penetration);
+        }
+        let force = if self.needs.force {
+            self.model.force()
+        } else {
+            Vector3::zeros()
+        };
+        self.force = if force.iter().all(|f| f.is_finite()) {
+            force
+        } else {
+            Vector3::zeros()
+        };
+        let t2 = Instant::now();
+        eval.times.physics = (t2 - t1).as_secs_f64();
+        self.write_outputs(out);
+        eval.times.render = t2.elapsed().as_secs_f64();
+        eval
+    }
+
+    fn write_outputs(&self, out: &mut [f64]) {
+        let frame = Frame {
+            depth: &self.depth,
+            zmin: &self.zmin,
+            force: self.force,
+        };
+        let mut at = 0;
+        for o in &self.config.outputs {
+            let spec = o.spec();
+            let n = spec.len(&self.config);
+            (spec.write)(&frame, &mut out[at..at + n]);
+            at += n;
+        }
+    }
+}

@@ -1,0 +1,282 @@
+//! The physics modes behind one trait: each turns the indenters pressing the gel into a
+//! surface indentation and a force. A new mode is one [`SurfaceModel`] implementation and
+//! one arm of [`build`].
+
+use nalgebra::Vector3;
+
+use super::{Evaluation, Scene, SensorError};
+use crate::config::{material_name, Config, Physics};
+use crate::mpm::{Gel, GelParams, SolverOptions};
+use crate::rom::{Rom, RomOptions};
+
+/// A model of the gel's surface.
+pub trait SurfaceModel: Send + std::fmt::Debug {
+    /// Whether the gel is undeformed, so that a frame without contact costs nothing.
+    fn at_rest(&self) -> bool;
+
+    /// Solves the gel under the scene's touching indenters (none: back to rest); warnings
+    /// and reports go to `eval`.
+    fn solve(&mut self, scene: &Scene<'_>, eval: &mut Evaluation);
+
+    /// The gel's surface indentation on the image grid (m, positive into the gel), before
+    /// the depth rule; `+NaN` where the model has none (the rule then gives the rigid
+    /// penetration).
+    fn depth(&mut self, scene: &Scene<'_>, out: &mut [f64], eval: &mut Evaluation);
+
+    /// The total force of the gel on the indenters after the last solve (N, sensor frame).
+    fn force(&self) -> Vector3<f64>;
+
+    /// Back to the undeformed gel.
+    fn reset(&mut self);
+
+    /// A copy with the same state (for `mj_copyData`); fails rather than panics when a
+    /// resource cannot be duplicated.
+    fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError>;
+}
+
+/// The model `config` asks for (validated: a bad combination fails at model load).
+pub fn build(config: &Config) -> Result<Box<dyn SurfaceModel>, SensorError> {
+    let fail = |message: String| SensorError::Physics {
+        sensor: config.name.clone(),
+        message,
+    };
+    match (config.physics, config.dx) {
+        (Physics::Rigid, _) | (_, None) => Ok(Box::new(Rigid)),
+        (Physics::Coarse | Physics::Fine, Some(dx)) => Ok(Box::new(Mpm::new(config, dx)?)),
+        (Physics::Rom, Some(dx)) => {
+            let mpm = Mpm::new(config, dx)?;
+            let rom = load_rom(config, dx).map_err(fail)?;
+            Ok(Box::new(Reduced {
+                mpm,
+                rom: Box::new(rom),
+            }))
+        }
+    }
+}
+
+/// The undeformed gel: depth is the indenters' rigid penetration, no force.
+#[derive(Clone, Copy, Debug)]
+struct Rigid;
+
+impl SurfaceModel for Rigid {
+    fn at_rest(&self) -> bool {
+        true
+    }
+
+    fn solve(&mut self, _: &Scene<'_>, _: &mut Evaluation) {}
+
+    fn depth(&mut self, _: &Scene<'_>, out: &mut [f64], _: &mut Evaluation) {
+        out.fill(0.0);
+    }
+
+    fn force(&self) -> Vector3<f64> {
+        Vector3::zeros()
+    }
+
+    fn reset(&mut self) {}
+
+    fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError> {
+        Ok(Box::new(*self))
+    }
+}
+
+/// An MPM gel solved to quasi-static equilibrium (`coarse` and `fine`), created on first
+/// contact: a scene that never touches costs nothing.
+#[derive(Clone, Debug)]
+struct Mpm {
+    name: String,
+    params: GelParams,
+    options: SolverOptions,
+    gel: Option<Box<Gel>>,
+    deformed: bool,
+}
+
+impl Mpm {
+    fn new(config: &Config, dx: f64) -> Result<Self, SensorError> {
+        let params = GelParams {
+            size: config.size,
+            young: config.young,
+            poisson: config.poisson,
+            density: config.density,
+            friction: config.friction,
+            dx,
+            material: config.material,
+        };
+        let options = SolverOptions {
+            threads: config.threads,
+            tolerance: config.tolerance,
+            ..SolverOptions::default()
+        };
+        Gel::validate(&params, &options).map_err(|e| SensorError::Physics {
+            sensor: config.name.clone(),
+            message: e.to_string(),
+        })?;
+        Ok(Self {
+            name: config.name.clone(),
+            params,
+            options,
+            gel: None,
+            deformed: false,
+        })
+    }
+
+    /// The solved gel, if any solve has run.
+    fn gel(&self) -> Option<&Gel> {
+        self.gel.as_deref()
+    }
+}
+
+impl SurfaceModel for Mpm {
+    fn at_rest(&self) -> bool {
+        !self.deformed
+    }
+
+    fn solve(&mut self, scene: &Scene<'_>, eval: &mut Evaluation) {
+        let name = &self.name;
+        let gel = match &mut self.gel {
+            Some(g) => g,
+            None => match Gel::new(self.params, self.options) {
+                Ok(g) => self.gel.insert(Box::new(g)),
+                Err(e) => {
+                    eval.warnings
+                        .push(format!("tacrom.tactile sensor '{name}': {e}"));
+                    return;
+                }
+            },
+        };
+        if scene.indenters.is_empty() {
+            // With nothing pressing, the equilibrium is the flat gel.
+            gel.reset();
+            self.deformed = false;
+            return;
+        }
+        let report = gel.solve(scene.indenters);
+        if !report.converged {
+            eval.warnings.push(format!(
+                "tacrom.tactile sensor '{name}': gel did not reach equilibrium in {} \
+                 iterations (residual {:.3e})",
+                report.iterations, report.residual
+            ));
+        }
+        if report.nonfinite_recovered {
+            eval.warnings.push(format!(
+                "tacrom.tactile sensor '{name}': non-finite values in the gel; state recovered"
+            ));
+        }
+        eval.solve = Some(report);
+        self.deformed = true;
+    }
+
+    fn depth(&mut self, scene: &Scene<'_>, out: &mut [f64], _: &mut Evaluation) {
+        match &self.gel {
+            Some(gel) => gel.surface_depth(scene.grid, out),
+            None => out.fill(f64::NAN),
+        }
+    }
+
+    fn force(&self) -> Vector3<f64> {
+        self.gel().map_or_else(Vector3::zeros, Gel::force)
+    }
+
+    fn reset(&mut self) {
+        if let Some(gel) = &mut self.gel {
+            gel.reset();
+        }
+        self.deformed = false;
+    }
+
+    fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError> {
+        Ok(Box::new(self.clone()))
+    }
+}
+
+/// The coarse MPM gel and the reduced-order model restoring its fine detail
+/// (`physics="rom"`); where inference fails, the coarse surface with a warning.
+#[derive(Debug)]
+struct Reduced {
+    mpm: Mpm,
+    rom: Box<Rom>,
+}
+
+impl SurfaceModel for Reduced {
+    fn at_rest(&self) -> bool {
+        self.mpm.at_rest()
+    }
+
+    fn solve(&mut self, scene: &Scene<'_>, eval: &mut Evaluation) {
+        self.mpm.solve(scene, eval);
+    }
+
+    fn depth(&mut self, scene: &Scene<'_>, out: &mut [f64], eval: &mut Evaluation) {
+        if let (Some(gel), false) = (self.mpm.gel(), scene.indenters.is_empty()) {
+            match self.rom.evaluate(gel, scene.indenters, scene.grid, out) {
+                Ok(report) => {
+                    eval.rom = Some(report);
+                    return;
+                }
+                Err(e) => eval.warnings.push(format!(
+                    "tacrom.tactile sensor '{}': reduced-order model failed ({e}); coarse \
+                     depth used",
+                    self.mpm.name
+                )),
+            }
+        }
+        self.mpm.depth(scene, out, eval);
+    }
+
+    fn force(&self) -> Vector3<f64> {
+        self.mpm.force()
+    }
+
+    fn reset(&mut self) {
+        self.mpm.reset();
+    }
+
+    fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError> {
+        let rom = self.rom.try_clone().map_err(|e| SensorError::Physics {
+            sensor: self.mpm.name.clone(),
+            message: format!("cannot copy the reduced-order model: {e}"),
+        })?;
+        Ok(Box::new(Reduced {
+            mpm: self.mpm.clone(),
+            rom: Box::new(rom),
+        }))
+    }
+}
+
+/// Loads the reduced-order model of a `physics="rom"` sensor: the `model` directory or the
+/// shipped one, checked against the sensor's gel and coarse solve.
+fn load_rom(config: &Config, dx: f64) -> Result<Rom, String> {
+    let attr = crate::config::ATTR_MODEL;
+    let dir = match &config.model {
+        Some(d) => d.clone(),
+        None => crate::rom::default_model_dir().ok_or_else(|| {
+            format!(
+                "attribute '{attr}': the shipped model models/{} was not found beside the \
+                 plugin library; set '{attr}' to a model directory",
+                crate::rom::DEFAULT_MODEL
+            )
+        })?,
+    };
+    let in_dir =
+        |e: crate::rom::RomError| format!("attribute '{attr}' = \"{}\": {e}", dir.display());
+    let rom = Rom::load(
+        &dir,
+        RomOptions {
+            refine: config.refine,
+            threads: config.threads,
+        },
+    )
+    .map_err(in_dir)?;
+    let m = rom.manifest();
+    m.check_gel(config.size, config.young, config.poisson, config.friction)
+        .map_err(in_dir)?;
+    m.check_recipe(
+        dx,
+        material_name(config.material),
+        crate::mpm::SOLVER,
+        config.tolerance,
+    )
+    .map_err(in_dir)?;
+    Ok(rom)
+}

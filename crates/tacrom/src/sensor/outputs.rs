@@ -1,0 +1,236 @@
+//! The output table: every output the sensor can produce, declared once.
+//!
+//! An entry gives the output's name (the value in the `outputs` attribute), its shape for
+//! a configuration, its unit, whether it needs a gel model, what it reads of an
+//! evaluation, and its writer. `nsensordata`, the layout the plugin exports to Python and
+//! the sensor's evaluation all read this table. Adding an output is one entry here and one
+//! writer.
+
+use nalgebra::Vector3;
+
+use crate::config::Config;
+
+/// How an output's values are arranged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shape {
+    /// An image of the configured resolution, `channels` values per pixel, row-major
+    /// `(H, W)` for one channel, `(H, W, C)` otherwise.
+    Image {
+        /// Values per pixel.
+        channels: usize,
+    },
+    /// A fixed number of values.
+    Vector(usize),
+}
+
+/// What an evaluation must compute for an output.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Needs {
+    /// The depth image.
+    pub depth: bool,
+    /// The gel's contact force.
+    pub force: bool,
+}
+
+impl std::ops::BitOr for Needs {
+    type Output = Needs;
+    fn bitor(self, o: Needs) -> Needs {
+        Needs {
+            depth: self.depth || o.depth,
+            force: self.force || o.force,
+        }
+    }
+}
+
+/// What the writers read: the result of one evaluation.
+#[derive(Clone, Copy, Debug)]
+pub struct Frame<'a> {
+    /// Depth image (m, positive into the gel), when an output needs it; else empty.
+    pub depth: &'a [f64],
+    /// Lowest indenter surface per pixel (sensor-frame z, m), `+inf` where none.
+    pub zmin: &'a [f64],
+    /// Total force of the gel on the indenters (N, sensor frame); zero unless needed.
+    pub force: Vector3<f64>,
+}
+
+/// One output of the table.
+#[derive(Debug)]
+pub struct OutputSpec {
+    /// Name in the `outputs` attribute and in the Python package.
+    pub name: &'static str,
+    /// What it holds.
+    pub doc: &'static str,
+    /// Unit of its values.
+    pub unit: &'static str,
+    /// Its shape.
+    pub shape: Shape,
+    /// Whether it needs a gel with stiffness (not `physics="rigid"`).
+    pub needs_gel: bool,
+    /// What the evaluation computes for it.
+    pub needs: Needs,
+    /// Writes the output from an evaluation's frame into its sensordata slice.
+    pub write: fn(&Frame<'_>, &mut [f64]),
+}
+
+impl OutputSpec {
+    /// Its dimensions for `config`: `[H, W]`, `[H, W, C]` or `[n]`.
+    pub fn dims(&self, config: &Config) -> Vec<usize> {
+        match self.shape {
+            Shape::Image { channels: 1 } => vec![config.height, config.width],
+            Shape::Image { channels } => vec![config.height, config.width, channels],
+            Shape::Vector(n) => vec![n],
+        }
+    }
+
+    /// Number of sensordata values for `config`.
+    pub fn len(&self, config: &Config) -> usize {
+        self.dims(config).iter().product()
+    }
+}
+
+/// One configured output: a row of [`TABLE`].
+#[derive(Clone, Copy)]
+pub struct Output(&'static OutputSpec);
+
+impl Output {
+    /// The indentation depth image.
+    pub const DEPTH: Output = Output(&DEPTH);
+    /// The total contact force.
+    pub const FORCE: Output = Output(&FORCE);
+    /// The contact mask.
+    pub const CONTACT: Output = Output(&CONTACT);
+
+    /// The output called `name`, if the table has one.
+    pub fn named(name: &str) -> Option<Output> {
+        TABLE.iter().find(|o| o.0.name == name).copied()
+    }
+
+    /// Its row of the table.
+    pub fn spec(self) -> &'static OutputSpec {
+        self.0
+    }
+
+    /// Its name.
+    pub fn name(self) -> &'static str {
+        self.0.name
+    }
+}
+
+impl PartialEq for Output {
+    fn eq(&self, other: &Self) -> bool {
+        self.0.name == other.0.name
+    }
+}
+
+impl Eq for Output {}
+
+impl std::fmt::Debug for Output {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.0.name)
+    }
+}
+
+/// Every output, in the order the documentation lists them.
+pub const TABLE: [Output; 3] = [Output::DEPTH, Output::FORCE, Output::CONTACT];
+
+const DEPTH: OutputSpec = OutputSpec {
+    name: "depth",
+    doc: "indentation depth image, positive into the gel",
+    unit: "m",
+    shape: Shape::Image { channels: 1 },
+    needs_gel: false,
+    needs: Needs {
+        depth: true,
+        force: false,
+    },
+    write: |f, out| out.copy_from_slice(f.depth),
+};
+
+const FORCE: OutputSpec = OutputSpec {
+    name: "force",
+    doc: "total force of the gel on the indenters, sensor frame",
+    unit: "N",
+    shape: Shape::Vector(3),
+    needs_gel: true,
+    needs: Needs {
+        depth: false,
+        force: true,
+    },
+    write: |f, out| out.copy_from_slice(f.force.as_slice()),
+};
+
+const CONTACT: OutputSpec = OutputSpec {
+    name: "contact",
+    doc: "contact mask: 1 where an indenter reaches below the undeformed gel face, else 0",
+    unit: "1",
+    shape: Shape::Image { channels: 1 },
+    needs_gel: false,
+    needs: Needs::NONE,
+    write: |f, out| {
+        for (c, &z) in out.iter_mut().zip(f.zmin) {
+            *c = if z.is_finite() && z < 0.0 { 1.0 } else { 0.0 };
+        }
+    },
+};
+
+impl Needs {
+    /// Nothing beyond the indenters' rigid surface.
+    pub const NONE: Needs = Needs {
+        depth: false,
+        force: false,
+    };
+}
+
+/// The output table as JSON, for the Python package: per output its name, description,
+/// unit, shape (`["H", "W"]`, `["H", "W", C]` or `[n]`) and whether it needs a gel model.
+pub fn table_json() -> String {
+    let rows: Vec<serde_json::Value> = TABLE
+        .iter()
+        .map(|o| {
+            let s = o.spec();
+            let shape = match s.shape {
+                Shape::Image { channels: 1 } => serde_json::json!(["H", "W"]),
+                Shape::Image { channels } => serde_json::json!(["H", "W", channels]),
+                Shape::Vector(n) => serde_json::json!([n]),
+            };
+            serde_json::json!({
+                "name": s.name,
+                "doc": s.doc,
+                "unit": s.unit,
+                "shape": shape,
+                "needs_gel": s.needs_gel,
+            })
+        })
+        .collect();
+    serde_json::Value::Array(rows).to_string()
+}
+
+/// The sensordata layout of `config`, as JSON for the Python package: image size and, per
+/// output in sensordata order, its name, offset, shape and unit.
+pub fn layout_json(config: &Config) -> String {
+    let mut offset = 0;
+    let outputs: Vec<serde_json::Value> = config
+        .outputs
+        .iter()
+        .map(|o| {
+            let spec = o.spec();
+            let entry = serde_json::json!({
+                "name": spec.name,
+                "offset": offset,
+                "shape": spec.dims(config),
+                "unit": spec.unit,
+            });
+            offset += spec.len(config);
+            entry
+        })
+        .collect();
+    serde_json::json!({
+        "sensor": config.name,
+        "physics": config.physics.name(),
+        "width": config.width,
+        "height": config.height,
+        "size": offset,
+        "outputs": outputs,
+    })
+    .to_string()
+}

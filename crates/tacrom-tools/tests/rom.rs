@@ -160,7 +160,7 @@ fn bad_model_directories_give_clear_errors() {
     )
     .unwrap();
     let e = Rom::load(&d, RomOptions::default()).unwrap_err();
-    assert!(e.to_string().contains("'latent'"), "{e}");
+    assert!(e.to_string().contains("`latent`"), "{e}");
     std::fs::write(
         d.join("manifest.json"),
         text.replace("tacrom-rom-1", "tacrom-rom-0"),

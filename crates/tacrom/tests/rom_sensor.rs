@@ -4,7 +4,10 @@
 use std::sync::Arc;
 
 use nalgebra::Isometry3;
-use tacrom::config::{Config, RawConfig, ATTR_MODEL, ATTR_PHYSICS, ATTR_RESOLUTION, ATTR_SIZE};
+use tacrom::config::{
+    Config, RawConfig, ATTR_MATERIAL, ATTR_MODEL, ATTR_PHYSICS, ATTR_RESOLUTION, ATTR_SIZE,
+    ATTR_TOLERANCE,
+};
 use tacrom::geometry::{Placed, Sphere};
 use tacrom::sensor::TactileSensor;
 
@@ -46,4 +49,59 @@ fn a_gel_other_than_the_models_is_refused() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("/no/such/model"), "{e}");
+}
+
+/// A copy of the shipped model in a scratch directory, its manifest edited by `edit`.
+fn model_with(name: &str, edit: impl Fn(&mut serde_json::Value)) -> std::path::PathBuf {
+    let src = tacrom::rom::default_model_dir().expect("shipped model");
+    let dir = std::env::temp_dir().join(format!("tacrom-recipe-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for f in ["encoder.onnx", "decoder.onnx", "decoder_jacobian.onnx"] {
+        std::fs::copy(src.join(f), dir.join(f)).unwrap();
+    }
+    let text = std::fs::read_to_string(src.join("manifest.json")).unwrap();
+    let mut m: serde_json::Value = serde_json::from_str(&text).unwrap();
+    edit(&mut m);
+    std::fs::write(dir.join("manifest.json"), m.to_string()).unwrap();
+    dir
+}
+
+fn load_error(raw: RawConfig) -> String {
+    TactileSensor::new(Config::from_raw("touch", &raw).unwrap())
+        .unwrap_err()
+        .to_string()
+}
+
+/// The decoder reads the coarse solve as its input: a sensor whose coarse solve differs
+/// from the one the model was trained on (grid, material, solver, a looser tolerance) is
+/// refused at load, and the message names the attribute and both values.
+#[test]
+fn a_coarse_solve_other_than_the_models_recipe_is_refused() {
+    let recipe = |key: &'static str, value: serde_json::Value| {
+        move |m: &mut serde_json::Value| m["recipe"][key] = value.clone()
+    };
+    // The model was trained on Neo-Hookean coarse solves; the sensor runs corotated.
+    let dir = model_with("material", recipe("material", "neohookean".into()));
+    let e = load_error(RawConfig::default().with(ATTR_MODEL, dir.to_str().unwrap()));
+    assert!(
+        e.contains("'touch'") && e.contains("'model'"),
+        "names the sensor and attribute: {e}"
+    );
+    assert!(e.contains("neohookean") && e.contains("corotated"), "{e}");
+    // Another solver.
+    let dir = model_with("solver", recipe("solver", "newton".into()));
+    let e = load_error(RawConfig::default().with(ATTR_MODEL, dir.to_str().unwrap()));
+    assert!(e.contains("newton") && e.contains(tacrom::mpm::SOLVER), "{e}");
+    // The shipped model through the material attribute.
+    let e = load_error(RawConfig::default().with(ATTR_MATERIAL, "neohookean"));
+    assert!(e.contains("neohookean") && e.contains("corotated"), "{e}");
+    // A tolerance looser than the model accepts.
+    let e = load_error(RawConfig::default().with(ATTR_TOLERANCE, "0.05"));
+    assert!(e.contains("5e-2") && e.contains("1e-2"), "{e}");
+    // A manifest without a recipe.
+    let dir = model_with("none", |m| {
+        m.as_object_mut().unwrap().remove("recipe");
+    });
+    let e = load_error(RawConfig::default().with(ATTR_MODEL, dir.to_str().unwrap()));
+    assert!(e.contains("recipe"), "{e}");
 }

@@ -296,7 +296,7 @@ impl Manifest {
             message,
         };
         let json: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+            serde_json::from_str(&text).map_err(|e| bad(format!("invalid JSON: {e}")))?;
         match json.get("format").and_then(serde_json::Value::as_str) {
             Some(FORMAT) => {}
             other => {
@@ -453,36 +453,32 @@ impl Manifest {
         tolerance: f64,
     ) -> Result<(), RomError> {
         let r = &self.recipe;
-        let mismatch = |what: &str, e: String, a: String| RomError::Mismatch {
+        let mismatch = |expected: String, actual: String| RomError::Mismatch {
             model: self.dir.clone(),
-            expected: format!("{what} {e}"),
-            actual: format!("{what} {a}"),
+            expected,
+            actual,
         };
         if (dx - r.dx).abs() > 1e-9 {
             return Err(mismatch(
-                "coarse grid dx =",
-                format!("{} m", r.dx),
-                format!("{dx} m"),
+                format!("the coarse grid dx = {} m", r.dx),
+                format!("dx = {dx} m"),
             ));
         }
         if material != r.material {
             return Err(mismatch(
-                "material =",
-                r.material.clone(),
-                material.to_owned(),
+                format!("material = {}", r.material),
+                format!("material = {material}"),
             ));
         }
         if solver != r.solver {
             return Err(mismatch(
-                "coarse solver",
-                r.solver.clone(),
-                solver.to_owned(),
+                format!("coarse solutions of the \"{}\" solver", r.solver),
+                format!("the \"{solver}\" solver"),
             ));
         }
         if tolerance > r.max_tolerance * (1.0 + 1e-9) {
             return Err(mismatch(
-                "coarse solve tolerance at most",
-                format!("{:e}", r.max_tolerance),
+                format!("a coarse solve tolerance of at most {:e}", r.max_tolerance),
                 format!("tolerance = {tolerance:e}"),
             ));
         }

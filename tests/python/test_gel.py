@@ -1,6 +1,8 @@
 """The coarse MPM gel through the real `mujoco` Python package: physics sanity, state
 handling per MjData, determinism across solver threads and Python threads."""
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -10,24 +12,54 @@ from conftest import evaluate, in_threads, with_config
 COARSE = dict(physics="coarse", outputs="depth force contact", resolution="64 48")
 
 
+def hertz_bonded(e, nu, r, d, h):
+    """Force (N) of a frictionless rigid sphere pressed ``d`` into an elastic layer of
+    thickness ``h`` bonded to a rigid base: Hertz times the bonded-layer correction of
+    Dimitriadis et al. 2002 (Biophys. J. 82, Eq. 12). Written here independently of the
+    Rust code it checks."""
+    es = e / (1 - nu * nu)
+    a0 = -(1.2876 - 1.4678 * nu + 1.3442 * nu * nu) / (1 - nu)
+    b0 = (0.6387 - 1.0277 * nu + 1.5164 * nu * nu) / (1 - nu)
+    c = math.sqrt(r * d) / h
+    pi = math.pi
+    bracket = (
+        1
+        - 2 * a0 / pi * c
+        + 4 * a0 * a0 / pi**2 * c * c
+        - 8 / pi**3 * (a0**3 + 4 * pi * pi * b0 / 15) * c**3
+        + 16 * a0 / pi**4 * (a0**3 + 3 * pi * pi * b0 / 5) * c**4
+    )
+    return 4 * es / 3 * math.sqrt(r) * d**1.5 * bracket
+
+
 def test_coarse_press_physics(press_xml):
-    model = mujoco.MjModel.from_xml_string(with_config(press_xml, **COARSE))
+    """The gel's own physics, not the image's bounds: the force of a frictionless sphere
+    (R = 5 mm, the press example) against the bonded-layer Hertz solution, and the sag
+    beyond the contact patch that no rigid model has."""
+    model = mujoco.MjModel.from_xml_string(with_config(press_xml, **COARSE, friction="0"))
     data = mujoco.MjData(model)
     forces = []
-    for d in (0.1e-3, 0.3e-3, 0.5e-3):
+    for d in (0.2e-3, 0.3e-3, 0.4e-3, 0.5e-3):
         out = evaluate(model, data, d)
         depth, force, contact = out["depth"], out["force"], out["contact"]
         assert depth.shape == (48, 64) and contact.shape == (48, 64) and force.shape == (3,)
         assert np.all(np.isfinite(depth)) and depth.min() >= 0.0 and depth.max() <= 0.004
-        # Where the sphere touches, the surface follows it: the peak is the press depth.
-        assert abs(depth.max() - d) < 0.05e-3
+        # Hertz on the bonded 4 mm layer. From 0.2 mm the contact radius sqrt(2 R d) is at
+        # least one coarse cell (1.4 mm); there the coarse grid's discretisation error is
+        # +4 to +12 % at tolerance 3e-3 (measured; +/-6 % at 1e-4, so the rest is the
+        # solve's tolerance), within the 15 % asserted. At 0.1 mm (contact radius 1 mm,
+        # under one cell) it is +37 %: not asserted.
+        f_ref = hertz_bonded(1.19e5, 0.43, 0.005, d, 0.004)
+        assert abs(force[2] / f_ref - 1) < 0.15, (d, force[2], f_ref)
+        # Frictionless and centred: no lateral force beyond the solve's tolerance.
+        assert abs(force[0]) < 0.01 * force[2] and abs(force[1]) < 0.01 * force[2]
         # The gel sags beyond the contact patch (a rigid model would not).
         assert np.count_nonzero((contact == 0) & (depth > 1e-6)) > 0
         # Centred press: the image is mirror symmetric to solver tolerance (5 % of peak).
         assert np.abs(depth - depth[:, ::-1]).max() < 0.05 * d
         assert np.abs(depth - depth[::-1, :]).max() < 0.05 * d
         forces.append(force[2])
-    assert 0 < forces[0] < forces[1] < forces[2]
+    assert 0 < forces[0] < forces[1] < forces[2] < forces[3]
 
 
 def test_reset_and_copy_with_gel_state(press_xml):
@@ -64,17 +96,26 @@ def test_python_threads_match_sequential(press_xml):
 
 def test_rom_through_mujoco(press_xml):
     """The default physics (rom: coarse MPM + ONNX decoder) loads the shipped model and
-    gives a bounded image whose peak is the press depth."""
+    runs its decoder: were it to fail and fall back to the coarse surface (with a warning),
+    its image would equal coarse's bit for bit; here it must differ. Its image is finite,
+    within [0, T] and nearly mirror symmetric for a centred sphere."""
     xml = with_config(press_xml, outputs="depth contact", resolution="64 48")  # physics: default
     model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
+    coarse = mujoco.MjModel.from_xml_string(
+        with_config(press_xml, physics="coarse", outputs="depth contact", resolution="64 48")
+    )
+    coarse_data = mujoco.MjData(coarse)
     for d in (0.2e-3, 0.5e-3):
-        out = evaluate(model, data, d)
-        depth = out["depth"]
+        depth = evaluate(model, data, d)["depth"]
         assert np.all(np.isfinite(depth)) and depth.min() >= 0.0 and depth.max() <= 0.004
-        assert abs(depth.max() - d) < 0.05e-3
-        # Where the sphere touches, the image is at least its penetration.
-        assert np.all(depth[out["contact"] == 1] > 0.0)
+        # Not the coarse fallback: the decoder moves the surface by micrometres (measured
+        # 19 and 49 um at most at 0.2 and 0.5 mm); 1 um is far above round-off.
+        assert np.abs(depth - evaluate(coarse, coarse_data, d)["depth"]).max() > 1e-6
+        # The decoder was trained with the lattice's 8 symmetries; measured asymmetry 5.3
+        # and 3.3 % of the press depth, asserted within 10 %.
+        assert np.abs(depth - depth[:, ::-1]).max() < 0.1 * d
+        assert np.abs(depth - depth[::-1, :]).max() < 0.1 * d
 
 
 def test_rom_bad_model_directory_names_the_attribute(press_xml, tmp_path):

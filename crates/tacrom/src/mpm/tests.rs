@@ -4,6 +4,7 @@
 use super::*;
 use crate::geometry::{Aabb, Sdf, Sphere};
 use crate::mpm::hertz::hertz_bonded;
+use nalgebra::Point3;
 use std::sync::Arc;
 
 const R: f64 = 5e-3;

@@ -457,8 +457,8 @@ impl Gel {
     }
 
     /// Brings the gel to static equilibrium under `indenters` (sensor frame), starting from
-    /// the previous equilibrium. See the module docs for the method and the convergence
-    /// test. Indenters with a non-finite pose are skipped.
+    /// the previous equilibrium. See `relax.rs` for the method and the convergence test.
+    /// Indenters with a non-finite pose are skipped.
     pub fn solve(&mut self, indenters: &[Placed]) -> SolveReport {
         let used = indenters::usable(indenters);
         let touching = used.iter().any(|p| self.reaches(p));
@@ -564,7 +564,7 @@ impl Moduli {
 }
 
 /// The fixed quantities of every step (see the module docs, "Internal units and mass
-/// scaling" and "Quasi-static solve"); `mu` in internal units. The region is the whole
+/// scaling", and `relax.rs` for the damping); `mu` in internal units. The region is the whole
 /// gel until a solve sets it.
 fn step_context(params: &GelParams, options: &SolverOptions, layout: &Layout, mu: f64) -> StepCtx {
     let dx = layout.dx;

@@ -26,7 +26,7 @@ pub const ACTIVE_MARGIN: f64 = 1.5;
 /// Layer thickness (cells) above which the iteration cap grows in proportion to it.
 ///
 /// Both rates that bound the solve fall as one over the cells through the layer: the
-/// slowest elastic mode (`omega_1`, see the module docs) and the contact multipliers'
+/// slowest elastic mode (`omega_1`, see `mpm/relax.rs`) and the contact multipliers'
 /// gain ([`contact::multiplier_gain`]). A fixed cap that the coarse grid (2.9 cells) never
 /// reaches then cuts off the fine grid (13 cells) before it converges: measured at
 /// dx = 0.3 mm, a cold press to 0.4 mm took 2216 steps and the next, to 0.5 mm, was
@@ -84,7 +84,8 @@ impl Default for GelParams {
 /// Numerical settings of the quasi-static solve.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SolverOptions {
-    /// Convergence threshold on the relative out-of-balance force (see the module docs).
+    /// Convergence threshold on the relative out-of-balance force (see the convergence
+    /// test in `mpm/relax.rs`).
     pub tolerance: f64,
     /// Most steps per solve on a layer up to [`CAP_CELLS`] cells thick; a thicker layer
     /// gets proportionally more ([`Gel::iteration_cap`]).
@@ -101,7 +102,7 @@ pub struct SolverOptions {
     /// least [`FBAR_POISSON`].
     pub fbar: bool,
     /// Lateral margin, in gel thicknesses, around the contact footprint within which a
-    /// solve moves the gel ([`Gel::solve`], "Active region"); `f64::INFINITY`: always
+    /// solve moves the gel ([`Gel::solve`]; see `mpm/region.rs`); `f64::INFINITY`: always
     /// the whole gel.
     pub active_margin: f64,
 }

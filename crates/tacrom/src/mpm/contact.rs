@@ -134,97 +134,122 @@ pub(crate) fn update_contacts(
     state: &mut [SlotContact],
     out: &mut [Option<ActiveContact>],
 ) {
-    let layout = input.layout;
-    let dx = layout.dx;
-    let inv_dx = 1.0 / dx;
-    let k = STIFFNESS;
-    let ki = STIFFNESS * input.gain;
-    let mu = input.friction;
-    let nxp = layout.lattice[0];
+    let nxp = input.layout.lattice[0];
     state
         .par_chunks_mut(256)
         .zip(out.par_chunks_mut(256))
         .enumerate()
         .for_each(|(ci, (st, o))| {
             for (j, (c, out)) in st.iter_mut().zip(o.iter_mut()).enumerate() {
-                *out = None;
                 let slot = ci * 256 + j;
-                if !input.region.holds(slot % nxp, slot / nxp) {
-                    continue;
-                }
-                let pi = input.top[slot];
-                let p = &input.particles[pi as usize];
-                let d = p.f.column(2) * input.half_top;
-                let s = (p.x + d).cast::<f64>();
-                let s = Point3::from(layout.origin + s * dx);
-                // Nearest indenter whose (inflated) box holds the surface point.
-                let mut best: Option<(usize, f64, Point3<f64>)> = None;
-                for (i, ind) in input.indenters.iter().enumerate() {
-                    let b = &ind.bounds;
-                    let inside = (0..3).all(|k| s[k] >= b.min[k] && s[k] <= b.max[k]);
-                    if !inside {
-                        continue;
-                    }
-                    let local = ind.now.inverse_transform_point(&s);
-                    let dist = ind.shape.distance(&local);
-                    if dist.is_finite() && best.map_or(true, |b| dist < b.1) {
-                        best = Some((i, dist, local));
-                    }
-                }
-                let Some((i, dist, local)) = best else {
-                    *c = SlotContact::NONE;
-                    continue;
+                *out = if input.region.holds(slot % nxp, slot / nxp) {
+                    slot_contact(input, slot, c)
+                } else {
+                    None
                 };
-                let g = (dist * inv_dx) as f32;
-                if g >= CONTACT_BAND && c.lambda <= 0.0 {
-                    *c = SlotContact::NONE;
-                    continue;
-                }
-                let ind = &input.indenters[i];
-                let n = (ind.now.rotation * ind.shape.gradient(&local)).cast::<f32>();
-                if !n.iter().all(|v| v.is_finite()) {
-                    *c = SlotContact::NONE;
-                    continue;
-                }
-                // Augmented Lagrangian normal force and multiplier update.
-                let fn_ = (c.lambda - k * g).max(0.0);
-                c.lambda = (c.lambda - ki * g).max(0.0);
-                c.owner = i as u32;
-                if fn_ <= 0.0 {
-                    c.indenter = u32::MAX;
-                    continue;
-                }
-                let mut f = n * fn_;
-                if mu > 0.0 {
-                    if c.indenter != i as u32 {
-                        c.indenter = i as u32;
-                        c.anchor = local;
-                    }
-                    // Tangential spring to the anchor, with the Coulomb cap.
-                    let a = ind.now * c.anchor;
-                    let del = ((s - a) * inv_dx).cast::<f32>();
-                    let del_t = del - n * n.dot(&del);
-                    let ft = del_t * -k;
-                    let cap = mu * fn_;
-                    let t = ft.norm();
-                    if t > cap {
-                        let scale = cap / t;
-                        f += ft * scale;
-                        // Slide the anchor so that the spring sits at its limit length.
-                        let back = (del_t * scale).cast::<f64>() * dx;
-                        c.anchor = ind.now.inverse_transform_point(&(s - back));
-                    } else {
-                        f += ft;
-                    }
-                }
-                *out = Some(ActiveContact {
-                    particle: pi,
-                    f,
-                    d,
-                    residual: k * g.abs(),
-                });
             }
         });
+}
+
+/// The contact of top slot `slot` in this step: updates its memory `c` (multiplier,
+/// owner, stick anchor) and returns the force on its surface point, if any.
+fn slot_contact(
+    input: &ContactInput<'_>,
+    slot: usize,
+    c: &mut SlotContact,
+) -> Option<ActiveContact> {
+    let layout = input.layout;
+    let dx = layout.dx;
+    let k = STIFFNESS;
+    let ki = STIFFNESS * input.gain;
+    let pi = input.top[slot];
+    let p = &input.particles[pi as usize];
+    let d = p.f.column(2) * input.half_top;
+    let s = (p.x + d).cast::<f64>();
+    let s = Point3::from(layout.origin + s * dx);
+    let Some((i, dist, local)) = nearest(input.indenters, &s) else {
+        *c = SlotContact::NONE;
+        return None;
+    };
+    let g = (dist * (1.0 / dx)) as f32;
+    if g >= CONTACT_BAND && c.lambda <= 0.0 {
+        *c = SlotContact::NONE;
+        return None;
+    }
+    let ind = &input.indenters[i];
+    let n = (ind.now.rotation * ind.shape.gradient(&local)).cast::<f32>();
+    if !n.iter().all(|v| v.is_finite()) {
+        *c = SlotContact::NONE;
+        return None;
+    }
+    // Augmented Lagrangian normal force and multiplier update.
+    let fn_ = (c.lambda - k * g).max(0.0);
+    c.lambda = (c.lambda - ki * g).max(0.0);
+    c.owner = i as u32;
+    if fn_ <= 0.0 {
+        c.indenter = u32::MAX;
+        return None;
+    }
+    let mut f = n * fn_;
+    let mu = input.friction;
+    if mu > 0.0 {
+        if c.indenter != i as u32 {
+            c.indenter = i as u32;
+            c.anchor = local;
+        }
+        f += stick_force(c, ind, &s, &n, mu * fn_, dx);
+    }
+    Some(ActiveContact {
+        particle: pi,
+        f,
+        d,
+        residual: k * g.abs(),
+    })
+}
+
+/// The nearest indenter whose (inflated) box holds the surface point `s` (m): its
+/// index, the signed distance and `s` in its frame.
+fn nearest(indenters: &[StepIndenter], s: &Point3<f64>) -> Option<(usize, f64, Point3<f64>)> {
+    let mut best: Option<(usize, f64, Point3<f64>)> = None;
+    for (i, ind) in indenters.iter().enumerate() {
+        let b = &ind.bounds;
+        let inside = (0..3).all(|k| s[k] >= b.min[k] && s[k] <= b.max[k]);
+        if !inside {
+            continue;
+        }
+        let local = ind.now.inverse_transform_point(s);
+        let dist = ind.shape.distance(&local);
+        if dist.is_finite() && best.map_or(true, |b| dist < b.1) {
+            best = Some((i, dist, local));
+        }
+    }
+    best
+}
+
+/// Tangential force of the stick spring from the surface point `s` (m) to the anchor of
+/// `c` on indenter `ind`, normal `n`, capped at `cap` (Coulomb); past the cap the anchor
+/// slides so that the spring sits at its limit length.
+fn stick_force(
+    c: &mut SlotContact,
+    ind: &StepIndenter,
+    s: &Point3<f64>,
+    n: &Vector3<f32>,
+    cap: f32,
+    dx: f64,
+) -> Vector3<f32> {
+    let a = ind.now * c.anchor;
+    let del = ((s - a) * (1.0 / dx)).cast::<f32>();
+    let del_t = del - n * n.dot(&del);
+    let ft = del_t * -STIFFNESS;
+    let t = ft.norm();
+    if t > cap {
+        let scale = cap / t;
+        let back = (del_t * scale).cast::<f64>() * dx;
+        c.anchor = ind.now.inverse_transform_point(&(s - back));
+        ft * scale
+    } else {
+        ft
+    }
 }
 
 /// Adds the nodal forces of the contact forces to the grid's stress force (see the module

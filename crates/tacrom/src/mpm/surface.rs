@@ -12,8 +12,12 @@
 
 use nalgebra::Vector3;
 
+use super::region::{add_to_box, non_empty, EMPTY_BOX};
 use super::Gel;
 use crate::geometry::PixelGrid;
+
+/// Surface displacements below this (m) count as "no deformation".
+pub(super) const DEPTH_EPS: f64 = 1e-9;
 
 /// Most fixed-point iterations for `X + u_xy(X) = p` (it stops when a step moves less
 /// than 1e-9 lattice spacings).
@@ -105,5 +109,29 @@ pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
                 0.0
             };
         }
+    }
+}
+
+impl Gel {
+    /// Recomputes the top-surface displacement field and the box where it is non-zero.
+    pub(super) fn update_surface(&mut self) {
+        let [nxp, nyp, _] = self.layout.lattice;
+        let dx = self.layout.dx;
+        let mut bx = EMPTY_BOX;
+        for (slot, u) in self.surface_u.iter_mut().enumerate() {
+            let p = &self.particles[self.top[slot] as usize];
+            let s = p.x + p.f.column(2) * self.half_top;
+            let d = (s - self.top_ref[slot]).cast::<f64>() * dx;
+            *u = if d.iter().all(|v| v.is_finite()) {
+                d
+            } else {
+                Vector3::zeros()
+            };
+            if u.amax() > DEPTH_EPS {
+                add_to_box(&mut bx, slot % nxp, slot / nxp);
+            }
+        }
+        self.surface_box = non_empty(bx);
+        debug_assert!(bx[1] <= nxp && bx[3] <= nyp || bx[0] == usize::MAX);
     }
 }

@@ -1,0 +1,277 @@
+//! What a gel is built from: its physical parameters ([`GelParams`], [`Material`]), the
+//! solver's settings ([`SolverOptions`]) and their validation ([`Gel::validate`]), the
+//! errors ([`MpmError`]) and what a solve reports ([`SolveReport`]).
+
+use super::Gel;
+
+/// Smallest `det F` a particle may reach; below it (inverted included) `F` is repaired
+/// through its SVD.
+pub const J_MIN: f64 = 0.2;
+/// Largest `det F` a particle may reach; above it `F` is repaired through its SVD.
+pub const J_MAX: f64 = 5.0;
+
+/// Smallest Poisson's ratio at which [`SolverOptions::fbar`] applies: below it there is
+/// no locking to cure, and the one-step-behind smoothing of `J` over the 27-node stencil
+/// only softens a contact narrower than a few cells (measured: -14 % force, 18x more
+/// iterations, R = 5 mm sphere at d = 0.2 mm, dx = 1.4 mm, Poisson 0.43).
+pub const FBAR_POISSON: f64 = 0.45;
+
+/// Default [`SolverOptions::active_margin`] (gel thicknesses). The surface of a bonded
+/// layer settles within about one thickness of a contact (measured at dx = 0.7 mm, a
+/// 0.5 mm sphere press: 29 um of indentation 2 mm beyond the contact edge, 1.2 um at
+/// 3 mm, none beyond), so the rigid wall 1.5 thicknesses out changes little; see
+/// `tacrom mpm` for the measured effect on force and cost.
+pub const ACTIVE_MARGIN: f64 = 1.5;
+
+/// Layer thickness (cells) above which the iteration cap grows in proportion to it.
+///
+/// Both rates that bound the solve fall as one over the cells through the layer: the
+/// slowest elastic mode (`omega_1`, see `mpm/relax.rs`) and the contact multipliers'
+/// gain ([`contact::multiplier_gain`]). A fixed cap that the coarse grid (2.9 cells) never
+/// reaches then cuts off the fine grid (13 cells) before it converges: measured at
+/// dx = 0.3 mm, a cold press to 0.4 mm took 2216 steps and the next, to 0.5 mm, was
+/// still converging at 3000.
+pub const CAP_CELLS: f64 = 3.2;
+
+/// Largest number of particles accepted (memory guard, about 0.3 GB).
+const MAX_PARTICLES: usize = 1 << 30 >> 2;
+
+/// Elastic energy of the gel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Material {
+    /// Fixed corotated (Stomakhin et al. 2012); the usual MPM choice for soft solids.
+    #[default]
+    FixedCorotated,
+    /// Compressible Neo-Hookean, with `det F` guarded (see [`NeoHookeanModel`]).
+    NeoHookean,
+}
+
+/// Physical description of the gel, SI units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GelParams {
+    /// Size `[Lx, Ly, T]` (m).
+    pub size: [f64; 3],
+    /// Young's modulus (Pa).
+    pub young: f64,
+    /// Poisson's ratio, in `(-1, 0.5)`.
+    pub poisson: f64,
+    /// Density (kg/m^3). Validated but irrelevant to the equilibrium (mass scaling).
+    pub density: f64,
+    /// Coulomb friction coefficient between the gel and the indenters.
+    pub friction: f64,
+    /// Grid spacing (m); two particles per axis per cell.
+    pub dx: f64,
+    /// Elastic energy.
+    pub material: Material,
+}
+
+impl Default for GelParams {
+    /// The GelSight Mini-like gel: 30 x 30 x 4 mm, E = 1.19e5 Pa, Poisson 0.43,
+    /// 1050 kg/m^3, friction 0.5, coarse grid dx = 1.4 mm (about 1e4 particles).
+    fn default() -> Self {
+        Self {
+            size: [0.03, 0.03, 0.004],
+            young: 1.19e5,
+            poisson: 0.43,
+            density: 1050.0,
+            friction: 0.5,
+            dx: 1.4e-3,
+            material: Material::FixedCorotated,
+        }
+    }
+}
+
+/// Numerical settings of the quasi-static solve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolverOptions {
+    /// Convergence threshold on the relative out-of-balance force (see the convergence
+    /// test in `mpm/relax.rs`).
+    pub tolerance: f64,
+    /// Most steps per solve on a layer up to [`CAP_CELLS`] cells thick; a thicker layer
+    /// gets proportionally more ([`Gel::iteration_cap`]).
+    pub max_iterations: usize,
+    /// Threads of the gel's own pool; results do not depend on it.
+    pub threads: usize,
+    /// Courant number `c_p dt / dx`, in `(0, 1)`.
+    pub cfl: f64,
+    /// Damping ratio relative to critical damping of the layer's lowest mode.
+    pub damping: f64,
+    /// Largest indenter motion per step while it moves from its previous pose (cells).
+    pub sweep_rate: f64,
+    /// F-bar volume smoothing against volumetric locking, for Poisson's ratios of at
+    /// least [`FBAR_POISSON`].
+    pub fbar: bool,
+    /// Lateral margin, in gel thicknesses, around the contact footprint within which a
+    /// solve moves the gel ([`Gel::solve`]; see `mpm/region.rs`); `f64::INFINITY`: always
+    /// the whole gel.
+    pub active_margin: f64,
+}
+
+impl Default for SolverOptions {
+    fn default() -> Self {
+        Self {
+            tolerance: 1e-3,
+            max_iterations: 3000,
+            threads: 1,
+            cfl: 0.5,
+            damping: 1.0,
+            sweep_rate: 0.1,
+            fbar: true,
+            active_margin: ACTIVE_MARGIN,
+        }
+    }
+}
+
+/// Errors of [`Gel::new`].
+#[derive(Debug, thiserror::Error)]
+pub enum MpmError {
+    /// A parameter is out of its range.
+    #[error("invalid gel parameter `{name}` = {value}: {reason}")]
+    InvalidParameter {
+        /// The parameter.
+        name: &'static str,
+        /// Its value.
+        value: f64,
+        /// What is required.
+        reason: &'static str,
+    },
+    /// The thread pool could not be built.
+    #[error("cannot build the MPM thread pool: {0}")]
+    ThreadPool(String),
+}
+
+/// What one [`Gel::solve`] did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolveReport {
+    /// Steps taken.
+    pub iterations: usize,
+    /// Whether the residual fell below the tolerance (after the indenters finished moving).
+    pub converged: bool,
+    /// Relative out-of-balance force after the last step.
+    pub residual: f64,
+    /// Smallest `det F` over the particles after the last step.
+    pub det_f_min: f64,
+    /// Largest `det F` over the particles after the last step.
+    pub det_f_max: f64,
+    /// Whether non-finite values appeared and the gel was restored.
+    pub nonfinite_recovered: bool,
+    /// Steps spent moving the indenters from their previous poses.
+    pub sweep_steps: usize,
+    /// Number of indenters used (finite poses).
+    pub indenters: usize,
+    /// Whether the solve started from the undeformed gel because the previous one ended
+    /// with `det F` at a clamp (the elastic state is then no longer trustworthy).
+    pub restarted: bool,
+    /// Particles the solve moved (the active region; the rest kept their state).
+    pub active_particles: usize,
+}
+impl SolveReport {
+    /// The report of a solve with `indenters` usable indenters that has not stepped yet.
+    pub(super) fn new(indenters: usize) -> Self {
+        Self {
+            iterations: 0,
+            converged: true,
+            residual: 0.0,
+            det_f_min: 1.0,
+            det_f_max: 1.0,
+            nonfinite_recovered: false,
+            sweep_steps: 0,
+            indenters,
+            restarted: false,
+            active_particles: 0,
+        }
+    }
+}
+
+const POSITIVE: &str = "must be positive";
+
+/// `Ok` when `ok` holds and `value` is finite, else the [`MpmError::InvalidParameter`]
+/// naming `name`.
+fn check(name: &'static str, value: f64, ok: bool, reason: &'static str) -> Result<(), MpmError> {
+    if ok && value.is_finite() {
+        Ok(())
+    } else {
+        Err(MpmError::InvalidParameter {
+            name,
+            value,
+            reason,
+        })
+    }
+}
+
+impl Gel {
+    /// Checks `params` and `options` without building anything (cheap: a sensor calls it
+    /// at model load and builds the gel on first contact).
+    pub fn validate(params: &GelParams, options: &SolverOptions) -> Result<(), MpmError> {
+        check_params(params)?;
+        check_options(options)?;
+        let count: f64 = params
+            .size
+            .iter()
+            .map(|&l| 2.0 * (l / params.dx).round().max(1.0))
+            .product();
+        check(
+            "dx",
+            params.dx,
+            count <= MAX_PARTICLES as f64,
+            "gives too many particles",
+        )
+    }
+}
+
+fn check_params(p: &GelParams) -> Result<(), MpmError> {
+    for (name, &l) in ["size[0]", "size[1]", "size[2]"].into_iter().zip(&p.size) {
+        check(name, l, l > 0.0, POSITIVE)?;
+    }
+    let min_size = p.size.iter().cloned().fold(f64::INFINITY, f64::min);
+    let poisson_ok = p.poisson > -1.0 && p.poisson < 0.5;
+    [
+        ("young", p.young, p.young > 0.0, POSITIVE),
+        ("poisson", p.poisson, poisson_ok, "must lie in (-1, 0.5)"),
+        ("density", p.density, p.density > 0.0, POSITIVE),
+        (
+            "friction",
+            p.friction,
+            p.friction >= 0.0,
+            "must be non-negative",
+        ),
+        ("dx", p.dx, p.dx > 0.0, POSITIVE),
+        (
+            "dx",
+            p.dx,
+            p.dx <= 2.0 * min_size,
+            "must not exceed twice the smallest gel dimension",
+        ),
+    ]
+    .into_iter()
+    .try_for_each(|(name, value, ok, reason)| check(name, value, ok, reason))
+}
+
+fn check_options(o: &SolverOptions) -> Result<(), MpmError> {
+    let cfl_ok = o.cfl > 0.0 && o.cfl < 1.0;
+    let (iterations, threads) = (o.max_iterations, o.threads);
+    [
+        ("tolerance", o.tolerance, o.tolerance > 0.0, POSITIVE),
+        (
+            "max_iterations",
+            iterations as f64,
+            iterations > 0,
+            POSITIVE,
+        ),
+        ("threads", threads as f64, threads > 0, POSITIVE),
+        ("cfl", o.cfl, cfl_ok, "must lie in (0, 1)"),
+        ("damping", o.damping, o.damping > 0.0, POSITIVE),
+        ("sweep_rate", o.sweep_rate, o.sweep_rate > 0.0, POSITIVE),
+    ]
+    .into_iter()
+    .try_for_each(|(name, value, ok, reason)| check(name, value, ok, reason))?;
+    // Not `check`: infinity is allowed (the whole gel).
+    if o.active_margin.is_nan() || o.active_margin <= 0.0 {
+        return Err(MpmError::InvalidParameter {
+            name: "active_margin",
+            value: o.active_margin,
+            reason: "must be positive (infinite: the whole gel)",
+        });
+    }
+    Ok(())
+}

@@ -1,0 +1,233 @@
+//! The quasi-static solve: dynamic relaxation to equilibrium, and its convergence test.
+//!
+//! Dynamic relaxation: explicit steps with mass-proportional damping `v <- v / (1 + c)`,
+//! `c = 2 zeta omega_1`, tuned to the lowest mode of the bonded layer, the thickness-shear
+//! quarter wave `omega_1 = (pi / 2) c_s / T` (`zeta` = [`SolverOptions::damping`], 1 for
+//! critical). Every mode then decays at least like `exp(-omega_1 t)`. Each solve starts
+//! from the previous equilibrium (warm start) with zero velocity. It stops when the
+//! largest out-of-balance nodal force (stress plus contact force left after the
+//! constraints, plus the damping force) divided by the force scale is below
+//! [`SolverOptions::tolerance`], or after [`Gel::iteration_cap`] steps. The
+//! force scale is the largest nodal reaction (bonded nodes, contact load) of this step or
+//! of the previous equilibrium (so that unloading is measured against the load it
+//! releases), and at least `1e-4 mu dx^2` (a strain of `1e-4`).
+//!
+//! The force scale also counts the mean contact force per cell of contact area (mean
+//! pressure times `dx^2`), and the residual the constraint error `k |g|` of every loaded
+//! surface point.
+//!
+//! The material is chosen once per solve ([`Gel::relax_material`]): the relaxation and
+//! its steps are generic over the [`ConstitutiveModel`].
+//!
+//! [`SolverOptions::damping`]: super::SolverOptions::damping
+//! [`SolverOptions::tolerance`]: super::SolverOptions::tolerance
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::contact::{self, ContactInput, SlotContact};
+use super::indenters::Sweep;
+use super::material::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use super::transfer::{self, P2gInput, Particle};
+use super::{Gel, Material, Snapshot, SolveReport};
+
+/// What the convergence test reads after a step.
+struct StepOutcome {
+    /// Largest out-of-balance force over the force scale.
+    residual: f64,
+    /// Whether a non-finite value appeared.
+    nonfinite: bool,
+    /// Smallest `det F` over the active particles.
+    det_min: f64,
+    /// Largest `det F` over the active particles.
+    det_max: f64,
+}
+
+impl Gel {
+    /// Relaxes the gel to equilibrium with the sweep of `sweep`, with the constitutive
+    /// model of the gel's [`Material`], chosen here once.
+    pub(super) fn relax_material(&mut self, sweep: &Sweep, report: &mut SolveReport) {
+        let (mu, lambda) = (self.mu, self.lambda);
+        match self.params.material {
+            Material::FixedCorotated => {
+                self.relax(&FixedCorotatedModel { mu, lambda }, sweep, report)
+            }
+            Material::NeoHookean => self.relax(&NeoHookeanModel { mu, lambda }, sweep, report),
+        }
+    }
+
+    /// Dynamic relaxation of the active region from the current state at rest, the
+    /// indenters moving as `sweep` says, until the residual is below the tolerance after
+    /// the sweep, a non-finite value appears (the gel is then restored, see
+    /// [`Gel::recover`]) or [`Gel::iteration_cap`] steps.
+    fn relax<M: ConstitutiveModel>(&mut self, model: &M, sweep: &Sweep, report: &mut SolveReport) {
+        self.warm_start();
+        let tol = self.options.tolerance;
+        for it in 0..self.iteration_cap() {
+            sweep.place(it, self.layout.dx, &mut self.step_ind);
+            let f = self.step(model);
+            let out = self.measure(f);
+            report.iterations = it + 1;
+            if out.nonfinite {
+                self.recover();
+                report.nonfinite_recovered = true;
+                report.converged = false;
+                report.residual = f64::INFINITY;
+                break;
+            }
+            report.residual = out.residual;
+            report.det_f_min = out.det_min;
+            report.det_f_max = out.det_max;
+            report.converged = it + 1 >= sweep.steps && out.residual <= tol;
+            if report.converged {
+                break;
+            }
+        }
+    }
+
+    /// Records the state the solve starts from and sets every particle at rest.
+    fn warm_start(&mut self) {
+        for (s, p) in self.snapshot.iter_mut().zip(&mut self.particles) {
+            *s = Snapshot::of(p);
+            p.v = Vector3::zeros();
+            p.c = Matrix3::zeros();
+        }
+        transfer::compute_stencils(&self.particles, &mut self.stencils);
+        self.binned = false;
+    }
+
+    /// One MLS-MPM step: the contact forces of the top particles, then the four parts
+    /// (see [`transfer`]): clear the grid and particle-to-grid (binning the particles
+    /// first when they changed bins), the contact forces onto the grid, grid update,
+    /// grid-to-particle. Returns the total contact force on the gel (internal units).
+    fn step<M: ConstitutiveModel>(&mut self, model: &M) -> [f64; 3] {
+        let Gel {
+            pool,
+            layout,
+            ctx,
+            particles,
+            top,
+            half_top,
+            contacts,
+            active,
+            grid,
+            order,
+            offsets,
+            cursor,
+            stencils,
+            binned,
+            layer_stats,
+            chunk_stats,
+            step_ind,
+            params,
+            ..
+        } = self;
+        let (layout, ctx) = (&*layout, &*ctx);
+        pool.install(|| {
+            let input = ContactInput {
+                layout,
+                half_top: *half_top,
+                particles,
+                top,
+                indenters: step_ind,
+                friction: params.friction as f32,
+                gain: contact::multiplier_gain(params.size[2] / layout.dx),
+                region: &ctx.region,
+            };
+            contact::update_contacts(&input, contacts, active);
+            if !*binned {
+                transfer::bin_particles(ctx, stencils, order, offsets, cursor);
+                *binned = true;
+            }
+            let input = P2gInput {
+                particles,
+                stencils,
+                order,
+                offsets,
+            };
+            transfer::particle_to_grid(ctx, model, &input, grid);
+            let f = contact::scatter_contacts(ctx, stencils, active, grid);
+            transfer::grid_update(ctx, grid, layer_stats);
+            transfer::grid_to_particle(ctx, grid, particles, stencils, chunk_stats);
+            f
+        })
+    }
+
+    /// The convergence test after a step whose contact force on the gel was `f`: the
+    /// relative residual, the force on the indenters ([`Gel::force`]), the step's largest
+    /// reaction, and the particles' state (non-finite values, `det F` range, whether any
+    /// left its bin).
+    fn measure(&mut self, f: [f64; 3]) -> StepOutcome {
+        let layout = &self.layout;
+        let mut residual = 0.0f32;
+        let mut reaction = (1e-4 * self.mu).max(self.last_reaction);
+        let mut step_reaction = 0.0f32;
+        for s in &self.layer_stats {
+            residual = residual.max(s.residual);
+            step_reaction = step_reaction.max(s.reaction);
+        }
+        // Contact load scale: the mean contact force per cell of contact area (the
+        // mean pressure times dx^2), comparable to a nodal force.
+        let mut count = 0usize;
+        for a in self.active.iter().flatten() {
+            residual = residual.max(a.residual);
+            count += 1;
+        }
+        if count > 0 {
+            let area = count as f64 * layout.spacing[0] * layout.spacing[1] / layout.dx.powi(2);
+            let load = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt() / area;
+            step_reaction = step_reaction.max(load as f32);
+        }
+        reaction = reaction.max(step_reaction);
+        let scale = self.modulus * layout.dx * layout.dx;
+        // The gel pushes the indenters with the opposite of the contact forces.
+        self.force = -Vector3::from(f) * scale;
+        self.reaction = step_reaction;
+        let mut nonfinite = !residual.is_finite() || !self.force.iter().all(|v| v.is_finite());
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for s in &self.chunk_stats {
+            nonfinite |= s.nonfinite;
+            self.binned &= !s.moved;
+            lo = lo.min(s.det_min);
+            hi = hi.max(s.det_max);
+        }
+        StepOutcome {
+            residual: (residual / reaction) as f64,
+            nonfinite,
+            det_min: lo as f64,
+            det_max: hi as f64,
+        }
+    }
+
+    /// Restores the state at the start of the solve, or the undeformed gel if that state is
+    /// itself not finite; zero velocities either way.
+    fn recover(&mut self) {
+        let good = self.snapshot.iter().all(Snapshot::is_finite);
+        if good {
+            for (p, s) in self.particles.iter_mut().zip(&self.snapshot) {
+                *p = Particle {
+                    x: s.x,
+                    v: Vector3::zeros(),
+                    c: Matrix3::zeros(),
+                    f: s.f,
+                    q: s.q,
+                    jr: s.jr,
+                };
+            }
+        } else {
+            self.restore_rest();
+        }
+        self.contacts.fill(SlotContact::NONE);
+        transfer::compute_stencils(&self.particles, &mut self.stencils);
+        self.binned = false;
+    }
+
+    /// Smallest and largest `det F` over all particles.
+    pub(super) fn det_range(&self) -> (f64, f64) {
+        self.particles
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                let j = p.f.determinant() as f64;
+                (lo.min(j), hi.max(j))
+            })
+    }
+}

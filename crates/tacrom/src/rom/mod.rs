@@ -557,6 +557,9 @@ pub struct RomReport {
     pub refine_s: f64,
     /// Wall time: dense decoding and image (s).
     pub decode_s: f64,
+    /// How far the decoded surface sank below the deepest indenter point before the
+    /// depth rule bounded it (m; 0 when it did not).
+    pub bound_excess: f64,
 }
 
 /// Points and weights of the reduced energy.
@@ -913,7 +916,7 @@ impl Rom {
             let v = v as f64 / spec.depth_scale;
             self.lattice_depth[i] = if v.is_finite() { v } else { obs.coarse[i] };
         }
-        let _ = obs.rule.apply(&mut self.lattice_depth, &obs.pen);
+        report.bound_excess = obs.rule.apply(&mut self.lattice_depth, &obs.pen);
         report.decoded = points.len();
         report.decode_s = t2.elapsed().as_secs_f64();
         Ok(report)

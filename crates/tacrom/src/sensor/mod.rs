@@ -223,7 +223,8 @@ impl TactileSensor {
             for (p, &z) in self.penetration.iter_mut().zip(scene.zmin) {
                 *p = scene.rule.penetration(z);
             }
-            eval.bound_excess = scene.rule.apply(&mut self.depth, &self.penetration);
+            let excess = scene.rule.apply(&mut self.depth, &self.penetration);
+            eval.bound_excess = eval.bound_excess.max(excess);
         }
         let force = if self.needs.force {
             self.model.force()

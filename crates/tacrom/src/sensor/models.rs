@@ -211,6 +211,7 @@ impl SurfaceModel for Reduced {
         if let (Some(gel), false) = (self.mpm.gel(), scene.indenters.is_empty()) {
             match self.rom.evaluate(gel, scene.indenters, scene.grid, out) {
                 Ok(report) => {
+                    eval.bound_excess = report.bound_excess;
                     eval.rom = Some(report);
                     return;
                 }

@@ -43,8 +43,16 @@ fn fine_mode_force_matches_bonded_hertz() {
         let f = sensor.force();
         let f_ref = hertz_bonded(e, nu, r, d, h);
         let err = f.z / f_ref - 1.0;
-        eprintln!("fine d = {d}: F = {:.5} N, Hertz {f_ref:.5} N, {:+.2} %", f.z, 100.0 * err);
-        assert!(err.abs() < 0.05, "d = {d}: {:.5} N against {f_ref:.5} N", f.z);
+        eprintln!(
+            "fine d = {d}: F = {:.5} N, Hertz {f_ref:.5} N, {:+.2} %",
+            f.z,
+            100.0 * err
+        );
+        assert!(
+            err.abs() < 0.05,
+            "d = {d}: {:.5} N against {f_ref:.5} N",
+            f.z
+        );
         // Frictionless and centred: no lateral force beyond the solve's tolerance.
         assert!(f.x.abs() < 1e-3 * f.z && f.y.abs() < 1e-3 * f.z, "{f:?}");
         // The gel's own surface never sinks below the indenter: nothing for the bound to cut.

@@ -91,7 +91,10 @@ fn a_coarse_solve_other_than_the_models_recipe_is_refused() {
     // Another solver.
     let dir = model_with("solver", recipe("solver", "newton".into()));
     let e = load_error(RawConfig::default().with(ATTR_MODEL, dir.to_str().unwrap()));
-    assert!(e.contains("newton") && e.contains(tacrom::mpm::SOLVER), "{e}");
+    assert!(
+        e.contains("newton") && e.contains(tacrom::mpm::SOLVER),
+        "{e}"
+    );
     // The shipped model through the material attribute.
     let e = load_error(RawConfig::default().with(ATTR_MATERIAL, "neohookean"));
     assert!(e.contains("neohookean") && e.contains("corotated"), "{e}");

@@ -87,25 +87,55 @@ fn hertz_medium_resolution() {
     }
 }
 
-// The force error at d = 0.4 mm shrinks from dx = 1.4 mm to 1 mm to 0.7 mm (2.9, 4 and
-// 5.7 cells through the layer; measured +10.4, -4.7, +2.1 %). The grid-node contact
-// constraint this replaced gave +13, +13, +11 % here.
+// Refinement at a tight tolerance (1e-4, so that the solve's own error is small), over
+// three depths, on a thin 16 x 16 x 2 mm gel pressed by a frictionless sphere of radius
+// 3 mm (cheap enough for every run). With 2 cells through the layer (dx = 1 mm) the
+// contact radius at 0.1 mm is under one cell and the force is 19 % above the bonded-layer
+// Hertz solution; from 3 cells (0.67 mm) on every depth is within 3.3 % (measured, at
+// 0.67 / 0.5 / 0.4 / 0.3 mm: mean |error| 2.0, 0.8, 1.0, 1.9 %). The error does not fall
+// further below that: where it is within the accuracy of the Dimitriadis polynomial and
+// of a contact on surface particles it need not be monotone, so the test asserts the
+// plateau, not a monotone decrease (which the relaxation solver's tolerance would decide).
 #[test]
-fn hertz_error_shrinks_with_resolution() {
-    let errs: Vec<f64> = [1.4e-3, 1.0e-3, 0.7e-3]
-        .iter()
-        .map(|&dx| hertz_errors(dx, &[0.4e-3])[0].2.abs())
-        .collect();
-    assert!(errs[0] > errs[1] && errs[1] > errs[2], "errors {errs:?}");
-}
-
-// The reference resolution (dx = 0.3 mm, about 1e6 particles): within 10 % of Hertz for
-// d in [0.2, 0.5] mm. Slow: run with `--ignored`.
-#[test]
-#[ignore]
-fn hertz_fine_resolution() {
-    for (d, _, err) in hertz_errors(0.3e-3, &[0.2e-3, 0.3e-3, 0.4e-3, 0.5e-3]) {
-        assert!(err.abs() < 0.10, "d = {d}: error {err}");
+fn hertz_error_falls_once_the_layer_is_resolved() {
+    let r = 3e-3;
+    let mean_error = |dx: f64| {
+        let p = GelParams {
+            size: [0.016, 0.016, 0.002],
+            friction: 0.0,
+            dx,
+            ..Default::default()
+        };
+        let mut g = gel(
+            p,
+            SolverOptions {
+                tolerance: 1e-4,
+                ..Default::default()
+            },
+        );
+        let ball: Arc<dyn Sdf> = Arc::new(Sphere { radius: r });
+        let errors: Vec<f64> = [0.1e-3, 0.2e-3, 0.3e-3]
+            .iter()
+            .map(|&d| {
+                let _ = g.solve(&[Placed {
+                    shape: ball.clone(),
+                    pose: Isometry3::translation(0.0, 0.0, r - d),
+                }]);
+                g.force().z / hertz_bonded(p.young, p.poisson, r, d, p.size[2]) - 1.0
+            })
+            .collect();
+        println!("dx {:.2} mm: errors {errors:?}", dx * 1e3);
+        assert!(
+            errors.iter().skip(1).all(|e| e.abs() < 0.05),
+            "dx {dx}: {errors:?}"
+        );
+        errors.iter().map(|e| e.abs()).sum::<f64>() / errors.len() as f64
+    };
+    let coarse = mean_error(1.0e-3);
+    let resolved = [mean_error(0.667e-3), mean_error(0.5e-3)];
+    for e in resolved {
+        assert!(e < 0.033, "resolved layer: mean |error| {e}");
+        assert!(coarse > 2.0 * e, "unresolved {coarse} against resolved {e}");
     }
 }
 
@@ -463,22 +493,34 @@ fn thread_count_does_not_change_results() {
     assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
 }
 
-// Friction resists sliding: a sphere dragged along +x is pushed back along -x by the gel.
+// Friction resists sliding, within Coulomb's law: a sphere pressed 0.4 mm and dragged
+// 3 mm along +x (1.5 contact radii past gross slip) is pushed back along -x, never by more
+// than mu times the normal force, and by a substantial part of it. In steady sliding the
+// ratio should be mu itself; the relaxation solver reaches 0.75 mu here at its default
+// tolerance and 0.64 mu at 1e-4 (measured with mu = 0.5 and 1.0): the friction does not
+// saturate fully, a gap the energy-minimising solver is to close. The lower bound, half of
+// mu, fails for friction that does not act; the upper bound for friction beyond Coulomb.
+// Without friction the same press has no lateral force beyond the solve's tolerance.
 #[test]
-fn friction_resists_sliding() {
+fn friction_resists_sliding_within_the_coulomb_limit() {
+    let mu = 0.5;
     let mut g = gel(
         GelParams {
-            friction: 1.0,
+            friction: mu,
             ..Default::default()
         },
         SolverOptions::default(),
     );
-    let _ = g.solve(&[press(-1e-3, 0.0, 0.4e-3)]);
-    for k in 1..=4 {
-        let _ = g.solve(&[press(-1e-3 + k as f64 * 0.25e-3, 0.0, 0.4e-3)]);
+    let _ = g.solve(&[press(-1.5e-3, 0.0, 0.4e-3)]);
+    for k in 1..=12 {
+        let _ = g.solve(&[press(-1.5e-3 + k as f64 * 0.25e-3, 0.0, 0.4e-3)]);
+        let f = g.force();
+        assert!(f.x <= 0.0, "slide {k}: the gel must push back: {f:?}");
+        assert!(-f.x <= mu * f.z * 1.02, "slide {k}: beyond Coulomb: {f:?}");
     }
     let f = g.force();
-    assert!(f.x < -0.05 * f.z, "force {f:?}");
+    assert!(-f.x >= 0.5 * mu * f.z, "after sliding 3 mm: {f:?}");
+    assert!(f.y.abs() < 0.01 * f.z, "no sideways force: {f:?}");
     let mut h = gel(frictionless(1.4e-3), SolverOptions::default());
     let _ = h.solve(&[press(0.0, 0.0, 0.4e-3)]);
     assert!(

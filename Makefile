@@ -91,7 +91,7 @@ train-env: $(VENV_TRAIN)/.installed
 gen-data: build
 	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
 	  target/release/tacrom gen-data --out $(ROM_DATA) --samples $(ROM_SAMPLES) --seed 1 \
-	    --fine-dx 7e-4 --fine-max-iterations 1000 --shard $$k/$(ROM_SHARDS) & \
+	    --fine-dx 0.7 --fine-max-iterations 1000 --shard $$k/$(ROM_SHARDS) & \
 	done; wait
 
 # Trains and exports the shipped model and its two ablations into models/. The reference
@@ -111,7 +111,7 @@ train: train-env
 gen-data-fine: build
 	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
 	  target/release/tacrom gen-data --out $(ROM_FINE_DATA) --samples $(ROM_FINE_SAMPLES) --seed 1 \
-	    --fine-dx 3e-4 --fine-max-iterations 3000 $(ROM_FINE_FLAGS) --shard $$k/$(ROM_SHARDS) & \
+	    --fine-dx 0.3 --fine-max-iterations 3000 $(ROM_FINE_FLAGS) --shard $$k/$(ROM_SHARDS) & \
 	done; wait
 
 # rigid, coarse, rom and its ablations against both references on the held-out families.

@@ -26,17 +26,21 @@
 //! 8 degrees, slides up to 0.6 mm. [`HELD_OUT`] families are for validation only.
 
 use std::collections::HashMap;
-use std::fmt::Write as _;
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use rand_core::{Rng as _, SeedableRng as _};
+use rand_xoshiro::SplitMix64;
+use serde::{Deserialize, Serialize};
 
 use tacrom::geometry::{Aabb, Capsule, Cuboid, Cylinder, PixelGrid, Placed, Sdf, Sphere, TriMesh};
 use tacrom::mpm::{Gel, GelParams, Material, SolveReport, SolverOptions};
 use tacrom::rom::features::{penetration, LatticeSpec, Observation};
+
+use crate::npy;
+use crate::progress::Progress;
 
 /// Families kept out of training, for validation (and the held-out test).
 pub const HELD_OUT: &[&str] = &[
@@ -91,7 +95,7 @@ impl Default for GenConfig {
             fine_dx: 0.7e-3,
             pitch: 0.3e-3,
             threads: 1,
-            patterns: PathBuf::from("../shared/indenters/patterns"),
+            patterns: tacrom::checkout_root().join("../shared/indenters/patterns"),
             families: Vec::new(),
             gel: GelParams::default(),
             fine_max_iterations: 6000,
@@ -100,111 +104,31 @@ impl Default for GenConfig {
     }
 }
 
-/// Usage of `tacrom gen-data`.
-pub const USAGE: &str = "\
-tacrom gen-data --out DIR --samples N [--shard K/N] [--seed S] [--fine-dx M] [--coarse-dx M]
-                [--pitch M] [--threads T] [--patterns DIR] [--families a,b,...]
-                [--fine-max-iterations N] [--held-out-only]
-  Paired coarse / reference presses for the reduced-order model (see src/datagen.rs).
-  Resumable: samples already in DIR are skipped. --held-out-only writes only the samples
-  of held-out families (the same presses as a full set of the same seed), for a validation
-  set at a finer --fine-dx. Defaults: --samples 100 --shard 0/1
-  --seed 1 --coarse-dx 1.4e-3 --fine-dx 7e-4 --pitch 3e-4 --threads 1
-  --patterns ../shared/indenters/patterns";
-
-/// Parses the arguments of `tacrom gen-data` (after the subcommand).
-pub fn parse_args(args: &[String]) -> Result<GenConfig, String> {
-    let mut c = GenConfig::default();
-    let mut it = args.iter();
-    while let Some(a) = it.next() {
-        let mut val = || {
-            it.next()
-                .cloned()
-                .ok_or_else(|| format!("{a} needs a value\n{USAGE}"))
-        };
-        let num = |s: String| {
-            s.parse::<f64>()
-                .map_err(|_| format!("{a}: bad number '{s}'"))
-        };
-        let int = |s: String| {
-            s.parse::<usize>()
-                .map_err(|_| format!("{a}: bad integer '{s}'"))
-        };
-        match a.as_str() {
-            "--out" => c.out = PathBuf::from(val()?),
-            "--samples" => c.samples = int(val()?)?,
-            "--seed" => c.seed = int(val()?)? as u64,
-            "--fine-dx" => c.fine_dx = num(val()?)?,
-            "--coarse-dx" => c.coarse_dx = num(val()?)?,
-            "--pitch" => c.pitch = num(val()?)?,
-            "--threads" => c.threads = int(val()?)?.max(1),
-            "--patterns" => c.patterns = PathBuf::from(val()?),
-            "--fine-max-iterations" => c.fine_max_iterations = int(val()?)?.max(1),
-            "--held-out-only" => c.held_out_only = true,
-            "--families" => {
-                c.families = val()?
-                    .split(',')
-                    .filter(|s| !s.is_empty())
-                    .map(str::to_owned)
-                    .collect()
-            }
-            "--shard" => {
-                let v = val()?;
-                let (k, n) = v
-                    .split_once('/')
-                    .and_then(|(k, n)| Some((k.parse().ok()?, n.parse().ok()?)))
-                    .filter(|&(k, n): &(usize, usize)| n > 0 && k < n)
-                    .ok_or_else(|| format!("--shard: expected K/N with K < N, got '{v}'"))?;
-                c.shard = (k, n);
-            }
-            "-h" | "--help" => return Err(USAGE.to_owned()),
-            other => return Err(format!("unknown argument '{other}'\n{USAGE}")),
-        }
-    }
-    for (name, v) in [
-        ("--fine-dx", c.fine_dx),
-        ("--coarse-dx", c.coarse_dx),
-        ("--pitch", c.pitch),
-    ] {
-        if !(v > 0.0 && v.is_finite()) {
-            return Err(format!("{name} must be positive"));
-        }
-    }
-    Ok(c)
-}
-
-/// `tacrom gen-data ARGS`: parses, generates, prints progress to stderr.
-pub fn run_cli(args: &[String]) -> Result<(), String> {
-    let config = parse_args(args)?;
-    let summary = generate(&config, |line| eprintln!("{line}"))?;
-    eprintln!("{summary}");
-    Ok(())
-}
-
-/// A small deterministic random generator (SplitMix64).
+/// The random generator of the tools: SplitMix64 (`rand_xoshiro`), with the two draws the
+/// data sets are made of. Sample `i` of a data set seeded `s` has its own stream, so the
+/// presses do not depend on sharding; the streams and draws are those of the first data
+/// sets (`tests/presses.rs` pins them).
 #[derive(Clone, Debug)]
-pub struct Rng(u64);
+pub struct Rng(SplitMix64);
 
 impl Rng {
     /// The stream of sample `index` of a data set seeded `seed`.
     pub fn new(seed: u64, index: u64) -> Self {
-        let mut r = Rng(seed ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03));
+        let mut r = Rng(SplitMix64::seed_from_u64(
+            seed ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03),
+        ));
         let _ = r.next_u64();
         r
     }
     /// Next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+        self.0.next_u64()
     }
-    /// Uniform in `[a, b)`.
+    /// Uniform in `[a, b)`, from the top 53 bits of one draw.
     pub fn uniform(&mut self, a: f64, b: f64) -> f64 {
         a + (b - a) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
     }
-    /// Uniform integer in `[0, n)`.
+    /// Uniform integer in `[0, n)` (the remainder of one draw).
     pub fn below(&mut self, n: usize) -> usize {
         (self.next_u64() % n.max(1) as u64) as usize
     }
@@ -391,8 +315,60 @@ pub struct Press {
     pub shape: Arc<dyn Sdf>,
     /// Poses in the sensor frame, solved in order.
     pub poses: Vec<Isometry3<f64>>,
-    /// Shape and pose parameters, as JSON members.
-    pub params: String,
+    /// Shape and pose parameters, as recorded in the sample's JSON.
+    pub params: PressParams,
+}
+
+/// The parameters of a press, as the members of its sample's JSON: the shape's (those of
+/// its family; the others are left out) and the pose's. Lengths in metres, angles in
+/// radians.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PressParams {
+    /// Sphere, cylinder or ridge radius.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// Cylinder half length.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub half_length: Option<f64>,
+    /// Whether the cylinder lies on its side.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lying: Option<bool>,
+    /// Box half extents.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub half_extents: Option<[f64; 3]>,
+    /// Number of bumps or ridges.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub count: Option<usize>,
+    /// Half width of the square the bumps are spread over.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spread: Option<f64>,
+    /// Distance between ridges.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gap: Option<f64>,
+    /// Height field half extents in x and y.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub half: Option<[f64; 2]>,
+    /// Number of height field modes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modes: Option<usize>,
+    /// Pattern mesh name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<String>,
+    /// Pattern mesh scale.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
+    /// Position of the footprint over the gel.
+    pub x: f64,
+    /// See `x`.
+    pub y: f64,
+    /// Depth below first contact.
+    pub depth: f64,
+    /// Turn about the sensor's z axis.
+    pub yaw: f64,
+    /// Tilt away from z.
+    pub tilt: f64,
+    /// In-plane slide after the press (x, y), if any.
+    pub slide: Option<[f64; 2]>,
 }
 
 impl Press {
@@ -439,7 +415,7 @@ fn draw_shape(
     family: &str,
     rng: &mut Rng,
     meshes: &mut MeshLibrary,
-    params: &mut String,
+    params: &mut PressParams,
 ) -> Result<(Arc<dyn Sdf>, UnitQuaternion<f64>), String> {
     let mm = 1e-3;
     let half_pi = std::f64::consts::FRAC_PI_2;
@@ -447,17 +423,14 @@ fn draw_shape(
     Ok(match family {
         "sphere" => {
             let r = rng.uniform(2.0, 8.0) * mm;
-            let _ = write!(params, "\"radius\": {r:e}, ");
+            params.radius = Some(r);
             (Arc::new(Sphere::new(r)), id)
         }
         "cylinder" => {
             let r = rng.uniform(1.5, 5.0) * mm;
             let h = rng.uniform(3.0, 8.0) * mm;
             let lying = rng.uniform(0.0, 1.0) < 0.5;
-            let _ = write!(
-                params,
-                "\"radius\": {r:e}, \"half_length\": {h:e}, \"lying\": {lying}, "
-            );
+            (params.radius, params.half_length, params.lying) = (Some(r), Some(h), Some(lying));
             let q = if lying {
                 UnitQuaternion::from_axis_angle(&Vector3::x_axis(), half_pi)
             } else {
@@ -467,11 +440,7 @@ fn draw_shape(
         }
         "box" | "edge" => {
             let he = Vector3::new(rng.uniform(1.0, 6.0), rng.uniform(1.0, 6.0), 3.0) * mm;
-            let _ = write!(
-                params,
-                "\"half_extents\": [{:e}, {:e}, {:e}], ",
-                he.x, he.y, he.z
-            );
+            params.half_extents = Some(he.into());
             let q = if family == "edge" {
                 UnitQuaternion::from_axis_angle(
                     &Vector3::x_axis(),
@@ -498,7 +467,7 @@ fn draw_shape(
                     Isometry3::from_parts(Translation3::from(c), id),
                 ));
             }
-            let _ = write!(params, "\"count\": {n}, \"spread\": {spread:e}, ");
+            (params.count, params.spread) = (Some(n), Some(spread));
             (Arc::new(Union { parts }), id)
         }
         "ridges" => {
@@ -516,10 +485,7 @@ fn draw_shape(
                     Isometry3::from_parts(Translation3::new(0.0, y, z), along_x),
                 ));
             }
-            let _ = write!(
-                params,
-                "\"count\": {n}, \"radius\": {r:e}, \"gap\": {gap:e}, "
-            );
+            (params.count, params.radius, params.gap) = (Some(n), Some(r), Some(gap));
             (Arc::new(Union { parts }), id)
         }
         "heightfield" => {
@@ -537,11 +503,7 @@ fn draw_shape(
                     rng.uniform(0.0, 6.3),
                 ));
             }
-            let _ = write!(
-                params,
-                "\"half\": [{:e}, {:e}], \"modes\": {n}, ",
-                half[0], half[1]
-            );
+            (params.half, params.modes) = (Some(half), Some(n));
             (
                 Arc::new(HeightField {
                     half,
@@ -555,7 +517,7 @@ fn draw_shape(
             let name = &f[5..];
             let mesh = meshes.get(name)?;
             let s = rng.uniform(0.4, 0.9);
-            let _ = write!(params, "\"mesh\": \"{name}\", \"scale\": {s}, ");
+            (params.mesh, params.scale) = (Some(name.to_owned()), Some(s));
             (
                 Arc::new(Scaled {
                     inner: mesh,
@@ -621,7 +583,7 @@ pub fn draw_press(
         }
         u -= w;
     }
-    let mut params = String::new();
+    let mut params = PressParams::default();
     let (shape, local) = draw_shape(&family, &mut rng, meshes, &mut params)?;
     let yaw = rng.uniform(0.0, 2.0 * std::f64::consts::PI);
     let tilt_axis = rng.uniform(0.0, 2.0 * std::f64::consts::PI);
@@ -652,11 +614,9 @@ pub fn draw_press(
         p2.translation.vector += s;
         poses.push(p2);
     }
-    let _ = write!(
-        params,
-        "\"x\": {x:e}, \"y\": {y:e}, \"depth\": {depth:e}, \"yaw\": {yaw}, \"tilt\": {tilt}, \"slide\": {}",
-        slide.map(|s| format!("[{:e}, {:e}]", s.x, s.y)).unwrap_or_else(|| "null".into())
-    );
+    (params.x, params.y, params.depth) = (x, y, depth);
+    (params.yaw, params.tilt) = (yaw, tilt);
+    params.slide = slide.map(|s| [s.x, s.y]);
     Ok(Press {
         family,
         shape,
@@ -679,78 +639,99 @@ pub fn solve_press(gel: &mut Gel, press: &Press) -> (SolveReport, f64) {
     )
 }
 
-/// Writes a float32 array as `.npy` (C order).
+/// Writes a float32 array as `.npy` (C order), atomically.
 pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
-    assert_eq!(shape.iter().product::<usize>(), data.len());
-    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let tuple = if dims.len() == 1 {
-        format!("({},)", dims[0])
-    } else {
-        format!("({})", dims.join(", "))
-    };
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {tuple}, }}");
-    let unpadded = 10 + header.len() + 1;
-    header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
-    header.push('\n');
-    let mut bytes = Vec::with_capacity(10 + header.len() + 4 * data.len());
-    bytes.extend_from_slice(b"\x93NUMPY\x01\x00");
-    bytes.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    bytes.extend_from_slice(header.as_bytes());
-    for v in data {
-        bytes.extend_from_slice(&v.to_le_bytes());
-    }
-    write_atomic(path, &bytes)
+    npy::write(path, shape, data)
 }
 
 /// Reads a float32 C-order `.npy` file as written by [`write_npy`]: shape and values.
 pub fn read_npy(path: &Path) -> Result<(Vec<usize>, Vec<f32>), String> {
-    let b = std::fs::read(path).map_err(|e| e.to_string())?;
-    if b.len() < 10 || &b[..6] != b"\x93NUMPY" {
-        return Err("not a .npy file".to_owned());
-    }
-    let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
-    let header = b
-        .get(10..10 + hlen)
-        .and_then(|h| std::str::from_utf8(h).ok())
-        .ok_or("truncated .npy header")?;
-    if !(header.contains("'<f4'") && header.contains("'fortran_order': False")) {
-        return Err(format!("not a float32 C-order array: {}", header.trim()));
-    }
-    let shape: Vec<usize> = header
-        .split("'shape': (")
-        .nth(1)
-        .and_then(|t| t.split(')').next())
-        .ok_or("no shape in the .npy header")?
-        .split(',')
-        .filter_map(|s| s.trim().parse().ok())
-        .collect();
-    let body = &b[10 + hlen..];
-    if body.len() != 4 * shape.iter().product::<usize>() {
-        return Err(format!("{} bytes of data for shape {shape:?}", body.len()));
-    }
-    let data = body
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    Ok((shape, data))
+    npy::read(path)
 }
 
-/// Writes `bytes` to `path` through a temporary file named for this process, so that
-/// shards started together never rename each other's file.
-fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
-    {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-    }
-    std::fs::rename(&tmp, path)
+/// `dataset.json`: the settings of a data set (all lengths in metres). Read by
+/// `training/tacrom_rom/data.py` and by `tacrom eval-rom`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Dataset {
+    /// `tacrom-rom-pairs-1`.
+    pub format: String,
+    /// Names of the channels of each sample's array.
+    pub channels: Vec<String>,
+    /// Unit of the arrays and lengths (`m`).
+    pub units: String,
+    /// Gel size (x, y, thickness).
+    pub size: [f64; 3],
+    /// Young's modulus (Pa).
+    pub young: f64,
+    /// Poisson's ratio.
+    pub poisson: f64,
+    /// Density (kg/m^3).
+    pub density: f64,
+    /// Coulomb friction coefficient.
+    pub friction: f64,
+    /// Constitutive model.
+    pub material: String,
+    /// Coarse grid spacing.
+    pub coarse_dx: f64,
+    /// Reference grid spacing.
+    pub fine_dx: f64,
+    /// Lattice pitch.
+    pub pitch: f64,
+    /// Lattice rows and columns (`ny`, `nx`).
+    pub lattice: [usize; 2],
+    /// Seed of the presses.
+    pub seed: u64,
+    /// Families kept out of training.
+    pub held_out: Vec<String>,
+    /// Reference solver iteration cap.
+    pub fine_max_iterations: usize,
+    /// The coarse solve of the `coarse` channel, copied into a model's manifest by the
+    /// exporter and checked by the sensor when it loads the model. Absent in data sets
+    /// written before it was recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recipe: Option<tacrom::rom::Recipe>,
 }
 
-fn report_json(r: &SolveReport, seconds: f64) -> String {
-    format!(
-        "{{\"iterations\": {}, \"converged\": {}, \"residual\": {:e}, \"seconds\": {:.4}}}",
-        r.iterations, r.converged, r.residual, seconds
-    )
+/// A solver's report on one press, in a sample's JSON.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SolveMeta {
+    /// Iterations of the last pose.
+    pub iterations: usize,
+    /// Whether the last pose converged.
+    pub converged: bool,
+    /// Final residual (`null` when not finite).
+    pub residual: Option<f64>,
+    /// Wall time of the whole press (s).
+    pub seconds: f64,
+}
+
+impl SolveMeta {
+    fn new(r: &SolveReport, seconds: f64) -> Self {
+        Self {
+            iterations: r.iterations,
+            converged: r.converged,
+            residual: r.residual.is_finite().then_some(r.residual),
+            seconds,
+        }
+    }
+}
+
+/// `sample-NNNNNN.json`: what one sample holds besides its array.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SampleMeta {
+    /// Index of the sample in the data set.
+    pub index: usize,
+    /// Indenter family.
+    pub family: String,
+    /// Whether the family is held out of training.
+    pub held_out: bool,
+    /// Shape and pose.
+    #[serde(flatten)]
+    pub params: PressParams,
+    /// The coarse solve.
+    pub coarse: SolveMeta,
+    /// The reference solve.
+    pub reference: SolveMeta,
 }
 
 /// The reference gel's and the coarse gel's parameters.
@@ -775,27 +756,50 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         ));
     }
     let g = &config.gel;
-    let held: Vec<String> = HELD_OUT.iter().map(|s| format!("\"{s}\"")).collect();
-    let dataset = format!(
-        "{{\n  \"format\": \"tacrom-rom-pairs-1\",\n  \"channels\": [\"coarse\", \"penetration\", \"reference\"],\n  \
-         \"units\": \"m\",\n  \"size\": [{:e}, {:e}, {:e}],\n  \"young\": {:e},\n  \"poisson\": {},\n  \"density\": {},\n  \
-         \"friction\": {},\n  \"material\": \"fixed_corotated\",\n  \"coarse_dx\": {:e},\n  \"fine_dx\": {:e},\n  \
-         \"pitch\": {:e},\n  \"lattice\": [{}, {}],\n  \"seed\": {},\n  \"held_out\": [{}],\n  \
-         \"fine_max_iterations\": {}\n}}\n",
-        g.size[0], g.size[1], g.size[2], g.young, g.poisson, g.density, g.friction, config.coarse_dx,
-        config.fine_dx, config.pitch, spec.ny, spec.nx, config.seed, held.join(", "),
-        config.fine_max_iterations
-    );
+    let dataset = Dataset {
+        format: "tacrom-rom-pairs-1".to_owned(),
+        channels: ["coarse", "penetration", "reference"]
+            .map(str::to_owned)
+            .to_vec(),
+        units: "m".to_owned(),
+        size: g.size,
+        young: g.young,
+        poisson: g.poisson,
+        density: g.density,
+        friction: g.friction,
+        material: "fixed_corotated".to_owned(),
+        coarse_dx: config.coarse_dx,
+        fine_dx: config.fine_dx,
+        pitch: config.pitch,
+        lattice: [spec.ny, spec.nx],
+        seed: config.seed,
+        held_out: HELD_OUT.iter().map(|s| s.to_string()).collect(),
+        fine_max_iterations: config.fine_max_iterations,
+        recipe: Some(tacrom::rom::Recipe {
+            dx: config.coarse_dx,
+            material: tacrom::config::material_name(Material::FixedCorotated).to_owned(),
+            solver: tacrom::mpm::SOLVER.to_owned(),
+            tolerance: SolverOptions::default().tolerance,
+            max_tolerance: tacrom::rom::MAX_TOLERANCE,
+        }),
+    };
     let ds_path = config.out.join("dataset.json");
     match std::fs::read_to_string(&ds_path) {
-        Ok(existing) if existing != dataset => {
-            return Err(format!(
-                "{} holds a data set with other settings; use another --out",
-                ds_path.display()
-            ))
+        Ok(text) => {
+            let existing: Dataset =
+                serde_json::from_str(&text).map_err(|e| format!("{}: {e}", ds_path.display()))?;
+            if existing != dataset {
+                return Err(format!(
+                    "{} holds a data set with other settings; use another --out",
+                    ds_path.display()
+                ));
+            }
         }
-        Ok(_) => {}
-        Err(_) => write_atomic(&ds_path, dataset.as_bytes()).map_err(|e| e.to_string())?,
+        Err(_) => {
+            let mut text = serde_json::to_string_pretty(&dataset).map_err(|e| e.to_string())?;
+            text.push('\n');
+            npy::write_atomic(&ds_path, text.as_bytes()).map_err(|e| e.to_string())?
+        }
     }
     let options = SolverOptions {
         threads: config.threads,
@@ -814,7 +818,9 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
     let (mut t_coarse, mut t_fine) = (0.0, 0.0);
     let mut obs = Observation::default();
     let mut zmin = Vec::new();
+    let bar = Progress::new((k..config.samples).step_by(n).len(), true);
     for index in (k..config.samples).step_by(n) {
+        bar.advance(1);
         let stem = config.out.join(format!("sample-{index:06}"));
         let (npy, json) = (stem.with_extension("npy"), stem.with_extension("json"));
         if npy.is_file() && json.is_file() {
@@ -832,6 +838,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         if config.held_out_only && !held_out {
             continue;
         }
+        bar.message(format!("sample {index}: {}", press.family));
         let last = press.poses.len() - 1;
         let placed = [press.placed(last)];
         let (rc, sc) = solve_press(&mut coarse, &press);
@@ -850,19 +857,22 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         );
         write_npy(&npy, &[3, spec.ny, spec.nx], &data)
             .map_err(|e| format!("{}: {e}", npy.display()))?;
-        let meta = format!(
-            "{{\"index\": {index}, \"family\": \"{}\", \"held_out\": {}, {}, \"coarse\": {}, \"reference\": {}}}\n",
-            press.family,
+        let meta = SampleMeta {
+            index,
+            family: press.family.clone(),
             held_out,
-            press.params,
-            report_json(&rc, sc),
-            report_json(&rf, sf)
-        );
-        write_atomic(&json, meta.as_bytes()).map_err(|e| format!("{}: {e}", json.display()))?;
+            params: press.params,
+            coarse: SolveMeta::new(&rc, sc),
+            reference: SolveMeta::new(&rf, sf),
+        };
+        let mut text = serde_json::to_string_pretty(&meta).map_err(|e| e.to_string())?;
+        text.push('\n');
+        npy::write_atomic(&json, text.as_bytes())
+            .map_err(|e| format!("{}: {e}", json.display()))?;
         done += 1;
         t_coarse += sc;
         t_fine += sf;
-        progress(&format!(
+        let line = format!(
             "sample {index}: {} coarse {:.2}s ({} it) reference {:.2}s ({} it{})",
             press.family,
             sc,
@@ -870,8 +880,10 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             sf,
             rf.iterations,
             if rf.converged { "" } else { ", NOT converged" }
-        ));
+        );
+        bar.suspend(|| progress(&line));
     }
+    bar.finish();
     let per = |t: f64| if done > 0 { t / done as f64 } else { 0.0 };
     Ok(format!(
         "shard {k}/{n}: {done} samples written, {skipped} already present; mean coarse {:.3}s, \

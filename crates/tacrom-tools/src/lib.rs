@@ -4,5 +4,8 @@
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod cli;
 pub mod datagen;
+pub mod npy;
+pub mod progress;
 pub mod stability;

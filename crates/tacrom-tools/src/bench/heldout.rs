@@ -16,9 +16,12 @@ use std::time::Instant;
 
 use super::metrics;
 use super::BenchError;
-use crate::datagen::read_npy;
+use serde::de::DeserializeOwned;
+use serde::Deserialize;
+
+use crate::datagen::{read_npy, Dataset};
+use crate::progress::Progress;
 use tacrom::rom::features::{LatticeSpec, Observation};
-use tacrom::rom::json::Json;
 use tacrom::rom::{Rom, RomOptions};
 
 /// Field of view the metrics cover (m), centred on the lattice.
@@ -87,9 +90,24 @@ fn bad(path: &Path, what: impl std::fmt::Display) -> BenchError {
     BenchError::Usage(format!("{}: {what}", path.display()))
 }
 
-fn read_json(path: &Path) -> Result<Json, BenchError> {
+fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, BenchError> {
     let text = std::fs::read_to_string(path).map_err(|e| bad(path, e))?;
-    Json::parse(&text).map_err(|e| bad(path, e))
+    serde_json::from_str(&text).map_err(|e| bad(path, e))
+}
+
+/// What the evaluation reads of a sample's JSON ([`crate::datagen::SampleMeta`]).
+#[derive(Deserialize)]
+struct SampleInfo {
+    family: String,
+    held_out: bool,
+    coarse: Timing,
+    reference: Timing,
+}
+
+/// The wall time of a solve.
+#[derive(Deserialize)]
+struct Timing {
+    seconds: f64,
 }
 
 /// The samples of `dir` (held-out ones unless `all`), and the data set's reference spacing.
@@ -98,21 +116,8 @@ fn load_samples(
     spec: &LatticeSpec,
     all: bool,
 ) -> Result<(Vec<Sample>, f64), BenchError> {
-    let dataset = read_json(&dir.join("dataset.json"))?;
-    let fine_dx = dataset
-        .get("fine_dx")
-        .and_then(Json::num)
-        .unwrap_or(f64::NAN);
-    let lattice: Vec<usize> = dataset
-        .get("lattice")
-        .and_then(Json::arr)
-        .map(|a| {
-            a.iter()
-                .filter_map(|v| v.num())
-                .map(|v| v as usize)
-                .collect()
-        })
-        .unwrap_or_default();
+    let dataset: Dataset = read_json(&dir.join("dataset.json"))?;
+    let lattice = dataset.lattice;
     if lattice != [spec.ny, spec.nx] {
         return Err(bad(
             dir,
@@ -136,8 +141,8 @@ fn load_samples(
     let n = spec.points();
     let mut out = Vec::new();
     for npy in files {
-        let meta = read_json(&npy.with_extension("json"))?;
-        if !all && meta.get("held_out").and_then(Json::bool) != Some(true) {
+        let meta: SampleInfo = read_json(&npy.with_extension("json"))?;
+        if !all && !meta.held_out {
             continue;
         }
         let (shape, data) = read_npy(&npy).map_err(|e| bad(&npy, e))?;
@@ -153,19 +158,9 @@ fn load_samples(
                 .map(|&v| v as f64)
                 .collect::<Vec<_>>()
         };
-        let seconds = |k: &str| {
-            meta.get(k)
-                .and_then(|r| r.get("seconds"))
-                .and_then(Json::num)
-                .unwrap_or(f64::NAN)
-        };
         out.push(Sample {
             file: npy.file_name().unwrap_or_default().to_owned(),
-            family: meta
-                .get("family")
-                .and_then(Json::str)
-                .unwrap_or("?")
-                .to_owned(),
+            family: meta.family,
             obs: {
                 let pen = chan(1);
                 Observation {
@@ -175,10 +170,10 @@ fn load_samples(
                 }
             },
             reference: chan(2),
-            solve_s: [seconds("coarse"), seconds("reference")],
+            solve_s: [meta.coarse.seconds, meta.reference.seconds],
         });
     }
-    Ok((out, fine_dx))
+    Ok((out, dataset.fine_dx))
 }
 
 /// The field of view's lattice window: `(x0, y0, width, height)`.
@@ -320,11 +315,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
     result.rows.push(rigid.finish(samples.len(), &counts));
     result.rows.push(coarse.finish(samples.len(), &counts));
     if let Some(dir) = &options.compare {
-        let dataset = read_json(&dir.join("dataset.json"))?;
-        let dx = dataset
-            .get("fine_dx")
-            .and_then(Json::num)
-            .unwrap_or(f64::NAN);
+        let dx = read_json::<Dataset>(&dir.join("dataset.json"))?.fine_dx;
         let mut other = Acc::new(&format!("reference-{:.1}mm", dx * 1e3), names.len());
         for (s, &f) in samples.iter().zip(&fam) {
             let path = dir.join(&s.file);
@@ -347,7 +338,9 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
         1.min(runs.len()),
         (format!("{}-norefine", label_of(first)), first, Some(false)),
     );
+    let bar = Progress::new(runs.len() * samples.len(), true);
     for (label, dir, refine) in runs {
+        bar.message(label.clone());
         let mut rom = load(dir, refine)?;
         if rom.manifest().lattice != spec {
             return Err(bad(dir, "its lattice differs from the first model's"));
@@ -359,9 +352,11 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
                 .map_err(|e| BenchError::Config(e.to_string()))?;
             acc.times.push(t0.elapsed().as_secs_f64());
             acc.add(score(&spec, rom.lattice_depth(), &s.reference), f);
+            bar.advance(1);
         }
         result.rows.push(acc.finish(samples.len(), &counts));
     }
+    bar.finish();
     let median_of = |k: usize| {
         let v: Vec<f64> = samples
             .iter()

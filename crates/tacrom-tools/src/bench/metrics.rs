@@ -369,13 +369,8 @@ mod tests {
 
     #[test]
     fn chamfer_matches_brute_force_on_scattered_points() {
-        let mut s = 12345u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::datagen::Rng::new(12345, 0);
+        let mut rnd = || rng.uniform(0.0, 1.0);
         let a: Vec<[f64; 3]> = (0..300).map(|_| [rnd(), rnd() * 2.0, rnd()]).collect();
         let b: Vec<[f64; 3]> = (0..200)
             .map(|_| [rnd() * 1.5, rnd(), rnd() * 0.1])

@@ -28,11 +28,13 @@ pub mod plot;
 pub mod protocol;
 pub mod report;
 
-use std::io::{IsTerminal, Write as _};
 use std::path::PathBuf;
 use std::time::Instant;
 
-use cache::{Cache, CacheKey, CachedPress};
+use serde::Serialize;
+
+use crate::progress::Progress;
+use cache::{digest, Cache, CachedPress};
 use protocol::{Frame, Indenter, ModeSpec};
 use tacrom::config::RawConfig;
 use tacrom::mpm::SolverOptions;
@@ -51,7 +53,7 @@ pub const STAGES: [&str; 7] = [
 
 /// Bump when the meaning of a cached reference press changes without the solver's source
 /// changing (the format, the protocol's poses).
-pub const CACHE_VERSION: &str = "tacrom-bench-cache-1";
+pub const CACHE_VERSION: &str = "tacrom-bench-cache-2";
 
 /// A benchmark failure, with a message for the user.
 #[derive(Debug, thiserror::Error)]
@@ -228,23 +230,15 @@ pub fn status_bytes(field: &str) -> Option<u64> {
     Some(kib * 1024)
 }
 
-/// A hash of the solver's, the geometry's and the sensor's source, so that the cache
-/// notices their changes.
+/// A hash of the cache format, the crate version, the physics sources and the solver's
+/// defaults, so that the cache notices their changes.
 fn code_version() -> String {
-    let sources: [(&str, &str); 3] = [
+    digest(&[
         ("version", CACHE_VERSION),
         ("crate", env!("CARGO_PKG_VERSION")),
         ("physics", tacrom::PHYSICS_FINGERPRINT),
-    ];
-    let mut k = CacheKey::new();
-    for (label, text) in sources {
-        k.field(label, text.as_bytes());
-    }
-    k.field(
-        "solver",
-        format!("{:?}", SolverOptions::default()).as_bytes(),
-    );
-    k.hex()
+        ("solver", &format!("{:?}", SolverOptions::default())),
+    ])
 }
 
 /// One press of the protocol.
@@ -329,60 +323,6 @@ pub struct BenchResult {
     pub files: Vec<PathBuf>,
 }
 
-/// Progress on stderr: a redrawn bar on a terminal, a line per finished sequence otherwise.
-struct Progress {
-    total: usize,
-    done: usize,
-    start: Instant,
-    enabled: bool,
-    tty: bool,
-}
-
-impl Progress {
-    fn new(total: usize, enabled: bool) -> Self {
-        Self {
-            total: total.max(1),
-            done: 0,
-            start: Instant::now(),
-            enabled,
-            tty: std::io::stderr().is_terminal(),
-        }
-    }
-
-    fn step(&mut self, what: &str, end_of_sequence: bool) {
-        self.done += 1;
-        if !self.enabled || !(self.tty || end_of_sequence) {
-            return;
-        }
-        let frac = self.done as f64 / self.total as f64;
-        let width = 30;
-        let filled = ((frac * width as f64) as usize).min(width);
-        let bar = format!("{}{}", "#".repeat(filled), ".".repeat(width - filled));
-        let el = self.start.elapsed().as_secs_f64();
-        let line = format!(
-            "[{bar}] {:>4}/{} {:>5.0}s  {what}",
-            self.done, self.total, el
-        );
-        let mut e = std::io::stderr().lock();
-        let _ = if self.tty {
-            write!(e, "\r\x1b[2K{line}")
-        } else {
-            writeln!(e, "{line}")
-        };
-        let _ = e.flush();
-    }
-
-    fn skip(&mut self, n: usize) {
-        self.done += n;
-    }
-
-    fn finish(&self) {
-        if self.enabled && self.tty {
-            eprintln!();
-        }
-    }
-}
-
 struct Loaded {
     indenters: Vec<Indenter>,
     positions: Vec<[f64; 2]>,
@@ -447,28 +387,42 @@ fn load(opts: &BenchOptions) -> Result<Loaded, BenchError> {
     })
 }
 
+/// What a reference press depends on: its cache key is the [`digest`] of this.
+#[derive(Serialize)]
+struct ReferenceInputs<'a> {
+    /// [`code_version`].
+    code: &'a str,
+    /// The sensor configuration but its thread count.
+    config: &'a str,
+    /// The indenter mesh's fingerprint (bytes and scale).
+    indenter: &'a str,
+    /// Position of the press (m).
+    position: [f64; 2],
+    /// The depth sequence up to this press (m).
+    depths: &'a [f64],
+}
+
 /// Key of the reference press `depths[..=k]` of `indenter` at `position`.
 fn reference_key(
-    version: &str,
-    config_text: &str,
+    code: &str,
+    config: &str,
     indenter: &Indenter,
     position: [f64; 2],
     depths: &[f64],
-) -> CacheKey {
-    let mut key = CacheKey::new();
-    let _ = key
-        .field("code", version.as_bytes())
-        .field("config", config_text.as_bytes())
-        .field("indenter", indenter.fingerprint.as_bytes())
-        .floats("position", &position)
-        .floats("depths", depths);
-    key
+) -> String {
+    digest(&ReferenceInputs {
+        code,
+        config,
+        indenter: &indenter.fingerprint,
+        position,
+        depths,
+    })
 }
 
 fn frame_from_cache(c: CachedPress) -> Frame {
     let mut stages = [f64::NAN; STAGES.len()];
     for (s, v) in stages.iter_mut().zip(&c.stages) {
-        *s = *v;
+        *s = v.unwrap_or(f64::NAN);
     }
     Frame {
         depth: c.depth,
@@ -576,6 +530,21 @@ fn accuracy(frames: &Frames, reference: &Frames, grid: &tacrom::geometry::PixelG
     acc
 }
 
+/// One press done: the bar says which; the last press of a sequence also gets a line.
+fn step(progress: &Progress, who: &str, (indenter, pos, depth): (&str, [f64; 2], f64), last: bool) {
+    let what = format!(
+        "{who} {indenter} @({:.1},{:.1}) mm {:.1} mm",
+        pos[0] * 1e3,
+        pos[1] * 1e3,
+        depth * 1e3
+    );
+    progress.advance(1);
+    if last {
+        progress.line(&what);
+    }
+    progress.message(what);
+}
+
 /// Runs the benchmark and writes its report into `options.out`.
 pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     let wall = Instant::now();
@@ -633,7 +602,7 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
         }
     }
     let modes_work = opts.modes.len() * opts.threads.len() * n_seq * nd;
-    let mut progress = Progress::new(todo.len() * nd + modes_work, opts.progress);
+    let progress = Progress::new(todo.len() * nd + modes_work, opts.progress);
 
     // The modes first, the reference last: each run's peak memory then includes little
     // of the runs before it (the allocator may keep what they freed).
@@ -647,7 +616,7 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
                 Ok(c) => c,
                 Err(e) => {
                     unavailable.push((mode.label.clone(), e.to_string()));
-                    progress.skip(n_seq * nd * opts.threads.len());
+                    progress.advance(n_seq * nd * opts.threads.len());
                     break;
                 }
             };
@@ -658,15 +627,10 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
                 let mut per_pos = Vec::new();
                 for &pos in &positions {
                     let f = protocol::run_sequence(&config, ind, pos, &opts.depths, |k, _| {
-                        progress.step(
-                            &format!(
-                                "{} x{threads} {} @({:.1},{:.1}) mm {:.1} mm",
-                                mode.label,
-                                ind.name,
-                                pos[0] * 1e3,
-                                pos[1] * 1e3,
-                                opts.depths[k] * 1e3
-                            ),
+                        step(
+                            &progress,
+                            &format!("{} x{threads}", mode.label),
+                            (&ind.name, pos, opts.depths[k]),
                             k + 1 == nd,
                         );
                     })?;
@@ -707,14 +671,10 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
         let ind = &indenters[i];
         let pos = positions[p];
         let frames = protocol::run_sequence(&ref_config, ind, pos, &opts.depths, |k, _| {
-            progress.step(
-                &format!(
-                    "reference {} @({:.1},{:.1}) mm {:.1} mm",
-                    ind.name,
-                    pos[0] * 1e3,
-                    pos[1] * 1e3,
-                    opts.depths[k] * 1e3
-                ),
+            step(
+                &progress,
+                "reference",
+                (&ind.name, pos, opts.depths[k]),
                 k + 1 == nd,
             );
         })?;
@@ -729,9 +689,12 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
                         height: grid.height,
                         depth: f.depth.clone(),
                         force: f.force,
-                        points: metrics::surface_points(&grid, &f.depth),
                         seconds: f.seconds,
-                        stages: f.stages.to_vec(),
+                        stages: f
+                            .stages
+                            .iter()
+                            .map(|s| s.is_finite().then_some(*s))
+                            .collect(),
                         iterations: f.iterations,
                         converged: f.converged,
                         peak_rss: peak,

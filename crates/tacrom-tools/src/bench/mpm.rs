@@ -24,6 +24,7 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 
 use super::BenchError;
+use crate::progress::Progress;
 use tacrom::geometry::{Placed, Sdf, Sphere};
 use tacrom::mpm::hertz::hertz_bonded;
 use tacrom::mpm::{Gel, GelParams, SolverOptions};
@@ -214,24 +215,20 @@ fn gel(dx: f64, friction: f64, threads: usize, tolerance: f64) -> Result<Gel, Be
     Gel::new(params, options).map_err(|e| BenchError::Usage(format!("dx {dx:e} m: {e}")))
 }
 
-fn note(progress: bool, line: &str) {
-    if progress {
-        eprintln!("{line}");
-    }
-}
-
-/// The Hertz sequence at spacing `dx` with `threads` solver threads.
+/// The Hertz sequence at spacing `dx` with `threads` solver threads; `progress` advances
+/// and gets a line per depth.
 pub fn hertz_sequence(
     dx: f64,
     depths: &[f64],
     threads: usize,
-    progress: bool,
+    progress: &Progress,
 ) -> Result<Vec<HertzRow>, BenchError> {
     let mut g = gel(dx, 0.0, threads, SolverOptions::default().tolerance)?;
     let p = *g.params();
     let ball = sphere();
     let mut rows = Vec::with_capacity(depths.len());
     for &d in depths {
+        progress.message(format!("hertz dx {:.2} mm d {:.2} mm", dx * 1e3, d * 1e3));
         let t0 = Instant::now();
         let rep = g.solve(&at(&ball, 0.0, d));
         let row = HertzRow {
@@ -244,17 +241,15 @@ pub fn hertz_sequence(
             converged: rep.converged,
             seconds: t0.elapsed().as_secs_f64(),
         };
-        note(
-            progress,
-            &format!(
-                "hertz dx {:.2} mm d {:.2} mm: {:+.1} % ({} it, {:.1} s)",
-                dx * 1e3,
-                d * 1e3,
-                100.0 * row.error(),
-                row.iterations,
-                row.seconds
-            ),
-        );
+        progress.advance(1);
+        progress.line(&format!(
+            "hertz dx {:.2} mm d {:.2} mm: {:+.1} % ({} it, {:.1} s)",
+            dx * 1e3,
+            d * 1e3,
+            100.0 * row.error(),
+            row.iterations,
+            row.seconds
+        ));
         rows.push(row);
     }
     Ok(rows)
@@ -318,8 +313,13 @@ pub fn speed_run(
 pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
     let mut result = MpmBenchResult::default();
     let most_threads = options.threads.iter().copied().max().unwrap_or(1);
+    let progress = Progress::new(
+        options.hertz_dx.len() * options.depths.len()
+            + options.speed_dx.len() * options.tolerances.len() * options.threads.len(),
+        options.progress,
+    );
     for &dx in &options.hertz_dx {
-        let rows = hertz_sequence(dx, &options.depths, most_threads, options.progress)?;
+        let rows = hertz_sequence(dx, &options.depths, most_threads, &progress)?;
         result.hertz.extend(rows);
     }
     for &dx in &options.speed_dx {
@@ -330,22 +330,25 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
         };
         for &tolerance in &options.tolerances {
             for &threads in &options.threads {
+                progress.message(format!(
+                    "speed dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s)",
+                    dx * 1e3
+                ));
                 let row = speed_run(dx, threads, tolerance, frames)?;
-                note(
-                    options.progress,
-                    &format!(
-                        "speed dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s): \
+                progress.advance(1);
+                progress.line(&format!(
+                    "speed dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s): \
                          median {:.1} ms/frame, {} it, {:.2e} particle-steps/s",
-                        dx * 1e3,
-                        row.median_ms,
-                        row.median_iterations,
-                        row.particle_steps_per_s
-                    ),
-                );
+                    dx * 1e3,
+                    row.median_ms,
+                    row.median_iterations,
+                    row.particle_steps_per_s
+                ));
                 result.speed.push(row);
             }
         }
     }
+    progress.finish();
     write_report(&options.out, &result)?;
     Ok(result)
 }

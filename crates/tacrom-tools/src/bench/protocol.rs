@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
+use super::cache::{digest, digest_bytes};
 use super::{BenchError, STAGES};
 use tacrom::config::{Config, RawConfig};
 use tacrom::geometry::{load_mesh, MeshSdfOptions, Placed, Sdf, Sphere, TriMesh};
@@ -159,11 +160,11 @@ impl Indenter {
         let mesh = TriMesh::with_options(data.vertices, data.faces, &MeshSdfOptions::default())
             .map_err(bad)?;
         let anchor = anchor_of(mesh.vertices().iter().map(|p| rotation * p));
-        let mut key = super::cache::CacheKey::new();
-        let _ = key
-            .field("mesh", &bytes)
-            .floats("scale", &[scale])
-            .field("flip", &[u8::from(flip)]);
+        let fingerprint = digest(&[
+            ("mesh", digest_bytes(&bytes)),
+            ("scale", scale.to_string()),
+            ("flip", flip.to_string()),
+        ]);
         Ok(Indenter {
             name: path
                 .file_stem()
@@ -172,7 +173,7 @@ impl Indenter {
             shape: Arc::new(mesh),
             rotation,
             anchor,
-            fingerprint: key.hex(),
+            fingerprint,
         })
     }
 
@@ -183,14 +184,13 @@ impl Indenter {
                 "sphere radius {radius} must be finite and positive"
             )));
         }
-        let mut key = super::cache::CacheKey::new();
-        let _ = key.floats("sphere", &[radius]);
+
         Ok(Indenter {
             name: format!("sphere{:.1}mm", radius * 1e3),
             shape: Arc::new(Sphere::new(radius)),
             rotation: UnitQuaternion::identity(),
             anchor: Vector3::new(0.0, 0.0, -radius),
-            fingerprint: key.hex(),
+            fingerprint: digest(&("sphere", radius)),
         })
     }
 

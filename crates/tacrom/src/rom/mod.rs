@@ -61,7 +61,6 @@
 //! (`models/rom-latent16`, `models/rom-no-multiscale`).
 
 pub mod features;
-pub mod json;
 pub mod lbfgs;
 pub mod runtime;
 
@@ -263,6 +262,10 @@ mod document {
         pub outputs: BTreeMap<String, Vec<i64>>,
     }
 }
+
+/// The loosest run-time coarse tolerance a model accepts unless its manifest says
+/// otherwise: the data generator records it in `dataset.json` and the exporter copies it.
+pub const MAX_TOLERANCE: f64 = 1e-2;
 
 /// The coarse solve a model's training data came from, and which coarse solves the model
 /// accepts at run time (manifest `recipe`). The decoder reads the coarse solution as its

@@ -1,0 +1,413 @@
+//! The command line of `tacrom`: one parser for every subcommand.
+//!
+//! Lengths on the command line are in millimetres everywhere (positions, depths, radii,
+//! grid spacings, lattice pitch); the parsers here turn them into the metres that the rest
+//! of the code uses. Resolutions are `WxH` in pixels, thread counts and sizes are plain
+//! numbers.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use crate::bench::protocol::ModeSpec;
+
+/// Said at the end of `tacrom --help` and of every subcommand's help.
+const UNITS: &str = "Lengths are in millimetres everywhere (MM in the option lists); \
+                     files and reports are in SI units (metres).";
+
+/// tacrom: tools for the tacrom tactile sensor.
+#[derive(Debug, Parser)]
+#[command(name = "tacrom", version, after_help = UNITS, propagate_version = true)]
+pub struct Cli {
+    /// The subcommand.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Error against run time of every physics mode, against a cached fine-MPM reference.
+    Bench(BenchArgs),
+    /// Press one indenter and write its depth image as a PNG with a colour bar.
+    Render(RenderArgs),
+    /// The stability suite's table per mode; fails if a case fails.
+    Stability(StabilityArgs),
+    /// Hertz validation of the gel and the MPM solver's cost per grid spacing.
+    Mpm(MpmArgs),
+    /// Paired coarse / reference presses for training the reduced-order model.
+    GenData(GenDataArgs),
+    /// Rigid, coarse and reduced-order models against gen-data references.
+    EvalRom(EvalRomArgs),
+}
+
+/// A length in millimetres, finite, as metres.
+pub fn mm(s: &str) -> Result<f64, String> {
+    s.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite())
+        .map(|v| v / 1e3)
+        .ok_or_else(|| format!("'{s}' is not a length in mm"))
+}
+
+/// A positive length in millimetres, as metres.
+pub fn positive_mm(s: &str) -> Result<f64, String> {
+    match mm(s) {
+        Ok(v) if v > 0.0 => Ok(v),
+        _ => Err(format!("'{s}' is not a positive length in mm")),
+    }
+}
+
+/// `WxH` in pixels.
+pub fn resolution(s: &str) -> Result<[usize; 2], String> {
+    s.split_once(['x', 'X'])
+        .and_then(|(w, h)| Some([w.trim().parse().ok()?, h.trim().parse().ok()?]))
+        .ok_or_else(|| format!("'{s}' is not WxH"))
+}
+
+/// `KEY=VALUE`, both trimmed.
+pub fn key_value(s: &str) -> Result<(String, String), String> {
+    s.split_once('=')
+        .map(|(k, v)| (k.trim().to_owned(), v.trim().to_owned()))
+        .ok_or_else(|| format!("'{s}' is not KEY=VALUE"))
+}
+
+/// `K/N` with `K < N`.
+pub fn shard(s: &str) -> Result<(usize, usize), String> {
+    s.split_once('/')
+        .and_then(|(k, n)| Some((k.trim().parse().ok()?, n.trim().parse().ok()?)))
+        .filter(|&(k, n): &(usize, usize)| n > 0 && k < n)
+        .ok_or_else(|| format!("'{s}' is not K/N with K < N"))
+}
+
+/// A whole number of at least one.
+fn at_least_one(s: &str) -> Result<usize, String> {
+    s.trim()
+        .parse::<usize>()
+        .ok()
+        .filter(|&n| n >= 1)
+        .ok_or_else(|| format!("'{s}' is not a whole number of at least 1"))
+}
+
+/// A solver tolerance in `(0, 1)`.
+fn tolerance(s: &str) -> Result<f64, String> {
+    s.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|t| *t > 0.0 && *t < 1.0)
+        .ok_or_else(|| format!("'{s}' is not a tolerance in (0, 1)"))
+}
+
+fn mode_spec(s: &str) -> Result<ModeSpec, String> {
+    ModeSpec::parse(s).map_err(|e| e.to_string())
+}
+
+/// Options of `tacrom bench`. Options left out take the profile's value.
+#[derive(Debug, Args)]
+#[command(after_help = UNITS, allow_negative_numbers = true)]
+pub struct BenchArgs {
+    /// Two patterns, centre only, depths 0.2 0.5 1.0 mm, 64x48, 0.7 mm reference (a few
+    /// minutes, cold cache included).
+    #[arg(long, conflicts_with = "full")]
+    pub quick: bool,
+    /// Every pattern, 3x3 grid, depths 0.1..0.5 and 1.0 mm, 320x240, 0.3 mm reference (the
+    /// default profile; resumable).
+    #[arg(long)]
+    pub full: bool,
+    /// Folder of STL/OBJ meshes [../shared/indenters/patterns, or tests/data when that
+    /// folder is absent].
+    #[arg(long, value_name = "DIR")]
+    pub indenters: Option<PathBuf>,
+    /// Mesh coordinate scale to metres [0.001].
+    #[arg(long, value_name = "S")]
+    pub scale: Option<f64>,
+    /// Press with the mesh's bottom, not its top face.
+    #[arg(long)]
+    pub no_flip: bool,
+    /// Only these meshes (file stems).
+    #[arg(long, value_name = "NAME", value_delimiter = ',')]
+    pub only: Vec<String>,
+    /// At most N meshes.
+    #[arg(long, value_name = "N")]
+    pub limit: Option<usize>,
+    /// N x N positions [3; quick 1].
+    #[arg(long, value_name = "N")]
+    pub grid: Option<usize>,
+    /// Spacing of the positions [2].
+    #[arg(long, value_name = "MM", value_parser = mm)]
+    pub spacing: Option<f64>,
+    /// Depths of each press sequence, increasing.
+    #[arg(long, value_name = "MM", value_delimiter = ',', value_parser = mm)]
+    pub depths: Vec<f64>,
+    /// A mode to compare (repeatable; replaces the default list): a name (rigid, coarse,
+    /// rom, ...) or LABEL:key=value,key=value.
+    #[arg(long = "mode", value_name = "SPEC", value_parser = mode_spec)]
+    pub modes: Vec<ModeSpec>,
+    /// Grid spacing of the fine reference [0.3; quick 0.7].
+    #[arg(long, value_name = "MM", value_parser = positive_mm)]
+    pub reference_dx: Option<f64>,
+    /// Solver threads of the reference [2].
+    #[arg(long, value_name = "N")]
+    pub reference_threads: Option<usize>,
+    /// Thread counts each mode runs with [1,2].
+    #[arg(long, value_name = "N", value_delimiter = ',')]
+    pub threads: Vec<usize>,
+    /// Image size [320x240; quick 64x48].
+    #[arg(long, value_name = "WxH", value_parser = resolution)]
+    pub resolution: Option<[usize; 2]>,
+    /// A sensor attribute for all modes (young, poisson, size, ...); repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = key_value)]
+    pub attrs: Vec<(String, String)>,
+    /// Reference cache [out/bench-cache].
+    #[arg(long, value_name = "DIR")]
+    pub cache: Option<PathBuf>,
+    /// Compute the reference, store nothing.
+    #[arg(long, conflicts_with = "cache")]
+    pub no_cache: bool,
+    /// Report folder [out/bench/<profile>].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Press panels to draw [4; quick 2].
+    #[arg(long, value_name = "N")]
+    pub panels: Option<usize>,
+    /// No progress bar or progress lines.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Options of `tacrom render`.
+#[derive(Debug, Args)]
+#[command(after_help = UNITS, allow_negative_numbers = true)]
+pub struct RenderArgs {
+    /// STL/OBJ indenter (with --scale, --no-flip).
+    #[arg(long, value_name = "FILE")]
+    pub mesh: Option<PathBuf>,
+    /// Mesh coordinate scale to metres.
+    #[arg(long, value_name = "S", default_value_t = 1e-3)]
+    pub scale: f64,
+    /// Press with the mesh's bottom, not its top face.
+    #[arg(long)]
+    pub no_flip: bool,
+    /// Or a sphere of this radius.
+    #[arg(long = "sphere", value_name = "MM", default_value = "5", value_parser = positive_mm)]
+    pub radius: f64,
+    /// Indentation.
+    #[arg(long, value_name = "MM", default_value = "0.5", value_parser = mm)]
+    pub depth: f64,
+    /// x of the footprint's centre.
+    #[arg(long, value_name = "MM", default_value = "0", value_parser = mm)]
+    pub x: f64,
+    /// y of the footprint's centre.
+    #[arg(long, value_name = "MM", default_value = "0", value_parser = mm)]
+    pub y: f64,
+    /// rigid, coarse, fine, ... [rigid].
+    #[arg(long, value_name = "P")]
+    pub physics: Option<String>,
+    /// Image size [320x240].
+    #[arg(long, value_name = "WxH", value_parser = resolution)]
+    pub resolution: Option<[usize; 2]>,
+    /// Any sensor attribute; repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE", value_parser = key_value)]
+    pub attrs: Vec<(String, String)>,
+    /// Output PNG.
+    #[arg(long, value_name = "FILE", default_value = "out/render.png")]
+    pub out: PathBuf,
+}
+
+/// Options of `tacrom stability`: stiff and near-incompressible gels, deep, sharp,
+/// jumping, rotating, sliding, through-the-gel presses, non-finite poses (see
+/// src/stability.rs); one markdown table per mode.
+#[derive(Debug, Args)]
+#[command(after_help = UNITS)]
+pub struct StabilityArgs {
+    /// Modes to run.
+    #[arg(
+        long,
+        value_name = "P",
+        value_delimiter = ',',
+        default_value = "rigid,coarse"
+    )]
+    pub physics: Vec<String>,
+    /// MPM grid spacing [the mode's default].
+    #[arg(long, value_name = "MM", value_parser = positive_mm)]
+    pub dx: Option<f64>,
+}
+
+/// The part of `tacrom mpm` to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum MpmPart {
+    /// Hertz validation only.
+    Hertz,
+    /// Solver cost only.
+    Speed,
+}
+
+/// Options of `tacrom mpm`: Hertz contact on a bonded layer (frictionless sphere,
+/// R = 5 mm, force error per depth and grid spacing) and the solver's cost in a moving
+/// press (ms per frame, iterations, particle-steps/s, bytes per particle) per grid spacing
+/// and thread count. Writes report.md, hertz.csv and speed.csv into --out.
+#[derive(Debug, Args)]
+#[command(after_help = UNITS)]
+pub struct MpmArgs {
+    /// Add the fine spacing 0.3 mm (about 1e6 particles; 30-60 min).
+    #[arg(long)]
+    pub fine: bool,
+    /// Spacings of both parts [1.4,1.0,0.7,0.5].
+    #[arg(long, value_name = "MM", value_delimiter = ',', value_parser = positive_mm)]
+    pub dx: Vec<f64>,
+    /// Hertz depths [0.1,0.2,0.3,0.4,0.5].
+    #[arg(long, value_name = "MM", value_delimiter = ',', value_parser = positive_mm)]
+    pub depths: Vec<f64>,
+    /// Thread counts of the cost runs [1,2].
+    #[arg(long, value_name = "N", value_delimiter = ',',
+          value_parser = at_least_one)]
+    pub threads: Vec<usize>,
+    /// Measured frames per cost run [12; 3 below 0.5 mm].
+    #[arg(long, value_name = "N", value_parser = at_least_one)]
+    pub frames: Option<usize>,
+    /// Solver tolerances of the cost runs [1e-3,3e-3,1e-2].
+    #[arg(long, value_name = "T", value_delimiter = ',', value_parser = tolerance)]
+    pub tolerances: Vec<f64>,
+    /// Run one part only.
+    #[arg(long, value_enum)]
+    pub only: Option<MpmPart>,
+    /// Report folder.
+    #[arg(long, value_name = "DIR", default_value = "out/bench/mpm")]
+    pub out: PathBuf,
+    /// No progress bar or progress lines.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Options of `tacrom gen-data`: paired coarse / reference presses for the reduced-order
+/// model (see src/datagen.rs). Resumable: samples already in --out are skipped.
+#[derive(Debug, Args)]
+#[command(after_help = UNITS)]
+pub struct GenDataArgs {
+    /// Output directory.
+    #[arg(long, value_name = "DIR", default_value = "data/rom")]
+    pub out: PathBuf,
+    /// Total samples of the data set (all shards).
+    #[arg(long, value_name = "N", default_value_t = 100)]
+    pub samples: usize,
+    /// This shard and the number of shards: does the samples with index % N == K.
+    #[arg(long, value_name = "K/N", default_value = "0/1", value_parser = shard)]
+    pub shard: (usize, usize),
+    /// Seed of the data set.
+    #[arg(long, value_name = "S", default_value_t = 1)]
+    pub seed: u64,
+    /// Reference grid spacing.
+    #[arg(long, value_name = "MM", default_value = "0.7", value_parser = positive_mm)]
+    pub fine_dx: f64,
+    /// Coarse grid spacing.
+    #[arg(long, value_name = "MM", default_value = "1.4", value_parser = positive_mm)]
+    pub coarse_dx: f64,
+    /// Pitch of the surface lattice.
+    #[arg(long, value_name = "MM", default_value = "0.3", value_parser = positive_mm)]
+    pub pitch: f64,
+    /// Solver threads.
+    #[arg(long, value_name = "T", default_value_t = 1,
+          value_parser = at_least_one)]
+    pub threads: usize,
+    /// Directory of the pattern meshes (STL, millimetres) [../shared/indenters/patterns
+    /// beside the checkout].
+    #[arg(long, value_name = "DIR")]
+    pub patterns: Option<PathBuf>,
+    /// Only these families (all when absent).
+    #[arg(long, value_name = "FAMILY", value_delimiter = ',')]
+    pub families: Vec<String>,
+    /// Reference solver iteration cap.
+    #[arg(long, value_name = "N", default_value_t = 6000,
+          value_parser = at_least_one)]
+    pub fine_max_iterations: usize,
+    /// Only the samples of held-out families (the same presses as a full set of the same
+    /// seed), for a validation set at a finer --fine-dx.
+    #[arg(long)]
+    pub held_out_only: bool,
+}
+
+/// Options of `tacrom eval-rom`: depth MAE, RMSE, SSIM over the 24 x 18 mm field of view
+/// and inference time on the held-out families of gen-data sets. Writes report.md and
+/// results.csv into --out.
+#[derive(Debug, Args)]
+#[command(after_help = UNITS)]
+pub struct EvalRomArgs {
+    /// Data sets (gen-data --out).
+    #[arg(long, value_name = "DIR", value_delimiter = ',', required = true)]
+    pub data: Vec<PathBuf>,
+    /// Model folders; the first also runs without refinement
+    /// [models/rom-default,models/rom-latent16,models/rom-no-multiscale].
+    #[arg(long, value_name = "DIR", value_delimiter = ',')]
+    pub models: Vec<PathBuf>,
+    /// Every sample, not only held-out families.
+    #[arg(long)]
+    pub all: bool,
+    /// A data set of the same presses (same seed and indices) whose reference gets a row,
+    /// e.g. the 0.7 mm set against the 0.3 mm one.
+    #[arg(long, value_name = "DIR")]
+    pub compare: Option<PathBuf>,
+    /// Report folder.
+    #[arg(long, value_name = "DIR", default_value = "out/bench/eval-rom")]
+    pub out: PathBuf,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    fn parse(args: &[&str]) -> Command {
+        Cli::try_parse_from(std::iter::once("tacrom").chain(args.iter().copied()))
+            .unwrap_or_else(|e| panic!("{args:?}: {e}"))
+            .command
+    }
+
+    #[test]
+    fn the_parser_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn lengths_are_millimetres_in_every_subcommand() {
+        let Command::GenData(g) = parse(&["gen-data", "--fine-dx", "0.3"]) else {
+            panic!()
+        };
+        assert_eq!((g.fine_dx, g.coarse_dx, g.pitch), (0.3e-3, 1.4e-3, 0.3e-3));
+        let Command::Bench(b) = parse(&["bench", "--quick", "--depths", "0.2,1"]) else {
+            panic!()
+        };
+        assert_eq!(b.depths, [0.2e-3, 1e-3]);
+        let Command::Render(r) = parse(&["render", "--x", "-1.5", "--sphere", "2"]) else {
+            panic!()
+        };
+        assert_eq!((r.x, r.radius, r.depth), (-1.5e-3, 2e-3, 0.5e-3));
+        let Command::Mpm(m) = parse(&["mpm", "--dx", "1.4,0.7", "--only", "speed"]) else {
+            panic!()
+        };
+        assert_eq!((m.dx, m.only), (vec![1.4e-3, 0.7e-3], Some(MpmPart::Speed)));
+        let Command::Stability(s) = parse(&["stability", "--dx", "1"]) else {
+            panic!()
+        };
+        assert_eq!(
+            (s.physics, s.dx),
+            (vec!["rigid".into(), "coarse".into()], Some(1e-3))
+        );
+    }
+
+    #[test]
+    fn bad_values_are_refused() {
+        for args in [
+            &["gen-data", "--fine-dx", "0"][..],
+            &["gen-data", "--shard", "2/2"],
+            &["bench", "--quick", "--full"],
+            &["bench", "--resolution", "64"],
+            &["mpm", "--tolerances", "1.5"],
+            &["mpm", "--threads", "0"],
+            &["eval-rom"],
+        ] {
+            let argv = std::iter::once("tacrom").chain(args.iter().copied());
+            assert!(Cli::try_parse_from(argv).is_err(), "{args:?}");
+        }
+    }
+}

@@ -62,20 +62,6 @@ def test_coarse_press_physics(press_xml):
     assert 0 < forces[0] < forces[1] < forces[2] < forces[3]
 
 
-def test_reset_and_copy_with_gel_state(press_xml):
-    model = mujoco.MjModel.from_xml_string(with_config(press_xml, **COARSE))
-    data = mujoco.MjData(model)
-    before = evaluate(model, data, 0.4e-3)["depth"]
-    clone = mujoco.MjData(model)
-    mujoco.mj_copyData(clone, model, data)
-    np.testing.assert_array_equal(tacrom.depth(model, clone, "touch"), before)
-    # The copy carries the gel: evaluating it again at the same pose reproduces the image.
-    mujoco.mj_forward(model, clone)
-    np.testing.assert_allclose(tacrom.depth(model, clone, "touch"), before, atol=2e-6)
-    mujoco.mj_resetData(model, data)
-    assert np.all(tacrom.depth(model, data, "touch") == 0.0)
-
-
 def test_solver_threads_do_not_change_results(press_xml):
     images = []
     for threads in ("1", "2"):

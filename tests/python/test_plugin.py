@@ -43,27 +43,6 @@ def test_press_example_steps_and_depth_behaves(press_xml):
     assert abs(peaks[2] - 1.0e-3) < 5e-5
 
 
-def test_reset_clears_the_image(press_xml):
-    model = mujoco.MjModel.from_xml_string(press_xml)
-    data = mujoco.MjData(model)
-    assert press(model, data, 0.5e-3).max() > 0.4e-3
-    mujoco.mj_resetData(model, data)
-    assert np.all(tacrom.depth(model, data, "touch") == 0.0)
-
-
-def test_copy_data_carries_sensor_state(press_xml):
-    model = mujoco.MjModel.from_xml_string(press_xml)
-    data = mujoco.MjData(model)
-    img = press(model, data, 0.5e-3)
-    clone = mujoco.MjData(model)
-    mujoco.mj_copyData(clone, model, data)
-    np.testing.assert_array_equal(tacrom.depth(model, clone, "touch"), img)
-    clone2 = data.__copy__() if hasattr(data, "__copy__") else None
-    if clone2 is not None:
-        mujoco.mj_forward(model, clone2)
-        np.testing.assert_array_equal(tacrom.depth(model, clone2, "touch"), img)
-
-
 def test_two_threads_match_sequential(press_xml):
     model = mujoco.MjModel.from_xml_string(with_config(press_xml, **{**DEFAULT, "resolution": "80 60"}))
     depths = [0.15e-3, 0.35e-3, 0.55e-3, 0.8e-3]

@@ -121,25 +121,6 @@ fn image_orientation_row0_is_plus_y_col0_is_minus_x() {
 }
 
 #[test]
-fn reset_clears_and_copy_carries_state() {
-    let m = sphere_model(&[("outputs", "depth contact")]);
-    let mut d = m.make_data();
-    d.set_qpos(0, 0.4e-3);
-    d.forward(&m);
-    let before = d.sensor(&m, 0);
-    assert!(before.iter().any(|&v| v > 0.0));
-    let copy = d.copy(&m);
-    assert_eq!(copy.sensor(&m, 0), before);
-    d.reset(&m);
-    assert!(d.sensor(&m, 0).iter().all(|&v| v == 0.0));
-    // The copy lives on its own after the original is gone.
-    drop(d);
-    let mut copy = copy;
-    copy.forward(&m);
-    assert_eq!(copy.sensor(&m, 0), before);
-}
-
-#[test]
 fn contact_mask_matches_depth_support() {
     let m = sphere_model(&[("outputs", "depth contact"), ("resolution", "64 48")]);
     let mut d = m.make_data();

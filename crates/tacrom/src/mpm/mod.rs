@@ -74,6 +74,7 @@ mod contact;
 pub mod hertz;
 mod indenters;
 mod material;
+mod newton;
 mod params;
 mod region;
 mod relax;
@@ -93,7 +94,7 @@ use contact::{ActiveContact, SlotContact, StepIndenter};
 use indenters::match_indenters;
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 pub use params::{
-    GelParams, Material, MpmError, SolveReport, SolverOptions, ACTIVE_MARGIN, CAP_CELLS,
+    GelParams, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN, CAP_CELLS,
     FBAR_POISSON, J_MAX, J_MIN,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
@@ -312,6 +313,8 @@ pub struct Gel {
     clamped: bool,
     /// Lattice box of the top slots in contact at the end of the last solve.
     last_footprint: Option<[usize; 4]>,
+    /// The Newton solver's state, built at the first solve that needs it.
+    newton: Option<Box<newton::Newton>>,
 }
 
 impl std::fmt::Debug for Gel {
@@ -377,6 +380,7 @@ impl Gel {
             reaction: 0.0,
             clamped: false,
             last_footprint: None,
+            newton: None,
         })
     }
 
@@ -422,6 +426,9 @@ impl Gel {
         self.clamped = false;
         self.last_footprint = None;
         self.contacts.fill(SlotContact::NONE);
+        if let Some(n) = self.newton.as_mut() {
+            n.reset();
+        }
     }
 
     /// Number of particles.
@@ -478,6 +485,16 @@ impl Gel {
             return report;
         }
         let sweep = self.plan_sweep(used, &matched);
+        if self.options.solver == Solver::Newton {
+            self.solve_newton(&sweep, &matched, &mut report);
+            self.prev = if report.nonfinite_recovered {
+                Vec::new()
+            } else {
+                current
+            };
+            self.resting = !touching && self.surface_box.is_none();
+            return report;
+        }
         report.sweep_steps = sweep.steps;
         self.ctx.region = if touching {
             self.active_region(&sweep)

@@ -105,6 +105,40 @@ pub struct SolverOptions {
     /// solve moves the gel ([`Gel::solve`]; see `mpm/region.rs`); `f64::INFINITY`: always
     /// the whole gel.
     pub active_margin: f64,
+    /// The equilibrium solver.
+    pub solver: Solver,
+}
+
+/// How [`Gel::solve`] finds the equilibrium.
+///
+/// [`Gel::solve`]: super::Gel::solve
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Solver {
+    /// Dynamic relaxation: damped explicit MLS-MPM steps (`mpm/relax.rs`).
+    #[default]
+    Relaxation,
+    /// Newton's method on the total potential energy of the nodal displacements
+    /// (`mpm/newton/`).
+    Newton,
+}
+
+impl Solver {
+    /// Every solver.
+    pub const ALL: [Solver; 2] = [Solver::Relaxation, Solver::Newton];
+
+    /// The name recorded in a reduced-order model's recipe and used by the `solver`
+    /// attribute.
+    pub fn name(self) -> &'static str {
+        match self {
+            Solver::Relaxation => "relaxation",
+            Solver::Newton => "newton",
+        }
+    }
+
+    /// The solver called `name`.
+    pub fn named(name: &str) -> Option<Solver> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
 }
 
 impl Default for SolverOptions {
@@ -118,6 +152,7 @@ impl Default for SolverOptions {
             sweep_rate: 0.1,
             fbar: true,
             active_margin: ACTIVE_MARGIN,
+            solver: Solver::Relaxation,
         }
     }
 }
@@ -164,6 +199,11 @@ pub struct SolveReport {
     pub restarted: bool,
     /// Particles the solve moved (the active region; the rest kept their state).
     pub active_particles: usize,
+    /// Newton solver: sparse factorisations of the stiffness matrix.
+    pub factorisations: usize,
+    /// Newton solver: steps solved by conjugate gradients preconditioned with an earlier
+    /// factorisation.
+    pub reused: usize,
 }
 impl SolveReport {
     /// The report of a solve with `indenters` usable indenters that has not stepped yet.
@@ -179,6 +219,8 @@ impl SolveReport {
             indenters,
             restarted: false,
             active_particles: 0,
+            factorisations: 0,
+            reused: 0,
         }
     }
 }

@@ -113,15 +113,27 @@ pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
 }
 
 impl Gel {
-    /// Recomputes the top-surface displacement field and the box where it is non-zero.
+    /// Recomputes the top-surface displacement field from the particles and the box where
+    /// it is non-zero.
     pub(super) fn update_surface(&mut self) {
-        let [nxp, nyp, _] = self.layout.lattice;
         let dx = self.layout.dx;
+        let moved: Vec<Vector3<f64>> = (0..self.top.len())
+            .map(|slot| {
+                let p = &self.particles[self.top[slot] as usize];
+                let s = p.x + p.f.column(2) * self.half_top;
+                (s - self.top_ref[slot]).cast::<f64>() * dx
+            })
+            .collect();
+        self.set_surface(|slot| moved[slot]);
+    }
+
+    /// Sets the top-surface displacement of each slot (m; non-finite values count as
+    /// zero) and the box where it is non-zero.
+    pub(super) fn set_surface(&mut self, displacement: impl Fn(usize) -> Vector3<f64>) {
+        let [nxp, nyp, _] = self.layout.lattice;
         let mut bx = EMPTY_BOX;
         for (slot, u) in self.surface_u.iter_mut().enumerate() {
-            let p = &self.particles[self.top[slot] as usize];
-            let s = p.x + p.f.column(2) * self.half_top;
-            let d = (s - self.top_ref[slot]).cast::<f64>() * dx;
+            let d = displacement(slot);
             *u = if d.iter().all(|v| v.is_finite()) {
                 d
             } else {

@@ -1,0 +1,989 @@
+//! The quasi-static equilibrium as the minimum of the total potential energy, by Newton's
+//! method ([`super::Solver::Newton`]).
+//!
+//! # Discretisation
+//!
+//! The unknowns are the displacements `u_i` of the free grid nodes (every node that a
+//! quadrature point's stencil reaches, above the bonded bottom plane). As in implicit MPM
+//! (Gast et al. 2015) in its total Lagrangian form, each quadrature point keeps the
+//! quadratic B-spline weights `w_i(X)` of its rest position `X`, so
+//! `F = I + sum_i u_i grad w_i(X)^T` and the displacement of any material point is
+//! `sum_i w_i(X) u_i`. The quadrature points are the particles of the lattice (volume
+//! `s_x s_y s_z` each). For Poisson's ratios of at least [`super::FBAR_POISSON`] the volume
+//! term of the energy moves to one point per cell of eight particles (selective reduced
+//! integration, Hughes 1980, the energy counterpart of the relaxation's F-bar): about one
+//! volume constraint per node, so the near-incompressible gel does not lock.
+//!
+//! # Energy
+//!
+//! `E(u) = sum_p V_p psi(F_p) + E_contact + E_friction`:
+//! * contact on a lattice of surface points [`CONTACT_SUBDIVISION`] times finer than the
+//!   particles, each standing for its share `A` of the top face: a penalty
+//!   `k A g^2 / 2` on the signed distance `g < 0` to the nearest indenter
+//!   ([`PENALTY`]; the penetration it leaves is about `p / k`, 1e-3 cells at a pressure of
+//!   `M`). An indenter that reaches between particles still meets surface points, so a
+//!   small contact is never lost;
+//! * Coulomb friction as a lagged dissipation potential (as IPC does, Li et al. 2020):
+//!   each surface point in contact keeps a stick anchor fixed in the indenter's frame; its
+//!   tangential offset `y` from the anchor costs `mu f_n f0(y)`, with `f0` quadratic below
+//!   [`STICK`] cells and linear beyond (full sliding force `mu f_n`), `f_n` and the normal
+//!   lagged from the previous outer pass. After a solve the anchors of sliding points move
+//!   so that the offset is at most [`STICK`] (return mapping), so a contact keeps its shear
+//!   history across frames.
+//!
+//! # Solve
+//!
+//! Newton's method: the Hessian assembled from each point's projected stress derivative
+//! (see `energy.rs`) plus the Gauss-Newton terms of contact and friction, solved by a
+//! sparse Cholesky factorisation (faer; the fill-reducing ordering is computed once per
+//! gel), then a backtracking line search that accepts a step only if the energy does not
+//! increase (Armijo). It stops when the largest out-of-balance nodal force is below
+//! [`super::SolverOptions::tolerance`] times the load scale (the largest nodal contact
+//! force, at least a strain of 1e-4 over a cell). With friction the lagged normal forces
+//! are refreshed and the minimisation repeated until they change by less than the
+//! tolerance. Each frame starts from the previous equilibrium; an indenter that moves more
+//! than [`SUBSTEP_CELLS`] cells is moved in equal substeps, each solved, so friction
+//! follows the path.
+
+mod energy;
+mod system;
+#[cfg(test)]
+mod tests;
+
+use std::collections::BTreeMap;
+
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+
+use super::contact::StepIndenter;
+use super::indenters::Sweep;
+use super::{Gel, Layout, Material, SolveReport, FBAR_POISSON, PAD_BOTTOM};
+use crate::geometry::Aabb;
+use energy::{Density, Kind};
+use system::System;
+
+/// Surface contact points per particle spacing along each axis.
+pub(crate) const CONTACT_SUBDIVISION: usize = 4;
+
+/// Contact penalty stiffness (internal units: `M` per cell of penetration).
+pub(crate) const PENALTY: f64 = 1e3;
+
+/// Tangential offset (cells) at which friction reaches its sliding value.
+pub(crate) const STICK: f64 = 1e-3;
+
+/// Largest indenter motion (cells) solved in one go.
+pub(crate) const SUBSTEP_CELLS: f64 = 1.0;
+
+/// Newton steps per minimisation at most.
+const MAX_NEWTON: usize = 60;
+
+/// Refreshes of the lagged friction at most.
+const MAX_OUTER: usize = 6;
+
+/// Relative residual of the preconditioned conjugate gradients that reuse an earlier
+/// factorisation (an inexact Newton step; the line search and the next step absorb it).
+const FORCING: f64 = 1e-2;
+
+/// Conjugate gradient iterations with an earlier factorisation before the matrix is
+/// factored afresh.
+const REUSE_ITERATIONS: usize = 8;
+
+/// Line search halvings at most.
+const MAX_HALVINGS: usize = 30;
+
+/// Quadratic B-spline weights and derivatives along each axis at a point (cells).
+#[derive(Clone, Copy, Debug)]
+struct Stencil {
+    base: [i32; 3],
+    w: [[f64; 3]; 3],
+    dw: [[f64; 3]; 3],
+}
+
+impl Stencil {
+    fn at(x: &Vector3<f64>) -> Stencil {
+        let mut s = Stencil {
+            base: [0; 3],
+            w: [[0.0; 3]; 3],
+            dw: [[0.0; 3]; 3],
+        };
+        for k in 0..3 {
+            let b = (x[k] - 0.5).floor();
+            let f = x[k] - b;
+            s.base[k] = b as i32;
+            s.w[k] = [
+                0.5 * (1.5 - f) * (1.5 - f),
+                0.75 - (f - 1.0) * (f - 1.0),
+                0.5 * (f - 0.5) * (f - 0.5),
+            ];
+            s.dw[k] = [f - 1.5, -2.0 * (f - 1.0), f - 0.5];
+        }
+        s
+    }
+
+    /// Weight of local node `l = (a * 3 + b) * 3 + c`.
+    #[inline(always)]
+    fn weight(&self, l: usize) -> f64 {
+        self.w[0][l / 9] * self.w[1][l / 3 % 3] * self.w[2][l % 3]
+    }
+
+    /// Weight gradient of local node `l`.
+    #[inline(always)]
+    fn gradient(&self, l: usize) -> Vector3<f64> {
+        let (a, b, c) = (l / 9, l / 3 % 3, l % 3);
+        Vector3::new(
+            self.dw[0][a] * self.w[1][b] * self.w[2][c],
+            self.w[0][a] * self.dw[1][b] * self.w[2][c],
+            self.w[0][a] * self.w[1][b] * self.dw[2][c],
+        )
+    }
+
+    /// Grid offset of local node `l` from the base.
+    #[inline(always)]
+    fn local(l: usize) -> [i32; 3] {
+        [(l / 9) as i32, (l / 3 % 3) as i32, (l % 3) as i32]
+    }
+}
+
+/// An elastic quadrature point.
+#[derive(Clone, Copy, Debug)]
+struct QPoint {
+    stencil: Stencil,
+    /// Volume (cells^3).
+    vol: f64,
+    /// Index of its density in [`Newton::densities`].
+    density: u8,
+}
+
+/// A surface contact point considered in the current substep.
+#[derive(Clone, Copy, Debug)]
+struct ContactPoint {
+    /// Index in the contact lattice.
+    index: u32,
+    /// Rest position (cells).
+    rest: Vector3<f64>,
+    stencil: Stencil,
+    /// Lagged normal force (internal units) and normal, for friction.
+    lag_force: f64,
+    lag_normal: Vector3<f64>,
+}
+
+/// A stick anchor: the indenter and the anchor point in its frame (m).
+#[derive(Clone, Copy, Debug)]
+struct Anchor {
+    indenter: usize,
+    local: Point3<f64>,
+}
+
+/// The state of one contact point at a displacement field.
+struct Touch {
+    /// Penetration depth (cells; the signed distance's negative).
+    gap: f64,
+    normal: Vector3<f64>,
+    indenter: usize,
+}
+
+/// The Newton solver's state for one gel.
+#[derive(Clone)]
+pub(crate) struct Newton {
+    dims: [usize; 3],
+    dx: f64,
+    origin: Vector3<f64>,
+    /// Free index of each grid node (`u32::MAX`: fixed).
+    dof: Vec<u32>,
+    points: Vec<QPoint>,
+    densities: Vec<Density>,
+    system: System,
+    /// Nodal displacements (cells), 3 per free node.
+    pub u: Vec<f64>,
+    grad: Vec<f64>,
+    /// Nodal contact and friction forces of the last assembly.
+    load: Vec<f64>,
+    direction: Vec<f64>,
+    trial: Vec<f64>,
+    work: [Vec<f64>; 3],
+    /// Contact lattice: counts, spacing (cells), first point (cells), area per point.
+    lattice: [usize; 2],
+    spacing: [f64; 2],
+    first: [f64; 2],
+    top: f64,
+    area: f64,
+    anchors: BTreeMap<u32, Anchor>,
+    contact: Vec<ContactPoint>,
+    friction: f64,
+    /// Load scale of the previous equilibrium (so that unloading is measured against it).
+    last_scale: f64,
+    min_scale: f64,
+    /// Energy after each accepted step of the last solve.
+    pub history: Vec<f64>,
+}
+
+impl Newton {
+    /// The solver state of a gel with `layout`, material, Poisson's ratio, moduli and
+    /// friction coefficient.
+    pub(super) fn new(gel: &Gel) -> Result<Newton, String> {
+        let layout: &Layout = &gel.layout;
+        let params = &gel.params;
+        let kind = match params.material {
+            Material::FixedCorotated => Kind::FixedCorotated,
+            Material::NeoHookean => Kind::NeoHookean,
+        };
+        let (mu, lambda) = (gel.mu as f64, gel.lambda as f64);
+        let selective = params.poisson >= FBAR_POISSON;
+        let densities = if selective {
+            vec![
+                Density {
+                    kind,
+                    mu,
+                    lambda: 0.0,
+                },
+                Density {
+                    kind,
+                    mu: 0.0,
+                    lambda,
+                },
+            ]
+        } else {
+            vec![Density { kind, mu, lambda }]
+        };
+        let dx = layout.dx;
+        let [nx, ny, nz] = layout.lattice;
+        let pvol: f64 = layout.spacing.iter().map(|s| s / dx).product();
+        let mut points = Vec::with_capacity(nx * ny * nz);
+        for ix in 0..nx {
+            for iy in 0..ny {
+                for iz in 0..nz {
+                    let x = layout.rest_position(&params.size, ix, iy, iz).cast::<f64>();
+                    points.push(QPoint {
+                        stencil: Stencil::at(&x),
+                        vol: pvol,
+                        density: 0,
+                    });
+                }
+            }
+        }
+        if selective {
+            for cx in 0..nx / 2 {
+                for cy in 0..ny / 2 {
+                    for cz in 0..nz / 2 {
+                        let a = layout.rest_position(&params.size, 2 * cx, 2 * cy, 2 * cz);
+                        let b =
+                            layout.rest_position(&params.size, 2 * cx + 1, 2 * cy + 1, 2 * cz + 1);
+                        let x = ((a + b) * 0.5).cast::<f64>();
+                        points.push(QPoint {
+                            stencil: Stencil::at(&x),
+                            vol: 8.0 * pvol,
+                            density: 1,
+                        });
+                    }
+                }
+            }
+        }
+        let dims = layout.dims;
+        let node_index =
+            |p: [i32; 3]| (p[0] as usize * dims[1] + p[1] as usize) * dims[2] + p[2] as usize;
+        let mut used = vec![false; dims.iter().product()];
+        for q in &points {
+            for l in 0..27 {
+                let o = Stencil::local(l);
+                let p = [
+                    q.stencil.base[0] + o[0],
+                    q.stencil.base[1] + o[1],
+                    q.stencil.base[2] + o[2],
+                ];
+                if p[2] as usize > PAD_BOTTOM {
+                    used[node_index(p)] = true;
+                }
+            }
+        }
+        let mut dof = vec![u32::MAX; used.len()];
+        let mut nodes = Vec::new();
+        for (node, &u) in used.iter().enumerate() {
+            if u {
+                dof[node] = nodes.len() as u32;
+                nodes.push(node as u32);
+            }
+        }
+        let system = System::new(dims, &nodes, &dof)?;
+        let n = system.n;
+        let [lx, ly, t] = params.size;
+        let lattice = [nx * CONTACT_SUBDIVISION, ny * CONTACT_SUBDIVISION];
+        let spacing = [lx / lattice[0] as f64 / dx, ly / lattice[1] as f64 / dx];
+        let origin = layout.origin;
+        Ok(Newton {
+            dims,
+            dx,
+            origin,
+            dof,
+            points,
+            densities,
+            system,
+            u: vec![0.0; n],
+            grad: vec![0.0; n],
+            load: vec![0.0; n],
+            direction: vec![0.0; n],
+            trial: vec![0.0; n],
+            work: [Vec::new(), Vec::new(), Vec::new()],
+            lattice,
+            spacing,
+            first: [
+                (-0.5 * lx - origin.x) / dx + 0.5 * spacing[0],
+                (-0.5 * ly - origin.y) / dx + 0.5 * spacing[1],
+            ],
+            top: -origin.z / dx,
+            area: spacing[0] * spacing[1],
+            anchors: BTreeMap::new(),
+            contact: Vec::new(),
+            friction: params.friction,
+            last_scale: 0.0,
+            min_scale: 1e-4 * mu,
+            history: Vec::new(),
+        })
+        .map(|s: Newton| {
+            debug_assert!(t > 0.0);
+            s
+        })
+    }
+
+    /// Back to the undeformed gel without contact history.
+    pub(super) fn reset(&mut self) {
+        self.u.fill(0.0);
+        self.anchors.clear();
+        self.last_scale = 0.0;
+    }
+
+    /// Renumbers the anchors' indenters (`matched[i]`: previous index of indenter `i`);
+    /// anchors of indenters that are gone are dropped.
+    pub(super) fn remap(&mut self, matched: &[Option<usize>]) {
+        let mut new_index = BTreeMap::new();
+        for (i, m) in matched.iter().enumerate() {
+            if let Some(j) = *m {
+                new_index.insert(j, i);
+            }
+        }
+        self.anchors
+            .retain(|_, a| match new_index.get(&a.indenter) {
+                Some(&i) => {
+                    a.indenter = i;
+                    true
+                }
+                None => false,
+            });
+    }
+
+    /// Free index of the node at grid coordinates `p`, if free.
+    #[inline(always)]
+    fn dof_at(&self, base: &[i32; 3], l: usize) -> Option<usize> {
+        let o = Stencil::local(l);
+        let (x, y, z) = (base[0] + o[0], base[1] + o[1], base[2] + o[2]);
+        if x < 0 || y < 0 || z < 0 {
+            return None;
+        }
+        let (x, y, z) = (x as usize, y as usize, z as usize);
+        if x >= self.dims[0] || y >= self.dims[1] || z >= self.dims[2] {
+            return None;
+        }
+        let d = self.dof[(x * self.dims[1] + y) * self.dims[2] + z];
+        (d != u32::MAX).then_some(d as usize)
+    }
+
+    /// `F` of a point under displacement `u`.
+    fn deformation(&self, q: &QPoint, u: &[f64]) -> Matrix3<f64> {
+        let mut f = Matrix3::identity();
+        for l in 0..27 {
+            if let Some(d) = self.dof_at(&q.stencil.base, l) {
+                let ui = Vector3::new(u[3 * d], u[3 * d + 1], u[3 * d + 2]);
+                f += ui * q.stencil.gradient(l).transpose();
+            }
+        }
+        f
+    }
+
+    /// Displacement (cells) of the material point with stencil `s` under `u`.
+    fn displacement(&self, s: &Stencil, u: &[f64]) -> Vector3<f64> {
+        let mut d = Vector3::zeros();
+        for l in 0..27 {
+            if let Some(k) = self.dof_at(&s.base, l) {
+                d += Vector3::new(u[3 * k], u[3 * k + 1], u[3 * k + 2]) * s.weight(l);
+            }
+        }
+        d
+    }
+
+    /// Displacement (m) of the surface point at rest position `rest` (cells).
+    pub(super) fn surface_displacement(&self, rest: &Vector3<f64>) -> Vector3<f64> {
+        self.displacement(&Stencil::at(rest), &self.u) * self.dx
+    }
+
+    /// The nearest indenter to the point at `x` (cells) that it penetrates, if any.
+    fn touch(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> Option<Touch> {
+        let p = Point3::from(self.origin + x * self.dx);
+        let mut best: Option<Touch> = None;
+        for (m, ind) in indenters.iter().enumerate() {
+            if !contains(&ind.bounds, &p) {
+                continue;
+            }
+            let local = ind.now.inverse_transform_point(&p);
+            let dist = ind.shape.distance(&local) / self.dx;
+            if !(dist < 0.0) {
+                continue;
+            }
+            if best.as_ref().is_none_or(|b| -dist > b.gap) {
+                let normal = ind.now.rotation * ind.shape.gradient(&local);
+                best = Some(Touch {
+                    gap: -dist,
+                    normal,
+                    indenter: m,
+                });
+            }
+        }
+        best
+    }
+
+    /// The contact lattice points under the indenters' bounds, grown by the largest
+    /// lateral displacement and a cell.
+    fn gather_contact_points(&mut self, indenters: &[StepIndenter]) {
+        let mut reach = 1.0f64;
+        for k in (0..self.u.len()).step_by(3) {
+            reach = reach.max(self.u[k].abs()).max(self.u[k + 1].abs());
+        }
+        let mut ranges: Vec<[usize; 4]> = Vec::new();
+        for ind in indenters {
+            let b = &ind.bounds;
+            if b.min.z > (self.top + reach) * self.dx + self.origin.z {
+                continue;
+            }
+            let range = |lo: f64, hi: f64, axis: usize| {
+                let to = |v: f64| (v - self.origin[axis]) / self.dx;
+                let a = ((to(lo) - reach - self.first[axis]) / self.spacing[axis]).floor();
+                let b = ((to(hi) + reach - self.first[axis]) / self.spacing[axis]).ceil();
+                let n = self.lattice[axis] as f64;
+                (a.clamp(0.0, n) as usize, (b + 1.0).clamp(0.0, n) as usize)
+            };
+            let (x0, x1) = range(b.min.x, b.max.x, 0);
+            let (y0, y1) = range(b.min.y, b.max.y, 1);
+            if x0 < x1 && y0 < y1 {
+                ranges.push([x0, x1, y0, y1]);
+            }
+        }
+        let mut indices: Vec<u32> = Vec::new();
+        for r in &ranges {
+            for iy in r[2]..r[3] {
+                for ix in r[0]..r[1] {
+                    indices.push((iy * self.lattice[0] + ix) as u32);
+                }
+            }
+        }
+        // Points with an anchor stay considered while their indenter does.
+        indices.extend(self.anchors.keys().copied());
+        indices.sort_unstable();
+        indices.dedup();
+        self.contact = indices
+            .into_iter()
+            .map(|index| {
+                let (ix, iy) = (
+                    index as usize % self.lattice[0],
+                    index as usize / self.lattice[0],
+                );
+                let rest = Vector3::new(
+                    self.first[0] + ix as f64 * self.spacing[0],
+                    self.first[1] + iy as f64 * self.spacing[1],
+                    self.top,
+                );
+                ContactPoint {
+                    index,
+                    rest,
+                    stencil: Stencil::at(&rest),
+                    lag_force: 0.0,
+                    lag_normal: Vector3::z(),
+                }
+            })
+            .collect();
+    }
+
+    /// The energy at `u` (elastic, contact, friction with the lagged forces); `+inf` where
+    /// the material is not defined.
+    fn energy(&self, u: &[f64], indenters: &[StepIndenter]) -> f64 {
+        let mut e = 0.0;
+        for q in &self.points {
+            let f = self.deformation(q, u);
+            e += q.vol * self.densities[q.density as usize].energy(&f);
+        }
+        if !e.is_finite() {
+            return f64::INFINITY;
+        }
+        for c in &self.contact {
+            let x = c.rest + self.displacement(&c.stencil, u);
+            if let Some(t) = self.touch(&x, indenters) {
+                e += 0.5 * PENALTY * self.area * t.gap * t.gap;
+            }
+            if let Some((y, _)) = self.slip(c, &x, indenters) {
+                e += self.friction * c.lag_force * smooth_slip(y);
+            }
+        }
+        e
+    }
+
+    /// The tangential offset from a point at `x` to its anchor (its length and the offset),
+    /// for a point that carries a lagged normal force and an anchor.
+    fn slip(
+        &self,
+        c: &ContactPoint,
+        x: &Vector3<f64>,
+        indenters: &[StepIndenter],
+    ) -> Option<(f64, Vector3<f64>)> {
+        if self.friction <= 0.0 || c.lag_force <= 0.0 {
+            return None;
+        }
+        let a = self.anchors.get(&c.index)?;
+        let ind = indenters.get(a.indenter)?;
+        let anchor = ((ind.now * a.local).coords - self.origin) / self.dx;
+        let d = x - anchor;
+        let n = c.lag_normal;
+        let t = d - n * n.dot(&d);
+        Some((t.norm(), t))
+    }
+
+    /// Energy, gradient (into `grad`), contact load (into `load`) and Hessian (into the
+    /// system) at `u`; also the smallest and largest `det F`. `None` where the material is
+    /// not defined.
+    fn assemble(&mut self, indenters: &[StepIndenter]) -> Option<(f64, f64, f64)> {
+        self.grad.fill(0.0);
+        self.load.fill(0.0);
+        self.system.clear();
+        let mut energy = 0.0;
+        let (mut jmin, mut jmax) = (f64::INFINITY, f64::NEG_INFINITY);
+        let points = std::mem::take(&mut self.points);
+        let mut ok = true;
+        for q in &points {
+            let f = self.deformation(q, &self.u);
+            let j = f.determinant();
+            jmin = jmin.min(j);
+            jmax = jmax.max(j);
+            let Some(ev) = self.densities[q.density as usize].evaluate(&f) else {
+                ok = false;
+                break;
+            };
+            energy += q.vol * ev.energy;
+            self.add_point(q, &ev);
+        }
+        self.points = points;
+        if !ok {
+            return None;
+        }
+        let contact = std::mem::take(&mut self.contact);
+        for c in &contact {
+            let x = c.rest + self.displacement(&c.stencil, &self.u);
+            let mut g = Vector3::zeros();
+            let mut h = Matrix3::zeros();
+            if let Some(t) = self.touch(&x, indenters) {
+                let k = PENALTY * self.area;
+                energy += 0.5 * k * t.gap * t.gap;
+                g -= t.normal * (k * t.gap);
+                h += t.normal * t.normal.transpose() * k;
+            }
+            if let Some((y, d)) = self.slip(c, &x, indenters) {
+                let scale = self.friction * c.lag_force;
+                energy += scale * smooth_slip(y);
+                let n = c.lag_normal;
+                let tangent = Matrix3::identity() - n * n.transpose();
+                if y < STICK {
+                    g += d * (scale / STICK);
+                    h += tangent * (scale / STICK);
+                } else {
+                    let dir = d / y;
+                    g += dir * scale;
+                    h += (tangent - dir * dir.transpose()) * (scale / y);
+                }
+            }
+            if g != Vector3::zeros() {
+                self.add_surface(&c.stencil, &g, &h);
+            }
+        }
+        self.contact = contact;
+        Some((energy, jmin, jmax))
+    }
+
+    /// Adds an elastic point's gradient and stiffness.
+    fn add_point(&mut self, q: &QPoint, ev: &energy::Evaluated) {
+        let mut dofs = [usize::MAX; 27];
+        let mut grads = [Vector3::zeros(); 27];
+        // T_l[a][3 c + d] = sum_b g_l[b] H[3 a + b][3 c + d], scaled by the volume.
+        let mut tl = [[[0.0f64; 9]; 3]; 27];
+        for l in 0..27 {
+            let Some(d) = self.dof_at(&q.stencil.base, l) else {
+                continue;
+            };
+            let g = q.stencil.gradient(l);
+            dofs[l] = d;
+            grads[l] = g;
+            let force = ev.stress * g * q.vol;
+            for k in 0..3 {
+                self.grad[3 * d + k] += force[k];
+            }
+            for a in 0..3 {
+                for e in 0..9 {
+                    tl[l][a][e] = q.vol
+                        * (g[0] * ev.tangent[3 * a][e]
+                            + g[1] * ev.tangent[3 * a + 1][e]
+                            + g[2] * ev.tangent[3 * a + 2][e]);
+                }
+            }
+        }
+        for l1 in 0..27 {
+            if dofs[l1] == usize::MAX {
+                continue;
+            }
+            for l2 in 0..27 {
+                if dofs[l2] == usize::MAX || dofs[l2] > dofs[l1] {
+                    continue;
+                }
+                let g2 = &grads[l2];
+                let k = Matrix3::from_fn(|a, c| {
+                    tl[l1][a][3 * c] * g2[0]
+                        + tl[l1][a][3 * c + 1] * g2[1]
+                        + tl[l1][a][3 * c + 2] * g2[2]
+                });
+                let (o1, o2) = (Stencil::local(l1), Stencil::local(l2));
+                let offset = [o1[0] - o2[0], o1[1] - o2[1], o1[2] - o2[2]];
+                self.system.add_block(dofs[l1], dofs[l2], offset, &k);
+            }
+        }
+    }
+
+    /// Adds a surface point's force gradient `g` and stiffness `h` through its weights.
+    fn add_surface(&mut self, s: &Stencil, g: &Vector3<f64>, h: &Matrix3<f64>) {
+        let mut dofs = [usize::MAX; 27];
+        let mut w = [0.0; 27];
+        for l in 0..27 {
+            if let Some(d) = self.dof_at(&s.base, l) {
+                dofs[l] = d;
+                w[l] = s.weight(l);
+                for k in 0..3 {
+                    self.grad[3 * d + k] += w[l] * g[k];
+                    self.load[3 * d + k] += w[l] * g[k];
+                }
+            }
+        }
+        for l1 in 0..27 {
+            if dofs[l1] == usize::MAX {
+                continue;
+            }
+            for l2 in 0..27 {
+                if dofs[l2] == usize::MAX || dofs[l2] > dofs[l1] {
+                    continue;
+                }
+                let (o1, o2) = (Stencil::local(l1), Stencil::local(l2));
+                let offset = [o1[0] - o2[0], o1[1] - o2[1], o1[2] - o2[2]];
+                self.system
+                    .add_block(dofs[l1], dofs[l2], offset, &(h * (w[l1] * w[l2])));
+            }
+        }
+    }
+
+    /// Largest nodal norm of `v`.
+    fn max_node_norm(v: &[f64]) -> f64 {
+        v.chunks_exact(3)
+            .map(|c| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt())
+            .fold(0.0, f64::max)
+    }
+
+    /// Minimises the energy with the lagged friction fixed. Returns the Newton steps and
+    /// the final relative residual, or `None` if the state became undefined.
+    fn minimise(
+        &mut self,
+        indenters: &[StepIndenter],
+        tolerance: f64,
+        report: &mut SolveReport,
+    ) -> Option<f64> {
+        let mut residual = f64::INFINITY;
+        for _ in 0..MAX_NEWTON {
+            let (energy, jmin, jmax) = self.assemble(indenters)?;
+            report.det_f_min = jmin;
+            report.det_f_max = jmax;
+            let scale = Self::max_node_norm(&self.load)
+                .max(self.last_scale)
+                .max(self.min_scale);
+            residual = Self::max_node_norm(&self.grad) / scale;
+            if self.history.is_empty() {
+                self.history.push(energy);
+            }
+            if residual <= tolerance {
+                self.last_scale = Self::max_node_norm(&self.load);
+                return Some(residual);
+            }
+            report.iterations += 1;
+            self.trial.copy_from_slice(&self.grad);
+            self.trial.iter_mut().for_each(|v| *v = -*v);
+            let reused = self.system.factored
+                && self.system.solve_preconditioned(
+                    &self.trial,
+                    &mut self.direction,
+                    FORCING,
+                    REUSE_ITERATIONS,
+                    &mut self.work,
+                );
+            if reused {
+                report.reused += 1;
+            } else {
+                report.factorisations += 1;
+                if self.system.factor().is_err() {
+                    return Some(residual);
+                }
+                self.direction.copy_from_slice(&self.trial);
+                self.system.solve(&mut self.direction);
+            }
+            let slope: f64 = self
+                .direction
+                .iter()
+                .zip(&self.grad)
+                .map(|(p, g)| p * g)
+                .sum();
+            if !(slope < 0.0) {
+                // Not a descent direction (a factorisation in trouble): steepest descent.
+                for (p, g) in self.direction.iter_mut().zip(&self.grad) {
+                    *p = -g;
+                }
+            }
+            let slope: f64 = self
+                .direction
+                .iter()
+                .zip(&self.grad)
+                .map(|(p, g)| p * g)
+                .sum();
+            let mut alpha = 1.0;
+            let mut accepted = false;
+            for _ in 0..MAX_HALVINGS {
+                for ((t, u), p) in self.trial.iter_mut().zip(&self.u).zip(&self.direction) {
+                    *t = u + alpha * p;
+                }
+                let e = self.energy(&self.trial, indenters);
+                if e.is_finite() && e <= energy + 1e-4 * alpha * slope {
+                    std::mem::swap(&mut self.u, &mut self.trial);
+                    self.history.push(e);
+                    accepted = true;
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            if !accepted {
+                // No decrease to be had at this precision: the minimum up to round-off.
+                return Some(residual);
+            }
+        }
+        Some(residual)
+    }
+
+    /// Refreshes the lagged normal forces and normals of the contact points, creating the
+    /// anchors of new contacts at their position at the start of the substep mapped into
+    /// their indenter's frame there (`start`: displacement at the start). Returns the
+    /// largest change of a lagged force relative to the largest force.
+    fn lag_friction(
+        &mut self,
+        indenters: &[StepIndenter],
+        starts: &[Isometry3<f64>],
+        start: &[f64],
+    ) -> f64 {
+        let mut change = 0.0f64;
+        let mut largest = 0.0f64;
+        let contact = std::mem::take(&mut self.contact);
+        let mut updated = contact.clone();
+        for c in updated.iter_mut() {
+            let x = c.rest + self.displacement(&c.stencil, &self.u);
+            let (force, normal) = match self.touch(&x, indenters) {
+                Some(t) => {
+                    if !self.anchors.contains_key(&c.index) {
+                        let x0 = c.rest + self.displacement(&c.stencil, start);
+                        let p0 = Point3::from(self.origin + x0 * self.dx);
+                        let local = starts[t.indenter].inverse_transform_point(&p0);
+                        self.anchors.insert(
+                            c.index,
+                            Anchor {
+                                indenter: t.indenter,
+                                local,
+                            },
+                        );
+                    }
+                    (PENALTY * self.area * t.gap, t.normal)
+                }
+                None => (0.0, c.lag_normal),
+            };
+            change = change.max((force - c.lag_force).abs());
+            largest = largest.max(force);
+            c.lag_force = force;
+            c.lag_normal = normal;
+        }
+        self.contact = updated;
+        if largest > 0.0 {
+            change / largest
+        } else {
+            0.0
+        }
+    }
+
+    /// After a substep: anchors of points out of contact are dropped, those of sliding
+    /// points follow them to the stick radius.
+    fn return_mapping(&mut self, indenters: &[StepIndenter]) {
+        let contact = std::mem::take(&mut self.contact);
+        for c in &contact {
+            let x = c.rest + self.displacement(&c.stencil, &self.u);
+            if self.touch(&x, indenters).is_none() {
+                self.anchors.remove(&c.index);
+                continue;
+            }
+            let Some(a) = self.anchors.get(&c.index).copied() else {
+                continue;
+            };
+            let Some(ind) = indenters.get(a.indenter) else {
+                self.anchors.remove(&c.index);
+                continue;
+            };
+            let anchor = ((ind.now * a.local).coords - self.origin) / self.dx;
+            let d = x - anchor;
+            let n = c.lag_normal;
+            let t = d - n * n.dot(&d);
+            let y = t.norm();
+            if y > STICK {
+                let moved = anchor + t * (1.0 - STICK / y);
+                let p = Point3::from(self.origin + moved * self.dx);
+                self.anchors.insert(
+                    c.index,
+                    Anchor {
+                        indenter: a.indenter,
+                        local: ind.now.inverse_transform_point(&p),
+                    },
+                );
+            }
+        }
+        self.contact = contact;
+    }
+
+    /// Total force of the gel on the indenters (internal units) at the last assembly.
+    fn contact_force(&self, indenters: &[StepIndenter]) -> Vector3<f64> {
+        let mut f = Vector3::zeros();
+        for c in &self.contact {
+            let x = c.rest + self.displacement(&c.stencil, &self.u);
+            if let Some(t) = self.touch(&x, indenters) {
+                f -= t.normal * (PENALTY * self.area * t.gap);
+            }
+            if let Some((y, d)) = self.slip(c, &x, indenters) {
+                let scale = self.friction * c.lag_force;
+                f += if y < STICK {
+                    d * (scale / STICK)
+                } else {
+                    d * (scale / y)
+                };
+            }
+        }
+        f
+    }
+
+    /// Solves one substep with the indenters at `indenters` (moved from `starts`).
+    /// Returns the force on the indenters (internal units), or `None` if the state became
+    /// undefined.
+    fn substep(
+        &mut self,
+        indenters: &[StepIndenter],
+        starts: &[Isometry3<f64>],
+        tolerance: f64,
+        report: &mut SolveReport,
+    ) -> Option<Vector3<f64>> {
+        self.gather_contact_points(indenters);
+        let start = self.u.clone();
+        if self.friction > 0.0 {
+            self.lag_friction(indenters, starts, &start);
+        }
+        let mut residual = self.minimise(indenters, tolerance, report)?;
+        if self.friction > 0.0 {
+            for _ in 1..MAX_OUTER {
+                if self.lag_friction(indenters, starts, &start) <= tolerance {
+                    break;
+                }
+                residual = self.minimise(indenters, tolerance, report)?;
+            }
+        }
+        report.residual = report.residual.max(residual);
+        report.converged &= residual <= tolerance;
+        let force = self.contact_force(indenters);
+        if self.friction > 0.0 {
+            self.return_mapping(indenters);
+        }
+        Some(force)
+    }
+}
+
+/// Whether `p` lies in `b`.
+fn contains(b: &Aabb, p: &Point3<f64>) -> bool {
+    (0..3).all(|k| p[k] >= b.min[k] && p[k] <= b.max[k])
+}
+
+/// The smoothed slip magnitude: `y^2 / (2 STICK)` below [`STICK`], `y - STICK / 2` beyond.
+fn smooth_slip(y: f64) -> f64 {
+    if y < STICK {
+        0.5 * y * y / STICK
+    } else {
+        y - 0.5 * STICK
+    }
+}
+
+impl Gel {
+    /// The Newton solve of `sweep` (see the module docs); fills `report`.
+    pub(super) fn solve_newton(
+        &mut self,
+        sweep: &Sweep,
+        matched: &[Option<usize>],
+        report: &mut SolveReport,
+    ) {
+        if self.newton.is_none() {
+            match Newton::new(self) {
+                Ok(n) => self.newton = Some(Box::new(n)),
+                Err(_) => {
+                    report.converged = false;
+                    report.residual = f64::INFINITY;
+                    return;
+                }
+            }
+        }
+        let dx = self.layout.dx;
+        let tolerance = self.options.tolerance;
+        let mut newton = self.newton.take().expect("built above");
+        newton.remap(matched);
+        newton.history.clear();
+        let saved = newton.u.clone();
+        let motion = sweep.steps as f64 * self.options.sweep_rate;
+        let substeps = ((motion / SUBSTEP_CELLS).ceil() as usize).clamp(1, 64);
+        let plan = Sweep {
+            indenters: sweep.indenters.clone(),
+            starts: sweep.starts.clone(),
+            steps: substeps,
+        };
+        report.sweep_steps = substeps;
+        report.residual = 0.0;
+        report.active_particles = self.particles.len();
+        let mut placed = Vec::new();
+        let mut starts = sweep.starts.clone();
+        let mut force = Some(Vector3::zeros());
+        for s in 0..substeps {
+            plan.place(s, dx, &mut placed);
+            force = newton.substep(&placed, &starts, tolerance, report);
+            if force.is_none() {
+                break;
+            }
+            starts = placed.iter().map(|p| p.now).collect();
+        }
+        match force {
+            Some(f) if newton.u.iter().all(|v| v.is_finite()) => {
+                self.force = f * self.modulus * dx * dx;
+            }
+            _ => {
+                newton.u = saved;
+                newton.anchors.clear();
+                report.nonfinite_recovered = true;
+                report.converged = false;
+                report.residual = f64::INFINITY;
+                self.force = Vector3::zeros();
+            }
+        }
+        let rests: Vec<Vector3<f64>> = self.top_ref.iter().map(|r| r.cast::<f64>()).collect();
+        self.set_surface(|slot| newton.surface_displacement(&rests[slot]));
+        self.newton = Some(newton);
+    }
+}

@@ -272,6 +272,9 @@ pub struct MpmArgs {
     /// Run one part only.
     #[arg(long, value_enum)]
     pub only: Option<MpmPart>,
+    /// Equilibrium solver [relaxation].
+    #[arg(long, value_name = "NAME", value_parser = solver_name)]
+    pub solver: Option<tacrom::mpm::Solver>,
     /// Report folder.
     #[arg(long, value_name = "DIR", default_value = "out/bench/mpm")]
     pub out: PathBuf,
@@ -410,4 +413,12 @@ mod tests {
             assert!(Cli::try_parse_from(argv).is_err(), "{args:?}");
         }
     }
+}
+
+/// A solver name (`relaxation`, `newton`).
+fn solver_name(s: &str) -> Result<tacrom::mpm::Solver, String> {
+    tacrom::mpm::Solver::named(s).ok_or_else(|| {
+        let names: Vec<_> = tacrom::mpm::Solver::ALL.iter().map(|s| s.name()).collect();
+        format!("unknown solver `{s}`; one of {}", names.join(", "))
+    })
 }

@@ -144,7 +144,16 @@ fn render(a: RenderArgs) -> Result<(), BenchError> {
         y * 1e3,
         depth * 1e3
     );
-    let canvas = depth_image(&title, config.width, config.height, sensor.depth());
+    let canvas = depth_image(
+        &title,
+        (config.width, config.height),
+        config.fov,
+        sensor.depth(),
+    )
+    .map_err(|e| BenchError::Output {
+        path: out.clone(),
+        message: e.to_string(),
+    })?;
     if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(|e| BenchError::Output {
             path: parent.to_path_buf(),
@@ -187,6 +196,7 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
     }
     options.out = a.out;
     options.progress = !a.quiet;
+    options.solver = a.solver.unwrap_or_default();
     if a.fine {
         options = options.with_fine();
     }
@@ -196,6 +206,7 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
         None => {}
     }
     let result = run(&options)?;
+    println!("solver: {}\n", options.solver.name());
     print!("{}", markdown(&result));
     println!("\nwritten to {}", options.out.display());
     Ok(())

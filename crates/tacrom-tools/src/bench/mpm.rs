@@ -27,7 +27,7 @@ use super::BenchError;
 use crate::progress::Progress;
 use tacrom::geometry::{Placed, Sdf, Sphere};
 use tacrom::mpm::hertz::hertz_bonded;
-use tacrom::mpm::{Gel, GelParams, SolverOptions};
+use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
 /// Radius of the validation sphere (m).
 pub const SPHERE_RADIUS: f64 = 5e-3;
@@ -54,6 +54,8 @@ pub struct MpmBenchOptions {
     pub out: PathBuf,
     /// Progress lines on stderr.
     pub progress: bool,
+    /// The equilibrium solver.
+    pub solver: Solver,
 }
 
 impl MpmBenchOptions {
@@ -68,6 +70,7 @@ impl MpmBenchOptions {
             frames: 12,
             fine_frames: 3,
             out: PathBuf::from("out/bench/mpm"),
+            solver: Solver::default(),
             progress: true,
         }
     }
@@ -201,7 +204,13 @@ fn at(shape: &Arc<dyn Sdf>, x: f64, depth: f64) -> [Placed; 1] {
     }]
 }
 
-fn gel(dx: f64, friction: f64, threads: usize, tolerance: f64) -> Result<Gel, BenchError> {
+fn gel(
+    dx: f64,
+    friction: f64,
+    threads: usize,
+    tolerance: f64,
+    solver: Solver,
+) -> Result<Gel, BenchError> {
     let params = GelParams {
         dx,
         friction,
@@ -210,6 +219,7 @@ fn gel(dx: f64, friction: f64, threads: usize, tolerance: f64) -> Result<Gel, Be
     let options = SolverOptions {
         threads,
         tolerance,
+        solver,
         ..Default::default()
     };
     Gel::new(params, options).map_err(|e| BenchError::Usage(format!("dx {dx:e} m: {e}")))
@@ -221,9 +231,10 @@ pub fn hertz_sequence(
     dx: f64,
     depths: &[f64],
     threads: usize,
+    solver: Solver,
     progress: &Progress,
 ) -> Result<Vec<HertzRow>, BenchError> {
-    let mut g = gel(dx, 0.0, threads, SolverOptions::default().tolerance)?;
+    let mut g = gel(dx, 0.0, threads, SolverOptions::default().tolerance, solver)?;
     let p = *g.params();
     let ball = sphere();
     let mut rows = Vec::with_capacity(depths.len());
@@ -266,8 +277,15 @@ pub fn speed_run(
     threads: usize,
     tolerance: f64,
     frames: usize,
+    solver: Solver,
 ) -> Result<SpeedRow, BenchError> {
-    let mut g = gel(dx, GelParams::default().friction, threads, tolerance)?;
+    let mut g = gel(
+        dx,
+        GelParams::default().friction,
+        threads,
+        tolerance,
+        solver,
+    )?;
     let ball = sphere();
     g.solve(&at(&ball, 0.0, 0.1e-3));
     let n = g.num_particles();
@@ -319,7 +337,7 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
         options.progress,
     );
     for &dx in &options.hertz_dx {
-        let rows = hertz_sequence(dx, &options.depths, most_threads, &progress)?;
+        let rows = hertz_sequence(dx, &options.depths, most_threads, options.solver, &progress)?;
         result.hertz.extend(rows);
     }
     for &dx in &options.speed_dx {
@@ -334,7 +352,7 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
                     "speed dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s)",
                     dx * 1e3
                 ));
-                let row = speed_run(dx, threads, tolerance, frames)?;
+                let row = speed_run(dx, threads, tolerance, frames, options.solver)?;
                 progress.advance(1);
                 progress.line(&format!(
                     "speed dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s): \
@@ -491,7 +509,7 @@ mod tests {
     // The cost run at a coarse spacing reports consistent figures.
     #[test]
     fn speed_run_counts_particle_steps() {
-        let r = speed_run(2e-3, 1, 1e-3, 2).expect("run");
+        let r = speed_run(2e-3, 1, 1e-3, 2, Solver::Relaxation).expect("run");
         assert_eq!(r.frames, 2);
         assert!(r.median_iterations > 0 && r.particle_steps_per_s > 0.0);
         assert!(r.bytes_per_particle >= Gel::bytes_per_particle() as f64);

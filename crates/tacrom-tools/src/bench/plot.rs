@@ -1,45 +1,177 @@
-//! The report's figures: error against run time on log axes, and press panels (reference,
-//! each mode, error maps, colour bars).
+//! The report's figures, drawn with `plotters` into an RGB buffer and saved as PNG: error
+//! against run time on log axes, and press panels (reference, each mode, error maps, colour
+//! bars with units).
+//!
+//! Text uses DejaVu Sans, embedded by the `dejavu` crate (Bitstream Vera licence), so the
+//! figures need no system fonts.
 
+use std::ops::Range;
 use std::path::Path;
+use std::sync::Once;
 
-use super::draw::{
-    diverging, sequential, text_width, Canvas, Rgb, BLACK, GLYPH_H, GREY, GRID, WHITE,
-};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::{register_font, FontStyle};
 
 /// Colours of successive modes in the figures.
-pub const PALETTE: &[Rgb] = &[
-    [214, 96, 20],
-    [30, 110, 190],
-    [40, 150, 60],
-    [150, 60, 170],
-    [200, 40, 60],
-    [110, 110, 20],
-    [20, 150, 160],
+pub const PALETTE: &[RGBColor] = &[
+    RGBColor(214, 96, 20),
+    RGBColor(30, 110, 190),
+    RGBColor(40, 150, 60),
+    RGBColor(150, 60, 170),
+    RGBColor(200, 40, 60),
+    RGBColor(110, 110, 20),
+    RGBColor(20, 150, 160),
 ];
 
-/// How a point is drawn.
+/// Mid grey, for secondary lines and text.
+const GREY: RGBColor = RGBColor(120, 120, 120);
+
+/// The font family every text of the figures uses.
+const FONT: &str = "sans-serif";
+
+/// A figure that could not be drawn or saved.
+#[derive(Debug, thiserror::Error)]
+pub enum FigureError {
+    /// Drawing failed.
+    #[error("drawing failed: {0}")]
+    Draw(String),
+    /// Encoding or writing the PNG failed.
+    #[error(transparent)]
+    Png(#[from] image::ImageError),
+}
+
+impl<E: std::error::Error + Send + Sync> From<DrawingAreaErrorKind<E>> for FigureError {
+    fn from(e: DrawingAreaErrorKind<E>) -> Self {
+        FigureError::Draw(e.to_string())
+    }
+}
+
+/// A drawn figure: RGB pixels, row-major.
+#[derive(Clone, Debug)]
+pub struct Figure {
+    /// Width (pixels).
+    pub width: u32,
+    /// Height (pixels).
+    pub height: u32,
+    /// Three bytes per pixel.
+    pub rgb: Vec<u8>,
+}
+
+impl Figure {
+    /// A white `width x height` figure drawn by `draw` on its whole area.
+    fn draw(
+        width: u32,
+        height: u32,
+        draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), FigureError>,
+    ) -> Result<Self, FigureError> {
+        register_fonts();
+        let mut rgb = vec![255u8; width as usize * height as usize * 3];
+        {
+            let root = BitMapBackend::with_buffer(&mut rgb, (width, height)).into_drawing_area();
+            draw(&root)?;
+            root.present()?;
+        }
+        Ok(Self { width, height, rgb })
+    }
+
+    /// Writes the figure as a PNG.
+    pub fn save_png(&self, path: &Path) -> Result<(), FigureError> {
+        image::save_buffer(
+            path,
+            &self.rgb,
+            self.width,
+            self.height,
+            image::ExtendedColorType::Rgb8,
+        )?;
+        Ok(())
+    }
+}
+
+/// Registers the embedded DejaVu Sans as [`FONT`], once per process.
+fn register_fonts() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        for (style, bytes) in [
+            (FontStyle::Normal, dejavu::sans::regular()),
+            (FontStyle::Bold, dejavu::sans::bold()),
+        ] {
+            if register_font(FONT, style, bytes).is_err() {
+                unreachable!("the embedded DejaVu Sans is a valid font");
+            }
+        }
+    });
+}
+
+fn text(size: u32) -> TextStyle<'static> {
+    (FONT, size).into_font().color(&BLACK)
+}
+
+/// The shape of a mode's marker; modes take them in turn.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Marker {
-    /// A filled disc.
-    Disc,
-    /// A filled square.
+    /// A disc.
+    Circle,
+    /// A square.
     Square,
+    /// A triangle, point up.
+    Triangle,
+    /// A diamond.
+    Diamond,
+}
+
+impl Marker {
+    /// The markers in the order modes take them.
+    pub const ALL: [Marker; 4] = [
+        Marker::Circle,
+        Marker::Square,
+        Marker::Triangle,
+        Marker::Diamond,
+    ];
+
+    /// The outline, as pixel offsets from the centre, for a marker of radius `r`.
+    fn outline(self, r: i32) -> Vec<(i32, i32)> {
+        let polygon = |n: usize, phase: f64, scale: f64| {
+            (0..n)
+                .map(|k| {
+                    let a = phase + std::f64::consts::TAU * k as f64 / n as f64;
+                    let s = scale * f64::from(r);
+                    ((s * a.cos()).round() as i32, (-s * a.sin()).round() as i32)
+                })
+                .collect()
+        };
+        match self {
+            Marker::Circle => polygon(20, 0.0, 1.0),
+            Marker::Square => vec![(-r, -r), (r, -r), (r, r), (-r, r)],
+            Marker::Triangle => polygon(3, std::f64::consts::FRAC_PI_2, 1.25),
+            Marker::Diamond => polygon(4, std::f64::consts::FRAC_PI_2, 1.3),
+        }
+    }
+
+    /// The marker at `at`: filled, or an outline two pixels wide.
+    /// The closed outline of a marker of radius `r`, for a hollow marker.
+    fn closed_outline(self, r: i32) -> Vec<(i32, i32)> {
+        let mut closed = self.outline(r);
+        closed.push(closed[0]);
+        closed
+    }
 }
 
 /// One point of the error-time plot.
 #[derive(Clone, Debug)]
 pub struct PlotPoint {
-    /// Text beside the point.
+    /// The mode, named in the legend.
     pub label: String,
     /// Milliseconds per evaluation.
     pub x: f64,
     /// Error.
     pub y: f64,
-    /// Colour.
-    pub colour: Rgb,
-    /// Marker.
+    /// Colour of the mode.
+    pub colour: RGBColor,
+    /// Marker of the mode.
     pub marker: Marker,
+    /// Solver threads: one thread is drawn filled, more hollow.
+    pub threads: usize,
 }
 
 /// What the error-time plot shows.
@@ -52,7 +184,7 @@ pub struct ErrorTimePlot {
     /// Label of the y axis.
     pub y_label: String,
     /// The points; those with a non-positive or non-finite coordinate are left out (a log
-    /// axis cannot show them) and listed in a note under the plot.
+    /// axis cannot show them) and listed in a note beside the plot.
     pub points: Vec<PlotPoint>,
     /// A vertical dashed line with its label (the reference's time), if any.
     pub reference: Option<(f64, String)>,
@@ -75,152 +207,154 @@ fn decades(values: impl Iterator<Item = f64>) -> (i32, i32) {
     (l, h)
 }
 
-/// Tick label of `10^e`: plain digits from 0.001 to 100000, else `1e<e>`.
-pub fn decade_label(e: i32) -> String {
-    match e {
-        -3..=-1 => format!("{}", 10f64.powi(e)),
-        0..=5 => format!("{}", 10i64.pow(e as u32)),
-        _ => format!("1e{e}"),
+/// Tick label of a log axis: plain digits from 0.001 to below 1e6, else `1e<e>` style.
+pub fn tick_label(v: f64) -> String {
+    if !(1e-3..1e6).contains(&v) {
+        return format!("{v:.0e}");
     }
+    let decimals = (-v.log10().floor()).max(0.0) as usize;
+    format!("{v:.decimals$}")
+}
+
+fn range_of((lo, hi): (i32, i32)) -> Range<f64> {
+    10f64.powi(lo)..10f64.powi(hi)
 }
 
 impl ErrorTimePlot {
-    /// Draws the plot (log-log) and writes it as a PNG.
-    pub fn render(&self) -> Canvas {
-        let (w, h) = (900i64, 620i64);
-        let (left, right, top, bottom) = (90i64, 40i64, 50i64, 110i64);
-        let mut c = Canvas::new(w as usize, h as usize, WHITE);
-        let ok = |p: &&PlotPoint| p.x.is_finite() && p.x > 0.0 && p.y.is_finite() && p.y > 0.0;
-        let shown: Vec<&PlotPoint> = self.points.iter().filter(ok).collect();
-        let hidden: Vec<&PlotPoint> = self.points.iter().filter(|p| !ok(p)).collect();
-        let xs = shown
-            .iter()
-            .map(|p| p.x)
-            .chain(self.reference.iter().map(|r| r.0));
-        let (x0, x1) = decades(xs);
-        let (y0, y1) = decades(shown.iter().map(|p| p.y));
-        let (pw, ph) = (w - left - right, h - top - bottom);
-        let px = |x: f64| left + ((x.log10() - x0 as f64) / (x1 - x0) as f64 * pw as f64) as i64;
-        let py =
-            |y: f64| top + ph - ((y.log10() - y0 as f64) / (y1 - y0) as f64 * ph as f64) as i64;
-
-        // Grid and ticks: a line per decade, minor ticks at 2..9.
-        for e in x0..=x1 {
-            let x = px(10f64.powi(e));
-            c.line(x, top, x, top + ph, 1, GRID);
-            let label = decade_label(e);
-            c.text(
-                x - text_width(&label, 2) as i64 / 2,
-                top + ph + 10,
-                &label,
-                2,
-                BLACK,
-            );
-            if e < x1 {
-                for m in 2..10 {
-                    let xm = px(m as f64 * 10f64.powi(e));
-                    c.line(xm, top + ph - 5, xm, top + ph, 1, GREY);
-                }
-            }
-        }
-        for e in y0..=y1 {
-            let y = py(10f64.powi(e));
-            c.line(left, y, left + pw, y, 1, GRID);
-            let label = decade_label(e);
-            c.text(
-                left - 8 - text_width(&label, 2) as i64,
-                y - 7,
-                &label,
-                2,
-                BLACK,
-            );
-            if e < y1 {
-                for m in 2..10 {
-                    let ym = py(m as f64 * 10f64.powi(e));
-                    c.line(left, ym, left + 5, ym, 1, GREY);
-                }
-            }
-        }
-        c.rect(left, top, pw + 1, ph + 1, BLACK);
-
-        // Titles.
-        c.text(left, 15, &self.title, 2, BLACK);
-        let xl = &self.x_label;
-        c.text(
-            left + (pw - text_width(xl, 2) as i64) / 2,
-            top + ph + 34,
-            xl,
-            2,
-            BLACK,
-        );
-        let yl = &self.y_label;
-        c.text_up(12, top + (ph - text_width(yl, 2) as i64) / 2, yl, 2, BLACK);
-
-        if let Some((x, label)) = &self.reference {
-            if x.is_finite() && *x > 0.0 {
-                let xr = px(*x);
-                c.dashed_line(xr, top, xr, top + ph, 6, GREY);
-                c.text_up(xr + 4, top + 4, label, 1, GREY);
-            }
-        }
-        for p in &shown {
-            let (x, y) = (px(p.x), py(p.y));
-            match p.marker {
-                Marker::Disc => c.disc(x, y, 6, p.colour),
-                Marker::Square => c.fill_rect(x - 5, y - 5, 11, 11, p.colour),
-            }
-        }
-        // One label per mode (points of one label share a colour), right of its rightmost
-        // point unless it would leave the plot; a label that would overlap an earlier one
-        // moves down a line.
-        let mut placed: Vec<(i64, i64, i64)> = Vec::new();
-        let mut labels: Vec<&str> = Vec::new();
-        for p in &shown {
-            if labels.contains(&p.label.as_str()) {
-                continue;
-            }
-            labels.push(&p.label);
-            let same = shown.iter().filter(|q| q.label == p.label);
-            let (x, y) = same
-                .map(|q| (px(q.x), py(q.y)))
-                .max()
-                .unwrap_or((px(p.x), py(p.y)));
-            let tw = text_width(&p.label, 2) as i64;
-            let lx = if x + 12 + tw < left + pw {
-                x + 12
-            } else {
-                x - 12 - tw
-            };
-            let mut ly = y - 7;
-            while placed
+    /// Draws the plot: log-log axes on the left, the legend and notes on the right.
+    pub fn render(&self) -> Result<Figure, FigureError> {
+        Figure::draw(1100, 640, |root| {
+            root.fill(&WHITE)?;
+            let (plot, side) = root.split_horizontally(800);
+            let ok = |p: &&PlotPoint| p.x.is_finite() && p.x > 0.0 && p.y.is_finite() && p.y > 0.0;
+            let shown: Vec<&PlotPoint> = self.points.iter().filter(ok).collect();
+            let xs = shown
                 .iter()
-                .any(|&(ox, oy, ow)| (ly - oy).abs() < 16 && lx < ox + ow && ox < lx + tw)
+                .map(|p| p.x)
+                .chain(self.reference.iter().map(|r| r.0));
+            let (xr, yr) = (
+                range_of(decades(xs)),
+                range_of(decades(shown.iter().map(|p| p.y))),
+            );
+            let mut chart = ChartBuilder::on(&plot)
+                .caption(&self.title, text(20))
+                .margin(16)
+                .x_label_area_size(56)
+                .y_label_area_size(76)
+                .build_cartesian_2d(xr.clone().log_scale(), yr.clone().log_scale())?;
+            chart
+                .configure_mesh()
+                .x_desc(&self.x_label)
+                .y_desc(&self.y_label)
+                .label_style(text(15))
+                .axis_desc_style(text(17))
+                .x_label_formatter(&|v| tick_label(*v))
+                .y_label_formatter(&|v| tick_label(*v))
+                .light_line_style(RGBColor(235, 235, 235))
+                .bold_line_style(RGBColor(210, 210, 210))
+                .draw()?;
+            if let Some((x, _)) = self
+                .reference
+                .as_ref()
+                .filter(|r| r.0.is_finite() && r.0 > 0.0)
             {
-                ly += 16;
+                chart.draw_series(DashedLineSeries::new(
+                    [(*x, yr.start), (*x, yr.end)],
+                    8,
+                    6,
+                    GREY.stroke_width(2),
+                ))?;
             }
-            placed.push((lx, ly, tw));
-            c.text(lx, ly, &p.label, 2, p.colour);
+            // One solver thread filled, more hollow.
+            chart.draw_series(shown.iter().filter(|p| p.threads <= 1).map(|p| {
+                EmptyElement::at((p.x, p.y)) + Polygon::new(p.marker.outline(6), p.colour.filled())
+            }))?;
+            chart.draw_series(shown.iter().filter(|p| p.threads > 1).map(|p| {
+                EmptyElement::at((p.x, p.y))
+                    + PathElement::new(p.marker.closed_outline(6), p.colour.stroke_width(2))
+            }))?;
+            self.legend(&side)
+        })
+    }
+
+    /// The legend (one entry per mode, the thread markers, the reference line) and the
+    /// notes, one line each, top to bottom.
+    fn legend(&self, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), FigureError> {
+        let mut modes: Vec<&PlotPoint> = Vec::new();
+        for p in &self.points {
+            if !modes.iter().any(|m| m.label == p.label) {
+                modes.push(p);
+            }
         }
-        let mut note_y = top + ph + 62;
+        let line = 26;
+        let mut y = 70;
+        area.draw_text(
+            "modes",
+            &(FONT, 17).into_font().style(FontStyle::Bold).color(&BLACK),
+            (10, y - 24),
+        )?;
+        for m in &modes {
+            area.draw(
+                &(EmptyElement::at((22, y + 8))
+                    + Polygon::new(m.marker.outline(6), m.colour.filled())),
+            )?;
+            area.draw_text(&m.label, &text(16), (40, y))?;
+            y += line;
+        }
+        y += line / 2;
+        for (filled, what) in [(true, "1 thread"), (false, "2 or more threads")] {
+            let at = EmptyElement::at((22, y + 8));
+            if filled {
+                area.draw(&(at + Polygon::new(Marker::Circle.outline(6), GREY.filled())))?;
+            } else {
+                area.draw(
+                    &(at + PathElement::new(
+                        Marker::Circle.closed_outline(6),
+                        GREY.stroke_width(2),
+                    )),
+                )?;
+            }
+            area.draw_text(what, &text(16), (40, y))?;
+            y += line;
+        }
+        if let Some((x, label)) = &self.reference {
+            y += line / 2;
+            area.draw(&PathElement::new(
+                [(14, y + 8), (20, y + 8)],
+                GREY.stroke_width(2),
+            ))?;
+            area.draw(&PathElement::new(
+                [(25, y + 8), (31, y + 8)],
+                GREY.stroke_width(2),
+            ))?;
+            area.draw_text(label, &text(14), (40, y))?;
+            area.draw_text(&format!("{x:.0} ms"), &text(14), (40, y + 18))?;
+            y += line + 18;
+        }
+        let hidden: Vec<&str> = self
+            .points
+            .iter()
+            .filter(|p| !(p.x.is_finite() && p.x > 0.0 && p.y.is_finite() && p.y > 0.0))
+            .map(|p| p.label.as_str())
+            .collect();
+        y += line / 2;
         if !hidden.is_empty() {
-            let names: Vec<&str> = hidden.iter().map(|p| p.label.as_str()).collect();
-            let note = format!("not shown (zero or no value): {}", names.join(", "));
-            c.text(left, note_y, &note, 1, GREY);
-            note_y += 12;
+            area.draw_text(
+                "not shown (zero or no value):",
+                &text(14).color(&GREY),
+                (10, y),
+            )?;
+            y += 18;
+            area.draw_text(&hidden.join(", "), &text(14).color(&GREY), (10, y))?;
+            y += 18;
         }
-        c.text(
-            left,
-            note_y,
-            "disc: 1 thread, square: 2 or more threads; log scales",
-            1,
-            GREY,
-        );
-        c
+        area.draw_text("log scales", &text(14).color(&GREY), (10, y))?;
+        Ok(())
     }
 
     /// Renders and saves the plot.
-    pub fn save(&self, path: &Path) -> Result<(), image::ImageError> {
-        self.render().save_png(path)
+    pub fn save(&self, path: &Path) -> Result<(), FigureError> {
+        self.render()?.save_png(path)
     }
 }
 
@@ -229,7 +363,7 @@ impl ErrorTimePlot {
 pub struct PanelImage {
     /// Title above the image.
     pub title: String,
-    /// Values, row-major, `width x height`.
+    /// Values, row-major, `width x height`, row 0 at +y.
     pub values: Vec<f64>,
 }
 
@@ -244,169 +378,234 @@ pub struct Panel {
     pub width: usize,
     /// Image height (pixels).
     pub height: usize,
+    /// Field of view (m, x and y).
+    pub fov: [f64; 2],
     /// Reference depth (m).
     pub reference: PanelImage,
     /// Each mode's depth (m).
     pub modes: Vec<PanelImage>,
 }
 
-fn scale_for(width: usize, height: usize) -> usize {
-    // Small images are enlarged (nearest neighbour) to about 240 pixels wide.
-    (240 / width.max(1)).min(240 / height.max(1)).clamp(1, 8)
+/// Width of an image cell of the panels (pixels).
+const CELL_W: u32 = 300;
+/// Width of the colour bar column (pixels).
+const BAR_W: u32 = 120;
+
+/// Height of an image cell for images of `width x height` pixels.
+fn cell_height(width: usize, height: usize) -> u32 {
+    let image_w = f64::from(CELL_W - 60);
+    (image_w * height.max(1) as f64 / width.max(1) as f64) as u32 + 80
 }
 
+/// One image in `area`, with its title and axes in millimetres; `colour` maps a value.
 fn draw_image(
-    c: &mut Canvas,
-    x: i64,
-    y: i64,
-    img: &[f64],
-    (w, h, s): (usize, usize, usize),
-    colour: &dyn Fn(f64) -> Rgb,
-) {
-    for r in 0..h {
-        for col in 0..w {
-            let v = img.get(r * w + col).copied().unwrap_or(f64::NAN);
-            c.fill_rect(
-                x + (col * s) as i64,
-                y + (r * s) as i64,
-                s as i64,
-                s as i64,
-                colour(v),
-            );
-        }
-    }
-    c.rect(x - 1, y - 1, (w * s) as i64 + 2, (h * s) as i64 + 2, GREY);
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    title: &str,
+    (w, h, fov): (usize, usize, [f64; 2]),
+    values: &[f64],
+    colour: &dyn Fn(f64) -> RGBColor,
+) -> Result<(), FigureError> {
+    let (fx, fy) = (fov[0] * 1e3, fov[1] * 1e3);
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, text(15))
+        .margin(6)
+        .x_label_area_size(34)
+        .y_label_area_size(40)
+        .build_cartesian_2d(-fx / 2.0..fx / 2.0, -fy / 2.0..fy / 2.0)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_labels(5)
+        .y_labels(5)
+        .label_style(text(12))
+        .x_desc("x (mm)")
+        .axis_desc_style(text(12))
+        .draw()?;
+    let (px, py) = (fx / w.max(1) as f64, fy / h.max(1) as f64);
+    chart.draw_series((0..h).flat_map(|r| {
+        (0..w).map(move |c| {
+            let v = values.get(r * w + c).copied().unwrap_or(f64::NAN);
+            let (x0, y1) = (-fx / 2.0 + c as f64 * px, fy / 2.0 - r as f64 * py);
+            Rectangle::new([(x0, y1 - py), (x0 + px, y1)], colour(v).filled())
+        })
+    }))?;
+    Ok(())
 }
 
-/// A vertical colour bar of height `h` at `(x, y)` for values `lo..hi`, with three labels.
+/// A vertical colour bar in `area` for values `lo..hi`, its axis labelled `unit`.
 fn colour_bar(
-    c: &mut Canvas,
-    (x, y, h): (i64, i64, i64),
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
     (lo, hi): (f64, f64),
     unit: &str,
-    colour: &dyn Fn(f64) -> Rgb,
-) {
-    for i in 0..h {
-        let t = 1.0 - i as f64 / (h - 1).max(1) as f64;
-        c.fill_rect(x, y + i, 16, 1, colour(lo + t * (hi - lo)));
-    }
-    c.rect(x - 1, y - 1, 18, h + 2, GREY);
-    for (t, v) in [(0.0, hi), (0.5, 0.5 * (lo + hi)), (1.0, lo)] {
-        let yy = y + (t * (h - 1) as f64) as i64;
-        c.line(x + 16, yy, x + 20, yy, 1, BLACK);
-        c.text(x + 24, yy - 3, &format!("{v:.1}"), 1, BLACK);
-    }
-    c.text(x, y + h + 6, unit, 1, BLACK);
+    colour: &dyn Fn(f64) -> RGBColor,
+) -> Result<(), FigureError> {
+    let mut chart = ChartBuilder::on(area)
+        .margin_top(30)
+        .margin_bottom(40)
+        .margin_left(8)
+        .right_y_label_area_size(70)
+        .build_cartesian_2d(0.0..1.0, lo..hi)?;
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .disable_x_axis()
+        .y_labels(5)
+        .label_style(text(12))
+        .y_desc(unit)
+        .axis_desc_style(text(13))
+        .draw()?;
+    let steps = 100;
+    let dv = (hi - lo) / steps as f64;
+    chart.draw_series((0..steps).map(|i| {
+        let v = lo + i as f64 * dv;
+        Rectangle::new([(0.0, v), (1.0, v + dv)], colour(v + 0.5 * dv).filled())
+    }))?;
+    Ok(())
 }
 
 impl Panel {
     /// Draws the panel.
-    pub fn render(&self) -> Canvas {
+    pub fn render(&self) -> Result<Figure, FigureError> {
         let (w, h) = (self.width, self.height);
-        let s = scale_for(w, h);
-        let (iw, ih) = ((w * s) as i64, (h * s) as i64);
-        let cols = 1 + self.modes.len() as i64;
-        let gap = 16i64;
-        let title_h = 14i64;
-        let bar_w = 90i64;
-        let cw = 10 + cols * (iw + gap) + bar_w;
-        let ch = 34 + 2 * (title_h + ih + gap) + 10;
-        let mut c = Canvas::new(cw as usize, ch as usize, WHITE);
-        c.text(10, 8, &self.title, 2, BLACK);
+        let cols = 1 + self.modes.len();
+        let cell_h = cell_height(w, h);
+        let width = cols as u32 * CELL_W + BAR_W;
+        let height = 44 + 2 * cell_h;
+        let geometry = (w, h, self.fov);
+        Figure::draw(width, height, |root| {
+            root.fill(&WHITE)?;
+            let (title, body) = root.split_vertically(44);
+            title.draw_text(&self.title, &text(20), (12, 12))?;
+            let (grid, bars) = body.split_horizontally(cols as u32 * CELL_W);
+            let cells = grid.split_evenly((2, cols));
 
-        // Depth in micrometres, one scale for the row.
-        let um = |v: &[f64]| v.iter().map(|d| d * 1e6).collect::<Vec<_>>();
-        let dmax = self
-            .reference
-            .values
-            .iter()
-            .chain(self.modes.iter().flat_map(|m| &m.values))
-            .filter(|v| v.is_finite())
-            .fold(0.0f64, |a, &b| a.max(b * 1e6))
-            .max(1e-3);
-        let seq = move |v: f64| sequential(v / dmax);
-        let y1 = 34i64;
-        let images = std::iter::once(&self.reference).chain(&self.modes);
-        for (i, img) in images.enumerate() {
-            let x = 10 + i as i64 * (iw + gap);
-            c.text(x, y1, &img.title, 1, BLACK);
-            draw_image(&mut c, x, y1 + title_h, &um(&img.values), (w, h, s), &seq);
-        }
-        let bx = 10 + cols * (iw + gap);
-        colour_bar(
-            &mut c,
-            (bx, y1 + title_h, ih),
-            (0.0, dmax),
-            "depth um",
-            &seq,
-        );
+            // Depth in micrometres, one scale for the row.
+            let um = |v: &[f64]| v.iter().map(|d| d * 1e6).collect::<Vec<_>>();
+            let dmax = self
+                .reference
+                .values
+                .iter()
+                .chain(self.modes.iter().flat_map(|m| &m.values))
+                .filter(|v| v.is_finite())
+                .fold(0.0f64, |a, &b| a.max(b * 1e6))
+                .max(1e-3);
+            let seq = move |v: f64| sequential(v / dmax);
+            let images = std::iter::once(&self.reference).chain(&self.modes);
+            for (cell, img) in cells.iter().zip(images) {
+                draw_image(cell, &img.title, geometry, &um(&img.values), &seq)?;
+            }
 
-        // Signed errors, under their modes.
-        let errors: Vec<Vec<f64>> = self
-            .modes
-            .iter()
-            .map(|m| {
-                m.values
-                    .iter()
-                    .zip(&self.reference.values)
-                    .map(|(a, b)| (a - b) * 1e6)
-                    .collect()
-            })
-            .collect();
-        let emax = errors
-            .iter()
-            .flatten()
-            .filter(|v| v.is_finite())
-            .fold(0.0f64, |a, &b| a.max(b.abs()))
-            .max(1e-3);
-        let div = move |v: f64| diverging(v / emax);
-        let y2 = y1 + title_h + ih + gap;
-        c.text(
-            10,
-            y2 + title_h + ih / 2 - GLYPH_H as i64,
-            "error:",
-            1,
-            GREY,
-        );
-        c.text(10, y2 + title_h + ih / 2 + 4, "mode - ref", 1, GREY);
-        for (i, (m, e)) in self.modes.iter().zip(&errors).enumerate() {
-            let x = 10 + (i as i64 + 1) * (iw + gap);
-            c.text(x, y2, &format!("{} - ref", m.title), 1, BLACK);
-            draw_image(&mut c, x, y2 + title_h, e, (w, h, s), &div);
-        }
-        colour_bar(
-            &mut c,
-            (bx, y2 + title_h, ih),
-            (-emax, emax),
-            "error um",
-            &div,
-        );
-        c
+            // Signed errors, under their modes.
+            let errors: Vec<Vec<f64>> = self
+                .modes
+                .iter()
+                .map(|m| {
+                    m.values
+                        .iter()
+                        .zip(&self.reference.values)
+                        .map(|(a, b)| (a - b) * 1e6)
+                        .collect()
+                })
+                .collect();
+            let emax = errors
+                .iter()
+                .flatten()
+                .filter(|v| v.is_finite())
+                .fold(0.0f64, |a, &b| a.max(b.abs()))
+                .max(1e-3);
+            let div = move |v: f64| diverging(v / emax);
+            let note = &cells[cols];
+            let middle = cell_h as i32 / 2;
+            note.draw_text("error:", &text(15).color(&GREY), (20, middle - 20))?;
+            note.draw_text("mode − reference", &text(15).color(&GREY), (20, middle))?;
+            for ((cell, m), e) in cells[cols + 1..].iter().zip(&self.modes).zip(&errors) {
+                draw_image(cell, &format!("{} − ref", m.title), geometry, e, &div)?;
+            }
+
+            let bar_cells = bars.split_evenly((2, 1));
+            colour_bar(&bar_cells[0], (0.0, dmax), "depth (µm)", &seq)?;
+            colour_bar(&bar_cells[1], (-emax, emax), "error (µm)", &div)?;
+            Ok(())
+        })
     }
 
     /// Renders and saves the panel.
-    pub fn save(&self, path: &Path) -> Result<(), image::ImageError> {
-        self.render().save_png(path)
+    pub fn save(&self, path: &Path) -> Result<(), FigureError> {
+        self.render()?.save_png(path)
     }
 }
 
-/// One depth image (m) in the sequential colour map, enlarged when small, with a title and
-/// a colour bar in micrometres: what `tacrom render` writes.
-pub fn depth_image(title: &str, width: usize, height: usize, depth: &[f64]) -> Canvas {
-    let s = scale_for(width, height);
-    let (iw, ih) = ((width * s) as i64, (height * s) as i64);
-    let mut c = Canvas::new((iw + 110).max(300) as usize, (ih + 60) as usize, WHITE);
-    c.text(10, 8, title, 1, BLACK);
-    let um: Vec<f64> = depth.iter().map(|d| d * 1e6).collect();
-    let dmax = um
-        .iter()
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, |a, &b| a.max(b))
-        .max(1e-3);
-    let seq = move |v: f64| sequential(v / dmax);
-    draw_image(&mut c, 10, 28, &um, (width, height, s), &seq);
-    colour_bar(&mut c, (iw + 24, 28, ih), (0.0, dmax), "depth um", &seq);
-    c
+/// One depth image (m) in the sequential colour map, with a title, axes in millimetres
+/// and a colour bar in micrometres: what `tacrom render` writes.
+pub fn depth_image(
+    title: &str,
+    (width, height): (usize, usize),
+    fov: [f64; 2],
+    depth: &[f64],
+) -> Result<Figure, FigureError> {
+    let image_w = 480u32;
+    let image_h = (f64::from(image_w) * height.max(1) as f64 / width.max(1) as f64) as u32;
+    Figure::draw(image_w + 80 + BAR_W, image_h + 120, |root| {
+        root.fill(&WHITE)?;
+        let (top, body) = root.split_vertically(40);
+        top.draw_text(title, &text(16), (12, 12))?;
+        let (left, bar) = body.split_horizontally(image_w + 80);
+        let um: Vec<f64> = depth.iter().map(|d| d * 1e6).collect();
+        let dmax = um
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold(0.0f64, |a, &b| a.max(b))
+            .max(1e-3);
+        let seq = move |v: f64| sequential(v / dmax);
+        draw_image(&left, "depth", (width, height, fov), &um, &seq)?;
+        colour_bar(&bar, (0.0, dmax), "depth (µm)", &seq)
+    })
+}
+
+fn lerp_stops(stops: &[(f64, [u8; 3])], t: f64) -> RGBColor {
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    for w in stops.windows(2) {
+        let ((t0, c0), (t1, c1)) = (w[0], w[1]);
+        if t <= t1 {
+            let u = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
+            let mix = |k: usize| {
+                (f64::from(c0[k]) + u * (f64::from(c1[k]) - f64::from(c0[k]))).round() as u8
+            };
+            return RGBColor(mix(0), mix(1), mix(2));
+        }
+    }
+    let [r, g, b] = stops[stops.len() - 1].1;
+    RGBColor(r, g, b)
+}
+
+/// Sequential map for depth, `t` in [0, 1]: dark blue through teal and green to yellow.
+pub fn sequential(t: f64) -> RGBColor {
+    lerp_stops(
+        &[
+            (0.0, [30, 20, 80]),
+            (0.25, [50, 90, 150]),
+            (0.5, [40, 150, 140]),
+            (0.75, [120, 200, 80]),
+            (1.0, [250, 230, 40]),
+        ],
+        t,
+    )
+}
+
+/// Diverging map for signed errors, `t` in [-1, 1]: blue, white at 0, red.
+pub fn diverging(t: f64) -> RGBColor {
+    lerp_stops(
+        &[
+            (0.0, [40, 60, 160]),
+            (0.5, [250, 250, 250]),
+            (1.0, [180, 30, 40]),
+        ],
+        0.5 * (t + 1.0),
+    )
 }
 
 #[cfg(test)]
@@ -418,9 +617,18 @@ mod tests {
         assert_eq!(decades([0.5, 30.0].into_iter()), (-1, 2));
         assert_eq!(decades([10.0].into_iter()), (1, 2));
         assert_eq!(decades([f64::NAN, -1.0].into_iter()), (0, 1));
-        assert_eq!(decade_label(-2), "0.01");
-        assert_eq!(decade_label(3), "1000");
-        assert_eq!(decade_label(7), "1e7");
+        assert_eq!(tick_label(0.01), "0.01");
+        assert_eq!(tick_label(0.02), "0.02");
+        assert_eq!(tick_label(1000.0), "1000");
+        assert_eq!(tick_label(1e7), "1e7");
+    }
+
+    #[test]
+    fn colour_maps_hit_their_ends() {
+        assert_eq!(sequential(0.0), RGBColor(30, 20, 80));
+        assert_eq!(sequential(2.0), RGBColor(250, 230, 40));
+        assert_eq!(diverging(0.0), RGBColor(250, 250, 250));
+        assert_eq!(diverging(f64::NAN), diverging(-1.0));
     }
 
     #[test]
@@ -435,7 +643,8 @@ mod tests {
                     x: 1.0,
                     y: 2.0,
                     colour: PALETTE[0],
-                    marker: Marker::Disc,
+                    marker: Marker::Circle,
+                    threads: 1,
                 },
                 PlotPoint {
                     label: "b".into(),
@@ -443,16 +652,20 @@ mod tests {
                     y: 0.0,
                     colour: PALETTE[1],
                     marker: Marker::Square,
+                    threads: 2,
                 },
             ],
             reference: Some((1e4, "fine".into())),
         };
-        let c = plot.render();
+        let c = plot.render().unwrap();
         assert!(c.width > 0);
+        // Text is drawn: the figure holds dark pixels besides the white background.
+        assert!(c.rgb.chunks(3).any(|p| p.iter().all(|&v| v < 60)));
         let panel = Panel {
             title: "p".into(),
             width: 4,
             height: 3,
+            fov: [0.024, 0.018],
             reference: PanelImage {
                 title: "ref".into(),
                 values: vec![0.0; 12],
@@ -462,7 +675,7 @@ mod tests {
                 values: vec![f64::NAN; 12],
             }],
         };
-        let c = panel.render();
+        let c = panel.render().unwrap();
         assert!(c.height > 0);
     }
 }

@@ -252,7 +252,7 @@ fn write_text(path: &Path, text: &str) -> Result<(), BenchError> {
     })
 }
 
-fn png_error(path: &Path) -> impl FnOnce(image::ImageError) -> BenchError + '_ {
+fn png_error<E: std::fmt::Display>(path: &Path) -> impl FnOnce(E) -> BenchError + '_ {
     move |e| BenchError::Output {
         path: path.to_path_buf(),
         message: e.to_string(),
@@ -281,11 +281,8 @@ pub fn error_plot(r: &BenchResult) -> ErrorTimePlot {
                 x: m.median_ms,
                 y: m.accuracy.mae * 1e6,
                 colour: PALETTE[i % PALETTE.len()],
-                marker: if m.threads <= 1 {
-                    Marker::Disc
-                } else {
-                    Marker::Square
-                },
+                marker: Marker::ALL[i % Marker::ALL.len()],
+                threads: m.threads,
             }
         })
         .collect();
@@ -364,6 +361,7 @@ pub fn write(r: &BenchResult, fig: &Figures) -> Result<Vec<PathBuf>, BenchError>
             ),
             width: fig.grid.width,
             height: fig.grid.height,
+            fov: [fig.grid.fov_x, fig.grid.fov_y],
             reference: PanelImage {
                 title: format!("reference (fine {:.2} mm)", r.options.reference_dx * 1e3),
                 values: reference.depth.clone(),

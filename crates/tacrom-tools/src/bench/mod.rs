@@ -20,7 +20,6 @@
 //! the figure is the process's peak so far, and the report says so.
 
 pub mod cache;
-pub mod draw;
 pub mod heldout;
 pub mod metrics;
 pub mod mpm;

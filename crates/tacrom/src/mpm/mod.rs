@@ -62,7 +62,10 @@
 //! * `params.rs`: parameters, options, their validation, errors and the solve report;
 //! * `indenters.rs`: matching indenters between solves, their start poses and sweep;
 //! * `region.rs`: the active region a solve moves;
-//! * `relax.rs`: dynamic relaxation, the convergence test, one step;
+//! * `relax.rs`: dynamic relaxation, the convergence test, one step (the default solver);
+//! * `newton/`: the equilibrium as an energy minimum by Newton's method
+//!   ([`Solver::Newton`]; total-Lagrangian nodal displacements, sparse Cholesky, contact
+//!   on a surface lattice finer than the particles, lagged friction);
 //! * `transfer.rs`: the four parts of a step; `contact.rs`: the contact forces;
 //!   `material.rs`: the constitutive models; `surface.rs`: the depth image.
 

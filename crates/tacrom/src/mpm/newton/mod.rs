@@ -40,10 +40,12 @@
 //! increase (Armijo). It stops when the largest out-of-balance nodal force is below
 //! [`super::SolverOptions::tolerance`] times the load scale (the largest nodal contact
 //! force, at least a strain of 1e-4 over a cell). With friction the lagged normal forces
-//! are refreshed and the minimisation repeated until they change by less than the
-//! tolerance. Each frame starts from the previous equilibrium; an indenter that moves more
-//! than [`SUBSTEP_CELLS`] cells is moved in equal substeps, each solved, so friction
-//! follows the path.
+//! start from those of the last substep and are refreshed, and the minimisation repeated,
+//! until their sum changes by less than the tolerance. Each frame starts from the previous
+//! equilibrium, moved on along the gel's last change when the indenters move on along
+//! their last path (a secant predictor, kept only if it lowers the energy); an indenter
+//! that moves more than [`SUBSTEP_CELLS`] cells is moved in equal substeps, each solved, so
+//! friction follows the path.
 
 mod energy;
 mod system;
@@ -207,6 +209,9 @@ pub(crate) struct Newton {
     top: f64,
     area: f64,
     anchors: BTreeMap<u32, Anchor>,
+    /// The lagged normal force and normal of each contact lattice point at the end of
+    /// the last substep: the next substep's friction starts from them.
+    lagged: Vec<(f64, Vector3<f64>)>,
     contact: Vec<ContactPoint>,
     friction: f64,
     /// Load scale of the previous equilibrium (so that unloading is measured against it).
@@ -214,6 +219,10 @@ pub(crate) struct Newton {
     min_scale: f64,
     /// Energy after each accepted step of the last solve.
     pub history: Vec<f64>,
+    /// The displacement change over the last substep and the indenters' translations
+    /// (cells) in it, for the secant predictor.
+    last_change: Vec<f64>,
+    last_motion: Vec<Vector3<f64>>,
 }
 
 impl Newton {
@@ -331,11 +340,14 @@ impl Newton {
             top: -origin.z / dx,
             area: spacing[0] * spacing[1],
             anchors: BTreeMap::new(),
+            lagged: vec![(0.0, Vector3::z()); lattice[0] * lattice[1]],
             contact: Vec::new(),
             friction: params.friction,
             last_scale: 0.0,
             min_scale: 1e-4 * mu,
             history: Vec::new(),
+            last_change: Vec::new(),
+            last_motion: Vec::new(),
         })
         .map(|s: Newton| {
             debug_assert!(t > 0.0);
@@ -347,12 +359,20 @@ impl Newton {
     pub(super) fn reset(&mut self) {
         self.u.fill(0.0);
         self.anchors.clear();
+        self.lagged.fill((0.0, Vector3::z()));
         self.last_scale = 0.0;
+        self.last_change.clear();
+        self.last_motion.clear();
     }
 
     /// Renumbers the anchors' indenters (`matched[i]`: previous index of indenter `i`);
     /// anchors of indenters that are gone are dropped.
     pub(super) fn remap(&mut self, matched: &[Option<usize>]) {
+        if matched.len() != self.last_motion.len()
+            || matched.iter().enumerate().any(|(i, m)| *m != Some(i))
+        {
+            self.last_motion.clear();
+        }
         let mut new_index = BTreeMap::new();
         for (i, m) in matched.iter().enumerate() {
             if let Some(j) = *m {
@@ -488,12 +508,13 @@ impl Newton {
                     self.first[1] + iy as f64 * self.spacing[1],
                     self.top,
                 );
+                let (lag_force, lag_normal) = self.lagged[index as usize];
                 ContactPoint {
                     index,
                     rest,
                     stencil: Stencil::at(&rest),
-                    lag_force: 0.0,
-                    lag_normal: Vector3::z(),
+                    lag_force,
+                    lag_normal,
                 }
             })
             .collect();
@@ -513,7 +534,7 @@ impl Newton {
         for c in &self.contact {
             let x = c.rest + self.displacement(&c.stencil, u);
             if let Some(t) = self.touch(&x, indenters) {
-                e += 0.5 * PENALTY * self.area * t.gap * t.gap;
+                e += self.area * penalty(t.gap).0;
             }
             if let Some((y, _)) = self.slip(c, &x, indenters) {
                 e += self.friction * c.lag_force * smooth_slip(y);
@@ -575,10 +596,10 @@ impl Newton {
             let mut g = Vector3::zeros();
             let mut h = Matrix3::zeros();
             if let Some(t) = self.touch(&x, indenters) {
-                let k = PENALTY * self.area;
-                energy += 0.5 * k * t.gap * t.gap;
-                g -= t.normal * (k * t.gap);
-                h += t.normal * t.normal.transpose() * k;
+                let (e, f, k) = penalty(t.gap);
+                energy += self.area * e;
+                g -= t.normal * (self.area * f);
+                h += t.normal * t.normal.transpose() * (self.area * k);
             }
             if let Some((y, d)) = self.slip(c, &x, indenters) {
                 let scale = self.friction * c.lag_force;
@@ -775,7 +796,8 @@ impl Newton {
     /// Refreshes the lagged normal forces and normals of the contact points, creating the
     /// anchors of new contacts at their position at the start of the substep mapped into
     /// their indenter's frame there (`start`: displacement at the start). Returns the
-    /// largest change of a lagged force relative to the largest force.
+    /// summed change of the lagged forces relative to their sum (the relative change of
+    /// the friction the contact can carry).
     fn lag_friction(
         &mut self,
         indenters: &[StepIndenter],
@@ -802,12 +824,12 @@ impl Newton {
                             },
                         );
                     }
-                    (PENALTY * self.area * t.gap, t.normal)
+                    (self.area * penalty(t.gap).1, t.normal)
                 }
                 None => (0.0, c.lag_normal),
             };
-            change = change.max((force - c.lag_force).abs());
-            largest = largest.max(force);
+            change += (force - c.lag_force).abs();
+            largest += force;
             c.lag_force = force;
             c.lag_normal = normal;
         }
@@ -862,7 +884,7 @@ impl Newton {
         for c in &self.contact {
             let x = c.rest + self.displacement(&c.stencil, &self.u);
             if let Some(t) = self.touch(&x, indenters) {
-                f -= t.normal * (PENALTY * self.area * t.gap);
+                f -= t.normal * (self.area * penalty(t.gap).1);
             }
             if let Some((y, d)) = self.slip(c, &x, indenters) {
                 let scale = self.friction * c.lag_force;
@@ -887,13 +909,16 @@ impl Newton {
         report: &mut SolveReport,
     ) -> Option<Vector3<f64>> {
         self.gather_contact_points(indenters);
+        let motion: Vec<Vector3<f64>> = indenters
+            .iter()
+            .zip(starts)
+            .map(|(i, s)| (i.now.translation.vector - s.translation.vector) / self.dx)
+            .collect();
+        self.predict(&motion, indenters);
         let start = self.u.clone();
-        if self.friction > 0.0 {
-            self.lag_friction(indenters, starts, &start);
-        }
         let mut residual = self.minimise(indenters, tolerance, report)?;
         if self.friction > 0.0 {
-            for _ in 1..MAX_OUTER {
+            for _ in 0..MAX_OUTER {
                 if self.lag_friction(indenters, starts, &start) <= tolerance {
                     break;
                 }
@@ -905,14 +930,64 @@ impl Newton {
         let force = self.contact_force(indenters);
         if self.friction > 0.0 {
             self.return_mapping(indenters);
+            for l in self.lagged.iter_mut() {
+                *l = (0.0, Vector3::z());
+            }
+            for c in &self.contact {
+                self.lagged[c.index as usize] = (c.lag_force, c.lag_normal);
+            }
         }
+        self.last_change.clear();
+        self.last_change
+            .extend(self.u.iter().zip(&start).map(|(u, s)| u - s));
+        self.last_motion = motion;
         Some(force)
+    }
+
+    /// The secant predictor: when the indenters move on along their last path, the gel
+    /// is first moved on by the same multiple of its last change (kept only if that
+    /// lowers the energy). A warm start from the last equilibrium alone meets the
+    /// indenters deeper than the solution does, over a wider patch than the one in
+    /// contact at the solution, and Newton's method then sheds the extra contact points
+    /// a ring per step; the prediction starts it near the solution's contact patch.
+    fn predict(&mut self, motion: &[Vector3<f64>], indenters: &[StepIndenter]) {
+        if motion.len() != self.last_motion.len() || self.last_change.len() != self.u.len() {
+            return;
+        }
+        let along: f64 = motion
+            .iter()
+            .zip(&self.last_motion)
+            .map(|(a, b)| a.dot(b))
+            .sum();
+        let before: f64 = self.last_motion.iter().map(|b| b.norm_squared()).sum();
+        if !(before > 0.0 && along > 0.0) {
+            return;
+        }
+        let s = (along / before).min(2.0);
+        for ((t, u), d) in self.trial.iter_mut().zip(&self.u).zip(&self.last_change) {
+            *t = u + s * d;
+        }
+        let no_friction = self.friction;
+        self.friction = 0.0;
+        let predicted = self.energy(&self.trial, indenters);
+        let kept = self.energy(&self.u, indenters);
+        self.friction = no_friction;
+        if predicted < kept {
+            std::mem::swap(&mut self.u, &mut self.trial);
+        }
     }
 }
 
 /// Whether `p` lies in `b`.
 fn contains(b: &Aabb, p: &Point3<f64>) -> bool {
     (0..3).all(|k| p[k] >= b.min[k] && p[k] <= b.max[k])
+}
+
+/// The contact penalty's energy per unit area, pressure and stiffness at penetration `g`
+/// (cells).
+#[inline]
+fn penalty(g: f64) -> (f64, f64, f64) {
+    (0.5 * PENALTY * g * g, PENALTY * g, PENALTY)
 }
 
 /// The smoothed slip magnitude: `y^2 / (2 STICK)` below [`STICK`], `y - STICK / 2` beyond.

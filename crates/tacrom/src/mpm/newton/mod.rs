@@ -72,6 +72,11 @@ pub(crate) const PENALTY: f64 = 1e3;
 /// Tangential offset (cells) at which friction reaches its sliding value.
 pub(crate) const STICK: f64 = 1e-3;
 
+/// Contact lattice points farther than this (cells) from every indenter at the start of a
+/// substep are left out of its solve (and checked after it): a substep moves an indenter
+/// by at most [`SUBSTEP_CELLS`], and the gel's surface by no more.
+const CULL_CELLS: f64 = 2.0 * SUBSTEP_CELLS;
+
 /// Largest indenter motion (cells) solved in one go.
 pub(crate) const SUBSTEP_CELLS: f64 = 1.0;
 
@@ -213,6 +218,8 @@ pub(crate) struct Newton {
     /// the last substep: the next substep's friction starts from them.
     lagged: Vec<(f64, Vector3<f64>)>,
     contact: Vec<ContactPoint>,
+    /// Lattice points under the indenters left out of the current solve (too far away).
+    culled: Vec<ContactPoint>,
     friction: f64,
     /// Load scale of the previous equilibrium (so that unloading is measured against it).
     last_scale: f64,
@@ -342,6 +349,7 @@ impl Newton {
             anchors: BTreeMap::new(),
             lagged: vec![(0.0, Vector3::z()); lattice[0] * lattice[1]],
             contact: Vec::new(),
+            culled: Vec::new(),
             friction: params.friction,
             last_scale: 0.0,
             min_scale: 1e-4 * mu,
@@ -518,6 +526,44 @@ impl Newton {
                 }
             })
             .collect();
+        // Points farther from every indenter than the solve can move them stay out of it;
+        // `culled` keeps them for the check after the solve.
+        self.culled.clear();
+        let contact = std::mem::take(&mut self.contact);
+        for c in contact {
+            let x = c.rest + self.displacement(&c.stencil, &self.u);
+            if self.anchors.contains_key(&c.index) || self.clearance(&x, indenters) < CULL_CELLS {
+                self.contact.push(c);
+            } else {
+                self.culled.push(c);
+            }
+        }
+    }
+
+    /// Whether a point left out of the solve by [`Self::gather_contact_points`] penetrates
+    /// an indenter now; if so, every point is taken back into the contact set.
+    fn restore_culled(&mut self, indenters: &[StepIndenter]) -> bool {
+        let missed = self.culled.iter().any(|c| {
+            let x = c.rest + self.displacement(&c.stencil, &self.u);
+            self.touch(&x, indenters).is_some()
+        });
+        if missed {
+            let culled = std::mem::take(&mut self.culled);
+            self.contact.extend(culled);
+            self.contact.sort_unstable_by_key(|c| c.index);
+        }
+        missed
+    }
+
+    /// The smallest signed distance (cells) from the point at `x` (cells) to an indenter
+    /// whose bounds hold it; `+inf` if none does.
+    fn clearance(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> f64 {
+        let p = Point3::from(self.origin + x * self.dx);
+        indenters
+            .iter()
+            .filter(|ind| contains(&ind.bounds, &p))
+            .map(|ind| ind.shape.distance(&ind.now.inverse_transform_point(&p)) / self.dx)
+            .fold(f64::INFINITY, f64::min)
     }
 
     /// The energy at `u` (elastic, contact, friction with the lagged forces); `+inf` where
@@ -917,6 +963,9 @@ impl Newton {
         self.predict(&motion, indenters);
         let start = self.u.clone();
         let mut residual = self.minimise(indenters, tolerance, report)?;
+        if self.restore_culled(indenters) {
+            residual = self.minimise(indenters, tolerance, report)?;
+        }
         if self.friction > 0.0 {
             for _ in 0..MAX_OUTER {
                 if self.lag_friction(indenters, starts, &start) <= tolerance {

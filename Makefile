@@ -119,6 +119,9 @@ eval-rom: build
 	target/release/tacrom eval-rom --data $(ROM_DATA) --out out/bench/eval-rom-f0.7
 	target/release/tacrom eval-rom --data $(ROM_FINE_DATA) --compare $(ROM_DATA) --out out/bench/eval-rom-f0.3
 
-# ONNX parity (ONNX Runtime against PyTorch) and a tiny train-and-export run.
+# ONNX parity (ONNX Runtime against PyTorch), a tiny train-and-export run, and feature
+# parity (the decoder's inputs from the Rust run time against the training code's, on
+# presses written by `tacrom rom-features`).
 test-train: train-env
+	$(CARGO) build --release -p tacrom-tools --bin tacrom
 	PYTHONPATH=training $(PY_TRAIN) -m pytest -q -p no:cacheprovider training/tests

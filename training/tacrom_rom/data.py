@@ -4,7 +4,8 @@ A data directory holds `dataset.json` and per sample `sample-NNNNNN.npy` (float3
 [3, ny, nx], metres: coarse depth, rigid penetration, reference depth on the surface
 lattice) with `sample-NNNNNN.json` (family, parameters, solver reports).
 
-The features here are computed exactly as in src/rom/features.rs: keep the two in step.
+The features here are computed exactly as in crates/tacrom/src/rom/features.rs: keep the two
+in step. tests/test_feature_parity.py checks it on presses written by `tacrom rom-features`.
 """
 from __future__ import annotations
 
@@ -171,7 +172,7 @@ class QueryBuilder:
 def region_mask(lattice: np.ndarray, grow: int, eps_mm: float = 1e-3) -> np.ndarray:
     """Where the surface can be deformed: coarse depth or penetration above eps (mm),
     grown by `grow` lattice steps. lattice [..., C, ny, nx] -> bool [..., ny, nx].
-    Matches `region` in src/rom/mod.rs."""
+    Matches `region` in src/rom/features.rs."""
     m = (lattice[..., 0, :, :] > eps_mm) | (lattice[..., 1, :, :] > 0)
     for _ in range(grow):
         g = m.copy()

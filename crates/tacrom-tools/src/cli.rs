@@ -39,6 +39,9 @@ pub enum Command {
     GenData(GenDataArgs),
     /// Rigid, coarse and reduced-order models against gen-data references.
     EvalRom(EvalRomArgs),
+    /// Developer tool: a model's inputs (coarse lattice, encoder input, query features,
+    /// region) for fixed presses, for the training side's feature-parity test.
+    RomFeatures(RomFeaturesArgs),
 }
 
 /// A length in millimetres, finite, as metres.
@@ -355,6 +358,26 @@ pub struct EvalRomArgs {
     pub out: PathBuf,
 }
 
+/// Options of `tacrom rom-features` (a developer tool): solves fixed presses (an
+/// off-centre sphere, a box at a corner) on a model's coarse gel and writes what its
+/// networks see, computed by the run-time code, as .npy files with features.json, in
+/// gen-data's format where they overlap (see src/rom_features.rs).
+/// `training/tests/test_feature_parity.py` compares them with the training code's.
+#[derive(Debug, Args)]
+#[command(after_help = UNITS)]
+pub struct RomFeaturesArgs {
+    /// Output directory.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Model whose lattice, gel and coarse solve to use [the shipped models/rom-default].
+    #[arg(long, value_name = "DIR")]
+    pub model: Option<PathBuf>,
+    /// Solver threads.
+    #[arg(long, value_name = "T", default_value_t = 1,
+          value_parser = at_least_one)]
+    pub threads: usize,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -408,6 +431,8 @@ mod tests {
             &["mpm", "--tolerances", "1.5"],
             &["mpm", "--threads", "0"],
             &["eval-rom"],
+            &["rom-features"],
+            &["rom-features", "--out", "x", "--threads", "0"],
         ] {
             let argv = std::iter::once("tacrom").chain(args.iter().copied());
             assert!(Cli::try_parse_from(argv).is_err(), "{args:?}");

@@ -639,6 +639,22 @@ pub fn solve_press(gel: &mut Gel, press: &Press) -> (SolveReport, f64) {
     )
 }
 
+/// A sample's array, float32 `[3, ny, nx]` (m), row-major: the observation's coarse depth
+/// and rigid penetration, then the `reference` surface depth under the observation's depth
+/// rule.
+pub fn sample_array(obs: &Observation, reference: &[f64]) -> Vec<f32> {
+    let mut data: Vec<f32> = Vec::with_capacity(3 * obs.coarse.len());
+    data.extend(obs.coarse.iter().map(|&v| v as f32));
+    data.extend(obs.pen.iter().map(|&v| v as f32));
+    data.extend(
+        reference
+            .iter()
+            .zip(&obs.pen)
+            .map(|(&r, &p)| obs.rule.depth(r, p) as f32),
+    );
+    data
+}
+
 /// Writes a float32 array as `.npy` (C order), atomically.
 pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
     npy::write(path, shape, data)
@@ -706,7 +722,8 @@ pub struct SolveMeta {
 }
 
 impl SolveMeta {
-    fn new(r: &SolveReport, seconds: f64) -> Self {
+    /// The report `r` of a press solved in `seconds`.
+    pub fn new(r: &SolveReport, seconds: f64) -> Self {
         Self {
             iterations: r.iterations,
             converged: r.converged,
@@ -846,15 +863,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         let (rf, sf) = solve_press(&mut fine, &press);
         let mut reference = vec![0.0; spec.points()];
         fine.surface_depth(&spec.grid(), &mut reference);
-        let mut data: Vec<f32> = Vec::with_capacity(3 * spec.points());
-        data.extend(obs.coarse.iter().map(|&v| v as f32));
-        data.extend(obs.pen.iter().map(|&v| v as f32));
-        data.extend(
-            reference
-                .iter()
-                .zip(&obs.pen)
-                .map(|(&r, &p)| obs.rule.depth(r, p) as f32),
-        );
+        let data = sample_array(&obs, &reference);
         write_npy(&npy, &[3, spec.ny, spec.nx], &data)
             .map_err(|e| format!("{}: {e}", npy.display()))?;
         let meta = SampleMeta {

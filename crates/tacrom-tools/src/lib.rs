@@ -1,6 +1,6 @@
-//! The `tacrom` command's library: the press benchmark, training-data generation and the
-//! stability suite. Everything here runs outside MuJoCo and is kept out of the plugin
-//! library that MuJoCo loads.
+//! The `tacrom` command's library: the press benchmark, training-data generation, the
+//! stability suite and the reduced-order model's features for the parity test. Everything
+//! here runs outside MuJoCo and is kept out of the plugin library that MuJoCo loads.
 #![warn(missing_docs)]
 
 pub mod bench;
@@ -8,4 +8,5 @@ pub mod cli;
 pub mod datagen;
 pub mod npy;
 pub mod progress;
+pub mod rom_features;
 pub mod stability;

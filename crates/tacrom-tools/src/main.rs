@@ -13,7 +13,8 @@ use tacrom_tools::bench::plot::depth_image;
 use tacrom_tools::bench::protocol::Indenter;
 use tacrom_tools::bench::{BenchError, BenchOptions, IndenterSource};
 use tacrom_tools::cli::{
-    BenchArgs, Cli, Command, EvalRomArgs, GenDataArgs, MpmArgs, MpmPart, RenderArgs, StabilityArgs,
+    BenchArgs, Cli, Command, EvalRomArgs, GenDataArgs, MpmArgs, MpmPart, RenderArgs,
+    RomFeaturesArgs, StabilityArgs,
 };
 use tacrom_tools::progress::Progress;
 
@@ -25,6 +26,7 @@ fn main() -> ExitCode {
         Command::Mpm(a) => mpm(a),
         Command::GenData(a) => gen_data(a),
         Command::EvalRom(a) => eval_rom(a),
+        Command::RomFeatures(a) => rom_features(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -261,6 +263,26 @@ fn eval_rom(a: EvalRomArgs) -> Result<(), BenchError> {
     let result = run(&options)?;
     print!("{}", markdown(&result));
     println!("\nwritten to {}", options.out.display());
+    Ok(())
+}
+
+fn rom_features(a: RomFeaturesArgs) -> Result<(), BenchError> {
+    use tacrom_tools::rom_features::{write, FeaturesConfig};
+    let model = match a.model {
+        Some(m) => m,
+        None => tacrom::rom::default_model_dir().ok_or_else(|| {
+            BenchError::Usage(format!(
+                "the shipped model models/{} was not found; pass --model DIR",
+                tacrom::rom::DEFAULT_MODEL
+            ))
+        })?,
+    };
+    let config = FeaturesConfig {
+        out: a.out,
+        model,
+        threads: a.threads,
+    };
+    println!("{}", write(&config).map_err(BenchError::Usage)?);
     Ok(())
 }
 

@@ -17,6 +17,11 @@
 //!   centred on the point with `patch_step` lattice steps between samples (zero outside
 //!   the gel), in model units; see [`query_features`] for the exact order and
 //!   [`coarse_centre_feature`] for the coarse depth at the point itself.
+//! * **Deformable region**: the lattice points the decoder is evaluated at ([`region`]).
+//!
+//! `training/tacrom_rom/data.py` computes the same on the training data; the parity test
+//! `training/tests/test_feature_parity.py` compares the two on presses written by
+//! `tacrom rom-features`.
 
 use crate::geometry::{PixelGrid, Placed};
 use crate::mpm::Gel;
@@ -209,5 +214,37 @@ pub fn query_features(
                 out.push(v as f32);
             }
         }
+    }
+}
+
+/// The deformable region of `obs` (row-major into `out`, cleared first): the lattice points
+/// where the coarse depth exceeds `eps` (model units) or the indenters pierce the gel,
+/// grown `grow` times by the four lattice neighbours.
+pub fn region(obs: &Observation, spec: &LatticeSpec, eps: f64, grow: usize, out: &mut Vec<bool>) {
+    let eps_m = eps / spec.depth_scale;
+    let (nx, ny) = (spec.nx, spec.ny);
+    out.clear();
+    out.extend(
+        obs.coarse
+            .iter()
+            .zip(&obs.pen)
+            .map(|(&c, &p)| c > eps_m || p > 0.0),
+    );
+    let mut next = out.clone();
+    for _ in 0..grow {
+        next.copy_from_slice(out);
+        for r in 0..ny {
+            for c in 0..nx {
+                let i = r * nx + c;
+                if out[i] {
+                    continue;
+                }
+                next[i] = (r > 0 && out[i - nx])
+                    || (r + 1 < ny && out[i + nx])
+                    || (c > 0 && out[i - 1])
+                    || (c + 1 < nx && out[i + 1]);
+            }
+        }
+        std::mem::swap(out, &mut next);
     }
 }

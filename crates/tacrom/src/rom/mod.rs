@@ -724,34 +724,8 @@ impl Rom {
 
     /// The deformable region of an observation (see the module docs).
     fn compute_region(&mut self, obs: &Observation) {
-        let spec = &self.manifest.lattice;
         let (eps, grow) = self.manifest.region;
-        let eps_m = eps / spec.depth_scale;
-        let (nx, ny) = (spec.nx, spec.ny);
-        self.region.clear();
-        self.region.extend(
-            obs.coarse
-                .iter()
-                .zip(&obs.pen)
-                .map(|(&c, &p)| c > eps_m || p > 0.0),
-        );
-        let mut next = self.region.clone();
-        for _ in 0..grow {
-            next.copy_from_slice(&self.region);
-            for r in 0..ny {
-                for c in 0..nx {
-                    let i = r * nx + c;
-                    if self.region[i] {
-                        continue;
-                    }
-                    next[i] = (r > 0 && self.region[i - nx])
-                        || (r + 1 < ny && self.region[i + nx])
-                        || (c > 0 && self.region[i - 1])
-                        || (c + 1 < nx && self.region[i + 1]);
-                }
-            }
-            std::mem::swap(&mut self.region, &mut next);
-        }
+        features::region(obs, &self.manifest.lattice, eps, grow, &mut self.region);
     }
 
     fn energy_set(&self, obs: &Observation) -> EnergySet {

@@ -275,9 +275,9 @@ pub struct MpmArgs {
     /// Run one part only.
     #[arg(long, value_enum)]
     pub only: Option<MpmPart>,
-    /// Equilibrium solver [relaxation].
-    #[arg(long, value_name = "NAME", value_parser = solver_name)]
-    pub solver: Option<tacrom::mpm::Solver>,
+    /// Equilibrium solvers, each measured on every row, side by side [relaxation].
+    #[arg(long, value_name = "NAME", value_delimiter = ',', value_parser = solver_name)]
+    pub solver: Vec<tacrom::mpm::Solver>,
     /// Report folder.
     #[arg(long, value_name = "DIR", default_value = "out/bench/mpm")]
     pub out: PathBuf,

@@ -198,7 +198,9 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
     }
     options.out = a.out;
     options.progress = !a.quiet;
-    options.solver = a.solver.unwrap_or_default();
+    if !a.solver.is_empty() {
+        options.solvers = a.solver;
+    }
     if a.fine {
         options = options.with_fine();
     }
@@ -208,7 +210,6 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
         None => {}
     }
     let result = run(&options)?;
-    println!("solver: {}\n", options.solver.name());
     print!("{}", markdown(&result));
     println!("\nwritten to {}", options.out.display());
     Ok(())

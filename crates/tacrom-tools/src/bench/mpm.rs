@@ -54,8 +54,8 @@ pub struct MpmBenchOptions {
     pub out: PathBuf,
     /// Progress lines on stderr.
     pub progress: bool,
-    /// The equilibrium solver.
-    pub solver: Solver,
+    /// The equilibrium solvers, each run on every row.
+    pub solvers: Vec<Solver>,
 }
 
 impl MpmBenchOptions {
@@ -70,7 +70,7 @@ impl MpmBenchOptions {
             frames: 12,
             fine_frames: 3,
             out: PathBuf::from("out/bench/mpm"),
-            solver: Solver::default(),
+            solvers: vec![Solver::default()],
             progress: true,
         }
     }
@@ -86,6 +86,8 @@ impl MpmBenchOptions {
 /// One Hertz press.
 #[derive(Clone, Debug)]
 pub struct HertzRow {
+    /// Equilibrium solver.
+    pub solver: Solver,
     /// Grid spacing (m).
     pub dx: f64,
     /// Particles.
@@ -114,6 +116,8 @@ impl HertzRow {
 /// One cost run.
 #[derive(Clone, Debug)]
 pub struct SpeedRow {
+    /// Equilibrium solver.
+    pub solver: Solver,
     /// Grid spacing (m).
     pub dx: f64,
     /// Particles.
@@ -143,7 +147,7 @@ pub struct SpeedRow {
 impl SpeedRow {
     /// The row's values in column order, for `speed.csv` (`csv`: full precision, SI) or
     /// the markdown table (rounded, dx in mm).
-    fn cells(&self, csv: bool) -> [String; 12] {
+    fn cells(&self, csv: bool) -> [String; 13] {
         let r = self;
         let (dx, ms, p90, steps, bytes) = if csv {
             (
@@ -168,6 +172,7 @@ impl SpeedRow {
             format!("{:.0e}", r.tolerance)
         };
         [
+            r.solver.name().to_string(),
             dx,
             r.particles.to_string(),
             r.median_active.to_string(),
@@ -243,6 +248,7 @@ pub fn hertz_sequence(
         let t0 = Instant::now();
         let rep = g.solve(&at(&ball, 0.0, d));
         let row = HertzRow {
+            solver,
             dx,
             particles: g.num_particles(),
             depth: d,
@@ -254,7 +260,8 @@ pub fn hertz_sequence(
         };
         progress.advance(1);
         progress.line(&format!(
-            "hertz dx {:.2} mm d {:.2} mm: {:+.1} % ({} it, {:.1} s)",
+            "hertz {} dx {:.2} mm d {:.2} mm: {:+.1} % ({} it, {:.1} s)",
+            solver.name(),
             dx * 1e3,
             d * 1e3,
             100.0 * row.error(),
@@ -311,6 +318,7 @@ pub fn speed_run(
     let mut sorted_iters = iters.clone();
     sorted_iters.sort_unstable();
     Ok(SpeedRow {
+        solver,
         dx,
         particles: n,
         threads,
@@ -332,13 +340,16 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
     let mut result = MpmBenchResult::default();
     let most_threads = options.threads.iter().copied().max().unwrap_or(1);
     let progress = Progress::new(
-        options.hertz_dx.len() * options.depths.len()
-            + options.speed_dx.len() * options.tolerances.len() * options.threads.len(),
+        options.solvers.len()
+            * (options.hertz_dx.len() * options.depths.len()
+                + options.speed_dx.len() * options.tolerances.len() * options.threads.len()),
         options.progress,
     );
     for &dx in &options.hertz_dx {
-        let rows = hertz_sequence(dx, &options.depths, most_threads, options.solver, &progress)?;
-        result.hertz.extend(rows);
+        for &solver in &options.solvers {
+            let rows = hertz_sequence(dx, &options.depths, most_threads, solver, &progress)?;
+            result.hertz.extend(rows);
+        }
     }
     for &dx in &options.speed_dx {
         let frames = if dx < 0.5e-3 {
@@ -348,21 +359,22 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
         };
         for &tolerance in &options.tolerances {
             for &threads in &options.threads {
-                progress.message(format!(
-                    "speed dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s)",
-                    dx * 1e3
-                ));
-                let row = speed_run(dx, threads, tolerance, frames, options.solver)?;
-                progress.advance(1);
-                progress.line(&format!(
-                    "speed dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s): \
-                         median {:.1} ms/frame, {} it, {:.2e} particle-steps/s",
-                    dx * 1e3,
-                    row.median_ms,
-                    row.median_iterations,
-                    row.particle_steps_per_s
-                ));
-                result.speed.push(row);
+                // The solvers back to back, so that both see the same machine state.
+                for &solver in &options.solvers {
+                    let what = format!(
+                        "speed {} dx {:.2} mm, tolerance {tolerance:.0e}, {threads} thread(s)",
+                        solver.name(),
+                        dx * 1e3
+                    );
+                    progress.message(what.clone());
+                    let row = speed_run(dx, threads, tolerance, frames, solver)?;
+                    progress.advance(1);
+                    progress.line(&format!(
+                        "{what}: median {:.1} ms/frame, {} it, {:.2e} particle-steps/s",
+                        row.median_ms, row.median_iterations, row.particle_steps_per_s
+                    ));
+                    result.speed.push(row);
+                }
             }
         }
     }
@@ -395,17 +407,43 @@ pub fn markdown(result: &MpmBenchResult) -> String {
         s.push_str(
             "## Hertz (bonded layer), force error per depth\n\nFrictionless sphere R = 5 mm \
              on the default gel (30 x 30 x 4 mm, E = 1.19e5 Pa, Poisson 0.43); Dimitriadis et \
-             al. 2002. `*`: hit the iteration cap.\n\n| dx (mm) | particles |",
+             al. 2002. `*`: hit the iteration cap. Iterations: explicit steps (relaxation) or \
+             Newton steps (newton).\n\n| solver | dx (mm) | particles |",
         );
         for d in &depths {
             let _ = write!(s, " d = {:.2} mm |", d * 1e3);
         }
-        s.push_str(" iterations | solve s |\n|---|---|");
+        s.push_str(" iterations | solve s |\n|---|---|---|");
         s.push_str(&"---|".repeat(depths.len() + 2));
         s.push('\n');
-        for dx in &dxs {
-            let rows: Vec<&HertzRow> = result.hertz.iter().filter(|r| r.dx == *dx).collect();
-            let _ = write!(s, "| {:.2} | {} |", dx * 1e3, rows[0].particles);
+        let solvers = {
+            let mut v: Vec<Solver> = Vec::new();
+            for r in &result.hertz {
+                if !v.contains(&r.solver) {
+                    v.push(r.solver);
+                }
+            }
+            v
+        };
+        for (dx, solver) in dxs
+            .iter()
+            .flat_map(|dx| solvers.iter().map(move |solver| (dx, solver)))
+        {
+            let rows: Vec<&HertzRow> = result
+                .hertz
+                .iter()
+                .filter(|r| r.dx == *dx && r.solver == *solver)
+                .collect();
+            if rows.is_empty() {
+                continue;
+            }
+            let _ = write!(
+                s,
+                "| {} | {:.2} | {} |",
+                solver.name(),
+                dx * 1e3,
+                rows[0].particles
+            );
             for d in &depths {
                 match rows.iter().find(|r| r.depth == *d) {
                     Some(r) => {
@@ -426,10 +464,11 @@ pub fn markdown(result: &MpmBenchResult) -> String {
             "## Cost of a moving press\n\nDefault gel with friction 0.5, sphere R = 5 mm; each \
              frame 0.05 mm deeper and 0.02 mm along x, after a warm-up press at 0.1 mm. \
              Solve time only (no image). Active: particles the solve moved (median; the rest \
-             of the gel keeps its state). Particle-steps count active particles.\n\n| dx \
-             (mm) | particles | active | tolerance | threads | frames | median ms | p90 ms | \
-             iterations (median) | particle-steps/s | unconverged | bytes/particle |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+             of the gel keeps its state). Particle-steps count active particles; iterations are explicit steps \
+             (relaxation) or Newton steps (newton).\n\n| solver | dx (mm) | particles | \
+             active | tolerance | threads | frames | median ms | p90 ms | iterations \
+             (median) | particle-steps/s | unconverged | bytes/particle |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &result.speed {
             let _ = writeln!(s, "| {} |", r.cells(false).join(" | "));
@@ -446,12 +485,14 @@ fn write_file(out: &Path, name: &str, text: String) -> Result<(), BenchError> {
 fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     std::fs::create_dir_all(out).map_err(|e| io_error(out, e))?;
     write_file(out, "report.md", markdown(result))?;
-    let mut hertz =
-        String::from("dx_m,particles,depth_m,force_n,hertz_n,error,iterations,converged,seconds\n");
+    let mut hertz = String::from(
+        "solver,dx_m,particles,depth_m,force_n,hertz_n,error,iterations,converged,seconds\n",
+    );
     for r in &result.hertz {
         let _ = writeln!(
             hertz,
-            "{:e},{},{:e},{:e},{:e},{:.5},{},{},{:.3}",
+            "{},{:e},{},{:e},{:e},{:e},{:.5},{},{},{:.3}",
+            r.solver.name(),
             r.dx,
             r.particles,
             r.depth,
@@ -465,7 +506,7 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     }
     write_file(out, "hertz.csv", hertz)?;
     let mut speed = String::from(
-        "dx_m,particles,median_active,tolerance,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
+        "solver,dx_m,particles,median_active,tolerance,threads,frames,median_ms,p90_ms,median_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
     );
     for r in &result.speed {
         let _ = writeln!(speed, "{}", r.cells(true).join(","));
@@ -482,6 +523,7 @@ mod tests {
     #[test]
     fn markdown_tables_have_one_row_per_spacing() {
         let row = |dx: f64, depth: f64, converged: bool| HertzRow {
+            solver: Solver::Relaxation,
             dx,
             particles: 10,
             depth,
@@ -504,6 +546,36 @@ mod tests {
         assert_eq!(lines.len(), 3, "{md}");
         assert!(lines[1].contains("+10.0 %*"), "{md}");
         assert!(lines[2].contains("– |"), "{md}");
+    }
+
+    // Two solvers give a row each per spacing, side by side, named in the first column.
+    #[test]
+    fn markdown_puts_the_solvers_side_by_side() {
+        let row = |solver: Solver, dx: f64| HertzRow {
+            solver,
+            dx,
+            particles: 10,
+            depth: 2e-4,
+            force: 1.0,
+            reference: 1.0,
+            iterations: 5,
+            converged: true,
+            seconds: 0.1,
+        };
+        let result = MpmBenchResult {
+            hertz: vec![
+                row(Solver::Relaxation, 1e-3),
+                row(Solver::Newton, 1e-3),
+                row(Solver::Relaxation, 5e-4),
+            ],
+            speed: Vec::new(),
+        };
+        let md = markdown(&result);
+        let lines: Vec<&str> = md.lines().filter(|l| l.starts_with("| ")).collect();
+        assert_eq!(lines.len(), 4, "{md}");
+        assert!(lines[1].starts_with("| relaxation | 1.00 |"), "{md}");
+        assert!(lines[2].starts_with("| newton | 1.00 |"), "{md}");
+        assert!(lines[3].starts_with("| relaxation | 0.50 |"), "{md}");
     }
 
     // The cost run at a coarse spacing reports consistent figures.

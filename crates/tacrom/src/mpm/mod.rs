@@ -79,6 +79,7 @@ mod indenters;
 mod material;
 mod newton;
 mod params;
+mod pressure;
 mod region;
 mod relax;
 mod surface;
@@ -318,6 +319,10 @@ pub struct Gel {
     last_footprint: Option<[usize; 4]>,
     /// The Newton solver's state, built at the first solve that needs it.
     newton: Option<Box<newton::Newton>>,
+    /// The last solve's contact loads, and the spacing of the surface points that carry
+    /// them (m), for [`Gel::contact_pressure`].
+    loads: Vec<pressure::ContactLoad>,
+    load_spacing: [f64; 2],
 }
 
 impl std::fmt::Debug for Gel {
@@ -384,6 +389,8 @@ impl Gel {
             clamped: false,
             last_footprint: None,
             newton: None,
+            loads: Vec::new(),
+            load_spacing: [0.0; 2],
         })
     }
 
@@ -429,6 +436,7 @@ impl Gel {
         self.clamped = false;
         self.last_footprint = None;
         self.contacts.fill(SlotContact::NONE);
+        self.loads.clear();
         if let Some(n) = self.newton.as_mut() {
             n.reset();
         }
@@ -485,6 +493,7 @@ impl Gel {
         if !touching && self.resting {
             self.prev = current;
             self.force = Vector3::zeros();
+            self.loads.clear();
             return report;
         }
         let sweep = self.plan_sweep(used, &matched);
@@ -543,15 +552,32 @@ impl Gel {
             self.force = Vector3::zeros();
             self.prev.clear();
             self.last_reaction = 0.0;
+            self.loads.clear();
         } else {
             self.prev = current;
             self.last_reaction = self.reaction;
+            self.record_loads();
         }
         report.nonfinite_recovered |= repaired;
         self.update_surface();
         self.last_footprint = self.footprint();
         self.resting = !touching && self.surface_box.is_none();
         self.clamped = report.det_f_min <= J_MIN * 1.01 || report.det_f_max >= J_MAX * 0.99;
+    }
+
+    /// The contact loads of the relaxation's last step (the ones [`Gel::force`] sums).
+    fn record_loads(&mut self) {
+        let (dx, origin) = (self.layout.dx, self.layout.origin);
+        let scale = self.modulus * dx * dx;
+        self.load_spacing = [self.layout.spacing[0], self.layout.spacing[1]];
+        self.loads.clear();
+        for a in self.active.iter().flatten() {
+            let x = (self.particles[a.particle as usize].x + a.d).cast::<f64>() * dx + origin;
+            self.loads.push(pressure::ContactLoad {
+                at: [x.x, x.y],
+                force: -a.f.cast::<f64>() * scale,
+            });
+        }
     }
 
     /// Indentation of the deformed top surface at each pixel of `grid` (m, positive into

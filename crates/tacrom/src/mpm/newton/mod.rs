@@ -218,6 +218,9 @@ pub(crate) struct Newton {
     /// the last substep: the next substep's friction starts from them.
     lagged: Vec<(f64, Vector3<f64>)>,
     contact: Vec<ContactPoint>,
+    /// The last substep's contact loads: each point's position (cells) and force on the
+    /// indenters (internal units).
+    pub loads: Vec<(Vector3<f64>, Vector3<f64>)>,
     /// Lattice points under the indenters left out of the current solve (too far away).
     culled: Vec<ContactPoint>,
     friction: f64,
@@ -350,6 +353,7 @@ impl Newton {
             lagged: vec![(0.0, Vector3::z()); lattice[0] * lattice[1]],
             contact: Vec::new(),
             culled: Vec::new(),
+            loads: Vec::new(),
             friction: params.friction,
             last_scale: 0.0,
             min_scale: 1e-4 * mu,
@@ -368,6 +372,7 @@ impl Newton {
         self.u.fill(0.0);
         self.anchors.clear();
         self.lagged.fill((0.0, Vector3::z()));
+        self.loads.clear();
         self.last_scale = 0.0;
         self.last_change.clear();
         self.last_motion.clear();
@@ -924,11 +929,13 @@ impl Newton {
         self.contact = contact;
     }
 
-    /// Total force of the gel on the indenters (internal units) at the last assembly.
-    fn contact_force(&self, indenters: &[StepIndenter]) -> Vector3<f64> {
-        let mut f = Vector3::zeros();
+    /// The force of each contact point on the indenters (internal units) and where the
+    /// point is (cells), for the points that carry one.
+    fn contact_loads(&self, indenters: &[StepIndenter]) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+        let mut loads = Vec::new();
         for c in &self.contact {
             let x = c.rest + self.displacement(&c.stencil, &self.u);
+            let mut f = Vector3::zeros();
             if let Some(t) = self.touch(&x, indenters) {
                 f -= t.normal * (self.area * penalty(t.gap).1);
             }
@@ -940,8 +947,11 @@ impl Newton {
                     d * (scale / y)
                 };
             }
+            if f != Vector3::zeros() {
+                loads.push((x, f));
+            }
         }
-        f
+        loads
     }
 
     /// Solves one substep with the indenters at `indenters` (moved from `starts`).
@@ -976,7 +986,8 @@ impl Newton {
         }
         report.residual = report.residual.max(residual);
         report.converged &= residual <= tolerance;
-        let force = self.contact_force(indenters);
+        self.loads = self.contact_loads(indenters);
+        let force = self.loads.iter().map(|l| l.1).sum();
         if self.friction > 0.0 {
             self.return_mapping(indenters);
             for l in self.lagged.iter_mut() {
@@ -1095,7 +1106,20 @@ impl Gel {
         }
         match force {
             Some(f) if newton.u.iter().all(|v| v.is_finite()) => {
-                self.force = f * self.modulus * dx * dx;
+                let scale = self.modulus * dx * dx;
+                self.force = f * scale;
+                self.load_spacing = [self.layout.spacing[0], self.layout.spacing[1]];
+                self.loads = newton
+                    .loads
+                    .iter()
+                    .map(|(x, f)| {
+                        let at = self.layout.origin + x * dx;
+                        super::pressure::ContactLoad {
+                            at: [at.x, at.y],
+                            force: f * scale,
+                        }
+                    })
+                    .collect();
             }
             _ => {
                 newton.u = saved;
@@ -1104,6 +1128,7 @@ impl Gel {
                 report.converged = false;
                 report.residual = f64::INFINITY;
                 self.force = Vector3::zeros();
+                self.loads.clear();
             }
         }
         let rests: Vec<Vector3<f64>> = self.top_ref.iter().map(|r| r.cast::<f64>()).collect();

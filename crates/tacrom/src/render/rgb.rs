@@ -13,7 +13,9 @@
 //! `e` (above the surface plane) lies in the direction `(cos e cos phi, cos e sin phi,
 //! sin e)`. The slope of a dent's side nearer a light faces that light and shows its colour.
 //! The gradient comes from central differences of the depth image in metres (one-sided on
-//! the image's border), using the pixel size of the image's [`PixelGrid`].
+//! the image's border), using the pixel size of the image's [`PixelGrid`]. The image lies
+//! pixel for pixel on the depth image: row 0 the +y edge, column 0 the -x edge (the gel
+//! seen from the indenter's side; the camera itself sees it mirrored).
 //!
 //! **Model.** Per channel `k`, the radiance of a surface with normal `n` is
 //! `ambient[k] + sum_i colour_i[k] (max(0, n.l_i) + specular max(0, n.h_i)^shininess)`
@@ -80,7 +82,8 @@ pub struct Optics {
     pub ambient: [f64; 3],
     /// Weight of the specular highlight against the Lambertian term.
     pub specular: f64,
-    /// Exponent of the specular highlight (larger: smaller, sharper highlights).
+    /// Exponent of the specular highlight (larger: smaller, sharper highlights; a negative
+    /// one counts as 0).
     pub shininess: i32,
 }
 
@@ -106,6 +109,10 @@ impl Default for Optics {
         }
     }
 }
+
+/// Pixels shaded together: the gradients of a span of a row, on the stack, so that the
+/// shading loops run over plain arrays (and vectorise).
+const SPAN: usize = 64;
 
 /// An [`Optics`] prepared for one image: unit light directions, half vectors and the flat
 /// surface's radiance.
@@ -146,9 +153,10 @@ impl Shader {
             flat: [0.0; 3],
             gain: [0.0; 3],
         };
-        shader.flat = shader.radiance(&view);
-        for k in 0..CHANNELS {
-            let f = shader.flat[k];
+        let mut flat = [[0.0; SPAN]; CHANNELS];
+        shader.radiance(&[0.0], &[0.0], &mut flat);
+        for (k, f) in flat.iter().map(|r| r[0]).enumerate() {
+            shader.flat[k] = f;
             shader.gain[k] = if f > 0.0 && f.is_finite() {
                 optics.background[k] / f
             } else {
@@ -158,37 +166,90 @@ impl Shader {
         shader
     }
 
-    /// Radiance per channel of a surface with unit normal `n` (camera-side frame).
+    /// Radiance per channel (`radiance[k][i]`) of the surface with depth gradients
+    /// `(gx[i], gy[i])`: the model's one definition. A light behind the surface
+    /// contributes neither term.
     #[inline(always)]
-    fn radiance(&self, n: &Vector3<f64>) -> [f64; 3] {
-        let mut r = self.ambient;
+    fn radiance(&self, gx: &[f64], gy: &[f64], radiance: &mut [[f64; SPAN]; CHANNELS]) {
+        let n = gx.len();
+        let (gx, gy) = (&gx[..n], &gy[..n]);
+        // Unit normal facing the camera.
+        let (mut nx, mut ny, mut nz) = ([0.0; SPAN], [0.0; SPAN], [0.0; SPAN]);
+        for i in 0..n {
+            let inv = (1.0 + gx[i] * gx[i] + gy[i] * gy[i]).sqrt().recip();
+            nx[i] = -gx[i] * inv;
+            ny[i] = -gy[i] * inv;
+            nz[i] = inv;
+        }
+        for (k, r) in radiance.iter_mut().enumerate() {
+            r[..n].fill(self.ambient[k]);
+        }
         for (l, h, colour) in &self.lights {
-            let nl = n.dot(l);
-            if nl <= 0.0 {
-                continue;
+            let (mut diffuse, mut highlight) = ([0.0; SPAN], [0.0; SPAN]);
+            for i in 0..n {
+                let nl = nx[i] * l.x + ny[i] * l.y + nz[i] * l.z;
+                let nh = nx[i] * h.x + ny[i] * h.y + nz[i] * h.z;
+                diffuse[i] = nl.max(0.0);
+                highlight[i] = if nl > 0.0 { nh.max(0.0) } else { 0.0 };
             }
-            let e = nl + self.specular * n.dot(h).max(0.0).powi(self.shininess);
-            for k in 0..CHANNELS {
-                r[k] += colour[k] * e;
+            pow(&mut highlight[..n], self.shininess);
+            for i in 0..n {
+                let e = diffuse[i] + self.specular * highlight[i];
+                for k in 0..CHANNELS {
+                    radiance[k][i] += colour[k] * e;
+                }
             }
         }
-        r
     }
 
-    /// Writes the colour of a pixel whose depth gradient is `(gx, gy)` into `px`.
+    /// Writes the colours of the pixels whose depth gradients are `(gx[i], gy[i])` into
+    /// `out` (3 values each): the background where the surface is flat or the gradient not
+    /// finite.
     #[inline(always)]
-    fn shade(&self, gx: f64, gy: f64, px: &mut [f64]) {
-        // Flat (most of an image) or not computable: the background.
-        if (gx == 0.0 && gy == 0.0) || !(gx.is_finite() && gy.is_finite()) {
-            px.copy_from_slice(&self.background);
+    fn shade(&self, gx: &[f64], gy: &[f64], out: &mut [f64]) {
+        let n = gx.len();
+        if gx.iter().chain(gy).all(|&g| g == 0.0) {
+            // A flat span (most of an image): the background.
+            for px in out[..CHANNELS * n].chunks_exact_mut(CHANNELS) {
+                px.copy_from_slice(&self.background);
+            }
             return;
         }
-        let inv = (1.0 + gx * gx + gy * gy).sqrt().recip();
-        let r = self.radiance(&Vector3::new(-gx * inv, -gy * inv, inv));
-        for k in 0..CHANNELS {
-            px[k] =
-                (self.background[k] + self.gain[k] * (r[k] - self.flat[k])).clamp(0.0, FULL_SCALE);
+        let mut radiance = [[0.0; SPAN]; CHANNELS];
+        self.radiance(gx, gy, &mut radiance);
+        for (i, px) in out[..CHANNELS * n].chunks_exact_mut(CHANNELS).enumerate() {
+            let flat = (gx[i] == 0.0 && gy[i] == 0.0) || !(gx[i].is_finite() && gy[i].is_finite());
+            for k in 0..CHANNELS {
+                let v = self.background[k] + self.gain[k] * (radiance[k][i] - self.flat[k]);
+                px[k] = if flat {
+                    self.background[k]
+                } else {
+                    v.clamp(0.0, FULL_SCALE)
+                };
+            }
         }
+    }
+}
+
+/// `x^e` in place, for each `x` in `[0, 1]`, by repeated squaring (`powi` with an exponent
+/// known only at run time is a library call per value); 1 for `e <= 0`.
+#[inline(always)]
+fn pow(x: &mut [f64], e: i32) {
+    let mut base = [0.0; SPAN];
+    let n = x.len();
+    base[..n].copy_from_slice(x);
+    x.fill(1.0);
+    let mut e = e.max(0) as u32;
+    while e > 0 {
+        if e & 1 == 1 {
+            for i in 0..n {
+                x[i] *= base[i];
+            }
+        }
+        for b in &mut base[..n] {
+            *b *= *b;
+        }
+        e >>= 1;
     }
 }
 
@@ -218,6 +279,7 @@ pub fn render(optics: &Optics, grid: &PixelGrid, depth: &[f64], out: &mut [f64])
     };
     let (cx, ox) = spacing(grid.fov_x, w);
     let (cy, oy) = spacing(grid.fov_y, h);
+    let (mut gx, mut gy) = ([0.0; SPAN], [0.0; SPAN]);
     for r in 0..h {
         // Row r - 1 is towards +y.
         let (above, below, sy) = match (r > 0, r + 1 < h) {
@@ -230,22 +292,36 @@ pub fn render(optics: &Optics, grid: &PixelGrid, depth: &[f64], out: &mut [f64])
         let up = &depth[above * w..(above + 1) * w];
         let down = &depth[below * w..(below + 1) * w];
         let pixels = &mut out[CHANNELS * r * w..CHANNELS * (r + 1) * w];
-        let gy = |c: usize| (up[c] - down[c]) * sy;
-        if w == 1 {
-            shader.shade(0.0, gy(0), pixels);
-            continue;
+        for start in (0..w).step_by(SPAN) {
+            let end = (start + SPAN).min(w);
+            let n = end - start;
+            for (g, (u, d)) in gy
+                .iter_mut()
+                .zip(up[start..end].iter().zip(&down[start..end]))
+            {
+                *g = (u - d) * sy;
+            }
+            // Central differences inside the row, one-sided at its ends.
+            let (lo, hi) = (start.max(1), end.min(w - 1));
+            for c in lo..hi {
+                gx[c - start] = (row[c + 1] - row[c - 1]) * cx;
+            }
+            if w == 1 {
+                gx[0] = 0.0;
+            } else {
+                if start == 0 {
+                    gx[0] = (row[1] - row[0]) * ox;
+                }
+                if end == w {
+                    gx[n - 1] = (row[w - 1] - row[w - 2]) * ox;
+                }
+            }
+            shader.shade(
+                &gx[..n],
+                &gy[..n],
+                &mut pixels[CHANNELS * start..CHANNELS * (start + n)],
+            );
         }
-        shader.shade((row[1] - row[0]) * ox, gy(0), &mut pixels[..CHANNELS]);
-        for c in 1..w - 1 {
-            let gx = (row[c + 1] - row[c - 1]) * cx;
-            shader.shade(gx, gy(c), &mut pixels[CHANNELS * c..CHANNELS * (c + 1)]);
-        }
-        let last = w - 1;
-        shader.shade(
-            (row[last] - row[last - 1]) * ox,
-            gy(last),
-            &mut pixels[CHANNELS * last..],
-        );
     }
 }
 
@@ -454,7 +530,8 @@ mod tests {
     #[test]
     fn a_mirrored_light_set_gives_the_mirrored_image() {
         let optics = Optics::default();
-        let n = 64;
+        // Wider than one span of pixels shaded together, not a multiple of it.
+        let n = SPAN + 6;
         let g = grid(n, 0.06e-3);
         // An asymmetric surface: an off-centre dent and a tilt.
         let dent = hertz(4e-3, 0.8e-3, 0.4e-3, -0.25e-3);

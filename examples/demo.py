@@ -1,7 +1,9 @@
-"""Presses a sphere into the tactile sensor of examples/press.xml, writes depth images as
-PNG and prints the time of one sensor evaluation for each physics mode.
+"""Presses a sphere into the tactile sensor of examples/press.xml, writes depth images (and,
+with the `rgb` output, the RGB tactile images beside them) as PNG and prints the time of
+one sensor evaluation for each physics mode.
 
     .venv/bin/python examples/demo.py --out out/demo --physics rigid coarse
+    .venv/bin/python examples/demo.py --outputs depth      # depth images only
 """
 
 from __future__ import annotations
@@ -20,14 +22,18 @@ import tacrom
 HERE = pathlib.Path(__file__).resolve().parent
 
 
-def model_for(physics: str, xml_path: pathlib.Path) -> mujoco.MjModel:
+def model_for(physics: str, outputs: list, xml_path: pathlib.Path) -> mujoco.MjModel:
     xml = xml_path.read_text()
     xml = re.sub(r'key="physics" value="[^"]*"', f'key="physics" value="{physics}"', xml)
+    value = " ".join(outputs)
+    xml = re.sub(r'key="outputs" value="[^"]*"', f'key="outputs" value="{value}"', xml)
     return mujoco.MjModel.from_xml_string(xml)
 
 
-def run(physics: str, out: pathlib.Path, frames: int, xml_path: pathlib.Path) -> None:
-    model = model_for(physics, xml_path)
+def run(
+    physics: str, outputs: list, out: pathlib.Path, frames: int, xml_path: pathlib.Path
+) -> None:
+    model = model_for(physics, outputs, xml_path)
     data = mujoco.MjData(model)
     steps_per_frame = 50
     step_times = []
@@ -44,10 +50,15 @@ def run(physics: str, out: pathlib.Path, frames: int, xml_path: pathlib.Path) ->
         img = tacrom.depth(model, data, "touch")
         path = out / f"{physics}_frame{frame:02d}.png"
         tacrom.save_png(path, img, vmax=1.2e-3)
+        written = [path]
+        if "rgb" in outputs:
+            rgb_path = out / f"{physics}_frame{frame:02d}_rgb.png"
+            tacrom.save_png(rgb_path, tacrom.rgb(model, data, "touch"))
+            written.append(rgb_path)
         press = data.qpos[0] * 1e3
         print(
             f"  {physics:6s} frame {frame:2d}: press {press:6.3f} mm  max depth "
-            f"{img.max() * 1e3:6.3f} mm  -> {path}"
+            f"{img.max() * 1e3:6.3f} mm  -> {', '.join(str(p) for p in written)}"
         )
     # The same steps without the sensor: the difference is the sensor's cost.
     bare = mujoco.MjData(model)
@@ -76,11 +87,19 @@ def main() -> None:
     parser.add_argument("--physics", nargs="+", default=["rigid"])
     parser.add_argument("--frames", type=int, default=6)
     parser.add_argument("--xml", type=pathlib.Path, default=HERE / "press.xml")
+    parser.add_argument(
+        "--outputs",
+        nargs="+",
+        default=["depth", "rgb"],
+        help="the sensor's outputs (depth is always among them); with rgb, RGB images are "
+        "written beside the depth images",
+    )
     args = parser.parse_args()
+    outputs = args.outputs if "depth" in args.outputs else ["depth", *args.outputs]
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"tacrom plugin: {tacrom.load()}")
     for physics in args.physics:
-        run(physics, args.out, args.frames, args.xml)
+        run(physics, outputs, args.out, args.frames, args.xml)
 
 
 if __name__ == "__main__":

@@ -2,12 +2,12 @@
 
 Importing ``mujoco`` registers the ``tacrom.tactile`` sensor plugin through MuJoCo's
 ``mujoco.plugins`` entry point; :func:`load` does it explicitly. Sensor outputs are read
-with :func:`depth`, :func:`force` and :func:`contact`, or all at once with
+with :func:`depth`, :func:`force`, :func:`contact` and :func:`rgb`, or all at once with
 :func:`outputs`.
 
-Image layout: row-major (H, W) in metres, positive into the gel. Row 0 is the +y edge of
-the sensor site's frame and column 0 the -x edge: the gel seen from the indenter's side,
-x to the right, y up.
+Image layout: row-major (H, W) (``rgb``: (H, W, 3)). Row 0 is the +y edge of the sensor
+site's frame and column 0 the -x edge: the gel seen from the indenter's side, x to the
+right, y up.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ __all__ = [
     "depth",
     "force",
     "contact",
+    "rgb",
     "save_png",
 ]
 
@@ -167,14 +168,31 @@ def contact(model, data, sensor) -> np.ndarray:
     return _one(model, data, sensor, "contact")
 
 
+def rgb(model, data, sensor) -> np.ndarray:
+    """RGB tactile image (H, W, 3): what a GelSight-type sensor's camera sees, floats on the
+    8-bit scale 0..255, pixel for pixel on the depth image. The deformed surface is shaded
+    by a red, a green and a blue light (at azimuths 90, 210 and 330 degrees from +x, red at
+    the image's top, 30 degrees above the gel); the flat gel shows a uniform background.
+    Write it with :func:`save_png`."""
+    return _one(model, data, sensor, "rgb")
+
+
 def save_png(path: os.PathLike, image: np.ndarray, vmax: Optional[float] = None) -> None:
-    """Writes a (H, W) array as an 8-bit greyscale PNG, 0 -> black, ``vmax`` -> white."""
+    """Writes an 8-bit PNG: a (H, W) array as greyscale, 0 -> black and ``vmax`` (default:
+    the image's largest value) -> white; a (H, W, 3) array (such as :func:`rgb`) as colour,
+    0 -> black and ``vmax`` (default 255) -> full scale."""
     img = np.asarray(image, dtype=np.float64)
-    if img.ndim != 2:
-        raise ValueError("save_png expects a (H, W) array")
-    top = float(vmax) if vmax else float(img.max()) if img.size and img.max() > 0 else 1.0
+    colour = img.ndim == 3 and img.shape[2] == 3
+    if img.ndim != 2 and not colour:
+        raise ValueError("save_png expects a (H, W) or (H, W, 3) array")
+    if vmax:
+        top = float(vmax)
+    elif colour:
+        top = 255.0
+    else:
+        top = float(img.max()) if img.size and img.max() > 0 else 1.0
     pixels = np.clip(np.nan_to_num(img) / top * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    h, w = pixels.shape
+    h, w = pixels.shape[:2]
     raw = b"".join(b"\x00" + pixels[r].tobytes() for r in range(h))
 
     def chunk(tag: bytes, payload: bytes) -> bytes:
@@ -185,8 +203,9 @@ def save_png(path: os.PathLike, image: np.ndarray, vmax: Optional[float] = None)
             + struct.pack(">I", zlib.crc32(tag + payload) & 0xFFFFFFFF)
         )
 
+    colour_type = 2 if colour else 0  # PNG: 2 truecolour (RGB), 0 greyscale
     png = b"\x89PNG\r\n\x1a\n"
-    png += chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+    png += chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, colour_type, 0, 0, 0))
     png += chunk(b"IDAT", zlib.compress(raw, 6))
     png += chunk(b"IEND", b"")
     pathlib.Path(path).write_bytes(png)

@@ -615,7 +615,7 @@ mod tests {
     fn full_configuration_parses() {
         let c = parse(&[
             (ATTR_PHYSICS, "coarse"),
-            (ATTR_OUTPUTS, "force  depth contact"),
+            (ATTR_OUTPUTS, "force  depth contact rgb"),
             (ATTR_RESOLUTION, "64 48"),
             (ATTR_FOV, "0.02"),
             (ATTR_SIZE, "0.025 0.02 0.003"),
@@ -632,13 +632,21 @@ mod tests {
         assert_eq!(c.tolerance, 0.01);
         assert_eq!(
             c.outputs,
-            vec![Output::FORCE, Output::DEPTH, Output::CONTACT]
+            vec![Output::FORCE, Output::DEPTH, Output::CONTACT, Output::RGB]
         );
-        assert_eq!(c.sensordata_len(), 3 + 2 * 64 * 48);
+        assert_eq!(c.sensordata_len(), 3 + 2 * 64 * 48 + 3 * 64 * 48);
         assert_eq!(c.fov, [0.02, 0.02]);
         assert_eq!(c.indenters, vec!["ball".to_owned(), "finger".to_owned()]);
         assert_eq!(c.dx, Some(0.001));
         assert_eq!(c.threads, 2);
+    }
+
+    #[test]
+    fn rigid_physics_renders_rgb_from_its_depth() {
+        let c = parse(&[(ATTR_PHYSICS, "rigid"), (ATTR_OUTPUTS, "rgb depth")]).unwrap();
+        assert_eq!(c.outputs, vec![Output::RGB, Output::DEPTH]);
+        assert_eq!(c.sensordata_len(), 4 * 320 * 240);
+        assert!(Output::RGB.spec().needs.depth);
     }
 
     #[test]

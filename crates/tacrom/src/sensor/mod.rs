@@ -196,11 +196,14 @@ impl TactileSensor {
             .collect();
         eval.contact = !touching.is_empty();
         if !eval.contact && self.model.at_rest() {
-            // No contact and a flat gel: zeros, nothing else.
+            // No contact and a flat gel: the outputs of the flat surface, nothing else.
             self.depth.fill(0.0);
+            self.zmin.fill(f64::INFINITY);
             self.force = Vector3::zeros();
-            out.fill(0.0);
             eval.times.geometry = t0.elapsed().as_secs_f64();
+            let t1 = Instant::now();
+            self.write_outputs(out);
+            eval.times.render = t1.elapsed().as_secs_f64();
             return eval;
         }
         let t = self.config.size[2];
@@ -248,6 +251,7 @@ impl TactileSensor {
             depth: &self.depth,
             zmin: &self.zmin,
             force: self.force,
+            grid: &self.grid,
         };
         let mut at = 0;
         for o in &self.config.outputs {

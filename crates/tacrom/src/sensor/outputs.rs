@@ -9,6 +9,8 @@
 use nalgebra::Vector3;
 
 use crate::config::Config;
+use crate::geometry::PixelGrid;
+use crate::render::rgb;
 
 /// How an output's values are arranged.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -51,6 +53,8 @@ pub struct Frame<'a> {
     pub zmin: &'a [f64],
     /// Total force of the gel on the indenters (N, sensor frame); zero unless needed.
     pub force: Vector3<f64>,
+    /// The images' pixel grid.
+    pub grid: &'a PixelGrid,
 }
 
 /// One output of the table.
@@ -99,6 +103,8 @@ impl Output {
     pub const FORCE: Output = Output(&FORCE);
     /// The contact mask.
     pub const CONTACT: Output = Output(&CONTACT);
+    /// The RGB tactile image.
+    pub const RGB: Output = Output(&RGB);
 
     /// The output called `name`, if the table has one.
     pub fn named(name: &str) -> Option<Output> {
@@ -131,7 +137,7 @@ impl std::fmt::Debug for Output {
 }
 
 /// Every output, in the order the documentation lists them.
-pub const TABLE: [Output; 3] = [Output::DEPTH, Output::FORCE, Output::CONTACT];
+pub const TABLE: [Output; 4] = [Output::DEPTH, Output::FORCE, Output::CONTACT, Output::RGB];
 
 const DEPTH: OutputSpec = OutputSpec {
     name: "depth",
@@ -171,6 +177,22 @@ const CONTACT: OutputSpec = OutputSpec {
             *c = if z.is_finite() && z < 0.0 { 1.0 } else { 0.0 };
         }
     },
+};
+
+const RGB: OutputSpec = OutputSpec {
+    name: "rgb",
+    doc: "RGB image of a GelSight-type sensor: the deformed surface shaded by a red, a green \
+          and a blue light; the flat gel shows a uniform background",
+    unit: "0..255",
+    shape: Shape::Image {
+        channels: rgb::CHANNELS,
+    },
+    needs_gel: false,
+    needs: Needs {
+        depth: true,
+        force: false,
+    },
+    write: |f, out| rgb::render(&rgb::Optics::default(), f.grid, f.depth, out),
 };
 
 impl Needs {

@@ -177,6 +177,14 @@ def rgb(model, data, sensor) -> np.ndarray:
     return _one(model, data, sensor, "rgb")
 
 
+def pressure(model, data, sensor) -> np.ndarray:
+    """Normal contact pressure image (H, W) in pascals, positive where the indenters press
+    the gel, pixel for pixel on the depth image. Summed over the pixels times the pixel area
+    it gives the normal force ``force(...)[2]`` wherever the contact lies inside the image.
+    Needs a gel (not ``physics="rigid"``); ``rom`` reports its coarse gel's pressure."""
+    return _one(model, data, sensor, "pressure")
+
+
 def save_png(path: os.PathLike, image: np.ndarray, vmax: Optional[float] = None) -> None:
     """Writes an 8-bit PNG: a (H, W) array as greyscale, 0 -> black and ``vmax`` (default:
     the image's largest value) -> white; a (H, W, 3) array (such as :func:`rgb`) as colour,

@@ -675,7 +675,7 @@ mod tests {
     fn every_error_names_sensor_attribute_and_value() {
         let cases: &[(&str, &str)] = &[
             (ATTR_PHYSICS, "magic"),
-            (ATTR_OUTPUTS, "depth pressure"),
+            (ATTR_OUTPUTS, "depth heat"),
             (ATTR_OUTPUTS, "depth depth"),
             (ATTR_OUTPUTS, "depth force"),
             (ATTR_RESOLUTION, "0 240"),

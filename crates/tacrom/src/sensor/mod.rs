@@ -92,6 +92,8 @@ pub struct TactileSensor {
     /// Rigid penetration per pixel (m).
     penetration: Vec<f64>,
     depth: Vec<f64>,
+    /// Normal contact pressure (Pa); empty when no configured output needs it.
+    pressure: Vec<f64>,
     force: Vector3<f64>,
 }
 
@@ -125,6 +127,11 @@ impl TactileSensor {
             zmin: vec![f64::INFINITY; pixels],
             penetration: image(0.0),
             depth: image(0.0),
+            pressure: if needs.pressure {
+                vec![0.0; pixels]
+            } else {
+                Vec::new()
+            },
             force: Vector3::zeros(),
             config,
         })
@@ -141,6 +148,7 @@ impl TactileSensor {
             zmin: self.zmin.clone(),
             penetration: self.penetration.clone(),
             depth: self.depth.clone(),
+            pressure: self.pressure.clone(),
             force: self.force,
         })
     }
@@ -170,6 +178,7 @@ impl TactileSensor {
     pub fn reset(&mut self) {
         self.model.reset();
         self.depth.fill(0.0);
+        self.pressure.fill(0.0);
         self.force = Vector3::zeros();
     }
 
@@ -198,6 +207,7 @@ impl TactileSensor {
         if !eval.contact && self.model.at_rest() {
             // No contact and a flat gel: the outputs of the flat surface, nothing else.
             self.depth.fill(0.0);
+            self.pressure.fill(0.0);
             self.zmin.fill(f64::INFINITY);
             self.force = Vector3::zeros();
             eval.times.geometry = t0.elapsed().as_secs_f64();
@@ -239,6 +249,12 @@ impl TactileSensor {
         } else {
             Vector3::zeros()
         };
+        if self.needs.pressure {
+            self.model.pressure(&self.grid, &mut self.pressure);
+            if !self.pressure.iter().all(|v| v.is_finite()) {
+                self.pressure.fill(0.0);
+            }
+        }
         let t2 = Instant::now();
         eval.times.physics = (t2 - t1).as_secs_f64();
         self.write_outputs(out);
@@ -251,6 +267,7 @@ impl TactileSensor {
             depth: &self.depth,
             zmin: &self.zmin,
             force: self.force,
+            pressure: &self.pressure,
             grid: &self.grid,
         };
         let mut at = 0;

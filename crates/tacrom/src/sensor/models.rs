@@ -4,6 +4,8 @@
 
 use nalgebra::Vector3;
 
+use crate::geometry::PixelGrid;
+
 use super::{Evaluation, Scene, SensorError};
 use crate::config::{material_name, Config, Physics};
 use crate::mpm::{Gel, GelParams, SolverOptions};
@@ -25,6 +27,13 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
 
     /// The total force of the gel on the indenters after the last solve (N, sensor frame).
     fn force(&self) -> Vector3<f64>;
+
+    /// The normal contact pressure on the image grid after the last solve (Pa); zero
+    /// where the model has none.
+    fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
+        let _ = grid;
+        out.fill(0.0);
+    }
 
     /// Back to the undeformed gel.
     fn reset(&mut self);
@@ -178,6 +187,13 @@ impl SurfaceModel for Mpm {
         self.gel().map_or_else(Vector3::zeros, Gel::force)
     }
 
+    fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
+        match self.gel() {
+            Some(gel) if self.deformed => gel.contact_pressure(grid, out),
+            _ => out.fill(0.0),
+        }
+    }
+
     fn reset(&mut self) {
         if let Some(gel) = &mut self.gel {
             gel.reset();
@@ -227,6 +243,11 @@ impl SurfaceModel for Reduced {
 
     fn force(&self) -> Vector3<f64> {
         self.mpm.force()
+    }
+
+    /// The coarse gel's pressure (the decoder restores depth only).
+    fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
+        self.mpm.pressure(grid, out);
     }
 
     fn reset(&mut self) {

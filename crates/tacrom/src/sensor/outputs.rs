@@ -32,6 +32,8 @@ pub struct Needs {
     pub depth: bool,
     /// The gel's contact force.
     pub force: bool,
+    /// The contact pressure image.
+    pub pressure: bool,
 }
 
 impl std::ops::BitOr for Needs {
@@ -40,6 +42,7 @@ impl std::ops::BitOr for Needs {
         Needs {
             depth: self.depth || o.depth,
             force: self.force || o.force,
+            pressure: self.pressure || o.pressure,
         }
     }
 }
@@ -53,6 +56,8 @@ pub struct Frame<'a> {
     pub zmin: &'a [f64],
     /// Total force of the gel on the indenters (N, sensor frame); zero unless needed.
     pub force: Vector3<f64>,
+    /// Normal contact pressure image (Pa), when an output needs it; else empty.
+    pub pressure: &'a [f64],
     /// The images' pixel grid.
     pub grid: &'a PixelGrid,
 }
@@ -105,6 +110,8 @@ impl Output {
     pub const CONTACT: Output = Output(&CONTACT);
     /// The RGB tactile image.
     pub const RGB: Output = Output(&RGB);
+    /// The normal contact pressure image.
+    pub const PRESSURE: Output = Output(&PRESSURE);
 
     /// The output called `name`, if the table has one.
     pub fn named(name: &str) -> Option<Output> {
@@ -137,7 +144,13 @@ impl std::fmt::Debug for Output {
 }
 
 /// Every output, in the order the documentation lists them.
-pub const TABLE: [Output; 4] = [Output::DEPTH, Output::FORCE, Output::CONTACT, Output::RGB];
+pub const TABLE: [Output; 5] = [
+    Output::DEPTH,
+    Output::FORCE,
+    Output::CONTACT,
+    Output::RGB,
+    Output::PRESSURE,
+];
 
 const DEPTH: OutputSpec = OutputSpec {
     name: "depth",
@@ -148,6 +161,7 @@ const DEPTH: OutputSpec = OutputSpec {
     needs: Needs {
         depth: true,
         force: false,
+        pressure: false,
     },
     write: |f, out| out.copy_from_slice(f.depth),
 };
@@ -161,6 +175,7 @@ const FORCE: OutputSpec = OutputSpec {
     needs: Needs {
         depth: false,
         force: true,
+        pressure: false,
     },
     write: |f, out| out.copy_from_slice(f.force.as_slice()),
 };
@@ -191,8 +206,24 @@ const RGB: OutputSpec = OutputSpec {
     needs: Needs {
         depth: true,
         force: false,
+        pressure: false,
     },
     write: |f, out| rgb::render(&rgb::Optics::default(), f.grid, f.depth, out),
+};
+
+const PRESSURE: OutputSpec = OutputSpec {
+    name: "pressure",
+    doc: "normal contact pressure image of the gel on the indenters; integrates over the \
+          image to the normal force (force z) where the contact lies inside it",
+    unit: "Pa",
+    shape: Shape::Image { channels: 1 },
+    needs_gel: true,
+    needs: Needs {
+        depth: false,
+        force: false,
+        pressure: true,
+    },
+    write: |f, out| out.copy_from_slice(f.pressure),
 };
 
 impl Needs {
@@ -200,6 +231,7 @@ impl Needs {
     pub const NONE: Needs = Needs {
         depth: false,
         force: false,
+        pressure: false,
     };
 }
 

@@ -1,6 +1,7 @@
 """Presses a sphere into the tactile sensor of examples/press.xml, writes depth images (and,
-with the `rgb` output, the RGB tactile images beside them) as PNG and prints the time of
-one sensor evaluation for each physics mode.
+with the `rgb` and `pressure` outputs, the RGB tactile images and the contact pressure
+beside them) as PNG and prints the time of one sensor evaluation for each physics mode.
+`pressure` needs a gel, so the rigid mode leaves it out.
 
     .venv/bin/python examples/demo.py --out out/demo --physics rigid coarse
     .venv/bin/python examples/demo.py --outputs depth      # depth images only
@@ -33,6 +34,8 @@ def model_for(physics: str, outputs: list, xml_path: pathlib.Path) -> mujoco.MjM
 def run(
     physics: str, outputs: list, out: pathlib.Path, frames: int, xml_path: pathlib.Path
 ) -> None:
+    if physics == "rigid":
+        outputs = [o for o in outputs if o not in ("force", "pressure")]
     model = model_for(physics, outputs, xml_path)
     data = mujoco.MjData(model)
     steps_per_frame = 50
@@ -55,6 +58,11 @@ def run(
             rgb_path = out / f"{physics}_frame{frame:02d}_rgb.png"
             tacrom.save_png(rgb_path, tacrom.rgb(model, data, "touch"))
             written.append(rgb_path)
+        if "pressure" in outputs:
+            p_path = out / f"{physics}_frame{frame:02d}_pressure.png"
+            p = tacrom.pressure(model, data, "touch")
+            tacrom.save_png(p_path, p, vmax=max(p.max(), 1.0))
+            written.append(p_path)
         press = data.qpos[0] * 1e3
         print(
             f"  {physics:6s} frame {frame:2d}: press {press:6.3f} mm  max depth "
@@ -90,9 +98,9 @@ def main() -> None:
     parser.add_argument(
         "--outputs",
         nargs="+",
-        default=["depth", "rgb"],
-        help="the sensor's outputs (depth is always among them); with rgb, RGB images are "
-        "written beside the depth images",
+        default=["depth", "rgb", "pressure"],
+        help="the sensor's outputs (depth is always among them); with rgb and pressure, "
+        "their images are written beside the depth images (pressure scaled to its peak)",
     )
     args = parser.parse_args()
     outputs = args.outputs if "depth" in args.outputs else ["depth", *args.outputs]

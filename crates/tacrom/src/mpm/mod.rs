@@ -319,10 +319,8 @@ pub struct Gel {
     last_footprint: Option<[usize; 4]>,
     /// The Newton solver's state, built at the first solve that needs it.
     newton: Option<Box<newton::Newton>>,
-    /// The last solve's contact loads, and the spacing of the surface points that carry
-    /// them (m), for [`Gel::contact_pressure`].
+    /// The last solve's contact loads, for [`Gel::contact_pressure`].
     loads: Vec<pressure::ContactLoad>,
-    load_spacing: [f64; 2],
 }
 
 impl std::fmt::Debug for Gel {
@@ -390,7 +388,6 @@ impl Gel {
             last_footprint: None,
             newton: None,
             loads: Vec::new(),
-            load_spacing: [0.0; 2],
         })
     }
 
@@ -569,7 +566,6 @@ impl Gel {
     fn record_loads(&mut self) {
         let (dx, origin) = (self.layout.dx, self.layout.origin);
         let scale = self.modulus * dx * dx;
-        self.load_spacing = [self.layout.spacing[0], self.layout.spacing[1]];
         self.loads.clear();
         for a in self.active.iter().flatten() {
             let x = (self.particles[a.particle as usize].x + a.d).cast::<f64>() * dx + origin;

@@ -1108,7 +1108,6 @@ impl Gel {
             Some(f) if newton.u.iter().all(|v| v.is_finite()) => {
                 let scale = self.modulus * dx * dx;
                 self.force = f * scale;
-                self.load_spacing = [self.layout.spacing[0], self.layout.spacing[1]];
                 self.loads = newton
                     .loads
                     .iter()

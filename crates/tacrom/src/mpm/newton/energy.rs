@@ -112,7 +112,7 @@ impl Density {
         }
         let stress = d.u * Matrix3::from_diagonal(&p.grad) * d.v.transpose();
         let mut tangent = [[0.0; 9]; 9];
-        let mut add = |lambda: f64, m: &Matrix3<f64>| {
+        fn add(tangent: &mut [[f64; 9]; 9], lambda: f64, m: &Matrix3<f64>) {
             if lambda <= 0.0 {
                 return;
             }
@@ -123,19 +123,41 @@ impl Density {
                     tangent[a][b] += la * v[b];
                 }
             }
-        };
-        let eig = SymmetricEigen::new(p.hess);
-        for k in 0..3 {
-            let e = eig.eigenvectors.column(k);
-            let m = d.u * Matrix3::from_diagonal(&Vector3::new(e[0], e[1], e[2])) * d.v.transpose();
-            add(eig.eigenvalues[k], &m);
+        }
+        if p.hess.cholesky().is_some() {
+            // Positive definite already (the common case; at rest `2 mu I + lambda 1 1^T`):
+            // the block as it is, `sum_ab hess_ab vec(u_a v_a^T) vec(u_b v_b^T)^T`, without
+            // an eigendecomposition.
+            let m: [[f64; 9]; 3] = std::array::from_fn(|k| {
+                let d = d.u.column(k) * d.v.column(k).transpose();
+                std::array::from_fn(|e| d[(e / 3, e % 3)])
+            });
+            for a in 0..3 {
+                for b in 0..3 {
+                    let h = p.hess[(a, b)];
+                    for (row, &ma) in tangent.iter_mut().zip(&m[a]) {
+                        let hm = h * ma;
+                        for (t, &mb) in row.iter_mut().zip(&m[b]) {
+                            *t += hm * mb;
+                        }
+                    }
+                }
+            }
+        } else {
+            let eig = SymmetricEigen::new(p.hess);
+            for k in 0..3 {
+                let e = eig.eigenvectors.column(k);
+                let m =
+                    d.u * Matrix3::from_diagonal(&Vector3::new(e[0], e[1], e[2])) * d.v.transpose();
+                add(&mut tangent, eig.eigenvalues[k], &m);
+            }
         }
         let h = std::f64::consts::FRAC_1_SQRT_2;
         for (&(i, j, _), &(sym, twist)) in PAIRS.iter().zip(&p.pairs) {
             let a = d.u.column(i) * d.v.column(j).transpose();
             let b = d.u.column(j) * d.v.column(i).transpose();
-            add(sym, &((a + b) * h));
-            add(twist, &((a - b) * h));
+            add(&mut tangent, sym, &((a + b) * h));
+            add(&mut tangent, twist, &((a - b) * h));
         }
         Some(Evaluated {
             energy: p.energy,

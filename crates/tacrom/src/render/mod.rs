@@ -3,9 +3,12 @@
 //! [`DepthRule`] is the one definition of how a surface indentation becomes a depth pixel:
 //! every physics mode, the reduced-order model's input features and the training data
 //! generator go through it, so the contract between the coarse model, the decoder and the
-//! data it was trained on lives in one place.
+//! data it was trained on lives in one place. [`markers`] places the markers printed on
+//! the gel and writes where the camera sees them.
 
 use crate::geometry::Placed;
+
+pub mod markers;
 
 /// The contact problem's bounds on the surface indentation of a gel of thickness `T`
 /// pressed by a set of indenters, and the rule that applies them.

@@ -13,6 +13,7 @@ use nalgebra::Vector3;
 use crate::config::Config;
 use crate::geometry::{Aabb, PixelGrid, Placed};
 use crate::mpm::SolveReport;
+use crate::render::markers::Markers;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
 
@@ -40,7 +41,7 @@ pub enum SensorError {
 pub struct StageTimes {
     /// Contact test and rigid surface of the indenters.
     pub geometry: f64,
-    /// Gel simulation.
+    /// Gel simulation and its surface (depth, shear and marker displacements).
     pub physics: f64,
     /// Writing the outputs.
     pub render: f64,
@@ -93,6 +94,10 @@ pub struct TactileSensor {
     penetration: Vec<f64>,
     depth: Vec<f64>,
     force: Vector3<f64>,
+    /// In-plane surface displacement per pixel (H x W x 2, m), when an output needs it.
+    shear: Vec<f64>,
+    /// The markers, when an output needs them.
+    markers: Markers,
 }
 
 impl TactileSensor {
@@ -118,6 +123,16 @@ impl TactileSensor {
                 Vec::new()
             }
         };
+        let shear = if needs.shear {
+            vec![0.0; 2 * pixels]
+        } else {
+            Vec::new()
+        };
+        let markers = if needs.markers {
+            Markers::new(config.markers, &grid)
+        } else {
+            Markers::default()
+        };
         Ok(Self {
             grid,
             model,
@@ -126,6 +141,8 @@ impl TactileSensor {
             penetration: image(0.0),
             depth: image(0.0),
             force: Vector3::zeros(),
+            shear,
+            markers,
             config,
         })
     }
@@ -142,6 +159,8 @@ impl TactileSensor {
             penetration: self.penetration.clone(),
             depth: self.depth.clone(),
             force: self.force,
+            shear: self.shear.clone(),
+            markers: self.markers.clone(),
         })
     }
 
@@ -166,11 +185,25 @@ impl TactileSensor {
         self.force
     }
 
+    /// The shear image of the last evaluation (H x W x 2, row-major, m); empty when no
+    /// configured output needs it.
+    pub fn shear(&self) -> &[f64] {
+        &self.shear
+    }
+
+    /// The markers and their displacements after the last evaluation; none when no
+    /// configured output needs them.
+    pub fn markers(&self) -> &Markers {
+        &self.markers
+    }
+
     /// Back to the undeformed gel.
     pub fn reset(&mut self) {
         self.model.reset();
         self.depth.fill(0.0);
         self.force = Vector3::zeros();
+        self.shear.fill(0.0);
+        self.markers.settle();
     }
 
     /// The gel's bounding box in the sensor frame.
@@ -196,10 +229,18 @@ impl TactileSensor {
             .collect();
         eval.contact = !touching.is_empty();
         if !eval.contact && self.model.at_rest() {
-            // No contact and a flat gel: zeros, nothing else.
+            // No contact and a flat gel: zero images, markers at rest, nothing else.
             self.depth.fill(0.0);
             self.force = Vector3::zeros();
-            out.fill(0.0);
+            self.shear.fill(0.0);
+            self.markers.settle();
+            if self.needs.markers {
+                // Markers at rest are not zeros: write every output from the flat frame.
+                self.zmin.fill(f64::INFINITY);
+                self.write_outputs(out);
+            } else {
+                out.fill(0.0);
+            }
             eval.times.geometry = t0.elapsed().as_secs_f64();
             return eval;
         }
@@ -219,7 +260,12 @@ impl TactileSensor {
 
         self.model.solve(&scene, &mut eval);
         if self.needs.depth {
-            self.model.depth(&scene, &mut self.depth, &mut eval);
+            if self.needs.shear {
+                self.model
+                    .depth_and_shear(&scene, &mut self.depth, &mut self.shear, &mut eval);
+            } else {
+                self.model.depth(&scene, &mut self.depth, &mut eval);
+            }
             for (p, &z) in self.penetration.iter_mut().zip(scene.zmin) {
                 *p = scene.rule.penetration(z);
             }
@@ -236,6 +282,13 @@ impl TactileSensor {
         } else {
             Vector3::zeros()
         };
+        if self.needs.shear && !self.needs.depth {
+            self.model.shear(scene.grid, &mut self.shear);
+        }
+        if self.needs.markers {
+            let model = &self.model;
+            self.markers.update(|x| model.displacement(x));
+        }
         let t2 = Instant::now();
         eval.times.physics = (t2 - t1).as_secs_f64();
         self.write_outputs(out);
@@ -248,6 +301,9 @@ impl TactileSensor {
             depth: &self.depth,
             zmin: &self.zmin,
             force: self.force,
+            grid: &self.grid,
+            shear: &self.shear,
+            markers: &self.markers,
         };
         let mut at = 0;
         for o in &self.config.outputs {

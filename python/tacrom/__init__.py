@@ -2,8 +2,8 @@
 
 Importing ``mujoco`` registers the ``tacrom.tactile`` sensor plugin through MuJoCo's
 ``mujoco.plugins`` entry point; :func:`load` does it explicitly. Sensor outputs are read
-with :func:`depth`, :func:`force`, :func:`contact` and :func:`rgb`, or all at once with
-:func:`outputs`.
+with :func:`depth`, :func:`force`, :func:`contact`, :func:`rgb`, :func:`pressure`,
+:func:`shear` and :func:`markers`, or all at once with :func:`outputs`.
 
 Image layout: row-major (H, W) (``rgb``: (H, W, 3)). Row 0 is the +y edge of the sensor
 site's frame and column 0 the -x edge: the gel seen from the indenter's side, x to the
@@ -32,6 +32,9 @@ __all__ = [
     "force",
     "contact",
     "rgb",
+    "pressure",
+    "shear",
+    "markers",
     "save_png",
 ]
 
@@ -116,8 +119,9 @@ def output_table() -> list:
 def layout(model, sensor) -> Dict[str, object]:
     """The sensordata layout of a tacrom sensor, as the plugin's output table declares it.
 
-    Returns ``{"width", "height", "size", "outputs": {name: {"offset", "shape", "unit"}}}``
-    with the outputs in sensordata order, offsets relative to the sensor's first value.
+    Returns ``{"width", "height", "markers", "size", "outputs": {name: {"offset", "shape",
+    "unit"}}}`` with the outputs in sensordata order, offsets relative to the sensor's first
+    value; ``markers`` is the marker grid ``[NX, NY]``.
     """
     load()
     sid = _sensor_id(model, sensor)
@@ -183,6 +187,28 @@ def pressure(model, data, sensor) -> np.ndarray:
     it gives the normal force ``force(...)[2]`` wherever the contact lies inside the image.
     Needs a gel (not ``physics="rigid"``); ``rom`` reports its coarse gel's pressure."""
     return _one(model, data, sensor, "pressure")
+
+
+def shear(model, data, sensor) -> np.ndarray:
+    """Shear image (H, W, 2) in metres: the in-plane displacement (sensor frame x, then y)
+    of the gel surface point seen at each pixel, zero where the gel is undeformed. Not with
+    ``physics="rigid"``; with ``rom``, from its coarse gel (the decoder restores depth
+    only)."""
+    return _one(model, data, sensor, "shear")
+
+
+def markers(model, data, sensor) -> np.ndarray:
+    """The markers printed on the gel, (NX * NY, 4): per marker, the column and row of
+    where the camera sees it (pixels, continuous: ``c`` is the centre of column ``c``, row 0
+    the +y edge), then its displacement along x and y (metres, sensor frame).
+
+    The ``markers`` attribute sets the grid (default ``"9 7"``), spread evenly over the
+    image; markers are in the image's reading order (first row at +y, first column at -x),
+    so ``markers(...).reshape(NY, NX, 4)`` lays them out as seen. A marker's rest position
+    in pixels is its position less its displacement: ``col - dx / (fov_x / W)``,
+    ``row + dy / (fov_y / H)``. Not with ``physics="rigid"``; with ``rom``, from its coarse
+    gel."""
+    return _one(model, data, sensor, "markers")
 
 
 def save_png(path: os.PathLike, image: np.ndarray, vmax: Optional[float] = None) -> None:

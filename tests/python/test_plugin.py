@@ -82,6 +82,10 @@ def test_layout_and_outputs(press_xml):
         ("poisson", "0.7"),
         ("threads", "0"),
         ("outputs", "depth pressure"),
+        ("outputs", "depth shear"),
+        ("outputs", "markers"),
+        ("markers", "0 7"),
+        ("markers", "nine seven"),
     ],
 )
 def test_bad_attribute_raises_naming_it(press_xml, key, value):
@@ -116,17 +120,22 @@ def test_nan_pose_gives_finite_output(press_xml):
 
 
 def _ordered_subsets(names):
-    """Every non-empty subset of ``names`` in every order."""
+    """Every non-empty subset of ``names``, in table order and reversed (2^n - 1 subsets,
+    each output both before and after every other): what a layout bug depends on is which
+    outputs precede which, not the full order (every permutation would be 13,699 loads for
+    seven outputs)."""
     import itertools
 
     for k in range(1, len(names) + 1):
-        for combo in itertools.permutations(names, k):
+        for combo in itertools.combinations(names, k):
             yield combo
+            if k > 1:
+                yield combo[::-1]
 
 
 def test_output_table_round_trip(press_xml):
     """The layout Python reads from the library places every output where the plugin writes
-    it, for every combination and order of the table's outputs: each output read through
+    it, for every subset of the table's outputs in both orders: each output read through
     the combined layout equals the same output of a sensor configured with it alone. The
     names, shapes and units come from the library's table; nothing is hard-coded here."""
     table = tacrom.output_table()
@@ -145,8 +154,10 @@ def test_output_table_round_trip(press_xml):
         return model, out, lay
 
     alone = {name: run((name,))[1][name] for name in names}
+    nx, ny = run((names[0],))[2]["markers"]
+    symbols = {"H": res[1], "W": res[0], "N": nx * ny}
     for row in table:
-        shape = tuple(res[1] if d == "H" else res[0] if d == "W" else d for d in row["shape"])
+        shape = tuple(symbols.get(d, d) for d in row["shape"])
         assert alone[row["name"]].shape == shape, row
     for combo in _ordered_subsets(names):
         model, out, lay = run(combo)
@@ -158,3 +169,49 @@ def test_output_table_round_trip(press_xml):
             offset += int(np.prod(lay["outputs"][name]["shape"]))
             np.testing.assert_array_equal(out[name], alone[name], err_msg=f"{name} in {combo}")
         assert offset == model.sensor_dim[0]
+
+
+def test_shear_and_markers(press_xml):
+    """The shear image and the markers through the real plugin: their shapes, markers at
+    rest on their grid before contact, and a press that moves the markers around the
+    contact outward and leaves the middle one in place."""
+    xml = with_config(press_xml, physics="coarse", outputs="depth shear markers", resolution="40 30")
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    lay = tacrom.layout(model, "touch")
+    nx, ny = lay["markers"]
+    assert (nx, ny) == (9, 7)
+    assert lay["outputs"]["shear"]["shape"] == (30, 40, 2)
+    assert lay["outputs"]["markers"]["shape"] == (nx * ny, 4)
+
+    evaluate(model, data, -1e-3)  # lifted: no contact
+    rest = tacrom.markers(model, data, "touch")
+    assert rest.shape == (nx * ny, 4)
+    assert np.all(rest[:, 2:] == 0.0)
+    np.testing.assert_allclose(rest[0, :2], [40 / nx / 2 - 0.5, 30 / ny / 2 - 0.5])
+    grid = rest[:, :2].reshape(ny, nx, 2)
+    assert np.all(np.diff(grid[:, :, 0], axis=1) > 0) and np.all(np.diff(grid[:, :, 1], axis=0) > 0)
+    assert np.all(tacrom.shear(model, data, "touch") == 0.0)
+
+    evaluate(model, data, 0.8e-3)
+    moved = tacrom.markers(model, data, "touch")
+    shear = tacrom.shear(model, data, "touch")
+    assert shear.shape == (30, 40, 2) and np.abs(shear).max() > 1e-5
+    mid = (ny // 2) * nx + nx // 2
+    assert np.abs(moved[mid, 2:]).max() < 1e-7
+    # The ring around the middle marker moves radially outward: right of it +x, above it +y
+    # (the row above in the image), in pixels as in metres.
+    right, above = mid + 1, mid - nx
+    assert moved[right, 2] > 4e-6 and moved[right, 0] > rest[right, 0]
+    assert moved[above, 3] > 4e-6 and moved[above, 1] < rest[above, 1]
+    np.testing.assert_allclose(
+        moved[:, 0] - rest[:, 0], moved[:, 2] / (0.024 / 40), rtol=1e-9, atol=1e-9
+    )
+
+
+def test_rigid_refuses_shear_and_markers(press_xml):
+    for outputs, name in (("depth shear", "shear"), ("markers", "markers")):
+        with pytest.raises(ValueError) as err:
+            mujoco.MjModel.from_xml_string(with_config(press_xml, **{**DEFAULT, "outputs": outputs}))
+        msg = str(err.value)
+        assert "'touch'" in msg and "'outputs'" in msg and f"'{name}'" in msg and "physics" in msg

@@ -50,6 +50,10 @@ pub const ATTR_MATERIAL: &str = "material";
 /// Empty means the mode's default ([`Physics::default_tolerance`]).
 pub const ATTR_TOLERANCE: &str = "tolerance";
 
+/// `markers`: the grid of markers printed on the gel, `NX NY` markers along x and y,
+/// spread evenly over the image's field of view (the `markers` output).
+pub const ATTR_MARKERS: &str = "markers";
+
 /// Every attribute the plugin declares to MuJoCo, in table order.
 pub const ATTRIBUTES: &[&str] = &[
     ATTR_PHYSICS,
@@ -68,6 +72,7 @@ pub const ATTRIBUTES: &[&str] = &[
     ATTR_REFINE,
     ATTR_TOLERANCE,
     ATTR_MATERIAL,
+    ATTR_MARKERS,
 ];
 
 /// The `material` attribute's values.
@@ -87,6 +92,8 @@ pub fn material_name(material: Material) -> &'static str {
 
 /// Largest image side accepted (pixels).
 pub const MAX_RESOLUTION: usize = 4096;
+/// Most markers along one side of the marker grid.
+pub const MAX_MARKERS: usize = 256;
 /// Largest thread count accepted.
 pub const MAX_THREADS: usize = 256;
 
@@ -243,6 +250,8 @@ pub struct Config {
     pub tolerance: f64,
     /// Constitutive model of the gel.
     pub material: Material,
+    /// Markers along x and y (`markers` output).
+    pub markers: [usize; 2],
 }
 
 /// The defaults (GelSight Mini-like gel, paper's material).
@@ -267,6 +276,9 @@ pub mod defaults {
     pub const FRICTION: f64 = 0.5;
     /// Threads.
     pub const THREADS: usize = 1;
+    /// Markers along x and y: a 9 x 7 grid over the 24 x 18 mm image, about 2.6 mm apart
+    /// (GelSight Mini-like).
+    pub const MARKERS: [usize; 2] = [9, 7];
 }
 
 impl Config {
@@ -290,6 +302,7 @@ impl Config {
             ));
         }
         let [width, height] = p.resolution()?;
+        let markers = p.markers()?;
         let size = p.floats::<3>(ATTR_SIZE, defaults::SIZE, |v| {
             check_all(
                 v,
@@ -392,6 +405,7 @@ impl Config {
             refine,
             tolerance,
             material,
+            markers,
         })
     }
 
@@ -505,6 +519,25 @@ impl Parser<'_> {
         Ok(wh)
     }
 
+    fn markers(&self) -> Result<[usize; 2], ConfigError> {
+        let Some(text) = self.raw.get(ATTR_MARKERS) else {
+            return Ok(defaults::MARKERS);
+        };
+        let reason = format!("expected two integers 'NX NY', each in 1..={MAX_MARKERS}");
+        let counts: Vec<usize> = text
+            .split_whitespace()
+            .map(|w| {
+                w.parse::<usize>()
+                    .ok()
+                    .filter(|n| (1..=MAX_MARKERS).contains(n))
+            })
+            .collect::<Option<_>>()
+            .ok_or_else(|| self.error(ATTR_MARKERS, &reason))?;
+        counts
+            .try_into()
+            .map_err(|_| self.error(ATTR_MARKERS, &reason))
+    }
+
     fn fov(&self, size: &[f64; 3]) -> Result<[f64; 2], ConfigError> {
         let Some(text) = self.raw.get(ATTR_FOV) else {
             return Ok([defaults::FOV[0].min(size[0]), defaults::FOV[1].min(size[1])]);
@@ -606,6 +639,7 @@ mod tests {
         assert_eq!(c.dx, Some(1.4e-3));
         assert_eq!(c.model, None);
         assert_eq!(c.tolerance, 3e-3);
+        assert_eq!(c.markers, [9, 7]);
         let fine = parse(&[(ATTR_PHYSICS, "fine")]).unwrap();
         assert_eq!(fine.tolerance, 1e-3);
         assert_eq!(c.sensordata_len(), 320 * 240);
@@ -627,9 +661,11 @@ mod tests {
             (ATTR_DX, "0.001"),
             (ATTR_THREADS, "2"),
             (ATTR_TOLERANCE, "0.01"),
+            (ATTR_MARKERS, " 5  4 "),
         ])
         .unwrap();
         assert_eq!(c.tolerance, 0.01);
+        assert_eq!(c.markers, [5, 4]);
         assert_eq!(
             c.outputs,
             vec![Output::FORCE, Output::DEPTH, Output::CONTACT, Output::RGB]
@@ -678,6 +714,8 @@ mod tests {
             (ATTR_OUTPUTS, "depth heat"),
             (ATTR_OUTPUTS, "depth depth"),
             (ATTR_OUTPUTS, "depth force"),
+            (ATTR_OUTPUTS, "depth shear"),
+            (ATTR_OUTPUTS, "markers"),
             (ATTR_RESOLUTION, "0 240"),
             (ATTR_RESOLUTION, "320"),
             (ATTR_RESOLUTION, "320 -1"),
@@ -705,14 +743,20 @@ mod tests {
             (ATTR_TOLERANCE, "1"),
             (ATTR_TOLERANCE, "nan"),
             (ATTR_MATERIAL, "rubber"),
+            (ATTR_MARKERS, "9"),
+            (ATTR_MARKERS, "0 7"),
+            (ATTR_MARKERS, "9 7 2"),
+            (ATTR_MARKERS, "9 -7"),
+            (ATTR_MARKERS, "9.5 7"),
+            (ATTR_MARKERS, "1000 7"),
         ];
         for &(attribute, value) in cases {
             let mut pairs = vec![(attribute, value)];
             if attribute == ATTR_DX {
                 pairs.push((ATTR_PHYSICS, "coarse"));
             }
-            if value == "depth force" {
-                // Force without a gel model.
+            if ["depth force", "depth shear", "markers"].contains(&value) {
+                // Force, shear or markers without a gel model.
                 pairs.push((ATTR_PHYSICS, "rigid"));
             }
             let e = err(&pairs);

@@ -92,6 +92,20 @@ impl PixelGrid {
         0.5 * self.fov_y - (row as f64 + 0.5) * self.fov_y / self.height as f64
     }
 
+    /// The column coordinate of `x`: `c` at the centre of column `c`, continuous (the
+    /// inverse of [`PixelGrid::x`]).
+    #[inline]
+    pub fn col_at(&self, x: f64) -> f64 {
+        (x + 0.5 * self.fov_x) * self.width as f64 / self.fov_x - 0.5
+    }
+
+    /// The row coordinate of `y`: `r` at the centre of row `r`, continuous (the inverse
+    /// of [`PixelGrid::y`]).
+    #[inline]
+    pub fn row_at(&self, y: f64) -> f64 {
+        (0.5 * self.fov_y - y) * self.height as f64 / self.fov_y - 0.5
+    }
+
     /// The columns whose centres lie in `[x0, x1]`, as a half-open range.
     pub fn cols_in(&self, x0: f64, x1: f64) -> std::ops::Range<usize> {
         let px = self.fov_x / self.width as f64;
@@ -399,6 +413,23 @@ pub(crate) mod test_support;
 mod tests {
     use super::test_support::TEST_GRID;
     use super::*;
+
+    #[test]
+    fn pixel_coordinates_invert_pixel_centres() {
+        let g = PixelGrid {
+            width: 320,
+            height: 240,
+            fov_x: 0.024,
+            fov_y: 0.018,
+        };
+        for (col, row) in [(0, 0), (319, 239), (17, 200)] {
+            assert!((g.col_at(g.x(col)) - col as f64).abs() < 1e-9);
+            assert!((g.row_at(g.y(row)) - row as f64).abs() < 1e-9);
+        }
+        // Row 0 is the +y edge: a point above (larger y) has a smaller row coordinate.
+        assert!(g.row_at(0.001) < g.row_at(0.0));
+        assert!(g.col_at(0.001) > g.col_at(0.0));
+    }
 
     /// Regression guard: a NaN pose (from a diverged simulation upstream) or a NaN query
     /// point must not panic, and must leave the image untouched or finite.

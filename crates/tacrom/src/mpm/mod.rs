@@ -4,8 +4,9 @@
 //! by the moving least squares material point method (MLS-MPM, Hu et al. 2018) with APIC
 //! transfers (Jiang et al. 2015) and quadratic B-spline weights. [`Gel::solve`] brings it
 //! to static equilibrium under rigid indenters given as signed distance fields;
-//! [`Gel::surface_depth`] samples the indentation of its top face on a pixel grid and
-//! [`Gel::force`] returns the total contact force.
+//! [`Gel::surface_depth`] samples the indentation of its top face on a pixel grid,
+//! [`Gel::surface_shear`] its in-plane displacement, [`Gel::surface_displacement`] the
+//! displacement of one surface point, and [`Gel::force`] returns the total contact force.
 //!
 //! # Frame and discretisation
 //!
@@ -67,7 +68,7 @@
 //!   ([`Solver::Newton`]; total-Lagrangian nodal displacements, sparse Cholesky, contact
 //!   on a surface lattice finer than the particles, lagged friction);
 //! * `transfer.rs`: the four parts of a step; `contact.rs`: the contact forces;
-//!   `material.rs`: the constitutive models; `surface.rs`: the depth image.
+//!   `material.rs`: the constitutive models; `surface.rs`: the depth and shear images.
 
 /// The quasi-static solver's name, recorded in a reduced-order model's recipe: a model
 /// trained on one solver's coarse solutions refuses another's.
@@ -584,6 +585,32 @@ impl Gel {
     /// If `out` is shorter than `grid.width * grid.height`.
     pub fn surface_depth(&self, grid: &PixelGrid, out: &mut [f64]) {
         surface::surface_depth(self, grid, out);
+    }
+
+    /// In-plane displacement of the surface point seen at each pixel of `grid` (m, sensor
+    /// frame x then y, zero where the gel is undeformed), the same inverse map as
+    /// [`Gel::surface_depth`]: `H x W x 2` values, row-major, into `out`.
+    ///
+    /// # Panics
+    /// If `out` is shorter than `2 * grid.width * grid.height`.
+    pub fn surface_shear(&self, grid: &PixelGrid, out: &mut [f64]) {
+        surface::surface_shear(self, grid, out);
+    }
+
+    /// [`Gel::surface_depth`] and [`Gel::surface_shear`] from one inverse map, at the cost
+    /// of one.
+    ///
+    /// # Panics
+    /// If `depth` or `shear` is too short for the grid.
+    pub fn surface_depth_and_shear(&self, grid: &PixelGrid, depth: &mut [f64], shear: &mut [f64]) {
+        surface::surface_depth_and_shear(self, grid, depth, shear);
+    }
+
+    /// Displacement `u(X)` (m, sensor frame) of the top-surface point whose undeformed
+    /// position is `X = (x, y, 0)`, after the last solve: where a mark printed there now
+    /// is, `X + u(X)`. Zero for an undeformed gel; clamped to the lattice's edge outside it.
+    pub fn surface_displacement(&self, x: f64, y: f64) -> Vector3<f64> {
+        surface::surface_displacement(self, x, y)
     }
 }
 

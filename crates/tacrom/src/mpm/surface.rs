@@ -1,14 +1,16 @@
-//! Depth image of the deformed top surface.
+//! Depth and shear images of the deformed top surface, and its displacement at a point.
 //!
 //! The top layer of particles is a regular lattice in reference coordinates `X` (spacing
 //! `sx`, `sy`). After each solve the gel stores the displacement `u(X)` of the surface
 //! point of each top particle, `x_p + (s_z / 2) F e_z - X`. A pixel at `p = (px, py)` sees
 //! the surface point whose deformed position lies above it, `X + u_xy(X) = p`, found by
 //! the fixed-point iteration `X <- p - u_xy(X)` (a contraction while `|grad u_xy| < 1`);
-//! its depth is `-u_z(X)`, clamped to `[0, T]`. `u` is interpolated with Catmull-Rom
-//! bicubic splines (C1, exact on the lattice), so the image has no holes or speckle.
-//! Pixels outside the lattice box where `|u|` exceeds `DEPTH_EPS` (grown by the
-//! interpolation stencil and the largest lateral displacement) are zero without work.
+//! its depth is `-u_z(X)`, clamped to `[0, T]`, and its shear `u_xy(X)`. `u` is
+//! interpolated with Catmull-Rom bicubic splines (C1, exact on the lattice), so the images
+//! have no holes or speckle. Pixels outside the lattice box where `|u|` exceeds
+//! `DEPTH_EPS` (grown by the interpolation stencil and the largest lateral displacement)
+//! are zero without work. A point printed on the surface at `X` (a marker) is at
+//! `X + u(X)`: one sample, no inverse map.
 
 use nalgebra::Vector3;
 
@@ -57,24 +59,17 @@ pub(super) fn sample(u: &[Vector3<f64>], nx: usize, ny: usize, a: f64, b: f64) -
     acc
 }
 
-/// See [`Gel::surface_depth`].
-pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
-    let n = grid.width * grid.height;
-    assert!(
-        out.len() >= n,
-        "depth buffer holds {} values, the grid needs {n}",
-        out.len()
-    );
-    let out = &mut out[..n];
-    out.fill(0.0);
+/// Calls `visit(pixel, u)` for each pixel of `grid` (row-major index) that may see the
+/// deformed surface, with the displacement `u(X)` of the surface point `X` above it,
+/// `X + u_xy(X) = p`; the pixels not visited see the undeformed surface (`|u|` below
+/// [`DEPTH_EPS`]). The one inverse map behind the depth and the shear images.
+fn for_each_seen(gel: &Gel, grid: &PixelGrid, mut visit: impl FnMut(usize, Vector3<f64>)) {
     let Some([ix0, ix1, iy0, iy1]) = gel.surface_box else {
         return;
     };
     let [nx, ny, _] = gel.layout.lattice;
     let [sx, sy, _] = gel.layout.spacing;
-    let [lx, ly, t] = gel.params.size;
-    // Reference x of lattice column 0 and row 0.
-    let (x0, y0) = (-0.5 * lx + 0.5 * sx, -0.5 * ly + 0.5 * sy);
+    let (x0, y0) = lattice_origin(gel);
     // Lateral reach of the deformation: the box of moved lattice points, grown by the
     // bicubic stencil (2 spacings) and the largest lateral displacement.
     let umax = gel
@@ -101,14 +96,94 @@ pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
                     break;
                 }
             }
-            let d = sample(u, nx, ny, a, b);
-            let depth = -d.z;
-            out[row * grid.width + col] = if depth.is_finite() {
-                depth.clamp(0.0, t)
-            } else {
-                0.0
-            };
+            visit(row * grid.width + col, sample(u, nx, ny, a, b));
         }
+    }
+}
+
+/// Reference x and y (m) of lattice column 0 and row 0 of the top surface.
+fn lattice_origin(gel: &Gel) -> (f64, f64) {
+    let [sx, sy, _] = gel.layout.spacing;
+    let [lx, ly, _] = gel.params.size;
+    (-0.5 * lx + 0.5 * sx, -0.5 * ly + 0.5 * sy)
+}
+
+/// The first `per_pixel` values per pixel of `out`, zeroed; panics naming `what` if `out`
+/// is too short.
+fn image<'a>(out: &'a mut [f64], grid: &PixelGrid, per_pixel: usize, what: &str) -> &'a mut [f64] {
+    let n = grid.width * grid.height * per_pixel;
+    assert!(
+        out.len() >= n,
+        "{what} buffer holds {} values, the grid needs {n}",
+        out.len()
+    );
+    let out = &mut out[..n];
+    out.fill(0.0);
+    out
+}
+
+/// The depth pixel of a surface point displaced by `d` in a gel of thickness `t`.
+#[inline]
+fn depth_of(d: &Vector3<f64>, t: f64) -> f64 {
+    let depth = -d.z;
+    if depth.is_finite() {
+        depth.clamp(0.0, t)
+    } else {
+        0.0
+    }
+}
+
+/// Stores the shear pixel `pixel` of a surface point displaced by `d` (zero if not finite).
+#[inline]
+fn set_shear(out: &mut [f64], pixel: usize, d: &Vector3<f64>) {
+    if d.x.is_finite() && d.y.is_finite() {
+        out[2 * pixel] = d.x;
+        out[2 * pixel + 1] = d.y;
+    }
+}
+
+/// See [`Gel::surface_depth`].
+pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
+    let out = image(out, grid, 1, "depth");
+    let t = gel.params.size[2];
+    for_each_seen(gel, grid, |pixel, d| out[pixel] = depth_of(&d, t));
+}
+
+/// See [`Gel::surface_shear`].
+pub(super) fn surface_shear(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
+    let out = image(out, grid, 2, "shear");
+    for_each_seen(gel, grid, |pixel, d| set_shear(out, pixel, &d));
+}
+
+/// See [`Gel::surface_depth_and_shear`].
+pub(super) fn surface_depth_and_shear(
+    gel: &Gel,
+    grid: &PixelGrid,
+    depth: &mut [f64],
+    shear: &mut [f64],
+) {
+    let depth = image(depth, grid, 1, "depth");
+    let shear = image(shear, grid, 2, "shear");
+    let t = gel.params.size[2];
+    for_each_seen(gel, grid, |pixel, d| {
+        depth[pixel] = depth_of(&d, t);
+        set_shear(shear, pixel, &d);
+    });
+}
+
+/// See [`Gel::surface_displacement`].
+pub(super) fn surface_displacement(gel: &Gel, x: f64, y: f64) -> Vector3<f64> {
+    if gel.surface_box.is_none() {
+        return Vector3::zeros();
+    }
+    let [nx, ny, _] = gel.layout.lattice;
+    let [sx, sy, _] = gel.layout.spacing;
+    let (x0, y0) = lattice_origin(gel);
+    let d = sample(&gel.surface_u, nx, ny, (x - x0) / sx, (y - y0) / sy);
+    if d.iter().all(|v| v.is_finite()) {
+        d
+    } else {
+        Vector3::zeros()
     }
 }
 

@@ -767,3 +767,77 @@ fn neo_hookean_press_agrees_with_fixed_corotated() {
         );
     }
 }
+
+/// A gel with friction after a press off the centre and a slide along x.
+fn slid_gel() -> Gel {
+    let mut g = gel(GelParams::default(), SolverOptions::default());
+    for k in 0..4 {
+        let rep = g.solve(&[press(0.3e-3 + 0.2e-3 * k as f64, 0.7e-3, 0.6e-3)]);
+        assert!(rep.converged, "{rep:?}");
+    }
+    g
+}
+
+// The surface displacement at a top particle's rest position is that particle's surface
+// point's own displacement, x_p + (s_z / 2) F e_z - X, from the particles themselves.
+#[test]
+fn surface_displacement_at_a_lattice_point_is_its_particles() {
+    let g = slid_gel();
+    let dx = g.layout.dx;
+    let [nx, _, _] = g.layout.lattice;
+    let [sx, sy, _] = g.layout.spacing;
+    let [lx, ly, _] = g.params.size;
+    let mut largest = 0.0f64;
+    for (slot, &i) in g.top.iter().enumerate() {
+        let p = &g.particles[i as usize];
+        let (ix, iy) = (slot % nx, slot / nx);
+        let rest = [
+            -0.5 * lx + (ix as f64 + 0.5) * sx,
+            -0.5 * ly + (iy as f64 + 0.5) * sy,
+        ];
+        let own = (p.x + p.f.column(2) * g.half_top - g.top_ref[slot]).cast::<f64>() * dx;
+        let sampled = g.surface_displacement(rest[0], rest[1]);
+        assert!(
+            (sampled - own).amax() < 1e-15,
+            "slot {slot}: {sampled:?} against {own:?}"
+        );
+        largest = largest.max(own.amax());
+    }
+    assert!(largest > 0.5e-3, "largest displacement {largest}");
+}
+
+// Each pixel's shear and depth are the displacement of the surface point X = p - shear
+// it sees: sampled there, u is (shear, -depth), to the fixed point's convergence; and the
+// depth and shear computed together equal each computed alone.
+#[test]
+fn shear_and_depth_are_the_displacement_of_the_point_seen() {
+    let g = slid_gel();
+    let grid = PixelGrid {
+        width: 96,
+        height: 72,
+        fov_x: 0.024,
+        fov_y: 0.018,
+    };
+    let n = grid.width * grid.height;
+    let (mut depth, mut shear) = (vec![f64::NAN; n], vec![f64::NAN; 2 * n]);
+    g.surface_depth_and_shear(&grid, &mut depth, &mut shear);
+    assert_eq!(depth, depth_image(&g, &grid));
+    let mut alone = vec![f64::NAN; 2 * n];
+    g.surface_shear(&grid, &mut alone);
+    assert_eq!(shear, alone);
+    let peak = shear.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(peak > 50e-6, "peak shear {peak}");
+    let mut worst = 0.0f64;
+    for row in 0..grid.height {
+        for col in 0..grid.width {
+            let k = row * grid.width + col;
+            let s = [shear[2 * k], shear[2 * k + 1]];
+            let u = g.surface_displacement(grid.x(col) - s[0], grid.y(row) - s[1]);
+            worst = worst.max((u.x - s[0]).abs()).max((u.y - s[1]).abs());
+            if depth[k] > 0.0 {
+                worst = worst.max((-u.z - depth[k]).abs());
+            }
+        }
+    }
+    assert!(worst < 1e-9, "worst {worst} (peak shear {peak})");
+}

@@ -4,10 +4,12 @@
 //! every physics mode, the reduced-order model's input features and the training data
 //! generator go through it, so the contract between the coarse model, the decoder and the
 //! data it was trained on lives in one place. [`rgb`] shades the depth image into the
-//! colour image of a GelSight-type sensor.
+//! colour image of a GelSight-type sensor; [`markers`] places the markers printed on the
+//! gel and writes where the camera sees them.
 
 use crate::geometry::Placed;
 
+pub mod markers;
 pub mod rgb;
 
 /// The contact problem's bounds on the surface indentation of a gel of thickness `T`

@@ -13,6 +13,7 @@ use nalgebra::Vector3;
 use crate::config::Config;
 use crate::geometry::{Aabb, PixelGrid, Placed};
 use crate::mpm::SolveReport;
+use crate::render::markers::Markers;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
 
@@ -40,7 +41,7 @@ pub enum SensorError {
 pub struct StageTimes {
     /// Contact test and rigid surface of the indenters.
     pub geometry: f64,
-    /// Gel simulation.
+    /// Gel simulation and its surface (depth, shear and marker displacements).
     pub physics: f64,
     /// Writing the outputs.
     pub render: f64,
@@ -95,6 +96,10 @@ pub struct TactileSensor {
     /// Normal contact pressure (Pa); empty when no configured output needs it.
     pressure: Vec<f64>,
     force: Vector3<f64>,
+    /// In-plane surface displacement per pixel (H x W x 2, m), when an output needs it.
+    shear: Vec<f64>,
+    /// The markers, when an output needs them.
+    markers: Markers,
 }
 
 impl TactileSensor {
@@ -120,6 +125,16 @@ impl TactileSensor {
                 Vec::new()
             }
         };
+        let shear = if needs.shear {
+            vec![0.0; 2 * pixels]
+        } else {
+            Vec::new()
+        };
+        let markers = if needs.markers {
+            Markers::new(config.markers, &grid)
+        } else {
+            Markers::default()
+        };
         Ok(Self {
             grid,
             model,
@@ -133,6 +148,8 @@ impl TactileSensor {
                 Vec::new()
             },
             force: Vector3::zeros(),
+            shear,
+            markers,
             config,
         })
     }
@@ -150,6 +167,8 @@ impl TactileSensor {
             depth: self.depth.clone(),
             pressure: self.pressure.clone(),
             force: self.force,
+            shear: self.shear.clone(),
+            markers: self.markers.clone(),
         })
     }
 
@@ -174,12 +193,26 @@ impl TactileSensor {
         self.force
     }
 
+    /// The shear image of the last evaluation (H x W x 2, row-major, m); empty when no
+    /// configured output needs it.
+    pub fn shear(&self) -> &[f64] {
+        &self.shear
+    }
+
+    /// The markers and their displacements after the last evaluation; none when no
+    /// configured output needs them.
+    pub fn markers(&self) -> &Markers {
+        &self.markers
+    }
+
     /// Back to the undeformed gel.
     pub fn reset(&mut self) {
         self.model.reset();
         self.depth.fill(0.0);
         self.pressure.fill(0.0);
         self.force = Vector3::zeros();
+        self.shear.fill(0.0);
+        self.markers.settle();
     }
 
     /// The gel's bounding box in the sensor frame.
@@ -210,6 +243,8 @@ impl TactileSensor {
             self.pressure.fill(0.0);
             self.zmin.fill(f64::INFINITY);
             self.force = Vector3::zeros();
+            self.shear.fill(0.0);
+            self.markers.settle();
             eval.times.geometry = t0.elapsed().as_secs_f64();
             let t1 = Instant::now();
             self.write_outputs(out);
@@ -232,7 +267,12 @@ impl TactileSensor {
 
         self.model.solve(&scene, &mut eval);
         if self.needs.depth {
-            self.model.depth(&scene, &mut self.depth, &mut eval);
+            if self.needs.shear {
+                self.model
+                    .depth_and_shear(&scene, &mut self.depth, &mut self.shear, &mut eval);
+            } else {
+                self.model.depth(&scene, &mut self.depth, &mut eval);
+            }
             for (p, &z) in self.penetration.iter_mut().zip(scene.zmin) {
                 *p = scene.rule.penetration(z);
             }
@@ -255,6 +295,13 @@ impl TactileSensor {
                 self.pressure.fill(0.0);
             }
         }
+        if self.needs.shear && !self.needs.depth {
+            self.model.shear(scene.grid, &mut self.shear);
+        }
+        if self.needs.markers {
+            let model = &self.model;
+            self.markers.update(|x| model.displacement(x));
+        }
         let t2 = Instant::now();
         eval.times.physics = (t2 - t1).as_secs_f64();
         self.write_outputs(out);
@@ -269,6 +316,8 @@ impl TactileSensor {
             force: self.force,
             pressure: &self.pressure,
             grid: &self.grid,
+            shear: &self.shear,
+            markers: &self.markers,
         };
         let mut at = 0;
         for o in &self.config.outputs {

@@ -4,10 +4,9 @@
 
 use nalgebra::Vector3;
 
-use crate::geometry::PixelGrid;
-
 use super::{Evaluation, Scene, SensorError};
 use crate::config::{material_name, Config, Physics};
+use crate::geometry::PixelGrid;
 use crate::mpm::{Gel, GelParams, SolverOptions};
 use crate::rom::{Rom, RomOptions};
 
@@ -34,6 +33,28 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
         let _ = grid;
         out.fill(0.0);
     }
+
+    /// The in-plane displacement of the gel surface seen at each pixel of `grid` after the
+    /// last solve (`H x W x 2`, m, sensor frame x then y; the inverse map of the depth
+    /// image); zero where the gel is undeformed and for a model without a gel.
+    fn shear(&self, grid: &PixelGrid, out: &mut [f64]);
+
+    /// [`SurfaceModel::depth`] and [`SurfaceModel::shear`] together (`shear` after the
+    /// depth); a model whose two come from one inverse map computes it once.
+    fn depth_and_shear(
+        &mut self,
+        scene: &Scene<'_>,
+        depth: &mut [f64],
+        shear: &mut [f64],
+        eval: &mut Evaluation,
+    ) {
+        self.depth(scene, depth, eval);
+        self.shear(scene.grid, shear);
+    }
+
+    /// The in-plane displacement (m) of the surface point whose rest position is `rest`
+    /// (sensor frame x, y) after the last solve; zero for a model without a gel.
+    fn displacement(&self, rest: [f64; 2]) -> [f64; 2];
 
     /// Back to the undeformed gel.
     fn reset(&mut self);
@@ -80,6 +101,14 @@ impl SurfaceModel for Rigid {
 
     fn force(&self) -> Vector3<f64> {
         Vector3::zeros()
+    }
+
+    fn shear(&self, _: &PixelGrid, out: &mut [f64]) {
+        out.fill(0.0);
+    }
+
+    fn displacement(&self, _: [f64; 2]) -> [f64; 2] {
+        [0.0; 2]
     }
 
     fn reset(&mut self) {}
@@ -194,6 +223,36 @@ impl SurfaceModel for Mpm {
         }
     }
 
+    fn shear(&self, grid: &PixelGrid, out: &mut [f64]) {
+        match self.gel() {
+            Some(gel) => gel.surface_shear(grid, out),
+            None => out.fill(0.0),
+        }
+    }
+
+    fn depth_and_shear(
+        &mut self,
+        scene: &Scene<'_>,
+        depth: &mut [f64],
+        shear: &mut [f64],
+        _: &mut Evaluation,
+    ) {
+        match self.gel() {
+            Some(gel) => gel.surface_depth_and_shear(scene.grid, depth, shear),
+            None => {
+                depth.fill(f64::NAN);
+                shear.fill(0.0);
+            }
+        }
+    }
+
+    fn displacement(&self, rest: [f64; 2]) -> [f64; 2] {
+        self.gel().map_or([0.0; 2], |gel| {
+            let u = gel.surface_displacement(rest[0], rest[1]);
+            [u.x, u.y]
+        })
+    }
+
     fn reset(&mut self) {
         if let Some(gel) = &mut self.gel {
             gel.reset();
@@ -248,6 +307,16 @@ impl SurfaceModel for Reduced {
     /// The coarse gel's pressure (the decoder restores depth only).
     fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
         self.mpm.pressure(grid, out);
+    }
+
+    /// The decoder restores depth only: shear comes from the coarse gel.
+    fn shear(&self, grid: &PixelGrid, out: &mut [f64]) {
+        self.mpm.shear(grid, out);
+    }
+
+    /// From the coarse gel too.
+    fn displacement(&self, rest: [f64; 2]) -> [f64; 2] {
+        self.mpm.displacement(rest)
     }
 
     fn reset(&mut self) {

@@ -10,6 +10,7 @@ use nalgebra::Vector3;
 
 use crate::config::Config;
 use crate::geometry::PixelGrid;
+use crate::render::markers::Markers;
 use crate::render::rgb;
 
 /// How an output's values are arranged.
@@ -23,6 +24,8 @@ pub enum Shape {
     },
     /// A fixed number of values.
     Vector(usize),
+    /// A row of `n` values per marker of the `markers` grid: `(NX * NY, n)`.
+    PerMarker(usize),
 }
 
 /// What an evaluation must compute for an output.
@@ -34,6 +37,10 @@ pub struct Needs {
     pub force: bool,
     /// The contact pressure image.
     pub pressure: bool,
+    /// The shear image (the gel's in-plane surface displacement per pixel).
+    pub shear: bool,
+    /// The markers' displacements.
+    pub markers: bool,
 }
 
 impl std::ops::BitOr for Needs {
@@ -43,6 +50,8 @@ impl std::ops::BitOr for Needs {
             depth: self.depth || o.depth,
             force: self.force || o.force,
             pressure: self.pressure || o.pressure,
+            shear: self.shear || o.shear,
+            markers: self.markers || o.markers,
         }
     }
 }
@@ -60,6 +69,11 @@ pub struct Frame<'a> {
     pub pressure: &'a [f64],
     /// The images' pixel grid.
     pub grid: &'a PixelGrid,
+    /// In-plane surface displacement per pixel (H x W x 2, m), when an output needs it;
+    /// else empty.
+    pub shear: &'a [f64],
+    /// The markers and their displacements, when an output needs them; else empty.
+    pub markers: &'a Markers,
 }
 
 /// One output of the table.
@@ -82,12 +96,13 @@ pub struct OutputSpec {
 }
 
 impl OutputSpec {
-    /// Its dimensions for `config`: `[H, W]`, `[H, W, C]` or `[n]`.
+    /// Its dimensions for `config`: `[H, W]`, `[H, W, C]`, `[n]` or `[NX * NY, n]`.
     pub fn dims(&self, config: &Config) -> Vec<usize> {
         match self.shape {
             Shape::Image { channels: 1 } => vec![config.height, config.width],
             Shape::Image { channels } => vec![config.height, config.width, channels],
             Shape::Vector(n) => vec![n],
+            Shape::PerMarker(n) => vec![config.markers[0] * config.markers[1], n],
         }
     }
 
@@ -112,6 +127,10 @@ impl Output {
     pub const RGB: Output = Output(&RGB);
     /// The normal contact pressure image.
     pub const PRESSURE: Output = Output(&PRESSURE);
+    /// The shear image.
+    pub const SHEAR: Output = Output(&SHEAR);
+    /// The markers.
+    pub const MARKERS: Output = Output(&MARKERS);
 
     /// The output called `name`, if the table has one.
     pub fn named(name: &str) -> Option<Output> {
@@ -144,12 +163,14 @@ impl std::fmt::Debug for Output {
 }
 
 /// Every output, in the order the documentation lists them.
-pub const TABLE: [Output; 5] = [
+pub const TABLE: [Output; 7] = [
     Output::DEPTH,
     Output::FORCE,
     Output::CONTACT,
     Output::RGB,
     Output::PRESSURE,
+    Output::SHEAR,
+    Output::MARKERS,
 ];
 
 const DEPTH: OutputSpec = OutputSpec {
@@ -160,8 +181,7 @@ const DEPTH: OutputSpec = OutputSpec {
     needs_gel: false,
     needs: Needs {
         depth: true,
-        force: false,
-        pressure: false,
+        ..Needs::NONE
     },
     write: |f, out| out.copy_from_slice(f.depth),
 };
@@ -173,9 +193,8 @@ const FORCE: OutputSpec = OutputSpec {
     shape: Shape::Vector(3),
     needs_gel: true,
     needs: Needs {
-        depth: false,
         force: true,
-        pressure: false,
+        ..Needs::NONE
     },
     write: |f, out| out.copy_from_slice(f.force.as_slice()),
 };
@@ -205,8 +224,7 @@ const RGB: OutputSpec = OutputSpec {
     needs_gel: false,
     needs: Needs {
         depth: true,
-        force: false,
-        pressure: false,
+        ..Needs::NONE
     },
     write: |f, out| rgb::render(&rgb::Optics::default(), f.grid, f.depth, out),
 };
@@ -214,16 +232,48 @@ const RGB: OutputSpec = OutputSpec {
 const PRESSURE: OutputSpec = OutputSpec {
     name: "pressure",
     doc: "normal contact pressure image of the gel on the indenters; integrates over the \
-          image to the normal force (force z) where the contact lies inside it",
+          image to the normal force (force z) where the contact lies inside it; rom: from \
+          its coarse gel",
     unit: "Pa",
     shape: Shape::Image { channels: 1 },
     needs_gel: true,
     needs: Needs {
-        depth: false,
-        force: false,
         pressure: true,
+        ..Needs::NONE
     },
     write: |f, out| out.copy_from_slice(f.pressure),
+};
+
+const SHEAR: OutputSpec = OutputSpec {
+    name: "shear",
+    doc: "in-plane displacement of the gel surface seen at each pixel, sensor frame x then y \
+          (the depth image's inverse map; zero where the gel is undeformed); rom: from its \
+          coarse gel",
+    unit: "m",
+    shape: Shape::Image { channels: 2 },
+    needs_gel: true,
+    needs: Needs {
+        shear: true,
+        ..Needs::NONE
+    },
+    write: |f, out| out.copy_from_slice(f.shear),
+};
+
+const MARKERS: OutputSpec = OutputSpec {
+    name: "markers",
+    doc: "the NX x NY markers of the 'markers' attribute, printed on the gel in a regular \
+          grid over the image, in its reading order (first row at +y, first column at -x); \
+          per marker: column and row of its image position X_m + u_xy(X_m) (pixels, \
+          continuous, c at the centre of column c), then its displacement along x and y \
+          (m); rom: from its coarse gel",
+    unit: "px, px, m, m",
+    shape: Shape::PerMarker(Markers::VALUES),
+    needs_gel: true,
+    needs: Needs {
+        markers: true,
+        ..Needs::NONE
+    },
+    write: |f, out| f.markers.write(f.grid, out),
 };
 
 impl Needs {
@@ -232,11 +282,14 @@ impl Needs {
         depth: false,
         force: false,
         pressure: false,
+        shear: false,
+        markers: false,
     };
 }
 
 /// The output table as JSON, for the Python package: per output its name, description,
-/// unit, shape (`["H", "W"]`, `["H", "W", C]` or `[n]`) and whether it needs a gel model.
+/// unit, shape (`["H", "W"]`, `["H", "W", C]`, `[n]` or `["N", n]`, `N` the number of
+/// markers) and whether it needs a gel model.
 pub fn table_json() -> String {
     let rows: Vec<serde_json::Value> = TABLE
         .iter()
@@ -246,6 +299,7 @@ pub fn table_json() -> String {
                 Shape::Image { channels: 1 } => serde_json::json!(["H", "W"]),
                 Shape::Image { channels } => serde_json::json!(["H", "W", channels]),
                 Shape::Vector(n) => serde_json::json!([n]),
+                Shape::PerMarker(n) => serde_json::json!(["N", n]),
             };
             serde_json::json!({
                 "name": s.name,
@@ -260,7 +314,7 @@ pub fn table_json() -> String {
 }
 
 /// The sensordata layout of `config`, as JSON for the Python package: image size and, per
-/// output in sensordata order, its name, offset, shape and unit.
+/// output in sensordata order, its name, offset, shape and unit; the marker grid `[NX, NY]`.
 pub fn layout_json(config: &Config) -> String {
     let mut offset = 0;
     let outputs: Vec<serde_json::Value> = config
@@ -283,6 +337,7 @@ pub fn layout_json(config: &Config) -> String {
         "physics": config.physics.name(),
         "width": config.width,
         "height": config.height,
+        "markers": config.markers,
         "size": offset,
         "outputs": outputs,
     })

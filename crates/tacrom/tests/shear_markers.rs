@@ -1,0 +1,375 @@
+//! The `shear` and `markers` outputs through the sensor (no MuJoCo): what a frictional
+//! slide and a vertical press do to the markers and the shear image, that the markers move
+//! with the gel's surface and sit where the shear image sees them, that markers far from
+//! the contact stay put, and that `rom` takes both from its coarse gel.
+//!
+//! Every scene is the default coarse gel (30 x 30 x 4 mm, dx = 1.4 mm) pressed by a sphere
+//! of radius 5 mm; the default 9 x 7 markers over the 24 x 18 mm image, 2.67 mm apart along
+//! x and 2.57 mm along y, the middle one (index 31) at the origin.
+
+use std::sync::{Arc, OnceLock};
+
+use nalgebra::Isometry3;
+use tacrom::config::{
+    Config, RawConfig, ATTR_FRICTION, ATTR_MARKERS, ATTR_OUTPUTS, ATTR_PHYSICS, ATTR_RESOLUTION,
+};
+use tacrom::geometry::{Placed, Sdf, Sphere};
+use tacrom::mpm::{Gel, GelParams, SolverOptions};
+use tacrom::render::markers::Markers;
+use tacrom::sensor::TactileSensor;
+
+const R: f64 = 0.005;
+/// The middle marker of the default 9 x 7 grid, at the origin.
+const MIDDLE: usize = 31;
+
+/// The sphere centred over `(x, 0)`, pressed `d` into the undeformed face. One shape for
+/// every pose, so that successive solves see one indenter moving.
+fn ball(x: f64, d: f64) -> Placed {
+    static BALL: OnceLock<Arc<dyn Sdf>> = OnceLock::new();
+    Placed {
+        shape: BALL.get_or_init(|| Arc::new(Sphere::new(R))).clone(),
+        pose: Isometry3::translation(x, 0.0, R - d),
+    }
+}
+
+fn config(physics: &str, outputs: &str, extra: &[(&str, &str)]) -> Config {
+    let raw = extra.iter().fold(
+        RawConfig::default()
+            .with(ATTR_PHYSICS, physics)
+            .with(ATTR_OUTPUTS, outputs)
+            .with(ATTR_RESOLUTION, "64 48"),
+        |r, (a, v)| r.with(a, v),
+    );
+    Config::from_raw("touch", &raw).expect("valid configuration")
+}
+
+/// A sensor and its sensordata after evaluating each scene of `frames` in turn.
+struct Run {
+    sensor: TactileSensor,
+    out: Vec<f64>,
+}
+
+impl Run {
+    fn new(config: Config) -> Self {
+        let out = vec![f64::NAN; config.sensordata_len()];
+        Self {
+            sensor: TactileSensor::new(config).expect("sensor"),
+            out,
+        }
+    }
+
+    fn frames(mut self, frames: &[Vec<Placed>]) -> Self {
+        for f in frames {
+            let eval = self.sensor.evaluate(f, &mut self.out);
+            assert!(eval.warnings.is_empty(), "{:?}", eval.warnings);
+        }
+        self
+    }
+
+    /// The values of output `name`.
+    fn output(&self, name: &str) -> &[f64] {
+        let c = self.sensor.config();
+        let mut at = 0;
+        for o in &c.outputs {
+            let n = o.spec().len(c);
+            if o.name() == name {
+                return &self.out[at..at + n];
+            }
+            at += n;
+        }
+        panic!("no output {name}");
+    }
+
+    /// Per marker: rest position (m) and displacement (m) from the `markers` output.
+    fn markers(&self) -> Vec<([f64; 2], [f64; 2])> {
+        let rest = self.sensor.markers().rest().to_vec();
+        self.output("markers")
+            .chunks_exact(Markers::VALUES)
+            .zip(rest)
+            .map(|(m, x)| (x, [m[2], m[3]]))
+            .collect()
+    }
+}
+
+fn press(d: f64) -> Vec<Vec<Placed>> {
+    vec![vec![ball(0.0, 0.5 * d)], vec![ball(0.0, d)]]
+}
+
+/// A press to `d` at x = 0, then a slide along +x by `steps` steps of `step`.
+fn slide(d: f64, step: f64, steps: usize) -> Vec<Vec<Placed>> {
+    let mut f = press(d);
+    f.extend((1..=steps).map(|k| vec![ball(k as f64 * step, d)]));
+    f
+}
+
+/// Distance (m) of `x` from `(cx, 0)`.
+fn dist(x: [f64; 2], cx: f64) -> f64 {
+    ((x[0] - cx).powi(2) + x[1].powi(2)).sqrt()
+}
+
+// A sphere pressed 0.6 mm and then slid 0.6 mm along +x in four solves drags the gel's
+// surface under it: the markers within the contact radius (sqrt(R d) = 1.7 mm) of its
+// final centre move along +x, well beyond where a fresh press at the final pose puts
+// them. Measured (17 x 13 markers, six under the contact, friction 0.5): +143 to +241 um
+// after the slide, 155 to 188 um more than after a fresh press (the marker at the origin
+// +155 against -41 um); without friction the slide leaves each within 9 um of the fresh
+// press (the surface slides under the sphere instead).
+#[test]
+fn frictional_slide_drags_the_markers_under_the_contact_along_x() {
+    let (d, step, steps) = (0.6e-3, 0.15e-3, 4);
+    let end = step * steps as f64;
+    let radius = (R * d).sqrt();
+    let run = |friction: &str, frames: &[Vec<Placed>]| {
+        let extra = [(ATTR_FRICTION, friction), (ATTR_MARKERS, "17 13")];
+        Run::new(config("coarse", "markers", &extra))
+            .frames(frames)
+            .markers()
+    };
+    let fresh_frames = [vec![ball(end, 0.5 * d)], vec![ball(end, d)]];
+    for (friction, drag) in [("0.5", true), ("0", false)] {
+        let slid = run(friction, &slide(d, step, steps));
+        let fresh = run(friction, &fresh_frames);
+        let under: Vec<usize> = (0..slid.len())
+            .filter(|&k| dist(slid[k].0, end) < radius)
+            .collect();
+        assert!(under.len() >= 4, "{under:?}");
+        for &k in &under {
+            let (x, u) = slid[k];
+            let gain = u[0] - fresh[k].1[0];
+            if drag {
+                assert!(
+                    u[0] > 20e-6 && gain > 80e-6,
+                    "marker {k} at {x:?}: {u:?}, gain {gain}"
+                );
+            } else {
+                assert!(
+                    gain.abs() < 20e-6,
+                    "marker {k} at {x:?}: {u:?}, gain {gain}"
+                );
+            }
+        }
+    }
+}
+
+/// Markers and shear image of a centred sphere pressed `d` (default friction 0.5).
+fn centred_press(d: f64) -> Run {
+    Run::new(config("coarse", "shear markers", &[])).frames(&press(d))
+}
+
+// A centred vertical press (0.8 mm, contact radius 2 mm, friction 0.5) pushes the ring of
+// eight markers around the middle one (2.6 to 3.7 mm from the centre) radially outward
+// (measured 8.6 to 24.5 um), and leaves the middle one in place. Without friction the
+// four of them on the axes, just outside the contact, move inward instead (-17 um
+// measured): the sign depends on friction, so the test keeps the default.
+#[test]
+fn vertical_press_moves_the_markers_around_it_radially_outward() {
+    let m = centred_press(0.8e-3).markers();
+    let (_, mid) = m[MIDDLE];
+    assert!(mid[0].abs() < 1e-7 && mid[1].abs() < 1e-7, "{mid:?}");
+    for k in [21, 22, 23, 30, 32, 39, 40, 41] {
+        let (x, u) = m[k];
+        let r = dist(x, 0.0);
+        let radial = (u[0] * x[0] + u[1] * x[1]) / r;
+        let tangential = (u[1] * x[0] - u[0] * x[1]) / r;
+        assert!(radial > 4e-6, "marker {k} at {x:?}: {u:?}");
+        assert!(
+            tangential.abs() < 0.01 * radial,
+            "marker {k} at {x:?}: {u:?}"
+        );
+    }
+}
+
+// The shear image of a centred press is antisymmetric in x under x -> -x (its y part
+// symmetric), and the other way round under y -> -y; the gel's grid is mirror symmetric,
+// so only the solver's round-off breaks it (measured: 5e-4 of the peak).
+#[test]
+fn shear_of_a_centred_press_is_antisymmetric_under_a_mirror() {
+    let run = centred_press(0.8e-3);
+    let s = run.output("shear");
+    let (w, h) = (64, 48);
+    let at = |r: usize, c: usize| [s[2 * (r * w + c)], s[2 * (r * w + c) + 1]];
+    let peak = s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(peak > 10e-6, "peak shear {peak}");
+    let mut worst = 0.0f64;
+    for r in 0..h {
+        for c in 0..w {
+            let (v, mx, my) = (at(r, c), at(r, w - 1 - c), at(h - 1 - r, c));
+            worst = worst
+                .max((v[0] + mx[0]).abs())
+                .max((v[1] - mx[1]).abs())
+                .max((v[0] - my[0]).abs())
+                .max((v[1] + my[1]).abs());
+        }
+    }
+    assert!(worst < 1e-3 * peak, "asymmetry {worst} of peak {peak}");
+}
+
+// Markers far from the contact stay put. After the frictional slide the drag reaches far
+// along the slide (a bonded 4 mm layer under a tangential load: measured 14 um at 9 mm
+// ahead of the sphere, 4.5 um at 10.7 mm, 1 um at 8.6 mm behind it, against 155 um under
+// it), so "far" is more than 11 mm from the sphere's axis: there every marker moved less
+// than 1 um and less than 1 % of the largest marker displacement (measured: at most
+// 0.44 um).
+#[test]
+fn markers_far_from_the_contact_do_not_move() {
+    let run = Run::new(config("coarse", "markers", &[])).frames(&slide(0.6e-3, 0.15e-3, 4));
+    let m = run.markers();
+    let size = |u: &[f64; 2]| u[0].hypot(u[1]);
+    let largest = m.iter().map(|(_, u)| size(u)).fold(0.0f64, f64::max);
+    assert!(largest > 1e-4, "{largest}");
+    let far: Vec<_> = m.iter().filter(|(x, _)| dist(*x, 0.6e-3) > 11e-3).collect();
+    assert!(far.len() >= 10, "{}", far.len());
+    for (x, u) in far {
+        assert!(
+            size(u) < 1e-6 && size(u) < 0.01 * largest,
+            "marker at {x:?} moved {u:?} (largest {largest})"
+        );
+    }
+}
+
+/// The sensor's coarse gel, built and driven by hand: the same parameters and solver
+/// options as [`config`]'s coarse sensor.
+fn bare_gel(config: &Config, frames: &[Vec<Placed>]) -> Gel {
+    let params = GelParams {
+        size: config.size,
+        young: config.young,
+        poisson: config.poisson,
+        density: config.density,
+        friction: config.friction,
+        dx: config.dx.expect("coarse"),
+        material: config.material,
+    };
+    let options = SolverOptions {
+        threads: config.threads,
+        tolerance: config.tolerance,
+        ..SolverOptions::default()
+    };
+    let mut gel = Gel::new(params, options).expect("gel");
+    for f in frames {
+        let _ = gel.solve(f);
+    }
+    gel
+}
+
+// Each marker's displacement is the gel's surface displacement at its rest position,
+// sampled directly from the solved gel, and its image position is its rest position
+// moved by it, in pixels (row 0 at +y).
+#[test]
+fn marker_displacement_is_the_surface_displacement_at_the_marker() {
+    let frames = slide(0.6e-3, 0.15e-3, 4);
+    let c = config("coarse", "markers", &[]);
+    let run = Run::new(c.clone()).frames(&frames);
+    let gel = bare_gel(&c, &frames);
+    let grid = run.sensor.grid();
+    let (px, py) = (
+        grid.fov_x / grid.width as f64,
+        grid.fov_y / grid.height as f64,
+    );
+    for (m, (x, u)) in run.output("markers").chunks(4).zip(run.markers()) {
+        let g = gel.surface_displacement(x[0], x[1]);
+        assert_eq!([m[2], m[3]], [g.x, g.y], "marker at {x:?}");
+        let rest = [grid.col_at(x[0]), grid.row_at(x[1])];
+        assert!((m[0] - rest[0] - u[0] / px).abs() < 1e-9, "{m:?}");
+        assert!((m[1] - rest[1] + u[1] / py).abs() < 1e-9, "{m:?}");
+    }
+}
+
+/// Bilinear interpolation of the 2-channel image `s` (`w` columns) at continuous column
+/// `c` and row `r`.
+fn bilinear(s: &[f64], w: usize, c: f64, r: f64) -> [f64; 2] {
+    let (c0, r0) = (c.floor() as usize, r.floor() as usize);
+    let (tc, tr) = (c - c0 as f64, r - r0 as f64);
+    let v = |r: usize, c: usize, k: usize| s[2 * (r * w + c) + k];
+    std::array::from_fn(|k| {
+        (1.0 - tr) * ((1.0 - tc) * v(r0, c0, k) + tc * v(r0, c0 + 1, k))
+            + tr * ((1.0 - tc) * v(r0 + 1, c0, k) + tc * v(r0 + 1, c0 + 1, k))
+    })
+}
+
+// The shear image and the markers are one map seen from both ends: the pixel where a
+// marker appears sees the surface point the marker is printed on, so the shear image
+// there (interpolated between pixel centres, 0.075 mm apart) is the marker's
+// displacement: within 1 % of the peak shear (measured 0.04 %).
+#[test]
+fn markers_sit_where_the_shear_image_sees_them() {
+    let res = [(ATTR_RESOLUTION, "320 240")];
+    let run =
+        Run::new(config("coarse", "depth shear markers", &res)).frames(&slide(0.6e-3, 0.15e-3, 4));
+    let shear = run.output("shear");
+    let peak = shear.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let mut worst = 0.0f64;
+    for m in run.output("markers").chunks(4) {
+        let seen = bilinear(shear, 320, m[0], m[1]);
+        worst = worst
+            .max((seen[0] - m[2]).abs())
+            .max((seen[1] - m[3]).abs());
+    }
+    assert!(worst < 0.01 * peak, "{worst} against peak {peak}");
+}
+
+// Depth and shear computed together (one inverse map) equal each computed alone.
+#[test]
+fn depth_and_shear_together_equal_each_alone() {
+    let frames = slide(0.6e-3, 0.15e-3, 2);
+    let both = Run::new(config("coarse", "depth shear", &[])).frames(&frames);
+    let depth = Run::new(config("coarse", "depth", &[])).frames(&frames);
+    let shear = Run::new(config("coarse", "shear", &[])).frames(&frames);
+    assert_eq!(both.output("depth"), depth.output("depth"));
+    assert_eq!(both.output("shear"), shear.output("shear"));
+}
+
+// Without contact the markers are at rest (their output is their rest image position,
+// not zeros) and the shear image is zero: before any contact, after the indenter leaves,
+// and after a reset.
+#[test]
+fn markers_rest_and_shear_vanishes_without_contact() {
+    let c = config("coarse", "shear markers", &[]);
+    let mut run = Run::new(c.clone());
+    let mut out = vec![f64::NAN; c.sensordata_len()];
+    let _ = run.sensor.evaluate(&[], &mut out);
+    let rest = out.clone();
+    let n = 2 * 64 * 48;
+    assert!(rest[..n].iter().all(|&v| v == 0.0));
+    let markers = &rest[n..];
+    assert_eq!(markers[MIDDLE * 4..MIDDLE * 4 + 4], [31.5, 23.5, 0.0, 0.0]);
+    run = run.frames(&press(0.5e-3));
+    assert_ne!(run.out, rest);
+    let _ = run.sensor.evaluate(&[ball(0.0, -1e-3)], &mut out);
+    let lifted = out.clone();
+    let flat = lifted[n..]
+        .chunks(4)
+        .all(|m| m[2].abs() < 1e-7 && m[3].abs() < 1e-7);
+    assert!(flat, "markers not back at rest after the indenter left");
+    run.sensor.reset();
+    let _ = run.sensor.evaluate(&[], &mut out);
+    assert_eq!(out, rest);
+}
+
+// `rom` restores depth only: its shear and markers are its coarse gel's, the same as a
+// coarse sensor's on the same gel and frames.
+#[test]
+fn rom_takes_shear_and_markers_from_its_coarse_gel() {
+    let frames = slide(0.5e-3, 0.15e-3, 2);
+    let rom = Run::new(config("rom", "depth shear markers", &[])).frames(&frames);
+    let coarse = Run::new(config("coarse", "depth shear markers", &[])).frames(&frames);
+    assert_eq!(rom.output("shear"), coarse.output("shear"));
+    assert_eq!(rom.output("markers"), coarse.output("markers"));
+    assert_ne!(rom.output("depth"), coarse.output("depth"));
+}
+
+// Rigid penetration has no gel displacement: asking it for shear or markers fails at load,
+// naming the sensor, the attribute and the output.
+#[test]
+fn rigid_physics_refuses_shear_and_markers() {
+    for outputs in ["depth shear", "markers"] {
+        let raw = RawConfig::default()
+            .with(ATTR_PHYSICS, "rigid")
+            .with(ATTR_OUTPUTS, outputs);
+        let e = Config::from_raw("touch", &raw).unwrap_err().to_string();
+        let name = outputs.split(' ').next_back().unwrap();
+        assert!(
+            e.contains("'touch'") && e.contains("'outputs'") && e.contains(&format!("'{name}'")),
+            "{e}"
+        );
+    }
+}

@@ -1,7 +1,8 @@
 """Presses a sphere into the tactile sensor of examples/press.xml, writes depth images (and,
 with the `rgb` and `pressure` outputs, the RGB tactile images and the contact pressure
 beside them) as PNG and prints the time of one sensor evaluation for each physics mode.
-`pressure` needs a gel, so the rigid mode leaves it out.
+The markers are drawn into the RGB images. `pressure` and `markers` need a gel, so the rigid
+mode leaves them out.
 
     .venv/bin/python examples/demo.py --out out/demo --physics rigid coarse
     .venv/bin/python examples/demo.py --outputs depth      # depth images only
@@ -35,7 +36,7 @@ def run(
     physics: str, outputs: list, out: pathlib.Path, frames: int, xml_path: pathlib.Path
 ) -> None:
     if physics == "rigid":
-        outputs = [o for o in outputs if o not in ("force", "pressure")]
+        outputs = [o for o in outputs if o not in ("force", "pressure", "shear", "markers")]
     model = model_for(physics, outputs, xml_path)
     data = mujoco.MjData(model)
     steps_per_frame = 50
@@ -98,9 +99,10 @@ def main() -> None:
     parser.add_argument(
         "--outputs",
         nargs="+",
-        default=["depth", "rgb", "pressure"],
+        default=["depth", "rgb", "markers", "pressure"],
         help="the sensor's outputs (depth is always among them); with rgb and pressure, "
-        "their images are written beside the depth images (pressure scaled to its peak)",
+        "their images are written beside the depth images (pressure scaled to its peak; "
+        "with markers, the markers are drawn into rgb)",
     )
     args = parser.parse_args()
     outputs = args.outputs if "depth" in args.outputs else ["depth", *args.outputs]

@@ -83,3 +83,28 @@ def test_save_png_writes_colour(tmp_path):
     raw = zlib.decompress(data[idat + 4 : idat + 4 + length])
     rows = [raw[r * 10 + 1 : (r + 1) * 10] for r in range(2)]  # filter byte + 3 x RGB
     assert rows[0][:3] == bytes((255, 0, 0)) and rows[1][6:] == bytes((0, 128, 255))
+
+
+def test_markers_are_drawn_into_rgb(press_xml):
+    """With the markers output, each marker is a dark dot in the rgb image where the
+    markers output says the camera sees it; everywhere else the image is the one without
+    markers."""
+    images = {}
+    for outputs in ("depth rgb", "depth rgb markers"):
+        xml = with_config(press_xml, physics="coarse", outputs=outputs, resolution=f"{W} {H}")
+        model = mujoco.MjModel.from_xml_string(xml)
+        data = mujoco.MjData(model)
+        out = evaluate(model, data, 0.4e-3)
+        images[outputs] = out
+    plain, dotted = images["depth rgb"]["rgb"], images["depth rgb markers"]["rgb"]
+    markers = images["depth rgb markers"]["markers"]
+    changed = np.any(plain != dotted, axis=2)
+    near = np.zeros_like(changed)
+    for col, row, _, _ in markers:
+        # The dot (0.25 mm, 0.67 px) reaches the pixels around its centre and no farther.
+        r0, c0 = int(np.floor(row)), int(np.floor(col))
+        near[max(r0 - 1, 0) : r0 + 3, max(c0 - 1, 0) : c0 + 3] = True
+        darkest = dotted[max(r0, 0) : r0 + 2, max(c0, 0) : c0 + 2].sum(axis=2).min()
+        lit = plain[max(r0, 0) : r0 + 2, max(c0, 0) : c0 + 2].sum(axis=2).min()
+        assert darkest < lit - 50.0, (col, row, darkest, lit)
+    assert not np.any(changed & ~near)

@@ -10,6 +10,16 @@
 
 use crate::geometry::PixelGrid;
 
+/// Radius of a printed marker (m): GelSight-type gels carry dots of about half a
+/// millimetre.
+pub const DOT_RADIUS: f64 = 0.25e-3;
+
+/// Colour of a marker dot in the `rgb` image (0..255): the dark ink of printed markers.
+pub const DOT_COLOUR: [f64; 3] = [25.0, 25.0, 30.0];
+
+/// Sub-samples per pixel side for the dots' coverage (antialiasing).
+const SUBSAMPLES: usize = 4;
+
 /// The marker grid of one sensor and where the last evaluation moved each marker.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Markers {
@@ -96,6 +106,52 @@ impl Markers {
     }
 }
 
+impl Markers {
+    /// Draws each marker as a dot of radius [`DOT_RADIUS`] at its image position into the
+    /// `rgb` image `out` (H x W x 3, 0..255), blended by the fraction of each pixel it
+    /// covers; nothing when there are no markers.
+    pub fn draw(&self, grid: &PixelGrid, out: &mut [f64]) {
+        let (w, h) = (grid.width, grid.height);
+        if self.is_empty() || w == 0 || h == 0 {
+            return;
+        }
+        let (pw, ph) = (grid.fov_x / w as f64, grid.fov_y / h as f64);
+        let (rc, rr) = (DOT_RADIUS / pw, DOT_RADIUS / ph);
+        let step = 1.0 / SUBSAMPLES as f64;
+        for (x, d) in self.rest.iter().zip(&self.shift) {
+            let (c, r) = (grid.col_at(x[0] + d[0]), grid.row_at(x[1] + d[1]));
+            if !(c.is_finite() && r.is_finite()) {
+                continue;
+            }
+            let c0 = (c - rc - 0.5).floor().max(0.0) as usize;
+            let c1 = ((c + rc + 0.5).ceil().max(0.0) as usize).min(w);
+            let r0 = (r - rr - 0.5).floor().max(0.0) as usize;
+            let r1 = ((r + rr + 0.5).ceil().max(0.0) as usize).min(h);
+            for row in r0..r1 {
+                for col in c0..c1 {
+                    let mut inside = 0usize;
+                    for a in 0..SUBSAMPLES {
+                        for b in 0..SUBSAMPLES {
+                            // Pixel (row, col) spans [col - 1/2, col + 1/2] in the
+                            // continuous coordinates of `col_at`.
+                            let u = (col as f64 - 0.5 + (a as f64 + 0.5) * step - c) / rc;
+                            let v = (row as f64 - 0.5 + (b as f64 + 0.5) * step - r) / rr;
+                            inside += usize::from(u * u + v * v <= 1.0);
+                        }
+                    }
+                    if inside > 0 {
+                        let alpha = inside as f64 / (SUBSAMPLES * SUBSAMPLES) as f64;
+                        let px = &mut out[3 * (row * w + col)..3 * (row * w + col) + 3];
+                        for (v, dark) in px.iter_mut().zip(DOT_COLOUR) {
+                            *v += alpha * (dark - *v);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -141,5 +197,48 @@ mod tests {
         // Non-finite displacements count as none.
         m.update(|_| [f64::NAN, 1.0]);
         assert_eq!(m.shift(), &[[0.0, 0.0]]);
+    }
+
+    // A dot darkens the pixels it covers, fully at its centre, partly at its rim, and
+    // follows its marker; pixels away from every dot keep their colour.
+    #[test]
+    fn dots_are_drawn_where_the_markers_are() {
+        let grid = PixelGrid {
+            width: 64,
+            height: 48,
+            fov_x: 0.024,
+            fov_y: 0.018,
+        };
+        let mut m = Markers::new([1, 1], &grid);
+        let background = vec![128.0; 64 * 48 * 3];
+        let mut img = background.clone();
+        m.draw(&grid, &mut img);
+        let px = |img: &[f64], r: usize, c: usize| img[3 * (r * 64 + c)];
+        // The marker sits at column 31.5, row 23.5, the corner of four pixels (0.375 mm):
+        // a 0.25 mm dot covers a quarter disc of each, pi (0.667 px)^2 / 4 = 0.35 of it.
+        for (r, c) in [(23, 31), (23, 32), (24, 31), (24, 32)] {
+            let alpha = (128.0 - px(&img, r, c)) / (128.0 - DOT_COLOUR[0]);
+            assert!((alpha - 0.35).abs() < 0.05, "({r}, {c}): {alpha}");
+        }
+        // The ink over the whole image is the dot's area, pi r^2, within the 4 x 4
+        // sub-sampling's error.
+        let ink: f64 = (0..48)
+            .flat_map(|r| (0..64).map(move |c| (r, c)))
+            .map(|(r, c)| (128.0 - px(&img, r, c)) / (128.0 - DOT_COLOUR[0]))
+            .sum();
+        let area = std::f64::consts::PI * (DOT_RADIUS / 0.375e-3).powi(2);
+        assert!((ink / area - 1.0).abs() < 0.1, "{ink} px against {area} px");
+        assert_eq!(px(&img, 10, 10), 128.0);
+        let changed = img.iter().zip(&background).filter(|(a, b)| a != b).count();
+        assert!(changed > 0 && changed <= 3 * 16, "{changed}");
+        // Moved 3 mm along +x: 8 columns right.
+        m.update(|_| [3e-3, 0.0]);
+        let mut moved = background.clone();
+        m.draw(&grid, &mut moved);
+        assert!(px(&moved, 23, 39) < 100.0 && px(&moved, 23, 31) == 128.0);
+        // No markers: nothing drawn.
+        let mut none = background.clone();
+        Markers::default().draw(&grid, &mut none);
+        assert_eq!(none, background);
     }
 }

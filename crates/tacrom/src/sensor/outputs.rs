@@ -216,7 +216,8 @@ const CONTACT: OutputSpec = OutputSpec {
 const RGB: OutputSpec = OutputSpec {
     name: "rgb",
     doc: "RGB image of a GelSight-type sensor: the deformed surface shaded by a red, a green \
-          and a blue light; the flat gel shows a uniform background",
+          and a blue light; the flat gel shows a uniform background; with the markers \
+          output, the markers drawn as dark dots where the camera sees them",
     unit: "0..255",
     shape: Shape::Image {
         channels: rgb::CHANNELS,
@@ -226,7 +227,10 @@ const RGB: OutputSpec = OutputSpec {
         depth: true,
         ..Needs::NONE
     },
-    write: |f, out| rgb::render(&rgb::Optics::default(), f.grid, f.depth, out),
+    write: |f, out| {
+        rgb::render(&rgb::Optics::default(), f.grid, f.depth, out);
+        f.markers.draw(f.grid, out);
+    },
 };
 
 const PRESSURE: OutputSpec = OutputSpec {

@@ -97,7 +97,7 @@ pub struct FeaturesMeta {
     /// Coarse grid spacing (m).
     pub coarse_dx: f64,
     /// The lattice and feature settings ([`LatticeSpec`]).
-    pub lattice: LatticeMeta,
+    pub lattice: LatticeSpec,
     /// Encoder input length.
     pub encoder_len: usize,
     /// Decoder query feature count.
@@ -106,39 +106,6 @@ pub struct FeaturesMeta {
     pub region: RegionMeta,
     /// The presses.
     pub presses: Vec<PressMeta>,
-}
-
-/// [`LatticeSpec`] in `features.json`, named as in a manifest's `lattice`.
-#[derive(Clone, Copy, Debug, Serialize)]
-pub struct LatticeMeta {
-    /// Gel size (m).
-    pub size: [f64; 3],
-    /// Columns.
-    pub nx: usize,
-    /// Rows.
-    pub ny: usize,
-    /// Encoder sub-lattice stride.
-    pub encoder_stride: usize,
-    /// Window side.
-    pub patch: usize,
-    /// Window step.
-    pub patch_step: usize,
-    /// Model units per metre.
-    pub depth_scale: f64,
-}
-
-impl From<LatticeSpec> for LatticeMeta {
-    fn from(s: LatticeSpec) -> Self {
-        Self {
-            size: s.size,
-            nx: s.nx,
-            ny: s.ny,
-            encoder_stride: s.encoder_stride,
-            patch: s.patch,
-            patch_step: s.patch_step,
-            depth_scale: s.depth_scale,
-        }
-    }
 }
 
 /// Region settings in `features.json`, named as in a manifest's `region`.
@@ -263,7 +230,7 @@ pub fn write(config: &FeaturesConfig) -> Result<String, String> {
         model: config.model.display().to_string(),
         size: g.size,
         coarse_dx: recipe.dx,
-        lattice: spec.into(),
+        lattice: spec,
         encoder_len: spec.encoder_len(),
         query_len: spec.query_len(),
         region: RegionMeta { eps_mm: eps, grow },

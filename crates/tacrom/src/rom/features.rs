@@ -27,8 +27,9 @@ use crate::geometry::{PixelGrid, Placed};
 use crate::mpm::Gel;
 use crate::render::DepthRule;
 
-/// How the model samples the gel's surface: fixed by the model's manifest.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// How the model samples the gel's surface: fixed by the model's manifest (serialised
+/// with the manifest's `lattice` names).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct LatticeSpec {
     /// Gel extent `[Lx, Ly, T]` (m).
     pub size: [f64; 3],

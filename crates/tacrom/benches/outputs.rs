@@ -1,5 +1,5 @@
-//! Cost of the image-side outputs after a solve: the depth, shear and marker passes over a
-//! solved coarse gel at 320 x 240, one thread, and the sensor's render stage (everything
+//! Cost of the image-side outputs after a solve: the depth, shear, marker, pressure and
+//! marker-dot passes over a solved coarse gel at 320 x 240, one thread, and the sensor's render stage (everything
 //! after the physics) per output set.
 //!
 //! `cargo bench --bench outputs` (add `-- --quick` for fewer repetitions).
@@ -109,10 +109,29 @@ fn main() {
         })
     );
 
+    let mut pressure = vec![0.0; pixels];
+    println!(
+        "  contact_pressure     {:8.3} ms",
+        median_ms(reps, || gel.contact_pressure(&grid, &mut pressure))
+    );
+    let mut rgb = vec![128.0; 3 * pixels];
+    println!(
+        "  marker dots into rgb {:8.3} ms",
+        median_ms(reps, || markers.draw(&grid, &mut rgb))
+    );
+
     // The sensor per output set: one evaluation, its physics stage (solve and surface) and
     // its render stage (the writers).
     println!("sensor evaluation per output set, median over the slide's frames:");
-    for outputs in ["depth", "depth shear markers", "shear markers", "markers"] {
+    for outputs in [
+        "depth",
+        "depth shear markers",
+        "shear markers",
+        "markers",
+        "depth pressure",
+        "depth rgb",
+        "depth rgb markers",
+    ] {
         let raw = RawConfig::default()
             .with("physics", "coarse")
             .with("outputs", outputs);

@@ -4,7 +4,8 @@
 //! `sx`, `sy`). After each solve the gel stores the displacement `u(X)` of the surface
 //! point of each top particle, `x_p + (s_z / 2) F e_z - X`. A pixel at `p = (px, py)` sees
 //! the surface point whose deformed position lies above it, `X + u_xy(X) = p`, found by
-//! the fixed-point iteration `X <- p - u_xy(X)` (a contraction while `|grad u_xy| < 1`);
+//! Newton's method on `X + u_xy(X) = p` started from the neighbouring pixel's displacement
+//! (two or three steps; the fixed point `X <- p - u_xy(X)` where the map is nearly singular);
 //! its depth is `-u_z(X)`, clamped to `[0, T]`, and its shear `u_xy(X)`. `u` is
 //! interpolated with Catmull-Rom bicubic splines (C1, exact on the lattice), so the images
 //! have no holes or speckle. Pixels outside the lattice box where `|u|` exceeds
@@ -21,8 +22,8 @@ use crate::geometry::PixelGrid;
 /// Surface displacements below this (m) count as "no deformation".
 pub(super) const DEPTH_EPS: f64 = 1e-9;
 
-/// Most fixed-point iterations for `X + u_xy(X) = p` (it stops when a step moves less
-/// than 1e-9 lattice spacings).
+/// Most iterations for `X + u_xy(X) = p` (it stops when a step moves less than 1e-9
+/// lattice spacings).
 const FIXED_POINT_ITERATIONS: usize = 8;
 
 /// Catmull-Rom weights of the samples at `-1, 0, 1, 2` for parameter `t` in `[0, 1)`.
@@ -59,6 +60,57 @@ pub(super) fn sample(u: &[Vector3<f64>], nx: usize, ny: usize, a: f64, b: f64) -
     acc
 }
 
+/// Derivatives of the Catmull-Rom weights with respect to `t`.
+#[inline]
+fn catmull_rom_slope(t: f64) -> [f64; 4] {
+    let t2 = t * t;
+    [
+        0.5 * (-1.0 + 4.0 * t - 3.0 * t2),
+        0.5 * (-10.0 * t + 9.0 * t2),
+        0.5 * (1.0 + 8.0 * t - 9.0 * t2),
+        0.5 * (-2.0 * t + 3.0 * t2),
+    ]
+}
+
+/// [`sample`] and its derivatives along `a` and `b` (zero along an axis where the point
+/// is clamped to the lattice edge).
+fn sample_with_slope(
+    u: &[Vector3<f64>],
+    nx: usize,
+    ny: usize,
+    a: f64,
+    b: f64,
+) -> [Vector3<f64>; 3] {
+    let inside_a = (0.0..=(nx - 1) as f64).contains(&a);
+    let inside_b = (0.0..=(ny - 1) as f64).contains(&b);
+    let a = a.clamp(0.0, (nx - 1) as f64);
+    let b = b.clamp(0.0, (ny - 1) as f64);
+    let (ia, ib) = (a.floor(), b.floor());
+    let (wa, wb) = (catmull_rom(a - ia), catmull_rom(b - ib));
+    let (sa, sb) = (catmull_rom_slope(a - ia), catmull_rom_slope(b - ib));
+    let (ia, ib) = (ia as isize, ib as isize);
+    let mut acc = [Vector3::zeros(); 3];
+    for j in 0..4 {
+        let y = (ib + j as isize - 1).clamp(0, ny as isize - 1) as usize;
+        let (mut row, mut row_a) = (Vector3::zeros(), Vector3::zeros());
+        for i in 0..4 {
+            let x = (ia + i as isize - 1).clamp(0, nx as isize - 1) as usize;
+            row += u[y * nx + x] * wa[i];
+            row_a += u[y * nx + x] * sa[i];
+        }
+        acc[0] += row * wb[j];
+        acc[1] += row_a * wb[j];
+        acc[2] += row * sb[j];
+    }
+    if !inside_a {
+        acc[1] = Vector3::zeros();
+    }
+    if !inside_b {
+        acc[2] = Vector3::zeros();
+    }
+    acc
+}
+
 /// Calls `visit(pixel, u)` for each pixel of `grid` (row-major index) that may see the
 /// deformed surface, with the displacement `u(X)` of the surface point `X` above it,
 /// `X + u_xy(X) = p`; the pixels not visited see the undeformed surface (`|u|` below
@@ -83,22 +135,59 @@ fn for_each_seen(gel: &Gel, grid: &PixelGrid, mut visit: impl FnMut(usize, Vecto
     let u = &gel.surface_u;
     for row in grid.rows_in(ya, yb) {
         let py = grid.y(row);
+        // The previous pixel's displacement: the next pixel's surface point is displaced
+        // nearly as much, so Newton's method starts close to it.
+        let mut guess = Vector3::zeros();
         for col in grid.cols_in(xa, xb) {
             let px = grid.x(col);
-            // Fixed point X <- p - u_xy(X), in lattice coordinates.
-            let (mut a, mut b) = ((px - x0) / sx, (py - y0) / sy);
-            for _ in 0..FIXED_POINT_ITERATIONS {
-                let d = sample(u, nx, ny, a, b);
-                let (a1, b1) = ((px - d.x - x0) / sx, (py - d.y - y0) / sy);
-                let done = (a1 - a).abs() + (b1 - b).abs() < 1e-9;
-                (a, b) = (a1, b1);
-                if done {
-                    break;
-                }
+            let d = solve_inverse_map(u, nx, ny, (px - x0) / sx, (py - y0) / sy, sx, sy, &guess);
+            if d.iter().all(|v| v.is_finite()) {
+                guess = d;
             }
-            visit(row * grid.width + col, sample(u, nx, ny, a, b));
+            visit(row * grid.width + col, d);
         }
     }
+}
+
+/// The lattice coordinates `X` of the surface point seen at lattice coordinates `(pa, pb)`:
+/// the root of `X + u_xy(X) / s = p`, by Newton's method from `p - guess_xy / s` (the
+/// Jacobian `I + grad u_xy / s` from the bicubic's derivatives), falling back to the
+/// fixed point `X <- p - u_xy(X) / s` (a contraction while `|grad u_xy| < 1`) where the
+/// Jacobian is nearly singular. Stops when a step moves less than 1e-9 spacings. Returns
+/// the displacement `u(X)`: after a converged Newton step, the last sample moved on by
+/// its derivatives (exact to the step squared, 1e-18 spacings).
+#[allow(clippy::too_many_arguments)]
+fn solve_inverse_map(
+    u: &[Vector3<f64>],
+    nx: usize,
+    ny: usize,
+    pa: f64,
+    pb: f64,
+    sx: f64,
+    sy: f64,
+    guess: &Vector3<f64>,
+) -> Vector3<f64> {
+    let (mut a, mut b) = (pa - guess.x / sx, pb - guess.y / sy);
+    for _ in 0..FIXED_POINT_ITERATIONS {
+        let [d, da, db] = sample_with_slope(u, nx, ny, a, b);
+        let (ga, gb) = (a + d.x / sx - pa, b + d.y / sy - pb);
+        let (j11, j12, j21, j22) = (1.0 + da.x / sx, db.x / sx, da.y / sy, 1.0 + db.y / sy);
+        let det = j11 * j22 - j12 * j21;
+        let (step_a, step_b) = if det > 0.1 && det.is_finite() {
+            ((j22 * ga - j12 * gb) / det, (j11 * gb - j21 * ga) / det)
+        } else {
+            (ga, gb)
+        };
+        if !(step_a.is_finite() && step_b.is_finite()) {
+            return sample(u, nx, ny, pa, pb);
+        }
+        a -= step_a;
+        b -= step_b;
+        if step_a.abs() + step_b.abs() < 1e-9 {
+            return d - da * step_a - db * step_b;
+        }
+    }
+    sample(u, nx, ny, a, b)
 }
 
 /// Reference x and y (m) of lattice column 0 and row 0 of the top surface.

@@ -173,6 +173,14 @@ struct ContactPoint {
     lag_normal: Vector3<f64>,
 }
 
+/// One contact point's contact and friction terms (see [`Newton::contact_term`]).
+struct ContactTerm {
+    energy: f64,
+    /// Gradient with respect to the point's position: its force on the indenters.
+    gradient: Vector3<f64>,
+    stiffness: Matrix3<f64>,
+}
+
 /// A stick anchor: the indenter and the anchor point in its frame (m).
 #[derive(Clone, Copy, Debug)]
 struct Anchor {
@@ -584,14 +592,46 @@ impl Newton {
         }
         for c in &self.contact {
             let x = c.rest + self.displacement(&c.stencil, u);
-            if let Some(t) = self.touch(&x, indenters) {
-                e += self.area * penalty(t.gap).0;
-            }
-            if let Some((y, _)) = self.slip(c, &x, indenters) {
-                e += self.friction * c.lag_force * smooth_slip(y);
-            }
+            e += self.contact_term(c, &x, indenters).energy;
         }
         e
+    }
+
+    /// The contact and friction energy of contact point `c` at `x` (cells), its gradient
+    /// with respect to `x` (the point's force on the indenters) and its Gauss-Newton
+    /// stiffness.
+    fn contact_term(
+        &self,
+        c: &ContactPoint,
+        x: &Vector3<f64>,
+        indenters: &[StepIndenter],
+    ) -> ContactTerm {
+        let mut term = ContactTerm {
+            energy: 0.0,
+            gradient: Vector3::zeros(),
+            stiffness: Matrix3::zeros(),
+        };
+        if let Some(t) = self.touch(x, indenters) {
+            let (e, f, k) = penalty(t.gap);
+            term.energy += self.area * e;
+            term.gradient -= t.normal * (self.area * f);
+            term.stiffness += t.normal * t.normal.transpose() * (self.area * k);
+        }
+        if let Some((y, d)) = self.slip(c, x, indenters) {
+            let scale = self.friction * c.lag_force;
+            term.energy += scale * smooth_slip(y);
+            let n = c.lag_normal;
+            let tangent = Matrix3::identity() - n * n.transpose();
+            if y < STICK {
+                term.gradient += d * (scale / STICK);
+                term.stiffness += tangent * (scale / STICK);
+            } else {
+                let dir = d / y;
+                term.gradient += dir * scale;
+                term.stiffness += (tangent - dir * dir.transpose()) * (scale / y);
+            }
+        }
+        term
     }
 
     /// The tangential offset from a point at `x` to its anchor (its length and the offset),
@@ -644,30 +684,10 @@ impl Newton {
         let contact = std::mem::take(&mut self.contact);
         for c in &contact {
             let x = c.rest + self.displacement(&c.stencil, &self.u);
-            let mut g = Vector3::zeros();
-            let mut h = Matrix3::zeros();
-            if let Some(t) = self.touch(&x, indenters) {
-                let (e, f, k) = penalty(t.gap);
-                energy += self.area * e;
-                g -= t.normal * (self.area * f);
-                h += t.normal * t.normal.transpose() * (self.area * k);
-            }
-            if let Some((y, d)) = self.slip(c, &x, indenters) {
-                let scale = self.friction * c.lag_force;
-                energy += scale * smooth_slip(y);
-                let n = c.lag_normal;
-                let tangent = Matrix3::identity() - n * n.transpose();
-                if y < STICK {
-                    g += d * (scale / STICK);
-                    h += tangent * (scale / STICK);
-                } else {
-                    let dir = d / y;
-                    g += dir * scale;
-                    h += (tangent - dir * dir.transpose()) * (scale / y);
-                }
-            }
-            if g != Vector3::zeros() {
-                self.add_surface(&c.stencil, &g, &h);
+            let term = self.contact_term(c, &x, indenters);
+            energy += term.energy;
+            if term.gradient != Vector3::zeros() {
+                self.add_surface(&c.stencil, &term.gradient, &term.stiffness);
             }
         }
         self.contact = contact;
@@ -700,25 +720,14 @@ impl Newton {
                 }
             }
         }
-        for l1 in 0..27 {
-            if dofs[l1] == usize::MAX {
-                continue;
-            }
-            for l2 in 0..27 {
-                if dofs[l2] == usize::MAX || dofs[l2] > dofs[l1] {
-                    continue;
-                }
-                let g2 = &grads[l2];
-                let k = Matrix3::from_fn(|a, c| {
-                    tl[l1][a][3 * c] * g2[0]
-                        + tl[l1][a][3 * c + 1] * g2[1]
-                        + tl[l1][a][3 * c + 2] * g2[2]
-                });
-                let (o1, o2) = (Stencil::local(l1), Stencil::local(l2));
-                let offset = [o1[0] - o2[0], o1[1] - o2[1], o1[2] - o2[2]];
-                self.system.add_block(dofs[l1], dofs[l2], offset, &k);
-            }
-        }
+        add_pairs(&mut self.system, &dofs, |l1, l2| {
+            let g2 = &grads[l2];
+            Matrix3::from_fn(|a, c| {
+                tl[l1][a][3 * c] * g2[0]
+                    + tl[l1][a][3 * c + 1] * g2[1]
+                    + tl[l1][a][3 * c + 2] * g2[2]
+            })
+        });
     }
 
     /// Adds a surface point's force gradient `g` and stiffness `h` through its weights.
@@ -735,20 +744,7 @@ impl Newton {
                 }
             }
         }
-        for l1 in 0..27 {
-            if dofs[l1] == usize::MAX {
-                continue;
-            }
-            for l2 in 0..27 {
-                if dofs[l2] == usize::MAX || dofs[l2] > dofs[l1] {
-                    continue;
-                }
-                let (o1, o2) = (Stencil::local(l1), Stencil::local(l2));
-                let offset = [o1[0] - o2[0], o1[1] - o2[1], o1[2] - o2[2]];
-                self.system
-                    .add_block(dofs[l1], dofs[l2], offset, &(h * (w[l1] * w[l2])));
-            }
-        }
+        add_pairs(&mut self.system, &dofs, |l1, l2| h * (w[l1] * w[l2]));
     }
 
     /// Largest nodal norm of `v`.
@@ -935,18 +931,7 @@ impl Newton {
         let mut loads = Vec::new();
         for c in &self.contact {
             let x = c.rest + self.displacement(&c.stencil, &self.u);
-            let mut f = Vector3::zeros();
-            if let Some(t) = self.touch(&x, indenters) {
-                f -= t.normal * (self.area * penalty(t.gap).1);
-            }
-            if let Some((y, d)) = self.slip(c, &x, indenters) {
-                let scale = self.friction * c.lag_force;
-                f += if y < STICK {
-                    d * (scale / STICK)
-                } else {
-                    d * (scale / y)
-                };
-            }
+            let f = self.contact_term(c, &x, indenters).gradient;
             if f != Vector3::zeros() {
                 loads.push((x, f));
             }
@@ -1034,6 +1019,28 @@ impl Newton {
         self.friction = no_friction;
         if predicted < kept {
             std::mem::swap(&mut self.u, &mut self.trial);
+        }
+    }
+}
+
+/// Adds `block(l1, l2)` for every pair of a stencil's free local nodes (`dofs[l]`: free
+/// index or `usize::MAX`), lower triangle only (`dofs[l2] <= dofs[l1]`).
+fn add_pairs(
+    system: &mut System,
+    dofs: &[usize; 27],
+    block: impl Fn(usize, usize) -> Matrix3<f64>,
+) {
+    for l1 in 0..27 {
+        if dofs[l1] == usize::MAX {
+            continue;
+        }
+        for l2 in 0..27 {
+            if dofs[l2] == usize::MAX || dofs[l2] > dofs[l1] {
+                continue;
+            }
+            let (o1, o2) = (Stencil::local(l1), Stencil::local(l2));
+            let offset = [o1[0] - o2[0], o1[1] - o2[1], o1[2] - o2[2]];
+            system.add_block(dofs[l1], dofs[l2], offset, &block(l1, l2));
         }
     }
 }

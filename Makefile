@@ -47,8 +47,10 @@ bench: build
 	$(CARGO) run --release --bin tacrom -- mpm --fine
 	$(CARGO) run --release --bin tacrom -- bench --full
 
+# The quick benchmark, checked against its committed accuracy baseline (bench/check.rs):
+# rom < coarse < rigid in depth error, and no mode's error drifting up.
 bench-quick: venv
-	$(CARGO) run --release --bin tacrom -- bench --quick
+	$(CARGO) run --release --bin tacrom -- bench --quick --check benchmarks/quick-baseline.json
 
 # Micro-benchmarks of one sensor evaluation per mode and indenter.
 bench-micro: build

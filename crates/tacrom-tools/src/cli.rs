@@ -118,8 +118,8 @@ pub struct BenchArgs {
     /// default profile; resumable).
     #[arg(long)]
     pub full: bool,
-    /// Folder of STL/OBJ meshes [../shared/indenters/patterns, or tests/data when that
-    /// folder is absent].
+    /// Folder of STL/OBJ meshes [../shared/indenters/patterns, or the copies in
+    /// crates/tacrom/tests/data when that folder is absent].
     #[arg(long, value_name = "DIR")]
     pub indenters: Option<PathBuf>,
     /// Mesh coordinate scale to metres [0.001].
@@ -177,6 +177,13 @@ pub struct BenchArgs {
     /// No progress bar or progress lines.
     #[arg(long)]
     pub quiet: bool,
+    /// Compare the accuracy rows with this baseline (see `bench/check.rs`); exit non-zero
+    /// when a check fails.
+    #[arg(long, value_name = "FILE")]
+    pub check: Option<PathBuf>,
+    /// Write this run's accuracy rows as the baseline FILE.
+    #[arg(long, value_name = "FILE")]
+    pub write_baseline: Option<PathBuf>,
 }
 
 /// Options of `tacrom render`.
@@ -331,6 +338,13 @@ pub struct GenDataArgs {
     /// seed), for a validation set at a finer --fine-dx.
     #[arg(long)]
     pub held_out_only: bool,
+    /// Only these sample indices (comma-separated) of the full set: the same presses as
+    /// the full set of the same seed, for a few chosen samples.
+    #[arg(long, value_name = "I", value_delimiter = ',')]
+    pub indices: Vec<usize>,
+    /// Print each sample's press (index, family, depth, slide) without solving anything.
+    #[arg(long)]
+    pub list: bool,
 }
 
 /// Options of `tacrom eval-rom`: depth MAE, RMSE, SSIM over the 24 x 18 mm field of view

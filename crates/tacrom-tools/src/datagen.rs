@@ -82,6 +82,19 @@ pub struct GenConfig {
     /// Generate only the samples whose family is held out (a validation set at a costlier
     /// reference resolution, with the same presses as the full set of the same seed).
     pub held_out_only: bool,
+    /// Only these sample indices (empty: all); the presses are those of the full set.
+    pub indices: Vec<usize>,
+}
+
+impl GenConfig {
+    /// The sample indices of this shard, in order.
+    fn shard_indices(&self) -> Vec<usize> {
+        let (k, n) = self.shard;
+        (k..self.samples)
+            .step_by(n)
+            .filter(|i| self.indices.is_empty() || self.indices.contains(i))
+            .collect()
+    }
 }
 
 impl Default for GenConfig {
@@ -100,6 +113,7 @@ impl Default for GenConfig {
             gel: GelParams::default(),
             fine_max_iterations: 6000,
             held_out_only: false,
+            indices: Vec::new(),
         }
     }
 }
@@ -760,6 +774,34 @@ fn gel_params(config: &GenConfig, dx: f64) -> GelParams {
     }
 }
 
+/// One line per sample of this shard: index, family, whether held out, depth and slide
+/// (mm), drawn exactly as [`generate`] draws them, without solving.
+pub fn list(config: &GenConfig) -> Result<Vec<String>, String> {
+    let mut meshes = MeshLibrary::new(&config.patterns);
+    let mut lines = Vec::new();
+    for index in config.shard_indices() {
+        let p = draw_press(
+            config.seed,
+            index as u64,
+            &mut meshes,
+            &config.families,
+            config.gel.size,
+        )?;
+        let held_out = HELD_OUT.contains(&p.family.as_str());
+        if config.held_out_only && !held_out {
+            continue;
+        }
+        let slide = p.params.slide.map_or(0.0, |s| s[0].hypot(s[1]));
+        lines.push(format!(
+            "{index} {} held_out={held_out} depth_mm={:.3} slide_mm={:.3}",
+            p.family,
+            p.params.depth * 1e3,
+            slide * 1e3
+        ));
+    }
+    Ok(lines)
+}
+
 /// Generates this shard's missing samples; `progress` gets one line per sample. Returns
 /// a summary line.
 pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<String, String> {
@@ -835,8 +877,9 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
     let (mut t_coarse, mut t_fine) = (0.0, 0.0);
     let mut obs = Observation::default();
     let mut zmin = Vec::new();
-    let bar = Progress::new((k..config.samples).step_by(n).len(), true);
-    for index in (k..config.samples).step_by(n) {
+    let indices = config.shard_indices();
+    let bar = Progress::new(indices.len(), true);
+    for index in indices {
         bar.advance(1);
         let stem = config.out.join(format!("sample-{index:06}"));
         let (npy, json) = (stem.with_extension("npy"), stem.with_extension("json"));

@@ -38,12 +38,7 @@ fn main() -> ExitCode {
 }
 
 fn default_indenters() -> PathBuf {
-    let shared = PathBuf::from("../shared/indenters/patterns");
-    if shared.is_dir() {
-        shared
-    } else {
-        PathBuf::from("tests/data")
-    }
+    tacrom::pattern_dir()
 }
 
 fn bench(a: BenchArgs) -> Result<(), BenchError> {
@@ -105,6 +100,23 @@ fn bench(a: BenchArgs) -> Result<(), BenchError> {
     o.progress = !a.quiet;
     let r = tacrom_tools::bench::run(&o)?;
     println!("{}", tacrom_tools::bench::report::markdown(&r));
+    if let Some(path) = &a.write_baseline {
+        tacrom_tools::bench::check::write_baseline(&r, path)?;
+        eprintln!("baseline written to {}", path.display());
+    }
+    if let Some(path) = &a.check {
+        let (lines, ok) = tacrom_tools::bench::check::check(&r, path)?;
+        println!("## Check against {}\n", path.display());
+        for l in &lines {
+            println!("    {l}");
+        }
+        if !ok {
+            return Err(BenchError::Usage(format!(
+                "the benchmark's accuracy checks against {} failed",
+                path.display()
+            )));
+        }
+    }
     Ok(())
 }
 
@@ -231,8 +243,15 @@ fn gen_data(a: GenDataArgs) -> Result<(), BenchError> {
         families: a.families,
         fine_max_iterations: a.fine_max_iterations,
         held_out_only: a.held_out_only,
+        indices: a.indices,
         gel: defaults.gel,
     };
+    if a.list {
+        for line in tacrom_tools::datagen::list(&config).map_err(BenchError::Usage)? {
+            println!("{line}");
+        }
+        return Ok(());
+    }
     let summary = generate(&config, |line| eprintln!("{line}")).map_err(BenchError::Usage)?;
     eprintln!("{summary}");
     Ok(())
@@ -289,14 +308,8 @@ fn rom_features(a: RomFeaturesArgs) -> Result<(), BenchError> {
 
 fn stability(a: StabilityArgs) -> Result<(), BenchError> {
     let (modes, dx) = (a.physics, a.dx);
-    let root = tacrom::checkout_root().to_path_buf();
-    let shared = root.join("../shared/indenters/patterns");
-    let patterns = if shared.is_dir() {
-        shared
-    } else {
-        root.join("tests/data")
-    };
-    let cases = tacrom_tools::stability::cases(Some(&patterns));
+    let cases =
+        tacrom_tools::stability::cases(Some(&tacrom::pattern_dir())).map_err(BenchError::Usage)?;
     let progress = Progress::new(modes.len() * cases.len(), true);
     let mut failed = 0;
     for mode in &modes {

@@ -1,46 +1,117 @@
-//! The stability suite (see `tacrom_tools::stability`): every case, rigid and coarse, must keep
-//! all outputs finite, depth within [0, T], det F within the clamp bounds, warn whenever
-//! equilibrium is not reached, and leave a sensor that still works.
+//! The stability suite (see `tacrom_tools::stability`): every case, in rigid, coarse and
+//! rom, must keep all outputs finite, depth within [0, T], the gel's own surface no deeper
+//! than the deepest indenter point (before the depth rule bounds the image), det F within
+//! the clamp bounds, warn whenever equilibrium is not reached, run the reduced-order model
+//! rather than fall back, and after a lift give a fresh sensor's press bit for bit.
 
-use std::path::PathBuf;
+use tacrom_tools::stability::{cases, run_case, table, Row};
 
-use tacrom_tools::stability::{cases, run_case, table};
+/// Rows that fail today on the surface bound alone, with what was measured (um below the
+/// deepest indenter point, against the 50 um bound). They are asserted to fail on that
+/// check and no other, and to stay under [`KNOWN_LIMIT`]; fixing one makes the test fail
+/// until it is removed from this list.
+///
+/// * coarse, rotating bar (152) and cross_lines (147): under a flat face, the relaxation
+///   solver leaves the surface particles two particle spacings in from the face's ends up
+///   to 87 um below it, out of contact (the bar pressed 0.5 mm from rest: 500 um in the
+///   middle, 585 um there). The Newton solver on the same press keeps them within 14 um
+///   (`examples/overshoot_probe.rs`). The image is bounded by the depth rule, so the
+///   sensor's depth stays on the indenter; the gel's force and pressure near those ends do
+///   not.
+/// * rom, rotating bar (73) and through the bottom (80): the decoder on a coarse input
+///   with the defect above, and on a press through the whole layer (outside its training).
+const KNOWN_OVERSHOOT: &[(&str, &str)] = &[
+    ("coarse", "rotating bar"),
+    ("coarse", "pattern cross_lines 0.5 mm"),
+    ("rom", "rotating bar"),
+    ("rom", "through the bottom"),
+];
 
-fn patterns() -> PathBuf {
-    let root = tacrom::checkout_root().to_path_buf();
-    let shared = root.join("../shared/indenters/patterns");
-    if shared.is_dir() {
-        shared
-    } else {
-        root.join("tests/data")
-    }
+/// The most a known row may sink below the deepest indenter point (m): twice its
+/// measured value, so that it does not grow unnoticed.
+const KNOWN_LIMIT: f64 = 0.2e-3;
+
+/// The meshes are the copies in the checkout, so that every case runs on every machine.
+fn rows(physics: &str) -> Vec<Row> {
+    let dir = tacrom::vendored_patterns();
+    let cases = cases(Some(&dir)).expect("the suite's meshes are in the checkout");
+    assert_eq!(
+        cases.len(),
+        20,
+        "cases: {:?}",
+        cases.iter().map(|c| &c.name).collect::<Vec<_>>()
+    );
+    let rows: Vec<_> = cases.iter().map(|c| run_case(c, physics, None)).collect();
+    println!("{physics}\n{}", table(&rows));
+    rows
 }
 
-fn suite(physics: &str) {
-    let dir = patterns();
-    let rows: Vec<_> = cases(Some(&dir))
-        .iter()
-        .map(|c| run_case(c, physics, None))
-        .collect();
-    println!("{physics}\n{}", table(&rows));
-    let failed: Vec<_> = rows
-        .iter()
-        .filter(|r| !r.ok())
-        .map(|r| r.name.clone())
-        .collect();
+fn assert_all_ok(physics: &str, rows: &[Row]) {
+    let mut failed = Vec::new();
+    for r in rows {
+        let known = KNOWN_OVERSHOOT.contains(&(physics, r.name.as_str()));
+        if known {
+            if r.failures() != ["overshoot"] || r.max_excess > KNOWN_LIMIT {
+                failed.push(format!(
+                    "{} (known overshoot; now {:?}, {:.1} um)",
+                    r.name,
+                    r.failures(),
+                    r.max_excess * 1e6
+                ));
+            }
+        } else if !r.ok() {
+            failed.push(format!("{}: {:?}", r.name, r.failures()));
+        }
+    }
     assert!(
         failed.is_empty(),
         "{physics}: failing cases {failed:?}\n{}",
-        table(&rows)
+        table(rows)
     );
 }
 
 #[test]
 fn rigid_survives_every_case() {
-    suite("rigid");
+    assert_all_ok("rigid", &rows("rigid"));
 }
 
 #[test]
 fn coarse_survives_every_case() {
-    suite("coarse");
+    assert_all_ok("coarse", &rows("coarse"));
+}
+
+/// The shipped model is trained for one gel: the cases with another Young's modulus or
+/// Poisson's ratio must be refused at load with both values named (the default gel's,
+/// 1.19e5 Pa and 0.43, are accepted and must pass); every other case must pass.
+#[test]
+fn rom_survives_every_case_and_refuses_other_materials() {
+    let rows = rows("rom");
+    let (refused, ran): (Vec<Row>, Vec<Row>) = rows.into_iter().partition(|r| r.refused.is_some());
+    let names: Vec<_> = refused.iter().map(|r| r.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "E = 1e4 Pa, 1 mm",
+            "E = 1e6 Pa, 1 mm",
+            "E = 1e7 Pa, 1 mm",
+            "Poisson 0.3, 1 mm",
+            "Poisson 0.49, 1 mm",
+            "Poisson 0.499, 1 mm"
+        ]
+    );
+    for r in &refused {
+        let e = r.refused.as_deref().unwrap();
+        let (what, trained) = if r.name.starts_with('E') {
+            ("Young's modulus", "119000 Pa")
+        } else {
+            ("Poisson's ratio", "0.43")
+        };
+        assert!(
+            e.contains(&format!("trained for {what} {trained}")) && e.contains(&r.name),
+            "{}: {e}",
+            r.name
+        );
+    }
+    assert_eq!(ran.len(), 14);
+    assert_all_ok("rom", &ran);
 }

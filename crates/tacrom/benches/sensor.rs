@@ -13,12 +13,11 @@ use tacrom::geometry::{load_mesh, MeshSdfOptions, Placed, Sdf, Sphere};
 use tacrom::sensor::TactileSensor;
 
 fn pattern(name: &str) -> std::path::PathBuf {
-    let root = tacrom::checkout_root();
-    let shared = root.join("../shared/indenters/patterns").join(name);
+    let shared = tacrom::pattern_dir().join(name);
     if shared.is_file() {
         shared
     } else {
-        root.join("tests/data").join(name)
+        tacrom::vendored_patterns().join(name)
     }
 }
 

@@ -30,6 +30,24 @@ pub fn checkout_root() -> &'static std::path::Path {
     })
 }
 
+/// The benchmark meshes (`../shared/indenters/patterns` beside the checkout) when present,
+/// otherwise the copies of the few that the tests and the quick benchmark use
+/// (`crates/tacrom/tests/data`: cone, cross_lines, dots, hexagon, moon, wave1; MIT, see
+/// the LICENSE there).
+pub fn pattern_dir() -> std::path::PathBuf {
+    let shared = checkout_root().join("../shared/indenters/patterns");
+    if shared.is_dir() {
+        shared
+    } else {
+        vendored_patterns()
+    }
+}
+
+/// The copies of the benchmark meshes the tests use, always present in the checkout.
+pub fn vendored_patterns() -> std::path::PathBuf {
+    checkout_root().join("crates/tacrom/tests/data")
+}
+
 /// A fingerprint of the physics' source (solver, geometry, sensor), computed at build time:
 /// results cached or trained with one build are recognised as stale by another whose
 /// physics differs.

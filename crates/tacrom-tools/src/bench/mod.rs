@@ -20,6 +20,7 @@
 //! the figure is the process's peak so far, and the report says so.
 
 pub mod cache;
+pub mod check;
 pub mod heldout;
 pub mod metrics;
 pub mod mpm;

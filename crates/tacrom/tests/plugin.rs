@@ -320,9 +320,10 @@ fn pattern_meshes_render_within_bounds() {
     }
 }
 
-/// The coarse MPM gel through the plugin: the depth image grows with the press, is never
-/// shallower than the rigid penetration where the sphere touches, sags around the contact
-/// (depth outside the rigid footprint), reports a repulsive force, and relaxes flat again.
+/// The coarse MPM gel through the plugin: a frictionless sphere's force against the
+/// bonded-layer Hertz solution (the gel's own physics; the image's peak is bounded by the
+/// depth rule and says nothing), the sag around the contact (depth outside the rigid
+/// footprint), and a flat gel again after release.
 #[test]
 fn coarse_gel_press_and_release() {
     let m = load_xml(&press_scene(
@@ -330,11 +331,13 @@ fn coarse_gel_press_and_release() {
             ("physics", "coarse"),
             ("outputs", "depth force contact"),
             ("resolution", "96 72"),
+            ("friction", "0"),
         ]),
         &sphere_body(R),
     ))
     .expect("model loads");
     let n = 96 * 72;
+    let (young, poisson, thickness) = (1.19e5, 0.43, 0.004);
     let mut d = m.make_data();
     let mut last_fz = 0.0;
     for press in [0.2e-3, 0.4e-3] {
@@ -345,10 +348,14 @@ fn coarse_gel_press_and_release() {
         let (force, contact) = rest.split_at(3);
         assert!(v.iter().all(|x| x.is_finite()));
         assert!(depth.iter().all(|&x| (0.0..=0.004).contains(&x)));
-        let peak = depth.iter().cloned().fold(0.0, f64::max);
+        // From 0.2 mm the contact radius sqrt(2 R d) is at least one coarse cell; there the
+        // coarse grid's force is +4 to +12 % above Hertz (README's table, tolerance 3e-3),
+        // within the 15 % asserted (tests/python/test_gel.py asserts the same at 4 depths).
+        let hertz = tacrom::mpm::hertz::hertz_bonded(young, poisson, R, press, thickness);
         assert!(
-            (peak - press).abs() < 0.05e-3,
-            "peak {peak} at press {press}"
+            (force[2] / hertz - 1.0).abs() < 0.15,
+            "fz {} against Hertz {hertz} at press {press}",
+            force[2]
         );
         let sag = depth
             .iter()

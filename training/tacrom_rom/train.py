@@ -230,7 +230,8 @@ def main(argv=None):
     p.add_argument("--no-augment", action="store_true", help="no mirror / quarter-turn augmentation")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--max-seconds", type=float, default=None, help="stop training after this wall time")
-    p.add_argument("--validation-samples", type=int, default=6, help="held-out pairs copied into the model for tests")
+    p.add_argument("--validation-per-family", type=int, default=2,
+                   help="held-out pairs of each held-out family copied into the model for tests")
     a = p.parse_args(argv)
 
     torch.set_num_threads(a.threads)
@@ -309,12 +310,15 @@ def main(argv=None):
     export_model(model, spec, model_ds, a.out, training=training, data=data_info,
                  validation={"held_out": val, "train_subset": train_m},
                  refinement=not a.no_refinement)
-    # A few held-out pairs, for the Rust test that compares rom and coarse against the reference.
+    # Held-out pairs for the Rust test, stratified by family (it gates each family and the
+    # pool): up to `validation_per_family` of each held-out family, the finest references first.
     vdir = os.path.join(a.out, "validation")
     os.makedirs(vdir, exist_ok=True)
-    picks = [i for i in va if metas[i]["family"] in ("mesh:hexagon", "ridges")][: a.validation_samples]
-    if len(picks) < a.validation_samples:
-        picks += [i for i in va if i not in picks][: a.validation_samples - len(picks)]
+    picks = []
+    for family in sorted({metas[i]["family"] for i in va}):
+        members = sorted((i for i in va if metas[i]["family"] == family),
+                         key=lambda i: metas[i]["reference_dx"] or 1.0)
+        picks += members[: a.validation_per_family]
     for k, i in enumerate(picks):
         np.save(os.path.join(vdir, f"pair-{k}.npy"), (arrays[i] / spec.depth_scale).astype(np.float32))
         with open(os.path.join(vdir, f"pair-{k}.json"), "w") as f:

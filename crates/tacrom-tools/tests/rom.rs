@@ -13,13 +13,33 @@ use tacrom::rom::features::{LatticeSpec, Observation};
 use tacrom::rom::{default_model_dir, Rom, RomError, RomOptions};
 use tacrom_tools::datagen::{self, GenConfig};
 
-/// rom's depth MAE against the reference must be at most this fraction of coarse's on the
-/// held-out pairs: the issue's target. The six pairs shipped with the model are held-out
-/// ridges presses with the fine 0.3 mm reference (`reference_dx` in their JSON); the shipped
-/// model measures 0.40 on them (2.63 against 6.62 um). The margin to 0.5 covers the
-/// refinement's and ONNX Runtime's rounding on other machines, which moves these MAEs by
-/// far less than a micrometre.
+/// Pooled gate: rom's depth MAE against the reference at most this fraction of coarse's,
+/// each held-out family weighted equally (its mean over its pairs), so that the family
+/// with the most pairs cannot carry the gate. The target of the reduced-order model; the
+/// shipped model measured 0.41 on its 56 held-out presses and 0.48 here. The pairs shipped
+/// with the model are held-out presses with the fine 0.3 mm reference (`reference_dx` in
+/// their JSON), two or more per held-out family (16 in all; `tacrom gen-data
+/// --held-out-only --fine-dx 0.3 --indices ...` regenerates them, their indices are in
+/// their JSON).
 const HELD_OUT_MARGIN: f64 = 0.5;
+
+/// Per-family gate: on every held-out family rom's MAE at most this fraction of coarse's.
+/// The manifest's per-family ratios on all 56 held-out presses are 0.33 (ridges) to 0.56
+/// (pacman); with two presses per family a family's ratio moves by about a tenth, so the
+/// gate asks for a clear gain on each (a quarter below coarse), not the pooled target.
+/// Measured on the shipped pairs: hexagon 0.36, wave1 0.39, ridges 0.40, torus 0.46,
+/// pacman 0.53, dots 0.58 (two families above the pooled target).
+const FAMILY_MARGIN: f64 = 0.75;
+
+/// Held-out families that must each have at least two pairs in `validation/`.
+const HELD_OUT_FAMILIES: [&str; 6] = [
+    "mesh:dots",
+    "mesh:hexagon",
+    "mesh:pacman",
+    "mesh:torus",
+    "mesh:wave1",
+    "ridges",
+];
 
 fn model_dir() -> PathBuf {
     default_model_dir().expect("the shipped model models/rom-default")
@@ -170,6 +190,7 @@ fn bad_model_directories_give_clear_errors() {
     assert!(e.to_string().contains("format"), "{e}");
 }
 
+#[derive(Default)]
 struct Mae {
     coarse: f64,
     rom: f64,
@@ -214,17 +235,15 @@ fn rom_is_closer_to_the_reference_than_coarse_on_held_out_families() {
         .collect();
     pairs.sort();
     assert!(!pairs.is_empty(), "no held-out pairs in {}", dir.display());
-    let mut total = Mae {
-        coarse: 0.0,
-        rom: 0.0,
-        rom_no_refinement: 0.0,
-        rigid: 0.0,
-    };
+    let mut families: std::collections::BTreeMap<String, (usize, Mae)> = Default::default();
     for p in &pairs {
         let meta = std::fs::read_to_string(p.with_extension("json")).unwrap();
-        assert!(
-            meta.contains("\"held_out\": true"),
-            "{} is not held out",
+        let meta: serde_json::Value = serde_json::from_str(&meta).unwrap();
+        assert_eq!(meta["held_out"], true, "{} is not held out", p.display());
+        assert_eq!(
+            meta["reference_dx"],
+            0.0003,
+            "{}: not the fine reference",
             p.display()
         );
         let (shape, data) = read_npy(p);
@@ -242,39 +261,66 @@ fn rom_is_closer_to_the_reference_than_coarse_on_held_out_families() {
         let m_plain = fov_mae(&spec, plain.lattice_depth(), reference);
         let m_coarse = fov_mae(&spec, &obs.coarse, reference);
         let m_rigid = fov_mae(&spec, &obs.pen, reference);
-        let family = meta
-            .split("\"family\": \"")
-            .nth(1)
-            .unwrap()
-            .split('"')
-            .next()
-            .unwrap();
+        let family = meta["family"].as_str().unwrap().to_owned();
         eprintln!(
-            "{family:>14}: MAE vs reference (um) coarse {:.2} rom {:.2} rom w/o refinement {:.2} \
-             rigid {:.2}; refinement {:?}",
+            "{family:>14} {}: MAE vs reference (um) coarse {:.2} rom {:.2} rom w/o refinement \
+             {:.2} rigid {:.2}; refinement {:?}",
+            p.file_stem().unwrap().to_string_lossy(),
             m_coarse * 1e6,
             m_rom * 1e6,
             m_plain * 1e6,
             m_rigid * 1e6,
             report.refinement.map(|r| (r.iterations, r.initial, r.last))
         );
-        total.coarse += m_coarse;
-        total.rom += m_rom;
-        total.rom_no_refinement += m_plain;
-        total.rigid += m_rigid;
+        let (count, m) = families.entry(family).or_insert((0, Mae::default()));
+        *count += 1;
+        m.coarse += m_coarse;
+        m.rom += m_rom;
+        m.rom_no_refinement += m_plain;
+        m.rigid += m_rigid;
     }
-    let k = pairs.len() as f64;
+    let names: Vec<&str> = families.keys().map(String::as_str).collect();
+    assert_eq!(names, HELD_OUT_FAMILIES, "held-out families with pairs");
+    let mut total = Mae::default();
+    let mut failed = Vec::new();
+    for (family, (count, m)) in &families {
+        let ratio = m.rom / m.coarse;
+        eprintln!(
+            "{family:>14}: {count} pairs, mean MAE (um) coarse {:.2} rom {:.2} rom w/o \
+             refinement {:.2} rigid {:.2}; rom / coarse {ratio:.2}",
+            m.coarse / *count as f64 * 1e6,
+            m.rom / *count as f64 * 1e6,
+            m.rom_no_refinement / *count as f64 * 1e6,
+            m.rigid / *count as f64 * 1e6,
+        );
+        assert!(*count >= 2, "{family}: {count} pair(s), at least 2 wanted");
+        if ratio > FAMILY_MARGIN {
+            failed.push(format!("{family}: rom / coarse {ratio:.2}"));
+        }
+        let c = *count as f64;
+        total.coarse += m.coarse / c;
+        total.rom += m.rom / c;
+        total.rom_no_refinement += m.rom_no_refinement / c;
+        total.rigid += m.rigid / c;
+    }
+    let k = families.len() as f64;
     eprintln!(
-        "mean over {} held-out pairs (um): coarse {:.2}, rom {:.2}, rom w/o refinement {:.2}, rigid {:.2}",
-        pairs.len(),
+        "mean over {} held-out families (um): coarse {:.2}, rom {:.2}, rom w/o refinement \
+         {:.2}, rigid {:.2}; rom / coarse {:.2}",
+        families.len(),
         total.coarse / k * 1e6,
         total.rom / k * 1e6,
         total.rom_no_refinement / k * 1e6,
-        total.rigid / k * 1e6
+        total.rigid / k * 1e6,
+        total.rom / total.coarse
+    );
+    assert!(
+        failed.is_empty(),
+        "families where rom is not below {FAMILY_MARGIN} x coarse: {failed:?}"
     );
     assert!(
         total.rom <= HELD_OUT_MARGIN * total.coarse,
-        "rom MAE {:.3e} is not below {HELD_OUT_MARGIN} x coarse MAE {:.3e}",
+        "pooled over families: rom MAE {:.3e} is not below {HELD_OUT_MARGIN} x coarse MAE {:.3e}",
         total.rom / k,
         total.coarse / k
     );

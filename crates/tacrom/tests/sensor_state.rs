@@ -296,7 +296,9 @@ fn invariance(physics: &str, tolerance: impl Fn(usize, f64) -> (f64, f64)) {
     } else {
         "depth force"
     };
-    let cfg = sensor_config(physics, outputs, &[("friction", "1.0")]);
+    // rom's shipped model is trained for the default friction (0.5) and refuses others.
+    let friction = if physics == "rom" { "0.5" } else { "1.0" };
+    let cfg = sensor_config(physics, outputs, &[("friction", friction)]);
     let origin = load_xml(&scene(&cfg, "", 0.0, TILTED_BOX)).expect("origin scene");
     let moved = load_xml(&scene(&cfg, MOVED_FRAME, 0.0, TILTED_BOX)).expect("moved scene");
     let (mut d0, mut d1) = (origin.make_data(), moved.make_data());
@@ -341,6 +343,20 @@ fn coarse_outputs_are_invariant_under_a_rigid_motion_of_the_scene() {
     const ITERATION_CAP: f64 = 3000.0;
     invariance("coarse", |frames, peak| {
         let rel = frames as f64 * ITERATION_CAP * f32::EPSILON as f64;
+        (rel * peak, rel)
+    });
+}
+
+/// rom: the coarse gel's bound, carried through the encoder and decoder, which move their
+/// output by their input's change times their gain; 10 x the coarse bound allows a gain of
+/// 10 (measured: rom's depth differs by 9.7e-9 m after three frames where coarse's differs
+/// by 7.8e-9 m, a gain of 1.25). A transposed rotation or a world-frame force is still off
+/// by order 1, a thousand times this bound.
+#[test]
+fn rom_outputs_are_invariant_under_a_rigid_motion_of_the_scene() {
+    const ITERATION_CAP: f64 = 3000.0;
+    invariance("rom", |frames, peak| {
+        let rel = 10.0 * frames as f64 * ITERATION_CAP * f32::EPSILON as f64;
         (rel * peak, rel)
     });
 }

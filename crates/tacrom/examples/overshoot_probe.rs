@@ -3,7 +3,8 @@
 //! face holds an elastic layer's surface at its own depth, so any point deeper than 500 um
 //! is an error of the discretisation (see `tests/stability.rs` in tacrom-tools).
 //!
-//! `cargo run --release --example overshoot_probe -- [relaxation|newton] [TOLERANCE]`
+//! `cargo run --release --example overshoot_probe -- [relaxation|newton] [TOLERANCE]
+//! [dx=MM] [poisson=NU] [friction=MU]`
 
 use std::sync::Arc;
 
@@ -25,7 +26,18 @@ fn main() {
         tolerance,
         ..SolverOptions::default()
     };
-    let mut g = Gel::new(GelParams::default(), options).expect("the default gel");
+    let mut params = GelParams::default();
+    for kv in args {
+        let (k, v) = kv.split_once('=').expect("KEY=VALUE");
+        let v: f64 = v.parse().expect("a number");
+        match k {
+            "dx" => params.dx = v * 1e-3,
+            "poisson" => params.poisson = v,
+            "friction" => params.friction = v,
+            _ => panic!("unknown parameter {k}"),
+        }
+    }
+    let mut g = Gel::new(params, options).expect("a valid gel");
     let bar: Arc<dyn Sdf> = Arc::new(Cuboid::new(Vector3::new(0.004, 0.001, 0.002)));
     let placed = Placed {
         shape: bar,
@@ -52,6 +64,19 @@ fn main() {
             .collect();
         println!("  y {y:5.2} mm: {}", row.join(" "));
     }
+    // Rest positions of the top particles: the lattice is 2 per cell, centred.
+    let h = 0.5 * g.params().dx;
+    let at: Vec<f64> = (0..12).map(|k| (k as f64 + 0.5) * h).collect();
+    let row: Vec<String> = at
+        .iter()
+        .map(|&x| format!("{:6.1}", -g.surface_displacement(x, 0.5 * h).z * 1e6))
+        .collect();
+    println!(
+        "top particles at y = {:.3} mm, x = (k + 1/2) {:.3} mm: {}",
+        0.5 * h * 1e3,
+        h * 1e3,
+        row.join(" ")
+    );
     let mut worst = (0.0, 0.0, 0.0);
     for a in 0..=240 {
         for b in 0..=240 {

@@ -229,35 +229,62 @@ impl Snapshot {
     }
 }
 
-/// The gel's own worker threads. Cloning a gel (for `mj_copyData`) gives the copy a pool
-/// of its own with the same number of threads.
+/// The threads a gel's parallel passes run on. Pools are shared, not owned: each OS
+/// thread that solves gels keeps one rayon pool per thread count (thread-local), so a
+/// process stepping many `MjData` from one thread holds one pool, not one per gel, and a
+/// copy of a gel (`mj_copyData`) creates no thread. A one-thread pool is the calling
+/// thread itself (rayon's `use_current_thread`): a single-threaded solve runs on the
+/// caller, with no other OS thread. Results do not depend on the pool (fixed chunking).
+#[derive(Clone, Copy, Debug)]
 struct Pool {
-    pool: rayon::ThreadPool,
     threads: usize,
 }
 
+thread_local! {
+    /// This OS thread's pools, by thread count.
+    static POOLS: std::cell::RefCell<Vec<(usize, std::rc::Rc<rayon::ThreadPool>)>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+}
+
 impl Pool {
+    /// A pool of `threads`, built now for the calling thread so that a refusal (the OS
+    /// refusing a thread) is an error of the gel's construction.
     fn new(threads: usize) -> Result<Self, MpmError> {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
+        let pool = Self { threads };
+        pool.get()?;
+        Ok(pool)
+    }
+
+    /// The calling thread's pool of `self.threads`, built on first use.
+    fn get(&self) -> Result<std::rc::Rc<rayon::ThreadPool>, MpmError> {
+        POOLS.with(|pools| {
+            if let Some((_, p)) = pools.borrow().iter().find(|(n, _)| *n == self.threads) {
+                return Ok(p.clone());
+            }
+            let builder = || rayon::ThreadPoolBuilder::new().num_threads(self.threads);
+            // The calling thread can be a worker of one such pool only (and not when it is
+            // already a rayon worker): otherwise the pool gets its own thread.
+            let pool = if self.threads == 1 {
+                builder()
+                    .use_current_thread()
+                    .build()
+                    .or_else(|_| builder().build())
+            } else {
+                builder().build()
+            }
             .map_err(|e| MpmError::ThreadPool(e.to_string()))?;
-        Ok(Self { pool, threads })
+            let pool = std::rc::Rc::new(pool);
+            pools.borrow_mut().push((self.threads, pool.clone()));
+            Ok(pool)
+        })
     }
-}
 
-impl Clone for Pool {
-    fn clone(&self) -> Self {
-        // The only failure is the OS refusing a thread; a panic here is caught at the FFI
-        // edge and reported as a failed copy.
-        Pool::new(self.threads).expect("cannot build the MPM thread pool for a copy")
-    }
-}
-
-impl std::ops::Deref for Pool {
-    type Target = rayon::ThreadPool;
-    fn deref(&self) -> &rayon::ThreadPool {
-        &self.pool
+    /// Runs `f` in the calling thread's pool; on the caller alone if none can be built.
+    fn install<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        match self.get() {
+            Ok(pool) => pool.install(f),
+            Err(_) => f(),
+        }
     }
 }
 

@@ -8,14 +8,19 @@ use std::sync::Once;
 
 use tacrom::mujoco::sys;
 
-/// The cdylib built alongside this test binary (target/<profile>/libtacrom.so).
+/// The cdylib built with this test binary: `target/<profile>/deps/libtacrom.so`, which
+/// `cargo test` rebuilds from the current source. The copy in `target/<profile>/` is only
+/// refreshed by `cargo build`, so after a `cargo test` alone it can be an older build.
 pub fn plugin_path() -> PathBuf {
     let exe = std::env::current_exe().expect("test binary path");
-    let dir = exe
-        .parent()
-        .and_then(|p| p.parent())
-        .expect("target/<profile>");
-    dir.join("libtacrom.so")
+    let deps = exe.parent().expect("target/<profile>/deps");
+    let fresh = deps.join("libtacrom.so");
+    if fresh.is_file() {
+        return fresh;
+    }
+    deps.parent()
+        .expect("target/<profile>")
+        .join("libtacrom.so")
 }
 
 /// Registers the plugin with MuJoCo, once per process.

@@ -167,3 +167,61 @@ fn largest_blob(set: &[bool], w: usize, h: usize) -> Option<Vec<bool>> {
         .max_by_key(|&(id, &n)| (n, std::cmp::Reverse(id)))?;
     Some(label.iter().map(|&l| l as usize == best).collect())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `w x h` image of `background` changed by `change` where `changed(col, row)`.
+    fn image(
+        w: usize,
+        h: usize,
+        background: f64,
+        change: f64,
+        changed: impl Fn(f64, f64) -> bool,
+    ) -> RgbImage {
+        let mut data = Vec::with_capacity(3 * w * h);
+        for r in 0..h {
+            for c in 0..w {
+                let v = if changed(c as f64, r as f64) {
+                    background + change
+                } else {
+                    background
+                };
+                data.extend([background, v, background]);
+            }
+        }
+        RgbImage {
+            width: w,
+            height: h,
+            data,
+        }
+    }
+
+    #[test]
+    fn a_ring_of_change_counts_as_its_whole_disc_and_specks_are_ignored() {
+        // A real ball's cap is flat enough near its top to look like the background over
+        // several pixels: a ring of change around an unchanged core, radii 12 and 5 px,
+        // plus a 3 x 3 speck and a lone noisy pixel elsewhere. The contact is the whole
+        // disc: its centroid, and sqrt(area / pi) less the 0.8 px edge correction. The
+        // digitised disc's area matches pi r^2 to a fraction of a pixel of radius
+        // (measured 0.02 px); without the holes filled the radius comes out 1.1 px short.
+        let (cx, cy) = (30.3, 24.6);
+        let bg = RgbImage::uniform(60, 50, [100.0; 3]);
+        let img = image(60, 50, 100.0, 10.0, |c, r| {
+            let d = (c - cx).hypot(r - cy);
+            (d > 5.0 && d <= 12.0)
+                || (c <= 6.0 && r <= 6.0 && c >= 4.0 && r >= 4.0)
+                || (c == 55.0 && r == 45.0)
+        });
+        let got = detect(&bg, &img, DEFAULT_THRESHOLD).unwrap();
+        assert!(
+            (got.centre[0] - cx).abs() < 0.1 && (got.centre[1] - cy).abs() < 0.1,
+            "{got:?}"
+        );
+        assert!((got.radius - (12.0 - EDGE_WIDENING)).abs() < 0.1, "{got:?}");
+        // Below the threshold: nothing.
+        let faint = image(60, 50, 100.0, 2.0, |c, r| (c - cx).hypot(r - cy) <= 12.0);
+        assert_eq!(detect(&bg, &faint, DEFAULT_THRESHOLD), None);
+    }
+}

@@ -358,8 +358,8 @@ pub fn fit_table(samples: &[Sample], o: &FitOptions) -> Result<(GradientTable, F
                 );
                 data[*a][((dj + 1) * 3 + di + 1) as usize] += wa * wb;
             }
-            for k in 0..CHANNELS {
-                rhs[*a][k] += wa * s.change[k];
+            for (r, c) in rhs[*a].iter_mut().zip(&s.change) {
+                *r += wa * c;
             }
         }
     }

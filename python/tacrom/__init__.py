@@ -177,7 +177,9 @@ def rgb(model, data, sensor) -> np.ndarray:
     8-bit scale 0..255, pixel for pixel on the depth image. The deformed surface is shaded
     by a red, a green and a blue light (at azimuths 90, 210 and 330 degrees from +x, red at
     the image's top, 30 degrees above the gel); the flat gel shows a uniform background.
-    Write it with :func:`save_png`."""
+    With the ``optics`` attribute (a file written by ``tacrom calibrate``), a calibrated
+    gradient-to-colour table over its background image (resampled to (H, W)) replaces that
+    shading. Write it with :func:`save_png`."""
     return _one(model, data, sensor, "rgb")
 
 

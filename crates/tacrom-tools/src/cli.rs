@@ -42,6 +42,9 @@ pub enum Command {
     /// Developer tool: a model's inputs (coarse lattice, encoder input, query features,
     /// region) for fixed presses, for the training side's feature-parity test.
     RomFeatures(RomFeaturesArgs),
+    /// Fit the rgb output's optics (gradient-to-colour table and background) to ball
+    /// presses, or write a synthetic press set.
+    Calibrate(CalibrateArgs),
 }
 
 /// A length in millimetres, finite, as metres.
@@ -392,6 +395,93 @@ pub struct RomFeaturesArgs {
     pub threads: usize,
 }
 
+/// A whole number of at least 3, odd.
+fn odd_bins(s: &str) -> Result<usize, String> {
+    s.trim()
+        .parse::<usize>()
+        .ok()
+        .filter(|&n| n >= 3 && n % 2 == 1)
+        .ok_or_else(|| format!("'{s}' is not an odd whole number of at least 3"))
+}
+
+/// A finite number above zero.
+fn positive(s: &str) -> Result<f64, String> {
+    s.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .ok_or_else(|| format!("'{s}' is not a positive number"))
+}
+
+/// A finite number of at least zero.
+fn non_negative(s: &str) -> Result<f64, String> {
+    s.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite() && *v >= 0.0)
+        .ok_or_else(|| format!("'{s}' is not a number of at least 0"))
+}
+
+/// Options of `tacrom calibrate`: fits the `rgb` output's calibrated optics (the `optics`
+/// attribute's file) to ball presses, Taxim-style, and reports the colour MAE and SSIM of
+/// the held-out presses re-rendered through it. The folder holds `background.png`, one
+/// PNG per press and `presses.json` (README, "Calibrated RGB"; src/calibrate/mod.rs).
+/// With --synthesize DIR it writes such a folder instead, rendered with the built-in optics.
+#[derive(Debug, Args)]
+#[command(after_help = UNITS)]
+pub struct CalibrateArgs {
+    /// The calibration folder.
+    #[arg(value_name = "DIR", required_unless_present = "synthesize")]
+    pub input: Option<PathBuf>,
+    /// Optics file to write (JSON; its background PNG goes beside it) [DIR/optics.json].
+    #[arg(long, value_name = "FILE", conflicts_with = "synthesize")]
+    pub out: Option<PathBuf>,
+    /// Table nodes along each gradient axis (odd: one node at zero slope).
+    #[arg(long, value_name = "N", default_value_t = 41, value_parser = odd_bins)]
+    pub bins: usize,
+    /// Half range G of the table's slopes, gx and gy in [-G, G] [the largest sample slope].
+    #[arg(long, value_name = "G", value_parser = positive)]
+    pub range: Option<f64>,
+    /// Weight of the table's curvature penalty against the samples.
+    #[arg(long, value_name = "S", default_value_t = 0.05, value_parser = positive)]
+    pub smooth: f64,
+    /// Hold out every K-th press of the list from the fit, for the report; 0: none.
+    #[arg(long, value_name = "K", default_value_t = 4)]
+    pub holdout: usize,
+    /// Leave out the pixels this close to a contact's edge (pixels).
+    #[arg(long, value_name = "PX", default_value_t = 1.5, value_parser = non_negative)]
+    pub edge_margin: f64,
+    /// Contact detection: a pixel differs from the background by more than this in some
+    /// channel (grey levels).
+    #[arg(long, value_name = "LEVELS", default_value_t = 2.5, value_parser = positive)]
+    pub threshold: f64,
+    /// The images are as the camera sees them, mirrored left-right against the sensor's
+    /// image: flip them (and given centres) first.
+    #[arg(long)]
+    pub mirror: bool,
+    /// Write a synthetic press set into DIR instead (built-in optics, rigid ball caps).
+    #[arg(long, value_name = "DIR")]
+    pub synthesize: Option<PathBuf>,
+    /// Synthetic presses.
+    #[arg(long, value_name = "N", default_value_t = 24, requires = "synthesize",
+          value_parser = at_least_one)]
+    pub presses: usize,
+    /// Synthetic image size.
+    #[arg(long, value_name = "WxH", default_value = "320x240", requires = "synthesize",
+          value_parser = resolution)]
+    pub resolution: [usize; 2],
+    /// Synthetic pixel size.
+    #[arg(long, value_name = "MM", default_value = "0.075", requires = "synthesize",
+          value_parser = positive_mm)]
+    pub pixel_size: f64,
+    /// Seed of the synthetic presses.
+    #[arg(long, value_name = "S", default_value_t = 1, requires = "synthesize")]
+    pub seed: u64,
+    /// Leave the contacts out of the synthetic presses.json (calibrate detects them).
+    #[arg(long, requires = "synthesize")]
+    pub no_contact: bool,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -433,6 +523,12 @@ mod tests {
             (s.physics, s.dx),
             (vec!["rigid".into(), "coarse".into()], Some(1e-3))
         );
+        let Command::Calibrate(c) =
+            parse(&["calibrate", "--synthesize", "x", "--pixel-size", "0.1"])
+        else {
+            panic!()
+        };
+        assert_eq!((c.pixel_size, c.resolution), (0.1e-3, [320, 240]));
     }
 
     #[test]
@@ -447,6 +543,12 @@ mod tests {
             &["eval-rom"],
             &["rom-features"],
             &["rom-features", "--out", "x", "--threads", "0"],
+            &["calibrate"],
+            &["calibrate", "set", "--bins", "40"],
+            &["calibrate", "set", "--smooth", "0"],
+            &["calibrate", "set", "--presses", "3"],
+            &["calibrate", "--synthesize", "x", "--pixel-size", "0"],
+            &["calibrate", "--synthesize", "x", "--out", "y.json"],
         ] {
             let argv = std::iter::once("tacrom").chain(args.iter().copied());
             assert!(Cli::try_parse_from(argv).is_err(), "{args:?}");

@@ -1,9 +1,11 @@
 //! The `tacrom` command's library: the press benchmark, training-data generation, the
-//! stability suite and the reduced-order model's features for the parity test. Everything
+//! stability suite, the reduced-order model's features for the parity test and the
+//! calibration of the `rgb` output's optics. Everything
 //! here runs outside MuJoCo and is kept out of the plugin library that MuJoCo loads.
 #![warn(missing_docs)]
 
 pub mod bench;
+pub mod calibrate;
 pub mod cli;
 pub mod datagen;
 pub mod npy;

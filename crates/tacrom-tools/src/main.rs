@@ -13,7 +13,7 @@ use tacrom_tools::bench::plot::depth_image;
 use tacrom_tools::bench::protocol::Indenter;
 use tacrom_tools::bench::{BenchError, BenchOptions, IndenterSource};
 use tacrom_tools::cli::{
-    BenchArgs, Cli, Command, EvalRomArgs, GenDataArgs, MpmArgs, MpmPart, RenderArgs,
+    BenchArgs, CalibrateArgs, Cli, Command, EvalRomArgs, GenDataArgs, MpmArgs, MpmPart, RenderArgs,
     RomFeaturesArgs, StabilityArgs,
 };
 use tacrom_tools::progress::Progress;
@@ -27,6 +27,7 @@ fn main() -> ExitCode {
         Command::GenData(a) => gen_data(a),
         Command::EvalRom(a) => eval_rom(a),
         Command::RomFeatures(a) => rom_features(a),
+        Command::Calibrate(a) => calibrate(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -303,6 +304,49 @@ fn rom_features(a: RomFeaturesArgs) -> Result<(), BenchError> {
         threads: a.threads,
     };
     println!("{}", write(&config).map_err(BenchError::Usage)?);
+    Ok(())
+}
+
+fn calibrate(a: CalibrateArgs) -> Result<(), BenchError> {
+    use tacrom_tools::calibrate::{self as cal, fit::FitOptions, synth};
+    let usage = |e: cal::CalibrateError| BenchError::Usage(e.to_string());
+    if let Some(out) = a.synthesize {
+        let o = synth::SynthOptions {
+            presses: a.presses,
+            resolution: a.resolution,
+            pixel_size: a.pixel_size,
+            seed: a.seed,
+            with_contact: !a.no_contact,
+            ..synth::SynthOptions::new(out.clone())
+        };
+        let presses = synth::synthesize(&o).map_err(usage)?;
+        println!(
+            "{}: background.png, {} presses of {} x {} pixels of {} mm, {}",
+            out.display(),
+            presses.len(),
+            o.resolution[0],
+            o.resolution[1],
+            o.pixel_size * 1e3,
+            cal::PRESS_LIST
+        );
+        return Ok(());
+    }
+    let input = a.input.expect("clap requires DIR without --synthesize");
+    let mut o = cal::CalibrateOptions::new(input);
+    if let Some(out) = a.out {
+        o.out = out;
+    }
+    o.fit = FitOptions {
+        bins: a.bins,
+        range: a.range,
+        smooth: a.smooth,
+    };
+    o.holdout = a.holdout;
+    o.edge_margin = a.edge_margin;
+    o.threshold = a.threshold;
+    o.mirror = a.mirror;
+    let report = cal::calibrate(&o).map_err(usage)?;
+    print!("{}", cal::markdown(&report));
     Ok(())
 }
 

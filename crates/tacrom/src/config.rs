@@ -7,8 +7,11 @@
 //! value.
 
 use std::fmt;
+use std::path::Path;
+use std::sync::Arc;
 
 use crate::mpm::Material;
+use crate::render::calibrated::CalibratedOptics;
 
 /// `physics`: which model of the gel computes the surface.
 pub const ATTR_PHYSICS: &str = "physics";
@@ -54,6 +57,11 @@ pub const ATTR_TOLERANCE: &str = "tolerance";
 /// spread evenly over the image's field of view (the `markers` output).
 pub const ATTR_MARKERS: &str = "markers";
 
+/// `optics`: a calibrated optics file of the `rgb` output (`tacrom calibrate`): a JSON
+/// gradient-to-colour table and a background PNG beside it; empty means the built-in
+/// three-light shading. Read only when `rgb` is among the outputs.
+pub const ATTR_OPTICS: &str = "optics";
+
 /// Every attribute the plugin declares to MuJoCo, in table order.
 pub const ATTRIBUTES: &[&str] = &[
     ATTR_PHYSICS,
@@ -73,6 +81,7 @@ pub const ATTRIBUTES: &[&str] = &[
     ATTR_TOLERANCE,
     ATTR_MATERIAL,
     ATTR_MARKERS,
+    ATTR_OPTICS,
 ];
 
 /// The `material` attribute's values.
@@ -252,6 +261,10 @@ pub struct Config {
     pub material: Material,
     /// Markers along x and y (`markers` output).
     pub markers: [usize; 2],
+    /// The calibrated optics of the `rgb` output (the `optics` file), read and its
+    /// background resampled to the image once, here; `None`: the built-in shading, or
+    /// `rgb` not among the outputs (then the file is not read).
+    pub optics: Option<Arc<CalibratedOptics>>,
 }
 
 /// The defaults (GelSight Mini-like gel, paper's material).
@@ -381,6 +394,7 @@ impl Config {
                     )
                 })?,
         };
+        let optics = p.optics(&outputs, width, height)?;
         let indenters = raw
             .get(ATTR_INDENTERS)
             .map(|v| v.split_whitespace().map(str::to_owned).collect())
@@ -406,6 +420,7 @@ impl Config {
             tolerance,
             material,
             markers,
+            optics,
         })
     }
 
@@ -536,6 +551,25 @@ impl Parser<'_> {
         counts
             .try_into()
             .map_err(|_| self.error(ATTR_MARKERS, &reason))
+    }
+
+    /// The `optics` file, read and resampled to `width x height`, when `rgb` is among
+    /// `outputs`; a relative path is relative to the working directory.
+    fn optics(
+        &self,
+        outputs: &[Output],
+        width: usize,
+        height: usize,
+    ) -> Result<Option<Arc<CalibratedOptics>>, ConfigError> {
+        let Some(path) = self.raw.get(ATTR_OPTICS).map(str::trim) else {
+            return Ok(None);
+        };
+        if !outputs.contains(&Output::RGB) {
+            return Ok(None);
+        }
+        let optics = CalibratedOptics::load(Path::new(path))
+            .map_err(|e| self.error(ATTR_OPTICS, e.reason()))?;
+        Ok(Some(Arc::new(optics.resampled(width, height))))
     }
 
     fn fov(&self, size: &[f64; 3]) -> Result<[f64; 2], ConfigError> {
@@ -783,6 +817,155 @@ mod tests {
         assert!(c.is_err());
         let raw = RawConfig::collect(|a| (a == ATTR_RESOLUTION).then(|| " ".to_owned()));
         assert_eq!(Config::from_raw("touch", &raw).unwrap().width, 320);
+    }
+
+    /// A valid optics file (3 x 3 table, 4 x 2 background) in a scratch folder of this
+    /// test process, with its JSON as a value for editing into bad ones.
+    fn optics_file(name: &str) -> (std::path::PathBuf, serde_json::Value) {
+        use crate::render::calibrated::{GradientTable, RgbImage};
+        let dir = std::env::temp_dir().join(format!("tacrom-config-{}-{name}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let table =
+            GradientTable::new([3, 3], [0.5, 0.5], (0..27).map(f64::from).collect()).unwrap();
+        let background = RgbImage::uniform(4, 2, [100.0, 110.0, 120.0]);
+        let path = dir.join("optics.json");
+        CalibratedOptics::new(table, background)
+            .unwrap()
+            .save(&path, None)
+            .unwrap();
+        let json = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        (path, json)
+    }
+
+    #[test]
+    fn optics_is_read_only_for_rgb_and_resampled_to_the_image() {
+        let (path, _) = optics_file("good");
+        let file = path.to_str().unwrap();
+        let c = parse(&[
+            (ATTR_OUTPUTS, "depth rgb"),
+            (ATTR_RESOLUTION, "8 6"),
+            (ATTR_OPTICS, file),
+        ])
+        .unwrap();
+        let optics = c.optics.expect("calibrated optics");
+        let b = optics.background();
+        assert_eq!((b.width, b.height), (8, 6));
+        assert!(b.data.chunks(3).all(|px| px == [100.0, 110.0, 120.0]));
+        assert_eq!(optics.table().bins(), [3, 3]);
+        // Without rgb the file is not read: a missing one is no error, and none is loaded.
+        let c = parse(&[
+            (ATTR_OUTPUTS, "depth"),
+            (ATTR_OPTICS, "/no/such/optics.json"),
+        ])
+        .unwrap();
+        assert!(c.optics.is_none());
+        assert!(parse(&[(ATTR_OUTPUTS, "rgb")]).unwrap().optics.is_none());
+    }
+
+    #[test]
+    fn a_bad_optics_file_is_refused_naming_sensor_attribute_value_and_fault() {
+        let (good, json) = optics_file("bad");
+        let dir = good.parent().unwrap().to_owned();
+        // (file name, its text, words the message must hold)
+        let edited = |edit: &dyn Fn(&mut serde_json::Value)| {
+            let mut j = json.clone();
+            edit(&mut j);
+            j.to_string()
+        };
+        let text = json.to_string();
+        let cases: Vec<(&str, String, &[&str])> = vec![
+            (
+                "truncated.json",
+                text[..text.len() / 2].to_owned(),
+                &["not an optics file", "EOF"],
+            ),
+            (
+                "nan.json",
+                text.replacen("0.0", "NaN", 1),
+                &["not an optics file"],
+            ),
+            (
+                "null.json",
+                edited(&|j| j["table"][1][1][0] = serde_json::Value::Null),
+                &["null"],
+            ),
+            (
+                "huge.json",
+                text.replacen("0.0", "1e999", 1),
+                &["not an optics file"],
+            ),
+            (
+                "two_channels.json",
+                edited(&|j| j["table"][0][2] = serde_json::json!([1.0, 2.0])),
+                &["length 2"],
+            ),
+            (
+                "rows.json",
+                edited(&|j| {
+                    j["table"].as_array_mut().unwrap().pop();
+                }),
+                &["2 rows", "[3, 3]"],
+            ),
+            (
+                "row_length.json",
+                edited(&|j| {
+                    j["table"][2]
+                        .as_array_mut()
+                        .unwrap()
+                        .push(serde_json::json!([0, 0, 0]));
+                }),
+                &["row 2 has 4 entries"],
+            ),
+            (
+                "bins.json",
+                edited(&|j| j["bins"] = serde_json::json!([3, 1])),
+                &["bins = [3, 1]"],
+            ),
+            (
+                "range.json",
+                edited(&|j| j["range"] = serde_json::json!([0.5, -0.5])),
+                &["range along gy"],
+            ),
+            (
+                "value.json",
+                edited(&|j| j["table"][0][1][2] = serde_json::json!(300.0)),
+                &["table[0][1][2] = 300"],
+            ),
+            (
+                "format.json",
+                edited(&|j| j["version"] = serde_json::json!(7)),
+                &["version 7"],
+            ),
+            (
+                "no_background.json",
+                edited(&|j| j["background"] = "missing.png".into()),
+                &["background image", "missing.png"],
+            ),
+            (
+                "text_background.json",
+                edited(&|j| j["background"] = "optics.json".into()),
+                &["background image", "not a PNG"],
+            ),
+        ];
+        let mut paths = vec![(
+            "/no/such/optics.json".to_owned(),
+            vec!["cannot read", "No such file"],
+        )];
+        for (name, text, words) in &cases {
+            let p = dir.join(name);
+            std::fs::write(&p, text).unwrap();
+            paths.push((p.to_str().unwrap().to_owned(), words.to_vec()));
+        }
+        for (path, words) in paths {
+            let e = err(&[(ATTR_OUTPUTS, "rgb"), (ATTR_OPTICS, &path)]);
+            assert_eq!(e.attribute, ATTR_OPTICS);
+            let msg = e.to_string();
+            assert!(msg.contains("'touch'") && msg.contains("'optics'"), "{msg}");
+            assert!(msg.contains(&format!("\"{path}\"")), "{msg}");
+            for w in words {
+                assert!(msg.contains(w), "{path}: '{w}' not in: {msg}");
+            }
+        }
     }
 
     #[test]

@@ -4,11 +4,13 @@
 //! every physics mode, the reduced-order model's input features and the training data
 //! generator go through it, so the contract between the coarse model, the decoder and the
 //! data it was trained on lives in one place. [`rgb`] shades the depth image into the
-//! colour image of a GelSight-type sensor; [`markers`] places the markers printed on the
+//! colour image of a GelSight-type sensor, with the built-in optics or a calibrated
+//! gradient-to-colour table ([`calibrated`]); [`markers`] places the markers printed on the
 //! gel and writes where the camera sees them.
 
 use crate::geometry::Placed;
 
+pub mod calibrated;
 pub mod markers;
 pub mod rgb;
 

@@ -29,12 +29,18 @@
 //! **Non-finite depth.** Where the depth is not finite the surface counts as flat: a pixel
 //! whose gradient reads a non-finite depth value shows the background.
 //!
-//! A calibrated model (a lookup from surface gradient to colour change over a background
-//! image, Taxim-style) can replace [`Optics`] behind [`render`]: the per-pixel gradients
-//! are computed here, once, and the model only maps a gradient to a colour.
+//! **Calibrated model.** A lookup from the surface gradient to the colour change over a
+//! background image, fitted to a device's own ball presses (Taxim-style;
+//! [`super::calibrated`], the `optics` attribute), replaces [`Optics`] through
+//! [`render_calibrated`]; [`RgbModel`] is the sensor's choice of the two. The per-pixel
+//! gradients are computed here, once, the same way for both, and a model only maps a
+//! pixel's gradient to its colour.
+
+use std::sync::Arc;
 
 use nalgebra::Vector3;
 
+use super::calibrated::CalibratedOptics;
 use crate::geometry::PixelGrid;
 
 /// Values per pixel of the image: red, green, blue.
@@ -231,6 +237,27 @@ impl Shader {
     }
 }
 
+/// How a model colours a span of pixels of one row from their depth gradients.
+trait SpanShader {
+    /// Writes the colours of pixels `start..start + n` of row `row`, whose depth gradients
+    /// are `(gx[i], gy[i])` (`n` values each), into `out` (3 values per pixel).
+    fn shade_span(&self, row: usize, start: usize, gx: &[f64], gy: &[f64], out: &mut [f64]);
+}
+
+impl SpanShader for Shader {
+    #[inline(always)]
+    fn shade_span(&self, _row: usize, _start: usize, gx: &[f64], gy: &[f64], out: &mut [f64]) {
+        self.shade(gx, gy, out);
+    }
+}
+
+impl SpanShader for CalibratedOptics {
+    #[inline(always)]
+    fn shade_span(&self, row: usize, start: usize, gx: &[f64], gy: &[f64], out: &mut [f64]) {
+        self.shade(row, start, gx, gy, out);
+    }
+}
+
 /// `x^e` in place, for each `x` in `[0, 1]`, by repeated squaring (`powi` with an exponent
 /// known only at run time is a library call per value); 1 for `e <= 0`.
 #[inline(always)]
@@ -260,13 +287,69 @@ fn pow(x: &mut [f64], e: i32) {
 /// # Panics
 /// If `depth` does not hold `H * W` values or `out` `3 * H * W`.
 pub fn render(optics: &Optics, grid: &PixelGrid, depth: &[f64], out: &mut [f64]) {
+    shade_image(&Shader::new(optics), grid, depth, out);
+}
+
+/// Renders the RGB image of the depth image `depth` (as [`render`]) through the calibrated
+/// model `optics`: at each pixel its background plus the table's colour change at the
+/// pixel's depth gradient, clamped to `[0, 255]`; the background where the surface is flat
+/// or the gradient not finite. Allocates nothing.
+///
+/// # Panics
+/// If `depth` does not hold `H * W` values, `out` `3 * H * W`, or the background is not
+/// `W x H` pixels (resample it first, [`CalibratedOptics::resampled`]).
+pub fn render_calibrated(
+    optics: &CalibratedOptics,
+    grid: &PixelGrid,
+    depth: &[f64],
+    out: &mut [f64],
+) {
+    let b = optics.background();
+    assert_eq!(
+        (b.width, b.height),
+        (grid.width, grid.height),
+        "background of the image's size"
+    );
+    shade_image(optics, grid, depth, out);
+}
+
+/// The optical model of a sensor's `rgb` output: the built-in shading, or a calibration
+/// (the `optics` attribute) loaded and resampled to the sensor's image when it was
+/// configured.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RgbModel {
+    /// The built-in three-light shading.
+    BuiltIn(Optics),
+    /// A calibrated gradient-to-colour table over a background of the image's size.
+    Calibrated(Arc<CalibratedOptics>),
+}
+
+impl Default for RgbModel {
+    fn default() -> Self {
+        RgbModel::BuiltIn(Optics::default())
+    }
+}
+
+impl RgbModel {
+    /// Renders the RGB image of `depth` on `grid` into `out` ([`render`],
+    /// [`render_calibrated`]).
+    pub fn render(&self, grid: &PixelGrid, depth: &[f64], out: &mut [f64]) {
+        match self {
+            RgbModel::BuiltIn(optics) => render(optics, grid, depth, out),
+            RgbModel::Calibrated(optics) => render_calibrated(optics, grid, depth, out),
+        }
+    }
+}
+
+/// The gradient pass both models share: central differences of the depth image (one-sided
+/// on its border), handed to `shader` a span of a row at a time.
+fn shade_image<S: SpanShader>(shader: &S, grid: &PixelGrid, depth: &[f64], out: &mut [f64]) {
     let (w, h) = (grid.width, grid.height);
     assert_eq!(depth.len(), w * h, "depth image of {w} x {h} pixels");
     assert_eq!(out.len(), CHANNELS * w * h, "rgb image of {w} x {h} pixels");
     if w == 0 || h == 0 {
         return;
     }
-    let shader = Shader::new(optics);
     // Reciprocal spacings of central and one-sided differences (0 along an axis of one
     // pixel: no slope can be seen along it).
     let spacing = |fov: f64, n: usize| {
@@ -316,7 +399,9 @@ pub fn render(optics: &Optics, grid: &PixelGrid, depth: &[f64], out: &mut [f64])
                     gx[n - 1] = (row[w - 1] - row[w - 2]) * ox;
                 }
             }
-            shader.shade(
+            shader.shade_span(
+                r,
+                start,
                 &gx[..n],
                 &gy[..n],
                 &mut pixels[CHANNELS * start..CHANNELS * (start + n)],

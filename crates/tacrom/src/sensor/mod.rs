@@ -6,6 +6,7 @@
 //! pipeline: the scene (which indenters touch, their rigid surface, the depth rule), the
 //! physics mode ([`models::SurfaceModel`]), the outputs ([`outputs`]).
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use nalgebra::Vector3;
@@ -14,6 +15,7 @@ use crate::config::Config;
 use crate::geometry::{Aabb, PixelGrid, Placed};
 use crate::mpm::SolveReport;
 use crate::render::markers::Markers;
+use crate::render::rgb::RgbModel;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
 
@@ -100,6 +102,8 @@ pub struct TactileSensor {
     shear: Vec<f64>,
     /// The markers, when an output needs them.
     markers: Markers,
+    /// The `rgb` output's optical model.
+    optics: RgbModel,
 }
 
 impl TactileSensor {
@@ -135,6 +139,10 @@ impl TactileSensor {
         } else {
             Markers::default()
         };
+        let optics = match &config.optics {
+            Some(calibrated) => RgbModel::Calibrated(Arc::clone(calibrated)),
+            None => RgbModel::default(),
+        };
         Ok(Self {
             grid,
             model,
@@ -150,6 +158,7 @@ impl TactileSensor {
             force: Vector3::zeros(),
             shear,
             markers,
+            optics,
             config,
         })
     }
@@ -169,6 +178,7 @@ impl TactileSensor {
             force: self.force,
             shear: self.shear.clone(),
             markers: self.markers.clone(),
+            optics: self.optics.clone(),
         })
     }
 
@@ -318,6 +328,7 @@ impl TactileSensor {
             grid: &self.grid,
             shear: &self.shear,
             markers: &self.markers,
+            optics: &self.optics,
         };
         let mut at = 0;
         for o in &self.config.outputs {

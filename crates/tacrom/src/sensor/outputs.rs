@@ -74,6 +74,8 @@ pub struct Frame<'a> {
     pub shear: &'a [f64],
     /// The markers and their displacements, when an output needs them; else empty.
     pub markers: &'a Markers,
+    /// The optical model of the `rgb` output.
+    pub optics: &'a rgb::RgbModel,
 }
 
 /// One output of the table.
@@ -216,8 +218,9 @@ const CONTACT: OutputSpec = OutputSpec {
 const RGB: OutputSpec = OutputSpec {
     name: "rgb",
     doc: "RGB image of a GelSight-type sensor: the deformed surface shaded by a red, a green \
-          and a blue light; the flat gel shows a uniform background; with the markers \
-          output, the markers drawn as dark dots where the camera sees them",
+          and a blue light over a uniform background, or by the calibrated gradient-to-colour \
+          table and background of the 'optics' attribute; the flat gel shows the background; \
+          with the markers output, the markers drawn as dark dots where the camera sees them",
     unit: "0..255",
     shape: Shape::Image {
         channels: rgb::CHANNELS,
@@ -228,7 +231,7 @@ const RGB: OutputSpec = OutputSpec {
         ..Needs::NONE
     },
     write: |f, out| {
-        rgb::render(&rgb::Optics::default(), f.grid, f.depth, out);
+        f.optics.render(f.grid, f.depth, out);
         f.markers.draw(f.grid, out);
     },
 };

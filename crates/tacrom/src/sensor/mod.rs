@@ -4,16 +4,18 @@
 //! configuration, the gel's model, and reusable image buffers. It knows nothing of MuJoCo:
 //! the caller hands it the indenters posed in the sensor frame. One evaluation is a short
 //! pipeline: the scene (which indenters touch, their rigid surface, the depth rule), the
-//! physics mode ([`models::SurfaceModel`]), the outputs ([`outputs`]).
+//! physics mode ([`models::SurfaceModel`]), the camera ([`Refraction`], a pinhole camera
+//! only), the outputs ([`outputs`]).
 
 use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use crate::config::Config;
+use crate::config::{Camera, Config};
 use crate::geometry::{Aabb, PixelGrid, Placed};
 use crate::mpm::SolveReport;
 use crate::render::markers::Markers;
+use crate::render::refraction::Refraction;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
 
@@ -21,7 +23,7 @@ pub mod models;
 pub mod outputs;
 
 use models::SurfaceModel;
-use outputs::{Frame, Needs};
+use outputs::{Frame, Needs, Seen, Shape};
 
 /// Failure to build a sensor from a valid configuration.
 #[derive(Debug, thiserror::Error)]
@@ -100,6 +102,16 @@ pub struct TactileSensor {
     shear: Vec<f64>,
     /// The markers, when an output needs them.
     markers: Markers,
+    /// The pinhole camera's rays (`None`: orthographic).
+    refraction: Option<Refraction>,
+    /// The depth image the pinhole camera sees (m); empty for the orthographic camera.
+    seen_depth: Vec<f64>,
+    /// Whether the last evaluation's pinhole image differs from the orthographic one (any
+    /// pixel sees a point other than its own centre).
+    bent: bool,
+    /// An image written on the orthographic grid before it is resampled for the pinhole
+    /// camera (empty unless an output needs it).
+    scratch: Vec<f64>,
 }
 
 impl TactileSensor {
@@ -113,11 +125,35 @@ impl TactileSensor {
             fov_y: config.fov[1],
         };
         let model = models::build(&config)?;
-        let needs = config
+        let mut needs = config
             .outputs
             .iter()
             .fold(Needs::NONE, |n, o| n | o.spec().needs);
         let pixels = config.pixels();
+        // Through a pinhole every image is resampled where the rays meet the surface, so
+        // the depth image is computed for any of them.
+        let resampled: Vec<usize> = config
+            .outputs
+            .iter()
+            .filter(|o| matches!(o.spec().seen, Seen::Resampled(_)))
+            .map(|o| o.spec().len(&config))
+            .collect();
+        let refraction = match config.camera {
+            Camera::Pinhole { distance } if needs.depth || !resampled.is_empty() => {
+                needs.depth = true;
+                Some(Refraction::new(
+                    &grid,
+                    config.size[2],
+                    distance,
+                    config.index,
+                ))
+            }
+            _ => None,
+        };
+        let scratch_len = match refraction {
+            Some(_) => resampled.into_iter().max().unwrap_or(0),
+            None => 0,
+        };
         let image = |v: f64| {
             if needs.depth {
                 vec![v; pixels]
@@ -150,6 +186,13 @@ impl TactileSensor {
             force: Vector3::zeros(),
             shear,
             markers,
+            seen_depth: match refraction {
+                Some(_) => vec![0.0; pixels],
+                None => Vec::new(),
+            },
+            refraction,
+            bent: false,
+            scratch: vec![0.0; scratch_len],
             config,
         })
     }
@@ -169,6 +212,10 @@ impl TactileSensor {
             force: self.force,
             shear: self.shear.clone(),
             markers: self.markers.clone(),
+            refraction: self.refraction.clone(),
+            seen_depth: self.seen_depth.clone(),
+            bent: self.bent,
+            scratch: self.scratch.clone(),
         })
     }
 
@@ -182,9 +229,20 @@ impl TactileSensor {
         &self.grid
     }
 
-    /// The depth image of the last evaluation (H x W, row-major, m); empty when no
-    /// configured output needs it.
+    /// The depth image of the last evaluation as the camera sees it (H x W, row-major, m;
+    /// the `depth` output); empty when no configured output needs it.
     pub fn depth(&self) -> &[f64] {
+        if self.refraction.is_some() {
+            &self.seen_depth
+        } else {
+            &self.depth
+        }
+    }
+
+    /// The depth of the surface straight above each pixel centre in the last evaluation
+    /// (H x W, row-major, m): the orthographic image, whatever the camera; empty when no
+    /// configured output needs it.
+    pub fn surface_depth(&self) -> &[f64] {
         &self.depth
     }
 
@@ -209,6 +267,8 @@ impl TactileSensor {
     pub fn reset(&mut self) {
         self.model.reset();
         self.depth.fill(0.0);
+        self.seen_depth.fill(0.0);
+        self.bent = false;
         self.pressure.fill(0.0);
         self.force = Vector3::zeros();
         self.shear.fill(0.0);
@@ -238,8 +298,11 @@ impl TactileSensor {
             .collect();
         eval.contact = !touching.is_empty();
         if !eval.contact && self.model.at_rest() {
-            // No contact and a flat gel: the outputs of the flat surface, nothing else.
+            // No contact and a flat gel: the outputs of the flat surface, nothing else
+            // (every camera sees it alike).
             self.depth.fill(0.0);
+            self.seen_depth.fill(0.0);
+            self.bent = false;
             self.pressure.fill(0.0);
             self.zmin.fill(f64::INFINITY);
             self.force = Vector3::zeros();
@@ -278,6 +341,11 @@ impl TactileSensor {
             }
             let excess = scene.rule.apply(&mut self.depth, &self.penetration);
             eval.bound_excess = eval.bound_excess.max(excess);
+            // The pinhole's rays through the bounded surface: each depth is the bilinear
+            // value of bounded pixels, so it keeps the rule's bounds (within [0, reach]).
+            if let Some(refraction) = &mut self.refraction {
+                self.bent = refraction.refract(&self.depth, &mut self.seen_depth);
+            }
         }
         let force = if self.needs.force {
             self.model.force()
@@ -309,9 +377,14 @@ impl TactileSensor {
         eval
     }
 
-    fn write_outputs(&self, out: &mut [f64]) {
+    fn write_outputs(&mut self, out: &mut [f64]) {
         let frame = Frame {
-            depth: &self.depth,
+            depth: if self.refraction.is_some() {
+                &self.seen_depth
+            } else {
+                &self.depth
+            },
+            surface: &self.depth,
             zmin: &self.zmin,
             force: self.force,
             pressure: &self.pressure,
@@ -319,11 +392,22 @@ impl TactileSensor {
             shear: &self.shear,
             markers: &self.markers,
         };
+        let view = self.refraction.as_ref().filter(|_| self.bent);
         let mut at = 0;
         for o in &self.config.outputs {
             let spec = o.spec();
             let n = spec.len(&self.config);
-            (spec.write)(&frame, &mut out[at..at + n]);
+            let slot = &mut out[at..at + n];
+            match (view, spec.seen, spec.shape) {
+                // Written on the orthographic grid, then sampled where each pixel's ray
+                // meets the surface.
+                (Some(view), Seen::Resampled(sampling), Shape::Image { channels }) => {
+                    let image = &mut self.scratch[..n];
+                    (spec.write)(&frame, image);
+                    view.resample(frame.depth, channels, sampling, image, slot);
+                }
+                _ => (spec.write)(&frame, slot),
+            }
             at += n;
         }
     }

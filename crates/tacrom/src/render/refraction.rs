@@ -18,6 +18,16 @@
 //! A ray never leaves the image's footprint: it moves towards the axis and, within the
 //! gel's thickness, never past it (`|B| >= 0`). Orthographic rays are vertical (`tan b =
 //! 0`), so there the camera changes nothing, whatever the index.
+//!
+//! Tracing ([`Refraction::refract`]): the rays' drifts are computed once, at load. Per
+//! frame, tiles of 8 x 8 lattice cells hold their largest surface value; a block of 8 x 8
+//! rays starts from the largest value over the tiles its rays can cross (shortened to that
+//! value and bounded again, a few times), so rays over a flat region cost nothing. Each
+//! ray then walks the cells it crosses from that bound up to the top face, and in each
+//! solves `d = h(d)` exactly: along a line a cell's bilinear surface is a quadratic in
+//! `d`. The first root met is the answer, exact to rounding; most rays cross a single
+//! cell. Every other image is resampled at the points the rays meet
+//! ([`Refraction::resample`]).
 
 use crate::geometry::PixelGrid;
 
@@ -105,9 +115,6 @@ pub struct Refraction {
     /// `(col - d drift[0], row - d drift[1])` (continuous pixel coordinates, `c` at the
     /// centre of column `c`).
     drift: Vec<[f64; 2]>,
-    /// Per pixel, the reciprocals of `drift` (metres of indentation per column and per
-    /// row crossed; infinite for a vertical ray).
-    pace: Vec<[f64; 2]>,
     /// Tiles of the lattice along x and y; blocks of pixels along x and y are as many
     /// (`TILE` pixels per side, the last block and tile possibly shorter).
     tiles_x: usize,
@@ -154,13 +161,11 @@ impl Refraction {
             let b = (i / w / TILE).min(tiles_y - 1) * tiles_x + (i % w / TILE).min(tiles_x - 1);
             spread[b] = [spread[b][0].max(gu.abs()), spread[b][1].max(gv.abs())];
         }
-        let pace = drift.iter().map(|[gu, gv]| [1.0 / gu, 1.0 / gv]).collect();
         Self {
             width: w,
             height: h,
             thickness,
             drift,
-            pace,
             tiles_x,
             tiles_y,
             spread,
@@ -186,9 +191,10 @@ impl Refraction {
     /// Traces every pixel's ray through the surface whose orthographic depth image is
     /// `surface` (m, positive into the gel, row-major on the grid; the depth rule's values,
     /// within `[0, T]`; others are taken as the nearest such value, non-finite ones as 0)
-    /// and writes the indentation each ray meets into `depth`. Returns whether any pixel
-    /// sees a point other than its own centre (false for a flat surface, whose image every
-    /// camera shows alike). Never writes NaN; each ray costs at most `W + H + 4` cells.
+    /// and writes the indentation each ray meets into `depth`. Returns whether the surface
+    /// is deformed at all (false: it is flat, each pixel sees its own centre at indentation
+    /// 0, and every camera shows the same image). Never writes NaN; each ray costs at most
+    /// `W + H + 4` cells.
     ///
     /// # Panics
     /// If `surface` or `depth` does not hold one value per pixel.
@@ -419,7 +425,8 @@ impl Refraction {
                 floor_i(a)
             }
         };
-        let [pu, pv] = self.pace[index];
+        // Metres of indentation per column and per row crossed (infinite if vertical).
+        let (pu, pv) = (1.0 / gu, 1.0 / gv);
         let mut i = cell(u0 - hi * gu, gu);
         let mut j = cell(v0 - hi * gv, gv);
         let (step_i, step_j) = (sign(gu), sign(gv));

@@ -263,8 +263,8 @@ const RGB: OutputSpec = OutputSpec {
 const PRESSURE: OutputSpec = OutputSpec {
     name: "pressure",
     doc: "normal contact pressure image of the gel on the indenters; integrates over the \
-          image to the normal force (force z) where the contact lies inside it; rom: from \
-          its coarse gel",
+          image to the normal force (force z) where the contact lies inside it (orthographic \
+          camera); rom: from its coarse gel",
     unit: "Pa",
     shape: Shape::Image { channels: 1 },
     needs_gel: true,
@@ -298,7 +298,7 @@ const MARKERS: OutputSpec = OutputSpec {
           grid over the image, in its reading order (first row at +y, first column at -x); \
           per marker: column and row of its image position X_m + u_xy(X_m) (pixels, \
           continuous, c at the centre of column c), then its displacement along x and y \
-          (m); rom: from its coarse gel",
+          (m); rom: from its coarse gel; orthographic camera only",
     unit: "px, px, m, m",
     shape: Shape::PerMarker(Markers::VALUES),
     needs_gel: true,

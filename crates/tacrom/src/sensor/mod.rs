@@ -45,7 +45,7 @@ pub struct StageTimes {
     pub geometry: f64,
     /// Gel simulation and its surface (depth, shear and marker displacements).
     pub physics: f64,
-    /// Writing the outputs.
+    /// The camera (a pinhole's rays through the surface) and writing the outputs.
     pub render: f64,
 }
 
@@ -102,12 +102,12 @@ pub struct TactileSensor {
     shear: Vec<f64>,
     /// The markers, when an output needs them.
     markers: Markers,
-    /// The pinhole camera's rays (`None`: orthographic).
+    /// The pinhole camera's rays (`None`: orthographic, or no output needs an image).
     refraction: Option<Refraction>,
     /// The depth image the pinhole camera sees (m); empty for the orthographic camera.
     seen_depth: Vec<f64>,
-    /// Whether the last evaluation's pinhole image differs from the orthographic one (any
-    /// pixel sees a point other than its own centre).
+    /// Whether the last evaluation's surface was deformed, so that the pinhole's images
+    /// differ from the orthographic ones (false: flat, every camera sees alike).
     bent: bool,
     /// An image written on the orthographic grid before it is resampled for the pinhole
     /// camera (empty unless an output needs it).
@@ -341,11 +341,6 @@ impl TactileSensor {
             }
             let excess = scene.rule.apply(&mut self.depth, &self.penetration);
             eval.bound_excess = eval.bound_excess.max(excess);
-            // The pinhole's rays through the bounded surface: each depth is the bilinear
-            // value of bounded pixels, so it keeps the rule's bounds (within [0, reach]).
-            if let Some(refraction) = &mut self.refraction {
-                self.bent = refraction.refract(&self.depth, &mut self.seen_depth);
-            }
         }
         let force = if self.needs.force {
             self.model.force()
@@ -372,6 +367,11 @@ impl TactileSensor {
         }
         let t2 = Instant::now();
         eval.times.physics = (t2 - t1).as_secs_f64();
+        // The pinhole's rays through the bounded surface: each depth is the bilinear value
+        // of bounded pixels, so it keeps the rule's bounds (within [0, reach]).
+        if let Some(refraction) = &mut self.refraction {
+            self.bent = refraction.refract(&self.depth, &mut self.seen_depth);
+        }
         self.write_outputs(out);
         eval.times.render = t2.elapsed().as_secs_f64();
         eval

@@ -587,7 +587,9 @@ fn nearest(a: f64, n: usize) -> usize {
 #[inline]
 fn largest_root(c: [f64; 3], lo: f64, hi: f64) -> Option<f64> {
     let f = |d: f64| c[0] + d * (c[1] + d * c[2]);
-    if !(f(hi) > 0.0) {
+    let at_hi = f(hi);
+    if at_hi <= 0.0 || at_hi.is_nan() {
+        // On the surface where the ray enters (or not a number: stop there).
         return Some(hi);
     }
     if f(lo) <= 0.0 {

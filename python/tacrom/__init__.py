@@ -8,6 +8,16 @@ with :func:`depth`, :func:`force`, :func:`contact`, :func:`rgb`, :func:`pressure
 Image layout: row-major (H, W) (``rgb``: (H, W, 3)). Row 0 is the +y edge of the sensor
 site's frame and column 0 the -x edge: the gel seen from the indenter's side, x to the
 right, y up.
+
+Camera (sensor attributes ``camera`` and ``index``): ``camera="orthographic"`` (default)
+shows, at each pixel, the surface straight above its centre. ``camera="pinhole D"`` puts a
+pinhole on the gel's axis ``D`` metres below the gel's bottom face, looking up through the
+gel, whose refractive index relative to the camera's medium is ``index`` (default 1, valid
+1 to 3; about 1.4 for silicone seen from air). Each pixel's ray meets the undeformed face
+at the pixel's orthographic centre, so without contact both cameras show the same image;
+in contact, ``depth`` is the indentation where the refracted ray meets the surface, and
+``rgb``, ``pressure``, ``shear`` and ``contact`` are sampled at that point. ``markers`` is
+for the orthographic camera only. See ``docs/camera.md``.
 """
 
 from __future__ import annotations
@@ -158,7 +168,9 @@ def _one(model, data, sensor, name: str) -> np.ndarray:
 
 
 def depth(model, data, sensor) -> np.ndarray:
-    """Depth image (H, W) in metres, positive into the gel."""
+    """Depth image (H, W) in metres, positive into the gel: the indentation of the surface
+    point each pixel sees (straight above it, or along the pinhole's refracted ray with
+    ``camera="pinhole D"``)."""
     return _one(model, data, sensor, "depth")
 
 
@@ -186,8 +198,10 @@ def rgb(model, data, sensor) -> np.ndarray:
 def pressure(model, data, sensor) -> np.ndarray:
     """Normal contact pressure image (H, W) in pascals, positive where the indenters press
     the gel, pixel for pixel on the depth image. Summed over the pixels times the pixel area
-    it gives the normal force ``force(...)[2]`` wherever the contact lies inside the image.
-    Needs a gel (not ``physics="rigid"``); ``rom`` reports its coarse gel's pressure."""
+    it gives the normal force ``force(...)[2]`` wherever the contact lies inside the image
+    (orthographic camera; a pinhole camera samples it where its rays meet the surface, so
+    the sum is only close). Needs a gel (not ``physics="rigid"``); ``rom`` reports its
+    coarse gel's pressure."""
     return _one(model, data, sensor, "pressure")
 
 
@@ -209,7 +223,7 @@ def markers(model, data, sensor) -> np.ndarray:
     so ``markers(...).reshape(NY, NX, 4)`` lays them out as seen. A marker's rest position
     in pixels is its position less its displacement: ``col - dx / (fov_x / W)``,
     ``row + dy / (fov_y / H)``. Not with ``physics="rigid"``; with ``rom``, from its coarse
-    gel."""
+    gel. Orthographic camera only (refused at load with ``camera="pinhole D"``)."""
     return _one(model, data, sensor, "markers")
 
 

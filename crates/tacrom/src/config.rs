@@ -12,6 +12,7 @@ use std::sync::Arc;
 
 use crate::mpm::Material;
 use crate::render::calibrated::CalibratedOptics;
+pub use crate::render::refraction::Camera;
 
 /// `physics`: which model of the gel computes the surface.
 pub const ATTR_PHYSICS: &str = "physics";
@@ -61,6 +62,14 @@ pub const ATTR_MARKERS: &str = "markers";
 /// gradient-to-colour table and a background PNG beside it; empty means the built-in
 /// three-light shading. Read only when `rgb` is among the outputs.
 pub const ATTR_OPTICS: &str = "optics";
+/// `camera`: the camera under the gel, `orthographic` (vertical rays, the default) or
+/// `pinhole D`, a pinhole on the gel's axis `D` metres below its bottom face looking up
+/// through the refracting gel (`render::refraction`).
+pub const ATTR_CAMERA: &str = "camera";
+
+/// `index`: the gel's refractive index relative to the medium the camera sits in (1: no
+/// refraction at the gel's bottom face); only a pinhole camera sees it.
+pub const ATTR_INDEX: &str = "index";
 
 /// Every attribute the plugin declares to MuJoCo, in table order.
 pub const ATTRIBUTES: &[&str] = &[
@@ -82,6 +91,8 @@ pub const ATTRIBUTES: &[&str] = &[
     ATTR_MATERIAL,
     ATTR_MARKERS,
     ATTR_OPTICS,
+    ATTR_CAMERA,
+    ATTR_INDEX,
 ];
 
 /// The `material` attribute's values.
@@ -101,6 +112,12 @@ pub fn material_name(material: Material) -> &'static str {
 
 /// Largest image side accepted (pixels).
 pub const MAX_RESOLUTION: usize = 4096;
+/// The `index` attribute's range: from no refraction (a camera in a medium of the gel's
+/// index) to well past any gel's (silicone in air: about 1.4).
+pub const INDEX_RANGE: [f64; 2] = [1.0, 3.0];
+/// The largest pinhole distance `D` accepted (m), as for the gel's size: `pinhole 20` is a
+/// camera 20 m away, far more likely millimetres written as metres.
+pub const MAX_CAMERA_DISTANCE: f64 = 1.0;
 /// Most markers along one side of the marker grid.
 pub const MAX_MARKERS: usize = 256;
 /// Largest thread count accepted.
@@ -166,7 +183,7 @@ impl Physics {
     }
 }
 
-pub use crate::sensor::outputs::Output;
+pub use crate::sensor::outputs::{Output, Seen};
 
 /// The text of each attribute, as found in the MJCF; `None` when absent or empty.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -265,6 +282,10 @@ pub struct Config {
     /// background resampled to the image once, here; `None`: the built-in shading, or
     /// `rgb` not among the outputs (then the file is not read).
     pub optics: Option<Arc<CalibratedOptics>>,
+    /// The camera under the gel.
+    pub camera: Camera,
+    /// The gel's refractive index relative to the camera's medium.
+    pub index: f64,
 }
 
 /// The defaults (GelSight Mini-like gel, paper's material).
@@ -292,6 +313,10 @@ pub mod defaults {
     /// Markers along x and y: a 9 x 7 grid over the 24 x 18 mm image, about 2.6 mm apart
     /// (GelSight Mini-like).
     pub const MARKERS: [usize; 2] = [9, 7];
+    /// The camera: orthographic, the depth straight above each pixel.
+    pub const CAMERA: super::Camera = super::Camera::Orthographic;
+    /// Refractive index ratio: none.
+    pub const INDEX: f64 = 1.0;
 }
 
 impl Config {
@@ -395,6 +420,28 @@ impl Config {
                 })?,
         };
         let optics = p.optics(&outputs, width, height)?;
+        let camera = p.camera()?;
+        if let Some(o) = outputs
+            .iter()
+            .find(|o| camera != Camera::Orthographic && o.spec().seen == Seen::Refused)
+        {
+            return Err(p.error(
+                ATTR_CAMERA,
+                format!(
+                    "output '{}' is only defined for the orthographic camera; use \
+                     camera=\"orthographic\" or leave '{}' out of the outputs",
+                    o.name(),
+                    o.name()
+                ),
+            ));
+        }
+        let [lo, hi] = INDEX_RANGE;
+        let index = p.float(ATTR_INDEX, defaults::INDEX, |x| {
+            (lo..=hi)
+                .contains(&x)
+                .then_some(())
+                .ok_or("must be in [1, 3] (the gel's index over the camera medium's)")
+        })?;
         let indenters = raw
             .get(ATTR_INDENTERS)
             .map(|v| v.split_whitespace().map(str::to_owned).collect())
@@ -421,6 +468,8 @@ impl Config {
             material,
             markers,
             optics,
+            camera,
+            index,
         })
     }
 
@@ -572,6 +621,28 @@ impl Parser<'_> {
         Ok(Some(Arc::new(optics.resampled(width, height))))
     }
 
+    /// The `camera` attribute.
+    fn camera(&self) -> Result<Camera, ConfigError> {
+        let Some(text) = self.raw.get(ATTR_CAMERA) else {
+            return Ok(defaults::CAMERA);
+        };
+        let words: Vec<_> = text.split_whitespace().collect();
+        let reason = format!(
+            "expected 'orthographic' or 'pinhole D', D the distance from the pinhole to the \
+             gel's bottom face in metres, in (0, {MAX_CAMERA_DISTANCE}]"
+        );
+        match words.as_slice() {
+            ["orthographic"] => Ok(Camera::Orthographic),
+            ["pinhole", d] => d
+                .parse::<f64>()
+                .ok()
+                .filter(|d| *d > 0.0 && *d <= MAX_CAMERA_DISTANCE)
+                .map(|distance| Camera::Pinhole { distance })
+                .ok_or_else(|| self.error(ATTR_CAMERA, &reason)),
+            _ => Err(self.error(ATTR_CAMERA, &reason)),
+        }
+    }
+
     fn fov(&self, size: &[f64; 3]) -> Result<[f64; 2], ConfigError> {
         let Some(text) = self.raw.get(ATTR_FOV) else {
             return Ok([defaults::FOV[0].min(size[0]), defaults::FOV[1].min(size[1])]);
@@ -674,6 +745,8 @@ mod tests {
         assert_eq!(c.model, None);
         assert_eq!(c.tolerance, 3e-3);
         assert_eq!(c.markers, [9, 7]);
+        assert_eq!(c.camera, Camera::Orthographic);
+        assert_eq!(c.index, 1.0);
         let fine = parse(&[(ATTR_PHYSICS, "fine")]).unwrap();
         assert_eq!(fine.tolerance, 1e-3);
         assert_eq!(c.sensordata_len(), 320 * 240);
@@ -783,6 +856,21 @@ mod tests {
             (ATTR_MARKERS, "9 -7"),
             (ATTR_MARKERS, "9.5 7"),
             (ATTR_MARKERS, "1000 7"),
+            (ATTR_CAMERA, "fisheye"),
+            (ATTR_CAMERA, "pinhole"),
+            (ATTR_CAMERA, "pinhole 0"),
+            (ATTR_CAMERA, "pinhole -0.02"),
+            (ATTR_CAMERA, "pinhole nan"),
+            (ATTR_CAMERA, "pinhole inf"),
+            (ATTR_CAMERA, "pinhole 20"),
+            (ATTR_CAMERA, "pinhole 0.02 0.03"),
+            (ATTR_CAMERA, "pinhole two"),
+            (ATTR_CAMERA, "orthographic 0.02"),
+            (ATTR_INDEX, "0.9"),
+            (ATTR_INDEX, "3.5"),
+            (ATTR_INDEX, "nan"),
+            (ATTR_INDEX, "glass"),
+            (ATTR_INDEX, "1.4 1.5"),
         ];
         for &(attribute, value) in cases {
             let mut pairs = vec![(attribute, value)];
@@ -800,6 +888,51 @@ mod tests {
             assert!(msg.contains(&format!("'{attribute}'")), "{msg}");
             assert!(msg.contains(value), "{msg}");
         }
+    }
+
+    #[test]
+    fn camera_and_index_parse() {
+        let c = parse(&[(ATTR_CAMERA, " pinhole   0.02 "), (ATTR_INDEX, "1.41")]).unwrap();
+        assert_eq!(c.camera, Camera::Pinhole { distance: 0.02 });
+        assert_eq!(c.index, 1.41);
+        let c = parse(&[(ATTR_CAMERA, "orthographic"), (ATTR_INDEX, "3")]).unwrap();
+        assert_eq!(c.camera, Camera::Orthographic);
+        assert_eq!(c.index, 3.0);
+        assert_eq!(parse(&[(ATTR_CAMERA, "pinhole 1")]).unwrap().index, 1.0);
+        // Every output a pinhole camera can show, beside depth.
+        let c = parse(&[
+            (ATTR_PHYSICS, "coarse"),
+            (ATTR_CAMERA, "pinhole 0.02"),
+            (ATTR_OUTPUTS, "depth force contact rgb pressure shear"),
+        ])
+        .unwrap();
+        assert_eq!(c.outputs.len(), 6);
+    }
+
+    #[test]
+    fn pinhole_camera_refuses_the_markers_output() {
+        for outputs in ["markers", "depth markers", "rgb markers"] {
+            let e = err(&[
+                (ATTR_PHYSICS, "coarse"),
+                (ATTR_CAMERA, "pinhole 0.02"),
+                (ATTR_OUTPUTS, outputs),
+            ]);
+            assert_eq!(e.attribute, ATTR_CAMERA, "{outputs}");
+            let msg = e.to_string();
+            assert!(
+                msg.contains("'touch'")
+                    && msg.contains("pinhole 0.02")
+                    && msg.contains("'markers'")
+                    && msg.contains("orthographic"),
+                "{msg}"
+            );
+        }
+        let ok = parse(&[
+            (ATTR_PHYSICS, "coarse"),
+            (ATTR_CAMERA, "orthographic"),
+            (ATTR_OUTPUTS, "markers"),
+        ]);
+        assert!(ok.is_ok());
     }
 
     #[test]

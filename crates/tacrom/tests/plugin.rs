@@ -174,6 +174,12 @@ fn bad_configuration_fails_at_load_naming_the_attribute() {
         ("young", "soft"),
         ("outputs", "depth smell"),
         ("indenters", "no_such_body"),
+        ("camera", "pinhole"),
+        ("camera", "pinhole -0.01"),
+        ("camera", "pinhole 20"),
+        ("camera", "telecentric"),
+        ("index", "0.5"),
+        ("index", "water"),
     ];
     for (key, value) in cases {
         let xml = press_scene(&config(&[(key, value)]), &sphere_body(R));
@@ -184,6 +190,88 @@ fn bad_configuration_fails_at_load_naming_the_attribute() {
         assert!(err.contains("'touch'"), "{key}={value}: {err}");
         assert!(err.contains(value), "{key}={value}: {err}");
     }
+}
+
+#[test]
+fn pinhole_camera_sees_the_sphere_along_refracted_rays() {
+    // The sphere off the axis, over (4, 2) mm, where the rays are oblique.
+    let centre = [0.004, 0.002];
+    let body = format!(
+        r#"<body name="ball" pos="{} {} {R}">
+      <joint name="press" type="slide" axis="0 0 -1"/>
+      <geom name="ball" type="sphere" size="{R}" contype="0" conaffinity="0"/>
+    </body>"#,
+        centre[0], centre[1]
+    );
+    let depth = 0.5e-3;
+    let image = |extra: &[(&str, &str)]| {
+        let mut pairs = vec![("physics", "rigid")];
+        pairs.extend_from_slice(extra);
+        let m = load_xml(&press_scene(&config(&pairs), &body)).expect("model loads");
+        let mut d = m.make_data();
+        d.set_qpos(0, depth);
+        d.forward(&m);
+        d.sensor(&m, 0)
+    };
+    // Orthographic, whatever the index: today's image, bit for bit.
+    let plain = image(&[]);
+    assert_eq!(
+        image(&[("camera", "orthographic"), ("index", "1.4")]),
+        plain
+    );
+    let pinhole = image(&[("camera", "pinhole 0.01"), ("index", "1.4")]);
+
+    // The pinhole 10 mm below the 4 mm gel, index 1.4: each pixel's refracted ray against
+    // the sphere, the larger root of |P - d g - c|^2 + (d + R - depth)^2 = R^2, where
+    // positive. Tolerance: the bilinear interpolation of the orthographic cap between pixel
+    // centres, (px^2 + py^2) / 8 times its largest curvature R^2 / (R - depth)^3 (0.36 um),
+    // over the ray's slowest climb through the surface 1 - s |g| (s = 0.49, the cap's
+    // steepest slope; |g| < 0.6 for rays that reach it: above 0.7), inside the cap; at its
+    // rim, where the surface has a kink, s (px + py) / 4 over the same; plus the sphere
+    // tracing's 1e-8 m.
+    let px = FOV[0] / W as f64;
+    let contact = (2.0 * R * depth - depth * depth).sqrt();
+    let s = contact / (R - depth);
+    let climb = 1.0 - s * 0.6;
+    let tight = 2.0 * px * px / 8.0 * R * R / (R - depth).powi(3) / climb + 2e-8;
+    let loose = s * 2.0 * px / 4.0 / climb + 2e-8;
+    let (mut worst, mut changed) = (0.0f64, 0.0f64);
+    for row in 0..H {
+        for col in 0..W {
+            let (x, y) = pixel_centre(row, col);
+            let r = x.hypot(y);
+            let tb = tacrom::render::refraction::gel_slope(r, 0.004, 0.01, 1.4);
+            let g = [tb * x / r, tb * y / r];
+            let q = [x - centre[0], y - centre[1]];
+            if q[0].hypot(q[1]) < contact + 1e-3 {
+                assert!(tb < 0.6, "{tb}");
+            }
+            let zc = R - depth;
+            let a = g[0] * g[0] + g[1] * g[1] + 1.0;
+            let b = 2.0 * (zc - (q[0] * g[0] + q[1] * g[1]));
+            let c = q[0] * q[0] + q[1] * q[1] + zc * zc - R * R;
+            let disc = b * b - 4.0 * a * c;
+            let expect = if disc < 0.0 {
+                0.0
+            } else {
+                ((-b + disc.sqrt()) / (2.0 * a)).max(0.0)
+            };
+            let got = pinhole[row * W + col];
+            let err = (got - expect).abs();
+            // Seen more than a cell diagonal inside the rim: a smooth cell.
+            let seen = (q[0] - got * g[0]).hypot(q[1] - got * g[1]);
+            if seen < contact - px * 2f64.sqrt() {
+                worst = worst.max(err);
+                assert!(err <= tight, "({row}, {col}): {got} vs {expect}");
+            } else {
+                assert!(err <= loose, "({row}, {col}): {got} vs {expect}");
+            }
+            changed = changed.max((got - plain[row * W + col]).abs());
+        }
+    }
+    // The camera's parallax is far beyond the tolerance.
+    assert!(changed > 20.0 * tight, "{changed}");
+    eprintln!("pinhole sphere: worst {worst:.3e} m (bound {tight:.3e}), parallax {changed:.3e} m");
 }
 
 #[test]

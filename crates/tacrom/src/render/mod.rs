@@ -6,12 +6,15 @@
 //! data it was trained on lives in one place. [`rgb`] shades the depth image into the
 //! colour image of a GelSight-type sensor, with the built-in optics or a calibrated
 //! gradient-to-colour table ([`calibrated`]); [`markers`] places the markers printed on the
-//! gel and writes where the camera sees them.
+//! gel and writes where the camera sees them; [`refraction`] is the camera under the gel:
+//! which surface point a pinhole camera's pixel sees through the refracting gel, and the
+//! images resampled there.
 
 use crate::geometry::Placed;
 
 pub mod calibrated;
 pub mod markers;
+pub mod refraction;
 pub mod rgb;
 
 /// The contact problem's bounds on the surface indentation of a gel of thickness `T`

@@ -4,18 +4,20 @@
 //! configuration, the gel's model, and reusable image buffers. It knows nothing of MuJoCo:
 //! the caller hands it the indenters posed in the sensor frame. One evaluation is a short
 //! pipeline: the scene (which indenters touch, their rigid surface, the depth rule), the
-//! physics mode ([`models::SurfaceModel`]), the outputs ([`outputs`]).
+//! physics mode ([`models::SurfaceModel`]), the camera ([`Refraction`], a pinhole camera
+//! only), the outputs ([`outputs`]).
 
 use std::sync::Arc;
 use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use crate::config::Config;
+use crate::config::{Camera, Config};
 use crate::geometry::{Aabb, PixelGrid, Placed};
 use crate::mpm::SolveReport;
 use crate::render::markers::Markers;
 use crate::render::rgb::RgbModel;
+use crate::render::refraction::Refraction;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
 
@@ -23,7 +25,7 @@ pub mod models;
 pub mod outputs;
 
 use models::SurfaceModel;
-use outputs::{Frame, Needs};
+use outputs::{Frame, Needs, Seen, Shape};
 
 /// Failure to build a sensor from a valid configuration.
 #[derive(Debug, thiserror::Error)]
@@ -45,7 +47,7 @@ pub struct StageTimes {
     pub geometry: f64,
     /// Gel simulation and its surface (depth, shear and marker displacements).
     pub physics: f64,
-    /// Writing the outputs.
+    /// The camera (a pinhole's rays through the surface) and writing the outputs.
     pub render: f64,
 }
 
@@ -104,6 +106,16 @@ pub struct TactileSensor {
     markers: Markers,
     /// The `rgb` output's optical model.
     optics: RgbModel,
+    /// The pinhole camera's rays (`None`: orthographic, or no output needs an image).
+    refraction: Option<Refraction>,
+    /// The depth image the pinhole camera sees (m); empty for the orthographic camera.
+    seen_depth: Vec<f64>,
+    /// Whether the last evaluation's surface was deformed, so that the pinhole's images
+    /// differ from the orthographic ones (false: flat, every camera sees alike).
+    bent: bool,
+    /// An image written on the orthographic grid before it is resampled for the pinhole
+    /// camera (empty unless an output needs it).
+    scratch: Vec<f64>,
 }
 
 impl TactileSensor {
@@ -117,11 +129,35 @@ impl TactileSensor {
             fov_y: config.fov[1],
         };
         let model = models::build(&config)?;
-        let needs = config
+        let mut needs = config
             .outputs
             .iter()
             .fold(Needs::NONE, |n, o| n | o.spec().needs);
         let pixels = config.pixels();
+        // Through a pinhole every image is resampled where the rays meet the surface, so
+        // the depth image is computed for any of them.
+        let resampled: Vec<usize> = config
+            .outputs
+            .iter()
+            .filter(|o| matches!(o.spec().seen, Seen::Resampled(_)))
+            .map(|o| o.spec().len(&config))
+            .collect();
+        let refraction = match config.camera {
+            Camera::Pinhole { distance } if needs.depth || !resampled.is_empty() => {
+                needs.depth = true;
+                Some(Refraction::new(
+                    &grid,
+                    config.size[2],
+                    distance,
+                    config.index,
+                ))
+            }
+            _ => None,
+        };
+        let scratch_len = match refraction {
+            Some(_) => resampled.into_iter().max().unwrap_or(0),
+            None => 0,
+        };
         let image = |v: f64| {
             if needs.depth {
                 vec![v; pixels]
@@ -159,6 +195,13 @@ impl TactileSensor {
             shear,
             markers,
             optics,
+            seen_depth: match refraction {
+                Some(_) => vec![0.0; pixels],
+                None => Vec::new(),
+            },
+            refraction,
+            bent: false,
+            scratch: vec![0.0; scratch_len],
             config,
         })
     }
@@ -179,6 +222,10 @@ impl TactileSensor {
             shear: self.shear.clone(),
             markers: self.markers.clone(),
             optics: self.optics.clone(),
+            refraction: self.refraction.clone(),
+            seen_depth: self.seen_depth.clone(),
+            bent: self.bent,
+            scratch: self.scratch.clone(),
         })
     }
 
@@ -192,9 +239,20 @@ impl TactileSensor {
         &self.grid
     }
 
-    /// The depth image of the last evaluation (H x W, row-major, m); empty when no
-    /// configured output needs it.
+    /// The depth image of the last evaluation as the camera sees it (H x W, row-major, m;
+    /// the `depth` output); empty when no configured output needs it.
     pub fn depth(&self) -> &[f64] {
+        if self.refraction.is_some() {
+            &self.seen_depth
+        } else {
+            &self.depth
+        }
+    }
+
+    /// The depth of the surface straight above each pixel centre in the last evaluation
+    /// (H x W, row-major, m): the orthographic image, whatever the camera; empty when no
+    /// configured output needs it.
+    pub fn surface_depth(&self) -> &[f64] {
         &self.depth
     }
 
@@ -219,6 +277,8 @@ impl TactileSensor {
     pub fn reset(&mut self) {
         self.model.reset();
         self.depth.fill(0.0);
+        self.seen_depth.fill(0.0);
+        self.bent = false;
         self.pressure.fill(0.0);
         self.force = Vector3::zeros();
         self.shear.fill(0.0);
@@ -248,8 +308,11 @@ impl TactileSensor {
             .collect();
         eval.contact = !touching.is_empty();
         if !eval.contact && self.model.at_rest() {
-            // No contact and a flat gel: the outputs of the flat surface, nothing else.
+            // No contact and a flat gel: the outputs of the flat surface, nothing else
+            // (every camera sees it alike).
             self.depth.fill(0.0);
+            self.seen_depth.fill(0.0);
+            self.bent = false;
             self.pressure.fill(0.0);
             self.zmin.fill(f64::INFINITY);
             self.force = Vector3::zeros();
@@ -314,14 +377,24 @@ impl TactileSensor {
         }
         let t2 = Instant::now();
         eval.times.physics = (t2 - t1).as_secs_f64();
+        // The pinhole's rays through the bounded surface: each depth is the bilinear value
+        // of bounded pixels, so it keeps the rule's bounds (within [0, reach]).
+        if let Some(refraction) = &mut self.refraction {
+            self.bent = refraction.refract(&self.depth, &mut self.seen_depth);
+        }
         self.write_outputs(out);
         eval.times.render = t2.elapsed().as_secs_f64();
         eval
     }
 
-    fn write_outputs(&self, out: &mut [f64]) {
+    fn write_outputs(&mut self, out: &mut [f64]) {
         let frame = Frame {
-            depth: &self.depth,
+            depth: if self.refraction.is_some() {
+                &self.seen_depth
+            } else {
+                &self.depth
+            },
+            surface: &self.depth,
             zmin: &self.zmin,
             force: self.force,
             pressure: &self.pressure,
@@ -330,11 +403,22 @@ impl TactileSensor {
             markers: &self.markers,
             optics: &self.optics,
         };
+        let view = self.refraction.as_ref().filter(|_| self.bent);
         let mut at = 0;
         for o in &self.config.outputs {
             let spec = o.spec();
             let n = spec.len(&self.config);
-            (spec.write)(&frame, &mut out[at..at + n]);
+            let slot = &mut out[at..at + n];
+            match (view, spec.seen, spec.shape) {
+                // Written on the orthographic grid, then sampled where each pixel's ray
+                // meets the surface.
+                (Some(view), Seen::Resampled(sampling), Shape::Image { channels }) => {
+                    let image = &mut self.scratch[..n];
+                    (spec.write)(&frame, image);
+                    view.resample(frame.depth, channels, sampling, image, slot);
+                }
+                _ => (spec.write)(&frame, slot),
+            }
             at += n;
         }
     }

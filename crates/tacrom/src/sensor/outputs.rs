@@ -2,7 +2,7 @@
 //!
 //! An entry gives the output's name (the value in the `outputs` attribute), its shape for
 //! a configuration, its unit, whether it needs a gel model, what it reads of an
-//! evaluation, and its writer. `nsensordata`, the layout the plugin exports to Python and
+//! evaluation, how it follows a pinhole camera, and its writer. `nsensordata`, the layout the plugin exports to Python and
 //! the sensor's evaluation all read this table. Adding an output is one entry here and one
 //! writer.
 
@@ -11,6 +11,7 @@ use nalgebra::Vector3;
 use crate::config::Config;
 use crate::geometry::PixelGrid;
 use crate::render::markers::Markers;
+use crate::render::refraction::Sampling;
 use crate::render::rgb;
 
 /// How an output's values are arranged.
@@ -26,6 +27,21 @@ pub enum Shape {
     Vector(usize),
     /// A row of `n` values per marker of the `markers` grid: `(NX * NY, n)`.
     PerMarker(usize),
+}
+
+/// How an output follows a pinhole camera (`camera="pinhole D"`), whose pixels see the
+/// surface point their refracted ray meets rather than the one straight above their
+/// centre.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Seen {
+    /// Written as it is: not an image (force), or the image the refraction pass itself
+    /// computes (depth).
+    AsWritten,
+    /// An image of the surface on the orthographic pixel grid, resampled at the point each
+    /// pixel sees with the given sampling.
+    Resampled(Sampling),
+    /// Defined for the orthographic camera only: refused at load with a pinhole camera.
+    Refused,
 }
 
 /// What an evaluation must compute for an output.
@@ -59,8 +75,13 @@ impl std::ops::BitOr for Needs {
 /// What the writers read: the result of one evaluation.
 #[derive(Clone, Copy, Debug)]
 pub struct Frame<'a> {
-    /// Depth image (m, positive into the gel), when an output needs it; else empty.
+    /// Depth image as the camera sees it (m, positive into the gel), when an output needs
+    /// it; else empty.
     pub depth: &'a [f64],
+    /// The surface's depth on the orthographic pixel grid, the one the images of
+    /// [`Seen::Resampled`] outputs are written on (`depth` itself for the orthographic
+    /// camera).
+    pub surface: &'a [f64],
     /// Lowest indenter surface per pixel (sensor-frame z, m), `+inf` where none.
     pub zmin: &'a [f64],
     /// Total force of the gel on the indenters (N, sensor frame); zero unless needed.
@@ -93,6 +114,8 @@ pub struct OutputSpec {
     pub needs_gel: bool,
     /// What the evaluation computes for it.
     pub needs: Needs,
+    /// How it follows a pinhole camera.
+    pub seen: Seen,
     /// Writes the output from an evaluation's frame into its sensordata slice.
     pub write: fn(&Frame<'_>, &mut [f64]),
 }
@@ -185,6 +208,7 @@ const DEPTH: OutputSpec = OutputSpec {
         depth: true,
         ..Needs::NONE
     },
+    seen: Seen::AsWritten,
     write: |f, out| out.copy_from_slice(f.depth),
 };
 
@@ -198,6 +222,7 @@ const FORCE: OutputSpec = OutputSpec {
         force: true,
         ..Needs::NONE
     },
+    seen: Seen::AsWritten,
     write: |f, out| out.copy_from_slice(f.force.as_slice()),
 };
 
@@ -208,6 +233,7 @@ const CONTACT: OutputSpec = OutputSpec {
     shape: Shape::Image { channels: 1 },
     needs_gel: false,
     needs: Needs::NONE,
+    seen: Seen::Resampled(Sampling::Nearest),
     write: |f, out| {
         for (c, &z) in out.iter_mut().zip(f.zmin) {
             *c = if z.is_finite() && z < 0.0 { 1.0 } else { 0.0 };
@@ -230,8 +256,9 @@ const RGB: OutputSpec = OutputSpec {
         depth: true,
         ..Needs::NONE
     },
+    seen: Seen::Resampled(Sampling::Bilinear),
     write: |f, out| {
-        f.optics.render(f.grid, f.depth, out);
+        f.optics.render(f.grid, f.surface, out);
         f.markers.draw(f.grid, out);
     },
 };
@@ -239,8 +266,8 @@ const RGB: OutputSpec = OutputSpec {
 const PRESSURE: OutputSpec = OutputSpec {
     name: "pressure",
     doc: "normal contact pressure image of the gel on the indenters; integrates over the \
-          image to the normal force (force z) where the contact lies inside it; rom: from \
-          its coarse gel",
+          image to the normal force (force z) where the contact lies inside it (orthographic \
+          camera); rom: from its coarse gel",
     unit: "Pa",
     shape: Shape::Image { channels: 1 },
     needs_gel: true,
@@ -248,6 +275,7 @@ const PRESSURE: OutputSpec = OutputSpec {
         pressure: true,
         ..Needs::NONE
     },
+    seen: Seen::Resampled(Sampling::Bilinear),
     write: |f, out| out.copy_from_slice(f.pressure),
 };
 
@@ -263,6 +291,7 @@ const SHEAR: OutputSpec = OutputSpec {
         shear: true,
         ..Needs::NONE
     },
+    seen: Seen::Resampled(Sampling::Bilinear),
     write: |f, out| out.copy_from_slice(f.shear),
 };
 
@@ -272,7 +301,7 @@ const MARKERS: OutputSpec = OutputSpec {
           grid over the image, in its reading order (first row at +y, first column at -x); \
           per marker: column and row of its image position X_m + u_xy(X_m) (pixels, \
           continuous, c at the centre of column c), then its displacement along x and y \
-          (m); rom: from its coarse gel",
+          (m); rom: from its coarse gel; orthographic camera only",
     unit: "px, px, m, m",
     shape: Shape::PerMarker(Markers::VALUES),
     needs_gel: true,
@@ -280,6 +309,7 @@ const MARKERS: OutputSpec = OutputSpec {
         markers: true,
         ..Needs::NONE
     },
+    seen: Seen::Refused,
     write: |f, out| f.markers.write(f.grid, out),
 };
 

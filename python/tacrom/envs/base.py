@@ -8,7 +8,7 @@ import importlib
 import os
 import pathlib
 import sys
-from typing import Optional, Sequence
+from typing import Mapping, Optional, Sequence
 
 import gymnasium as gym
 import mujoco
@@ -46,9 +46,12 @@ def configure_sensors(
     physics: str,
     resolution: tuple[int, int],
     outputs: Sequence[str],
+    extra: Optional[Mapping[str, object]] = None,
 ) -> float:
     """Sets ``physics``, ``resolution`` and ``outputs`` of the named tacrom sensors in
-    ``spec``; their other attributes stay as the scene has them. Returns the thickest of
+    ``spec``, and any other attributes given in ``extra`` (such as ``tolerance`` or
+    ``threads``, README "Configuration attributes"); the rest stay as the scene has them.
+    Returns the thickest of
     their gels (m), the bound of their depth images."""
     if physics not in PHYSICS:
         raise ValueError(f"physics must be one of {PHYSICS}, not {physics!r}")
@@ -60,6 +63,7 @@ def configure_sensors(
             raise KeyError(f"the scene has no sensor {name!r}")
         plugin = found[name].plugin
         config = dict(plugin.config)
+        config.update({str(k): str(v) for k, v in (extra or {}).items()})
         config.update(physics=physics, resolution=f"{width} {height}", outputs=" ".join(outputs))
         plugin.config = config
         size = config.get("size") or DEFAULT_GEL_SIZE

@@ -65,6 +65,9 @@ class GripperLiftEnv(TactileEnv):
     rested (m). ``info``: ``object``, ``object_height``, ``contacts`` (fingertips in
     contact) and ``is_success`` (both in contact and the object at least ``lift_target``
     up). Episodes end by the time limit (100 steps, 4 s, when made with ``gymnasium.make``).
+
+    ``sensor_config``: further attributes of both sensors (``{"tolerance": "1e-2"}``,
+    ``{"threads": 2}``; README "Configuration attributes").
     """
 
     def __init__(
@@ -77,13 +80,19 @@ class GripperLiftEnv(TactileEnv):
         lift_target: float = 0.04,
         frame_skip: int = 20,
         render_size: tuple[int, int] = (320, 240),
+        sensor_config: Optional[dict] = None,
     ) -> None:
         if object != "random" and object not in OBJECTS:
             raise ValueError(f"object must be 'random' or one of {OBJECTS}, not {object!r}")
         spec = mujoco.MjSpec.from_file(str(asset_path("gripper.xml")))
         outputs = ["depth", "rgb"] if tactile_rgb else ["depth"]
         thickness = configure_sensors(
-            spec, SENSORS, physics=physics, resolution=resolution, outputs=outputs
+            spec,
+            SENSORS,
+            physics=physics,
+            resolution=resolution,
+            outputs=outputs,
+            extra=sensor_config,
         )
         super().__init__(
             spec.compile(),

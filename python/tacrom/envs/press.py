@@ -53,13 +53,18 @@ MAX_PRESS = 0.001
 
 
 def press_model(
-    physics: str, resolution: tuple[int, int], outputs=("depth",)
+    physics: str, resolution: tuple[int, int], outputs=("depth",), sensor_config=None
 ) -> tuple[mujoco.MjModel, float]:
     """The press scene compiled with its sensor ``touch`` configured; returns the model and
     the gel's thickness (m)."""
     spec = mujoco.MjSpec.from_string(SCENE)
     thickness = configure_sensors(
-        spec, ["touch"], physics=physics, resolution=resolution, outputs=outputs
+        spec,
+        ["touch"],
+        physics=physics,
+        resolution=resolution,
+        outputs=outputs,
+        extra=sensor_config,
     )
     return spec.compile(), thickness
 
@@ -85,6 +90,9 @@ class PressEnv(TactileEnv):
     -25 without contact (a toy task: find a spot by touch). ``info["centroid_x"]``: the
     centroid (m), NaN without contact. Episodes end by the time limit (50 steps when made
     with ``gymnasium.make``).
+
+    ``sensor_config``: further attributes of the sensor (``{"tolerance": "1e-2"}``; README
+    "Configuration attributes").
     """
 
     def __init__(
@@ -96,9 +104,10 @@ class PressEnv(TactileEnv):
         target_x: float = 0.002,
         frame_skip: int = 25,
         render_size: tuple[int, int] = (320, 240),
+        sensor_config: Optional[dict] = None,
     ) -> None:
         outputs = ["depth", "rgb"] if tactile_rgb else ["depth"]
-        model, thickness = press_model(physics, resolution, outputs)
+        model, thickness = press_model(physics, resolution, outputs, sensor_config)
         super().__init__(
             model,
             ["touch"],

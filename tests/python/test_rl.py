@@ -2,6 +2,7 @@
 holds each object of the tactile gripper with touch where it should be, rendering, and
 environments stepped in two processes."""
 
+import functools
 import warnings
 
 import gymnasium as gym
@@ -165,5 +166,24 @@ def test_async_vector_env_steps_press_in_two_processes():
         assert (obs["tactile_depth"].reshape(2, -1).max(axis=1) > 5e-4).all()
         # The two presses sit 2 mm apart: their contact centroids say so.
         assert info["centroid_x"][1] - info["centroid_x"][0] == pytest.approx(0.002, abs=3e-4)
+    finally:
+        envs.close()
+
+
+def test_async_vector_env_with_a_gel_in_forkserver_processes():
+    # Regression: a worker forked from a process in which a coarse or rom sensor had run
+    # hung in the plugin's thread pool (rayon's global pool does not survive fork); workers
+    # from a forkserver start clean. "tacrom.envs:" makes them import and register tacrom.
+    here = gym.make("tacrom/Press-v1", physics="coarse", resolution=(16, 12))
+    here.reset(seed=0)
+    here.step(np.array([0.0, 1.0], np.float32))
+    make = functools.partial(
+        gym.make, "tacrom.envs:tacrom/Press-v1", physics="coarse", resolution=(16, 12)
+    )
+    envs = gym.vector.AsyncVectorEnv([make] * 2, context="forkserver")
+    try:
+        envs.reset(seed=[0, 1])
+        obs, *_ = envs.step(np.array([[0.0, 1.0], [0.4, 1.0]], np.float32))
+        assert (obs["tactile_depth"].reshape(2, -1).max(axis=1) > 5e-4).all()
     finally:
         envs.close()

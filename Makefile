@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build demo test test-rust test-python bench bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-fine train eval-rom test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-fine train eval-rom test-train clean
 
 all: build
 
@@ -31,8 +31,14 @@ build: venv
 	cp $(LIB) $(PKG_LIB)
 	$(MAKE) --no-print-directory $(VENV)/.tacrom-installed
 
+# dist/tacrom-*.whl: the package with the plugin library, the rom-default model and the
+# environments' scenes (python/build_wheel.py; setuptools, no network).
+wheel: build
+	$(PY) python/build_wheel.py --out dist
+
 demo: build
 	$(PY) examples/demo.py --out out/demo --physics rigid coarse rom
+	$(PY) examples/gripper.py --out out/gripper --physics rigid --resolution 64 48
 
 test-rust: venv
 	$(CARGO) test --release
@@ -65,7 +71,7 @@ stability: venv
 	$(CARGO) run --release --bin tacrom -- stability
 
 clean:
-	rm -rf target out $(VENV) python/tacrom/_lib python/*.egg-info
+	rm -rf target out dist $(VENV) python/tacrom/_lib python/*.egg-info
 
 # --- Reduced-order model: data, training, export (PyTorch lives in its own .venv-train;
 # installing it takes about 5 minutes and 5.5 GB, so it is not part of `make test`).

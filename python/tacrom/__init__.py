@@ -259,3 +259,18 @@ def save_png(path: os.PathLike, image: np.ndarray, vmax: Optional[float] = None)
     png += chunk(b"IDAT", zlib.compress(raw, 6))
     png += chunk(b"IEND", b"")
     pathlib.Path(path).write_bytes(png)
+
+
+def _register_envs() -> None:
+    """Registers the Gymnasium environments (``tacrom/Press-v1``, ``tacrom/GripperLift-v1``,
+    :mod:`tacrom.envs`) when Gymnasium is installed."""
+    try:
+        import gymnasium  # noqa: F401
+    except ImportError:
+        return
+    from tacrom.envs import register_envs
+
+    register_envs()
+
+
+_register_envs()

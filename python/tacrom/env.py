@@ -1,5 +1,6 @@
 """A Gymnasium environment with a tactile observation: pressing and sliding a sphere on
-the sensor of ``examples/press.xml``-like scenes.
+the sensor of ``examples/press.xml``-like scenes (``tacrom/Press-v0``; ``tacrom/Press-v1``,
+:mod:`tacrom.envs.press`, is its successor with proprioception, RGB images and rendering).
 
 The observation is the sensor's depth image, ``float32`` of shape ``(H, W)`` in metres
 (positive into the gel, within ``[0, T]``); the action moves the indenter's press target.
@@ -16,31 +17,7 @@ import mujoco
 import numpy as np
 
 import tacrom
-
-_SCENE = """
-<mujoco model="tacrom press env">
-  <extension><plugin plugin="tacrom.tactile"/></extension>
-  <option timestep="0.002" gravity="0 0 0"/>
-  <worldbody>
-    <body name="sensor"><site name="gel"/></body>
-    <body name="indenter" pos="0 0 {radius}">
-      <joint name="x" type="slide" axis="1 0 0" range="-0.006 0.006" damping="2"/>
-      <joint name="press" type="slide" axis="0 0 -1" range="-0.002 0.002" damping="5"/>
-      <geom type="sphere" size="{radius}" mass="0.01" contype="0" conaffinity="0"/>
-    </body>
-  </worldbody>
-  <actuator>
-    <position joint="x" kp="2000" ctrlrange="-0.005 0.005"/>
-    <position joint="press" kp="2000" ctrlrange="0 0.001"/>
-  </actuator>
-  <sensor>
-    <plugin name="touch" plugin="tacrom.tactile" objtype="site" objname="gel">
-      <config key="physics" value="{physics}"/>
-      <config key="resolution" value="{width} {height}"/>
-    </plugin>
-  </sensor>
-</mujoco>
-"""
+from tacrom.envs.press import press_model
 
 
 class PressEnv(gym.Env):
@@ -62,10 +39,8 @@ class PressEnv(gym.Env):
         max_steps: int = 50,
     ) -> None:
         width, height = resolution
-        xml = _SCENE.format(radius=0.005, physics=physics, width=width, height=height)
-        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.model, self.thickness = press_model(physics, resolution)
         self.data = mujoco.MjData(self.model)
-        self.thickness = 0.004
         self.observation_space = gym.spaces.Box(
             0.0, self.thickness, shape=(height, width), dtype=np.float32
         )

@@ -1,0 +1,112 @@
+"""Environment steps per second of the tactile Gymnasium environments, per physics mode, in
+one process and in two (``gymnasium.vector.AsyncVectorEnv``), printed as a Markdown table.
+
+    .venv/bin/python examples/rl_throughput.py
+    .venv/bin/python examples/rl_throughput.py --envs tacrom/Press-v1 --physics rigid --procs 1
+
+The actions are scripted so that the sensors are in contact for most steps, as in a task
+being learned, not idle: Press-v1 presses 0.5 to 1 mm deep at a new spot every step;
+GripperLift-v1 runs 100-step episodes of descend (15 steps), close (10), lift (15), hold
+(40), put down (10), open (10), the sensors touching the object for about 70 of them. Each
+measurement follows a warm-up episode start and counts environment steps (with two
+processes, both processes' steps) over wall time; episode resets are included. The two
+worker processes start from a forkserver (see README, "Reinforcement learning").
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import tacrom  # noqa: F401  (registers the environments)
+
+GRIPPER_CYCLE = (
+    [(0.0, -1.0, -1.0)] * 15
+    + [(0.0, -1.0, 1.0)] * 10
+    + [(0.0, 0.5, 1.0)] * 55
+    + [(0.0, -1.0, 1.0)] * 10
+    + [(0.0, -1.0, -1.0)] * 10
+)
+
+
+def action(env_id: str, step: int, rng: np.random.Generator) -> np.ndarray:
+    if env_id.startswith("tacrom/GripperLift"):
+        return np.array(GRIPPER_CYCLE[step % len(GRIPPER_CYCLE)], np.float32)
+    return np.array([rng.uniform(-1, 1), rng.uniform(0, 1)], np.float32)
+
+
+def make(env_id: str, physics: str, resolution):
+    """A picklable maker of the environment: ``tacrom.envs:`` in the id makes Gymnasium
+    import (and so register) tacrom in a fresh worker process."""
+    kwargs = {"physics": physics}
+    if resolution:
+        kwargs["resolution"] = tuple(resolution)
+    return functools.partial(gym.make, f"tacrom.envs:{env_id}", **kwargs)
+
+
+def measure(env_id: str, physics: str, procs: int, steps: int, resolution) -> float:
+    """Environment steps per second over ``steps`` steps of each process."""
+    rng = np.random.default_rng(0)
+    if procs == 1:
+        env = make(env_id, physics, resolution)()
+        env.reset(seed=0)
+        t0 = time.perf_counter()
+        for i in range(steps):
+            _, _, terminated, truncated, _ = env.step(action(env_id, i, rng))
+            if terminated or truncated:
+                env.reset()
+        elapsed = time.perf_counter() - t0
+        env.close()
+        return steps / elapsed
+    # Workers start from a fresh forkserver, not by forking this process: a process forked
+    # after a gel sensor (coarse, rom) ran here would hang in the plugin's thread pool.
+    envs = gym.vector.AsyncVectorEnv(
+        [make(env_id, physics, resolution)] * procs, context="forkserver"
+    )
+    try:
+        envs.reset(seed=0)
+        t0 = time.perf_counter()
+        for i in range(steps):
+            envs.step(np.stack([action(env_id, i, rng) for _ in range(procs)]))
+        elapsed = time.perf_counter() - t0
+    finally:
+        envs.close()
+    return steps * procs / elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", nargs="+", default=["tacrom/Press-v1", "tacrom/GripperLift-v1"])
+    parser.add_argument("--physics", nargs="+", default=["rigid", "coarse", "rom"])
+    parser.add_argument("--procs", nargs="+", type=int, default=[1, 2])
+    parser.add_argument(
+        "--steps",
+        type=int,
+        nargs=2,
+        default=[1000, 100],
+        metavar=("RIGID", "GEL"),
+        help="environment steps per process: rigid, then coarse and rom",
+    )
+    parser.add_argument(
+        "--resolution", type=int, nargs=2, metavar=("W", "H"), help="default: each env's own"
+    )
+    args = parser.parse_args()
+    print("| environment | physics | processes | steps/s | ms/step |")
+    print("|---|---|---:|---:|---:|")
+    for env_id in args.envs:
+        for physics in args.physics:
+            steps = args.steps[0] if physics == "rigid" else args.steps[1]
+            for procs in args.procs:
+                rate = measure(env_id, physics, procs, steps, args.resolution)
+                print(
+                    f"| {env_id} | {physics} | {procs} | {rate:.1f} | {1e3 / rate:.1f} |",
+                    flush=True,
+                )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,186 @@
+"""``tacrom/GripperLift-v1``: grasp and lift an object with a parallel-jaw gripper whose two
+fingertips carry tacrom sensors (the scene of ``examples/gripper.xml``)."""
+
+from __future__ import annotations
+
+from typing import Any, Optional
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from tacrom.envs.base import TactileEnv, asset_path, configure_sensors
+
+#: The objects of the scene (body names), the one to lift chosen per episode.
+OBJECTS = ("box", "cylinder", "hexagon")
+#: Where the objects not in play wait, out of the gripper's reach (x, y on the table).
+PARKING = ((0.2, -0.1), (0.2, 0.0), (0.2, 0.1))
+#: The actuated joints, in ``joint_pos`` order.
+JOINTS = ("carry", "lift", "left", "right")
+SENSORS = ("left_touch", "right_touch")
+
+#: Action scaling: the carry (y) target within +-CARRY_RANGE around the object, the lift
+#: (z) target within [0, LIFT_RANGE], the fingers' closing target within [0, CLOSE_RANGE].
+CARRY_RANGE = 0.02
+LIFT_RANGE = 0.08
+CLOSE_RANGE = 0.035
+#: The pads' faces are this far apart with the fingers open (joint positions 0).
+OPEN_GAP = 0.07
+#: The gripper's height at reset (lift joint, m): the fingertips 50 mm higher than at the
+#: bottom of the lift range, above every object.
+START_LIFT = 0.05
+
+
+class GripperLiftEnv(TactileEnv):
+    """Grasp an object on the table and lift it, with a tactile sensor in each fingertip.
+
+    The scene is ``examples/gripper.xml`` (shipped in the package as
+    ``tacrom/envs/assets/gripper.xml``): a gripper on a carry (y) and a lift (z) slide with
+    two fingers closing along x, a 30 x 30 x 4 mm gel on each fingertip, and three objects
+    (box 24 x 16 x 40 mm, cylinder R = 12 mm x 40 mm, the ``hexagon`` mesh); one is placed
+    under the gripper per episode (``object``: one name, or ``"random"``), 0 to 4 mm off
+    centre along y and turned up to 0.15 rad about z, the others parked out of reach.
+
+    Action ``Box(-1, 1, (3,))``: position targets, ``carry = 20 mm * a[0]`` (y),
+    ``lift = 40 mm * (a[1] + 1)`` (z, 0 at the bottom: fingertip centres 17 mm above the
+    table), ``close = 17.5 mm * (a[2] + 1)`` (each finger's closing travel; 0 open, 35 mm
+    closed, squeezing with 300 N/m times the remaining travel, at most 8 N). One step:
+    ``frame_skip`` physics steps of 2 ms (default 20: 40 ms), then one sensor evaluation.
+
+    Observation ``Dict``:
+
+    * ``joint_pos`` ``(4,)`` float32: carry, lift, left and right finger (m), clipped to
+      +-0.2 m;
+    * ``joint_vel`` ``(4,)`` float32: their velocities (m/s), clipped to +-10 m/s;
+    * ``gripper_opening`` ``(1,)`` float32: the distance between the two pads (m), 0 to
+      70 mm;
+    * ``tactile_depth`` ``(2, H, W)`` float32: depth images (m, within [0, T]) of the left
+      (index 0, at -x) and the right (index 1) fingertip, each seen from the object: row 0
+      at the top of the pad, columns along the pad's width;
+    * ``tactile_rgb`` ``(2, H, W, 3)`` uint8: their RGB tactile images, with
+      ``tactile_rgb=True``.
+
+    Reward: ``0.25`` per fingertip in contact (any depth pixel above zero) plus
+    ``min(height / lift_target, 1)``, ``height`` being how far the object is above where it
+    rested (m). ``info``: ``object``, ``object_height``, ``contacts`` (fingertips in
+    contact) and ``is_success`` (both in contact and the object at least ``lift_target``
+    up). Episodes end by the time limit (100 steps, 4 s, when made with ``gymnasium.make``).
+
+    ``sensor_config``: further attributes of both sensors (``{"tolerance": "1e-2"}``,
+    ``{"threads": 2}``; README "Configuration attributes").
+    """
+
+    def __init__(
+        self,
+        physics: str = "rigid",
+        resolution: tuple[int, int] = (32, 24),
+        tactile_rgb: bool = False,
+        render_mode: Optional[str] = None,
+        object: str = "random",
+        lift_target: float = 0.04,
+        frame_skip: int = 20,
+        render_size: tuple[int, int] = (320, 240),
+        sensor_config: Optional[dict] = None,
+    ) -> None:
+        if object != "random" and object not in OBJECTS:
+            raise ValueError(f"object must be 'random' or one of {OBJECTS}, not {object!r}")
+        spec = mujoco.MjSpec.from_file(str(asset_path("gripper.xml")))
+        outputs = ["depth", "rgb"] if tactile_rgb else ["depth"]
+        thickness = configure_sensors(
+            spec,
+            SENSORS,
+            physics=physics,
+            resolution=resolution,
+            outputs=outputs,
+            extra=sensor_config,
+        )
+        super().__init__(
+            spec.compile(),
+            SENSORS,
+            gel_thickness=thickness,
+            frame_skip=frame_skip,
+            tactile_rgb=tactile_rgb,
+            render_mode=render_mode,
+            render_size=render_size,
+            camera="overview",
+        )
+        m = self.model
+        self.physics = physics
+        self.object_choice = object
+        self.lift_target = float(lift_target)
+        self._qpos = np.array([m.joint(j).qposadr[0] for j in JOINTS])
+        self._dof = np.array([m.joint(j).dofadr[0] for j in JOINTS])
+        self._bodies = {name: m.body(name).id for name in OBJECTS}
+        self._free = {name: m.joint(name).qposadr[0] for name in OBJECTS}
+        self._rest_z = {name: float(m.qpos0[self._free[name] + 2]) for name in OBJECTS}
+        self.object = OBJECTS[0]
+
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        self.observation_space = gym.spaces.Dict(
+            {
+                "joint_pos": gym.spaces.Box(-0.2, 0.2, shape=(4,), dtype=np.float32),
+                "joint_vel": gym.spaces.Box(-10.0, 10.0, shape=(4,), dtype=np.float32),
+                "gripper_opening": gym.spaces.Box(0.0, OPEN_GAP, shape=(1,), dtype=np.float32),
+                **self._tactile_spaces(),
+            }
+        )
+
+    def object_height(self) -> float:
+        """How far the object in play is above where it rested on the table (m)."""
+        z = self.data.xpos[self._bodies[self.object]][2]
+        return float(z - self._rest_z[self.object])
+
+    def _observe(self) -> dict:
+        d = self.data
+        q = d.qpos[self._qpos]
+        opening = np.clip(OPEN_GAP - q[2] - q[3], 0.0, OPEN_GAP)
+        return {
+            "joint_pos": np.clip(q, -0.2, 0.2).astype(np.float32),
+            "joint_vel": np.clip(d.qvel[self._dof], -10.0, 10.0).astype(np.float32),
+            "gripper_opening": np.array([opening], dtype=np.float32),
+            **self._tactile_obs(),
+        }
+
+    def _info(self, obs: dict) -> dict:
+        contacts = int((obs["tactile_depth"].reshape(2, -1).max(axis=1) > 0).sum())
+        height = self.object_height()
+        return {
+            "object": self.object,
+            "object_height": height,
+            "contacts": contacts,
+            "is_success": bool(contacts == 2 and height >= self.lift_target),
+        }
+
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        super().reset(seed=seed)
+        m, d, rng = self.model, self.data, self.np_random
+        mujoco.mj_resetData(m, d)
+        if self.object_choice == "random":
+            self.object = OBJECTS[int(rng.integers(len(OBJECTS)))]
+        else:
+            self.object = self.object_choice
+        parked = iter(PARKING)
+        for name in OBJECTS:
+            adr = self._free[name]
+            if name == self.object:
+                x, y = 0.0, rng.uniform(-0.004, 0.004)
+                yaw = rng.uniform(-0.15, 0.15)
+            else:
+                (x, y), yaw = next(parked), 0.0
+            d.qpos[adr : adr + 3] = [x, y, self._rest_z[name]]
+            d.qpos[adr + 3 : adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+        d.qpos[self._qpos] = [0.0, START_LIFT, 0.0, 0.0]
+        d.ctrl[:] = [0.0, START_LIFT, 0.0, 0.0]
+        mujoco.mj_forward(m, d)
+        obs = self._observe()
+        return obs, self._info(obs)
+
+    def step(self, action) -> tuple[dict, float, bool, bool, dict[str, Any]]:
+        a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        close = 0.5 * CLOSE_RANGE * (a[2] + 1.0)
+        self.data.ctrl[:] = [CARRY_RANGE * a[0], 0.5 * LIFT_RANGE * (a[1] + 1.0), close, close]
+        self._simulate()
+        obs = self._observe()
+        info = self._info(obs)
+        reward = 0.25 * info["contacts"] + min(max(info["object_height"], 0.0) / self.lift_target, 1.0)
+        return obs, float(reward), False, False, info

@@ -1,0 +1,189 @@
+"""The registered Gymnasium environments: the checker, seeding, a grasp that lifts and
+holds each object of the tactile gripper with touch where it should be, rendering, and
+environments stepped in two processes."""
+
+import functools
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import tacrom  # noqa: F401  (registers the environments)
+from tacrom.envs.base import make_renderer
+
+IDS = ["tacrom/Press-v0", "tacrom/Press-v1", "tacrom/GripperLift-v1"]
+
+
+def gl_error():
+    """None when an OpenGL context can be made here, else the clear error that
+    ``render_mode="rgb_array"`` raises."""
+    env = gym.make("tacrom/Press-v1").unwrapped
+    try:
+        make_renderer(env.model, 24, 32).close()
+    except RuntimeError as err:
+        return err
+    return None
+
+
+GL_ERROR = gl_error()
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_checker_accepts_the_registered_env(env_id):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # v0: "out of date, use v1"
+        env = gym.make(env_id).unwrapped
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        # Without OpenGL the render check cannot run; test_render_rgb_array says so.
+        check_env(env, skip_render_check=GL_ERROR is not None)
+    messages = [str(w.message) for w in caught if "gymnasium" in w.filename]
+    assert messages == []
+
+
+@pytest.mark.parametrize("env_id", ["tacrom/Press-v1", "tacrom/GripperLift-v1"])
+def test_seeded_resets_give_identical_first_observations(env_id):
+    a = gym.make(env_id, tactile_rgb=True)
+    b = gym.make(env_id, tactile_rgb=True)
+    obs_a, info_a = a.reset(seed=7)
+    obs_b, info_b = b.reset(seed=7)
+    assert obs_a.keys() == obs_b.keys() == a.observation_space.spaces.keys()
+    for key in obs_a:
+        assert np.array_equal(obs_a[key], obs_b[key]), key
+    assert info_a == info_b
+    for _ in range(3):
+        action = a.action_space.sample()
+        steps = a.step(action), b.step(action)
+        for key in obs_a:
+            assert np.array_equal(steps[0][0][key], steps[1][0][key]), key
+
+
+def test_seeds_choose_the_episode():
+    env = gym.make("tacrom/GripperLift-v1")
+    objects = {env.reset(seed=s)[1]["object"] for s in range(12)}
+    assert objects == {"box", "cylinder", "hexagon"}
+    press = gym.make("tacrom/Press-v1")
+    xs = {float(press.reset(seed=s)[0]["joint_pos"][0]) for s in range(3)}
+    assert len(xs) == 3
+
+
+def test_observation_keys_and_shapes():
+    env = gym.make("tacrom/GripperLift-v1", resolution=(40, 30), tactile_rgb=True)
+    obs, _ = env.reset(seed=0)
+    assert obs["joint_pos"].shape == (4,) and obs["joint_vel"].shape == (4,)
+    assert obs["gripper_opening"] == pytest.approx(0.07, abs=1e-6)
+    assert obs["tactile_depth"].shape == (2, 30, 40) and obs["tactile_depth"].dtype == np.float32
+    assert obs["tactile_rgb"].shape == (2, 30, 40, 3) and obs["tactile_rgb"].dtype == np.uint8
+    # The flat gel: zero depth, the uniform background colour.
+    assert not obs["tactile_depth"].any()
+    assert np.array_equal(obs["tactile_rgb"][0, 0, 0], [120, 125, 135])
+    assert (obs["tactile_rgb"] == obs["tactile_rgb"][0, 0, 0]).all()
+    assert "tactile_rgb" not in gym.make("tacrom/GripperLift-v1").reset(seed=0)[0]
+    with pytest.raises(ValueError, match="physics"):
+        gym.make("tacrom/Press-v1", physics="fine")
+
+
+@pytest.mark.parametrize("obj", ["box", "cylinder", "hexagon"])
+def test_gripper_lifts_and_holds_the_object(obj):
+    env = gym.make("tacrom/GripperLift-v1", object=obj, tactile_rgb=True)
+    obs, info = env.reset(seed=1)
+    assert info["object"] == obj and info["contacts"] == 0
+
+    def run(action, steps):
+        nonlocal obs, info
+        for _ in range(steps):
+            obs, reward, terminated, truncated, info = env.step(np.array(action, np.float32))
+            assert not terminated and not truncated
+        return obs, info
+
+    run([0, -1, -1], 15)  # down to the working height, open: around the object
+    assert not obs["tactile_depth"].any(), "touch before contact"
+    assert info["object_height"] == pytest.approx(0, abs=5e-4)
+    run([0, -1, 1], 10)  # close
+    depth = obs["tactile_depth"].reshape(2, -1).max(axis=1)
+    assert (depth > 3e-4).all() and (depth < 2e-3).all(), depth
+    assert (obs["tactile_rgb"] != obs["tactile_rgb"][:, :1, :1]).any(axis=(1, 2, 3)).all()
+    run([0, 0.5, 1], 15)  # lift: 60 mm up
+    heights = []
+    for _ in range(25):  # hold for 1 s (40 ms steps)
+        run([0, 0.5, 1], 1)
+        heights.append(info["object_height"])
+        assert info["contacts"] == 2 and info["is_success"]
+        assert (obs["tactile_depth"].reshape(2, -1).max(axis=1) > 3e-4).all()
+    assert min(heights) > 0.05, heights
+    assert max(heights) - min(heights) < 1e-3, heights
+    run([0, -1, 1], 20)  # put it down
+    run([0, -1, -1], 10)  # and let go
+    assert info["object_height"] == pytest.approx(0, abs=1e-3)
+    assert not obs["tactile_depth"].any()
+
+
+def test_physics_modes_agree_on_where_the_press_is():
+    rigid = gym.make("tacrom/Press-v1", physics="rigid", resolution=(32, 24))
+    coarse = gym.make("tacrom/Press-v1", physics="coarse", resolution=(32, 24))
+    images = []
+    for env in (rigid, coarse):
+        env.reset(seed=0)
+        obs, *_ = env.step(np.array([0.2, 0.6], np.float32))
+        images.append(obs["tactile_depth"][0])
+    for img in images:
+        assert img.max() > 5e-4
+    peaks = [np.unravel_index(np.argmax(img), img.shape) for img in images]
+    assert abs(int(peaks[0][1]) - int(peaks[1][1])) <= 1
+    assert not np.array_equal(images[0], images[1])
+
+
+@pytest.mark.parametrize("env_id", ["tacrom/Press-v1", "tacrom/GripperLift-v1"])
+def test_render_rgb_array(env_id):
+    env = gym.make(env_id, render_mode="rgb_array", render_size=(160, 120))
+    env.reset(seed=0)
+    if GL_ERROR is not None:
+        with pytest.raises(RuntimeError, match="OpenGL"):
+            env.render()
+        pytest.skip(f"no OpenGL context on this machine: {GL_ERROR}")
+    frame = env.render()
+    assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
+    assert frame.std() > 5  # a scene, not a blank frame
+    env.close()
+    env.close()
+
+
+def test_async_vector_env_steps_press_in_two_processes():
+    envs = gym.vector.AsyncVectorEnv(
+        [lambda: gym.make("tacrom/Press-v1", resolution=(32, 24))] * 2
+    )
+    try:
+        obs, _ = envs.reset(seed=[0, 1])
+        assert obs["tactile_depth"].shape == (2, 1, 24, 32)
+        assert obs["joint_pos"][0, 0] != obs["joint_pos"][1, 0]
+        for _ in range(3):
+            obs, reward, terminated, truncated, info = envs.step(
+                np.array([[0.0, 1.0], [0.4, 1.0]], np.float32)
+            )
+        assert reward.shape == (2,) and np.isfinite(reward).all()
+        assert (obs["tactile_depth"].reshape(2, -1).max(axis=1) > 5e-4).all()
+        # The two presses sit 2 mm apart: their contact centroids say so.
+        assert info["centroid_x"][1] - info["centroid_x"][0] == pytest.approx(0.002, abs=3e-4)
+    finally:
+        envs.close()
+
+
+def test_async_vector_env_with_a_gel_in_forkserver_processes():
+    # Regression: a worker forked from a process in which a coarse or rom sensor had run
+    # hung in the plugin's thread pool (rayon's global pool does not survive fork); workers
+    # from a forkserver start clean. "tacrom.envs:" makes them import and register tacrom.
+    here = gym.make("tacrom/Press-v1", physics="coarse", resolution=(16, 12))
+    here.reset(seed=0)
+    here.step(np.array([0.0, 1.0], np.float32))
+    make = functools.partial(
+        gym.make, "tacrom.envs:tacrom/Press-v1", physics="coarse", resolution=(16, 12)
+    )
+    envs = gym.vector.AsyncVectorEnv([make] * 2, context="forkserver")
+    try:
+        envs.reset(seed=[0, 1])
+        obs, *_ = envs.step(np.array([[0.0, 1.0], [0.4, 1.0]], np.float32))
+        assert (obs["tactile_depth"].reshape(2, -1).max(axis=1) > 5e-4).all()
+    finally:
+        envs.close()

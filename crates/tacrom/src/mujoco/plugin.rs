@@ -17,6 +17,9 @@ use crate::geometry::Placed;
 use crate::sensor::TactileSensor;
 use crate::visual::{self, ArrowStyle, Surface, GEOM_BUDGET};
 
+/// The name the shim registers the plugin under.
+const PLUGIN_NAME: &str = "tacrom.tactile";
+
 const OK: c_int = 0;
 const WARN: c_int = 1;
 const ERROR: c_int = -1;
@@ -515,6 +518,14 @@ pub unsafe extern "C" fn tacrom_sensor_outputs(
             .ok_or_else(|| format!("no sensor {sensor_id}"))?;
         if instance < 0 {
             return Err(format!("sensor {sensor_id} is not a plugin sensor"));
+        }
+        // Another plugin's sensor would read as a tacrom sensor with every attribute at
+        // its default (MuJoCo finds none of ours in its configuration).
+        let plugin = m.plugin_name(instance).unwrap_or_default();
+        if plugin != PLUGIN_NAME {
+            return Err(format!(
+                "sensor {sensor_id} is a '{plugin}' sensor, not {PLUGIN_NAME}"
+            ));
         }
         let config = config_of(m, instance, sid)?;
         let json = crate::sensor::outputs::layout_json(&config);

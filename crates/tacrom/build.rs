@@ -175,7 +175,8 @@ fn bindings(include: &Path) {
     bindgen::Builder::default()
         .header(include.join("mujoco/mujoco.h").to_string_lossy())
         .clang_arg(format!("-I{}", include.display()))
-        .allowlist_function("mj_.*|mju_.*|mjp_.*")
+        // `mjv_initGeom`: the plugin's `visualize` callback fills scene geoms with it.
+        .allowlist_function("mj_.*|mju_.*|mjp_.*|mjv_initGeom")
         .allowlist_type("mj.*")
         .allowlist_var("mj.*")
         .layout_tests(false)

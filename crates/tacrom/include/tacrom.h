@@ -33,6 +33,9 @@ int tacrom_copy(mjData* dest, const mjModel* m, const mjData* src, int instance,
                 int len);
 void tacrom_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance);
 int tacrom_compute(const mjModel* m, mjData* d, int instance, char* msg, int len);
+/* Adds the sensor's geoms to the scene when opt shows contact points or forces. */
+void tacrom_visualize(const mjModel* m, mjData* d, const mjvOption* opt, mjvScene* scn,
+                      int instance);
 /* The sensordata layout of a sensor as JSON (for the Python package); see plugin.rs. */
 int tacrom_sensor_outputs(const mjModel* m, int sensor_id, char* buf, int len);
 /* The output table as JSON (for the Python package); see plugin.rs. */

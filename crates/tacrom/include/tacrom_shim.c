@@ -62,6 +62,11 @@ static void compute(const mjModel* m, mjData* d, int instance, int capability_bi
   }
 }
 
+static void visualize(const mjModel* m, mjData* d, const mjvOption* opt, mjvScene* scn,
+                      int instance) {
+  tacrom_visualize(m, d, opt, scn, instance);
+}
+
 mjPLUGIN_LIB_INIT(tacrom) {
   mjpPlugin plugin;
   mjp_defaultPlugin(&plugin);
@@ -76,5 +81,6 @@ mjPLUGIN_LIB_INIT(tacrom) {
   plugin.copy = copy;
   plugin.reset = reset;
   plugin.compute = compute;
+  plugin.visualize = visualize;
   mjp_registerPlugin(&plugin);
 }

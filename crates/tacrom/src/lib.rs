@@ -1,8 +1,8 @@
 //! tacrom: a high-detail tactile sensor for MuJoCo.
 //!
 //! A rigid object presses a soft gel; the sensor reports the deformed surface as a depth
-//! image. `geometry`, `mpm`, `render` and `sensor` are plain Rust and know nothing of
-//! MuJoCo; only [`mujoco`] and the C shim in `include/` touch its C API.
+//! image. `geometry`, `mpm`, `render`, `sensor` and `visual` (what the viewer draws) are
+//! plain Rust and know nothing of MuJoCo; only [`mujoco`] and the C shim in `include/` touch its C API.
 #![warn(missing_docs)]
 #![warn(clippy::undocumented_unsafe_blocks)]
 
@@ -13,6 +13,7 @@ pub mod mujoco;
 pub mod render;
 pub mod rom;
 pub mod sensor;
+pub mod visual;
 
 /// The root of the source checkout this library was built from (the workspace, two levels
 /// above this crate). Tests and tools find the checkout's `.venv`, `models/` and the

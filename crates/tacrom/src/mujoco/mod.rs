@@ -1,6 +1,8 @@
 //! The MuJoCo side: bindings, read-only views of the model and data, the scene of
-//! indenters, and the plugin callbacks behind the C shim. The only module that touches
+//! indenters, the plugin callbacks behind the C shim, and the scene geoms its viewer
+//! callback adds. The only module that touches
 //! MuJoCo's C API.
+pub mod draw;
 mod mesh_cache;
 pub mod plugin;
 pub mod scene;

@@ -8,12 +8,17 @@ use std::ffi::{c_char, c_int, c_void, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::OnceLock;
 
+use super::draw;
 use super::scene::{GatherIssues, SceneSpec};
 use super::sys;
-use super::view::{Data, Model};
+use super::view::{pose, Data, Model};
 use crate::config::{Config, RawConfig, ATTRIBUTES};
 use crate::geometry::Placed;
 use crate::sensor::TactileSensor;
+use crate::visual::{self, ArrowStyle, Surface, GEOM_BUDGET};
+
+/// The name the shim registers the plugin under.
+const PLUGIN_NAME: &str = "tacrom.tactile";
 
 const OK: c_int = 0;
 const WARN: c_int = 1;
@@ -30,6 +35,9 @@ struct Instance {
     sensor: TactileSensor,
     placed: Vec<Placed>,
     warnings_given: u32,
+    /// Whether an indenter reached the gel in the last evaluation (the viewer draws
+    /// nothing otherwise).
+    touching: bool,
 }
 
 impl Instance {
@@ -41,6 +49,7 @@ impl Instance {
             sensor: self.sensor.try_clone().map_err(|e| e.to_string())?,
             placed: self.placed.clone(),
             warnings_given: self.warnings_given,
+            touching: self.touching,
         })
     }
 }
@@ -225,6 +234,7 @@ pub unsafe extern "C" fn tacrom_init(
             sensor,
             placed: Vec::new(),
             warnings_given: 0,
+            touching: false,
         });
         let slot = plugin_slot(dr, instance)?;
         *slot = Box::into_raw(state) as usize;
@@ -325,6 +335,7 @@ pub unsafe extern "C" fn tacrom_reset(
         if let Some(inst) = unsafe { (plugin_data as *mut Instance).as_mut() } {
             inst.sensor.reset();
             inst.warnings_given = 0;
+            inst.touching = false;
         }
     });
 }
@@ -369,6 +380,7 @@ pub unsafe extern "C" fn tacrom_compute(
         if !out.iter().all(|x| x.is_finite()) {
             out.fill(0.0);
         }
+        inst.touching = eval.as_ref().is_some_and(|e| e.contact);
         let mut warnings = describe(&issues, inst.sensor.config());
         if let Some(e) = eval {
             warnings.extend(e.warnings);
@@ -389,6 +401,77 @@ pub unsafe extern "C" fn tacrom_compute(
         }
     }
     status
+}
+
+/// Draws the sensor into MuJoCo's scene, as [`crate::visual`] lays it out: the deformed
+/// gel surface (at most [`GEOM_BUDGET`] - 1 tiles) when the scene shows contact points or
+/// contact forces, and the total force as an arrow at the contact centroid, scaled like
+/// MuJoCo's own contact forces, when it shows contact forces. Nothing without contact in
+/// the last evaluation, nothing beyond the scene's `maxgeom`.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
+#[no_mangle]
+pub unsafe extern "C" fn tacrom_visualize(
+    m: *const sys::mjModel,
+    d: *mut sys::mjData,
+    opt: *const sys::mjvOption,
+    scn: *mut sys::mjvScene,
+    instance: c_int,
+) {
+    guarded((), || {
+        // SAFETY: MuJoCo passes a valid model, options and scene (or null).
+        let (Some(mr), Some(opt), Some(scn)) =
+            (unsafe { (m.as_ref(), opt.as_ref(), scn.as_mut()) })
+        else {
+            return;
+        };
+        let shown = |flag: sys::mjtVisFlag| opt.flags.get(flag as usize).is_some_and(|&v| v != 0);
+        let arrow = shown(sys::mjVIS_CONTACTFORCE);
+        if !(arrow || shown(sys::mjVIS_CONTACTPOINT)) {
+            return;
+        }
+        // SAFETY: valid data; the instance was made by tacrom_init (or copied).
+        let Some(inst) = (unsafe { instance_mut(d, instance) }) else {
+            return;
+        };
+        if !inst.touching {
+            return;
+        }
+        let m = Model(mr);
+        // SAFETY: valid data, read-only view for the site's pose.
+        let data = Data(unsafe { &*d });
+        let s = inst.scene.site();
+        let Some(site) = pose(
+            data.site_xpos(&m).get(3 * s..3 * s + 3).unwrap_or(&[]),
+            data.site_xmat(&m).get(9 * s..9 * s + 9).unwrap_or(&[]),
+        ) else {
+            return;
+        };
+        let sensor = &inst.sensor;
+        let surface = Surface {
+            depth: sensor.depth(),
+            grid: sensor.grid(),
+            thickness: sensor.config().size[2],
+        };
+        // MuJoCo's own contact forces: vis.map.force per unit of mean body mass, the
+        // force width relative to the mean body size, the contact-force colour.
+        let style = ArrowStyle {
+            scale: f64::from(mr.vis.map.force) / mr.stat.meanmass,
+            width: f64::from(mr.vis.scale.forcewidth) * mr.stat.meansize,
+            rgba: mr.vis.rgba.contactforce,
+        };
+        let force = sensor.force();
+        let mut geoms = Vec::with_capacity(GEOM_BUDGET);
+        visual::sensor_geoms(
+            &surface,
+            &site,
+            GEOM_BUDGET,
+            arrow.then_some((&force, &style)),
+            &mut geoms,
+        );
+        draw::add_to_scene(scn, &geoms, inst.sensor_id);
+    });
 }
 
 fn describe(issues: &GatherIssues, config: &Config) -> Vec<String> {
@@ -435,6 +518,14 @@ pub unsafe extern "C" fn tacrom_sensor_outputs(
             .ok_or_else(|| format!("no sensor {sensor_id}"))?;
         if instance < 0 {
             return Err(format!("sensor {sensor_id} is not a plugin sensor"));
+        }
+        // Another plugin's sensor would read as a tacrom sensor with every attribute at
+        // its default (MuJoCo finds none of ours in its configuration).
+        let plugin = m.plugin_name(instance).unwrap_or_default();
+        if plugin != PLUGIN_NAME {
+            return Err(format!(
+                "sensor {sensor_id} is a '{plugin}' sensor, not {PLUGIN_NAME}"
+            ));
         }
         let config = config_of(m, instance, sid)?;
         let json = crate::sensor::outputs::layout_json(&config);

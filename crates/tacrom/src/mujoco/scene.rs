@@ -135,6 +135,11 @@ impl SceneSpec {
         self.candidates.is_empty()
     }
 
+    /// The sensor's site.
+    pub fn site(&self) -> usize {
+        self.site
+    }
+
     /// Fills `out` with the candidate geoms near the gel, posed in the sensor frame. Geoms
     /// whose bounding sphere cannot reach the gel's bounding sphere cost one distance test.
     pub fn gather(&self, m: Model<'_>, d: Data<'_>, out: &mut Vec<Placed>) -> GatherIssues {

@@ -95,6 +95,8 @@ model_array! {
     sensor_plugin: i32, sensor_plugin, nsensor * 1;
     /// `name_sensoradr` (nsensor).
     name_sensoradr: i32, name_sensoradr, nsensor * 1;
+    /// `plugin` (nplugin): the registry slot of each plugin instance.
+    plugin: i32, plugin, nplugin * 1;
 }
 
 impl<'a> Model<'a> {
@@ -144,6 +146,19 @@ impl<'a> Model<'a> {
     /// The sensor that plugin `instance` serves, if any.
     pub fn sensor_of_instance(&self, instance: i32) -> Option<usize> {
         self.sensor_plugin().iter().position(|&p| p == instance)
+    }
+
+    /// The registered name of the plugin that `instance` is an instance of.
+    pub fn plugin_name(&self, instance: i32) -> Option<String> {
+        let slot = *self.plugin().get(usize::try_from(instance).ok()?)?;
+        // SAFETY: mjp_getPluginAtSlot returns null or a plugin of the global registry,
+        // which lives (and is never modified) for the rest of the process.
+        let plugin = unsafe { sys::mjp_getPluginAtSlot(slot).as_ref() }?;
+        if plugin.name.is_null() {
+            return None;
+        }
+        // SAFETY: a registered plugin's name is a NUL-terminated string the registry owns.
+        Some(unsafe { CStr::from_ptr(plugin.name) }.to_string_lossy().into_owned())
     }
 
     /// The configured text of `attribute` for plugin `instance`.

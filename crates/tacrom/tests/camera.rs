@@ -8,6 +8,8 @@
 //! radius 5 mm; the pinhole 10 mm below the gel (rays up to 48 degrees from the vertical at
 //! the image's corners with index 1).
 
+mod common;
+
 use std::sync::{Arc, OnceLock};
 
 use nalgebra::Isometry3;
@@ -15,7 +17,7 @@ use tacrom::config::{
     Config, RawConfig, ATTR_CAMERA, ATTR_INDEX, ATTR_OUTPUTS, ATTR_PHYSICS, ATTR_RESOLUTION,
 };
 use tacrom::geometry::{PixelGrid, Placed, Sdf, Sphere};
-use tacrom::render::refraction::{gel_slope, Refraction, Sampling};
+use tacrom::render::refraction::{Refraction, Sampling};
 use tacrom::sensor::TactileSensor;
 
 const R: f64 = 0.005;
@@ -137,7 +139,7 @@ fn rigid_sphere_through_a_pinhole_matches_the_closed_form() {
         for col in 0..g.width {
             let (x, y) = (g.x(col), g.y(row));
             let r = x.hypot(y);
-            let tb = gel_slope(r, T, D, 1.4);
+            let tb = common::snell_slope(r, T, D, 1.4);
             let gg = [tb * x / r, tb * y / r];
             assert!(gg[0].hypot(gg[1]) < 0.7 || (x - centre[0]).hypot(y - centre[1]) > 4e-3);
             // The refracted ray against the sphere: the larger root of the quadratic.

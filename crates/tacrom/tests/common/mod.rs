@@ -185,3 +185,24 @@ pub fn sphere_body(r: f64) -> String {
     </body>"#
     )
 }
+
+/// The tan of a pinhole ray's angle from the vertical in the gel, for the ray that meets
+/// the undeformed top face at `r` from the axis (gel `t` thick, pinhole `d` below it, index
+/// `n`): found independently of the library, by bisection on the outside angle `a`, where
+/// `D tan a + T tan b = r` with `sin b = sin a / n` (the left side rises with `a`).
+pub fn snell_slope(r: f64, t: f64, d: f64, n: f64) -> f64 {
+    let run = |a: f64| {
+        let b = (a.sin() / n).asin();
+        d * a.tan() + t * b.tan()
+    };
+    let (mut lo, mut hi) = (0.0, (r / d).atan());
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if run(mid) < r {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    ((0.5 * (lo + hi)).sin() / n).asin().tan()
+}

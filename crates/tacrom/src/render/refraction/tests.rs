@@ -23,12 +23,34 @@ fn image(grid: &PixelGrid, h: impl Fn(f64, f64) -> f64) -> Vec<f64> {
 }
 
 /// The ray of pixel `(row, col)`: its centre `P` on the top face and its drift `g` (m of
-/// horizontal travel towards the axis per m of indentation), from [`gel_slope`].
+/// horizontal travel towards the axis per m of indentation), from [`snell_slope`], not the
+/// library's [`gel_slope`].
 fn ray(grid: &PixelGrid, row: usize, col: usize, n: f64) -> ([f64; 2], [f64; 2]) {
     let (x, y) = (grid.x(col), grid.y(row));
     let r = x.hypot(y);
-    let s = gel_slope(r, T, D, n);
+    let s = snell_slope(r, T, D, n);
     ([x, y], [s * x / r, s * y / r])
+}
+
+/// The tan of a pinhole ray's angle from the vertical in the gel, for the ray that meets
+/// the undeformed top face at `r` from the axis (gel `t` thick, pinhole `d` below it, index
+/// `n`): found independently of the library, by bisection on the outside angle `a`, where
+/// `D tan a + T tan b = r` with `sin b = sin a / n` (the left side rises with `a`).
+fn snell_slope(r: f64, t: f64, d: f64, n: f64) -> f64 {
+    let run = |a: f64| {
+        let b = (a.sin() / n).asin();
+        d * a.tan() + t * b.tan()
+    };
+    let (mut lo, mut hi) = (0.0, (r / d).atan());
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if run(mid) < r {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    ((0.5 * (lo + hi)).sin() / n).asin().tan()
 }
 
 #[test]
@@ -43,6 +65,8 @@ fn index_one_gives_the_straight_ray_and_snell_holds_otherwise() {
             let rb = r - T * tb;
             let (sin_a, sin_b) = (rb / rb.hypot(D), tb / tb.hypot(1.0));
             assert!((sin_a - n * sin_b).abs() < 1e-14, "{r} {n}");
+            // The independent bisection agrees (to its own rounding of the angle).
+            assert!((tb - snell_slope(r, T, D, n)).abs() < 1e-12, "{r} {n}");
             // Refraction bends the ray towards the vertical.
             assert!(tb < straight && tb > 0.0, "{r} {n}: {tb}");
         }

@@ -507,6 +507,14 @@ impl Gel {
     /// the previous equilibrium. See `relax.rs` for the method and the convergence test.
     /// Indenters with a non-finite pose are skipped.
     pub fn solve(&mut self, indenters: &[Placed]) -> SolveReport {
+        // Every parallel pass of the solve runs in the calling thread's pool (for one
+        // thread: on the caller itself), never in rayon's global pool, whose threads a
+        // forked process does not have.
+        let pool = self.pool;
+        pool.install(|| self.solve_in_pool(indenters))
+    }
+
+    fn solve_in_pool(&mut self, indenters: &[Placed]) -> SolveReport {
         let used = indenters::usable(indenters);
         let touching = used.iter().any(|p| self.reaches(p));
         let mut report = SolveReport::new(used.len());

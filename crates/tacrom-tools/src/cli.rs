@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use crate::bench::protocol::ModeSpec;
+use crate::calibrate::{self, fit::FitOptions};
 
 /// Said at the end of `tacrom --help` and of every subcommand's help.
 const UNITS: &str = "Lengths are in millimetres everywhere (MM in the option lists); \
@@ -395,6 +396,14 @@ pub struct RomFeaturesArgs {
     pub threads: usize,
 }
 
+/// A solver name (`relaxation`, `newton`).
+fn solver_name(s: &str) -> Result<tacrom::mpm::Solver, String> {
+    tacrom::mpm::Solver::named(s).ok_or_else(|| {
+        let names: Vec<_> = tacrom::mpm::Solver::ALL.iter().map(|s| s.name()).collect();
+        format!("unknown solver `{s}`; one of {}", names.join(", "))
+    })
+}
+
 /// A whole number of at least 3, odd.
 fn odd_bins(s: &str) -> Result<usize, String> {
     s.trim()
@@ -437,23 +446,27 @@ pub struct CalibrateArgs {
     #[arg(long, value_name = "FILE", conflicts_with = "synthesize")]
     pub out: Option<PathBuf>,
     /// Table nodes along each gradient axis (odd: one node at zero slope).
-    #[arg(long, value_name = "N", default_value_t = 41, value_parser = odd_bins)]
+    #[arg(long, value_name = "N", default_value_t = FitOptions::default().bins,
+          value_parser = odd_bins)]
     pub bins: usize,
     /// Half range G of the table's slopes, gx and gy in [-G, G] [the largest sample slope].
     #[arg(long, value_name = "G", value_parser = positive)]
     pub range: Option<f64>,
     /// Weight of the table's curvature penalty against the samples.
-    #[arg(long, value_name = "S", default_value_t = 0.05, value_parser = positive)]
+    #[arg(long, value_name = "S", default_value_t = FitOptions::default().smooth,
+          value_parser = positive)]
     pub smooth: f64,
     /// Hold out every K-th press of the list from the fit, for the report; 0: none.
-    #[arg(long, value_name = "K", default_value_t = 4)]
+    #[arg(long, value_name = "K", default_value_t = calibrate::DEFAULT_HOLDOUT)]
     pub holdout: usize,
     /// Leave out the pixels this close to a contact's edge (pixels).
-    #[arg(long, value_name = "PX", default_value_t = 1.5, value_parser = non_negative)]
+    #[arg(long, value_name = "PX", default_value_t = calibrate::DEFAULT_EDGE_MARGIN,
+          value_parser = non_negative)]
     pub edge_margin: f64,
     /// Contact detection: a pixel differs from the background by more than this in some
     /// channel (grey levels).
-    #[arg(long, value_name = "LEVELS", default_value_t = 2.5, value_parser = positive)]
+    #[arg(long, value_name = "LEVELS", default_value_t = calibrate::contact::DEFAULT_THRESHOLD,
+          value_parser = positive)]
     pub threshold: f64,
     /// The images are as the camera sees them, mirrored left-right against the sensor's
     /// image: flip them (and given centres) first.
@@ -554,12 +567,4 @@ mod tests {
             assert!(Cli::try_parse_from(argv).is_err(), "{args:?}");
         }
     }
-}
-
-/// A solver name (`relaxation`, `newton`).
-fn solver_name(s: &str) -> Result<tacrom::mpm::Solver, String> {
-    tacrom::mpm::Solver::named(s).ok_or_else(|| {
-        let names: Vec<_> = tacrom::mpm::Solver::ALL.iter().map(|s| s.name()).collect();
-        format!("unknown solver `{s}`; one of {}", names.join(", "))
-    })
 }

@@ -258,3 +258,64 @@ fn a_broken_press_set_is_refused_naming_the_fault() {
         "{e}"
     );
 }
+
+#[test]
+fn mirror_flips_camera_images_back_to_the_sensors_orientation() {
+    // The same presses as a camera sees them (left-right mirrored, centres with them),
+    // calibrated with --mirror, give the table of the originals: the flipped images are
+    // the originals pixel for pixel; the centres come back to within rounding. Without
+    // --mirror the table is the mirror image, far from it.
+    let dir = scratch("mirror");
+    let o = synth::SynthOptions {
+        presses: 8,
+        resolution: [96, 72],
+        pixel_size: 0.25e-3,
+        ..synth::SynthOptions::new(dir.join("set"))
+    };
+    let presses = synth::synthesize(&o).unwrap();
+    let camera = dir.join("camera");
+    std::fs::create_dir_all(&camera).unwrap();
+    let flip = |name: &str| {
+        let img = tacrom::render::calibrated::RgbImage::read_png(&o.out.join(name)).unwrap();
+        let mut data = Vec::new();
+        for r in 0..img.height {
+            for c in (0..img.width).rev() {
+                data.extend(img.pixel(r, c));
+            }
+        }
+        synth::write_png8(&camera.join(name), img.width, img.height, &data).unwrap();
+    };
+    flip("background.png");
+    let mut list: cal::PressList =
+        serde_json::from_str(&std::fs::read_to_string(o.out.join(cal::PRESS_LIST)).unwrap())
+            .unwrap();
+    for (entry, _) in &presses {
+        flip(&entry.image);
+    }
+    for e in &mut list.presses {
+        let [c, r] = e.center_px.unwrap();
+        e.center_px = Some([95.0 - c, r]);
+    }
+    std::fs::write(
+        camera.join(cal::PRESS_LIST),
+        serde_json::to_string(&list).unwrap(),
+    )
+    .unwrap();
+    let table = |input: &Path, mirror: bool| {
+        let mut c = cal::CalibrateOptions::new(input.to_owned());
+        c.out = dir.join(format!("optics-{mirror}.json"));
+        c.mirror = mirror;
+        let _ = cal::calibrate(&c).unwrap();
+        let optics = tacrom::render::calibrated::CalibratedOptics::load(&c.out).unwrap();
+        optics.table().values().to_vec()
+    };
+    let original = table(&o.out, false);
+    let largest = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max)
+    };
+    assert!(largest(&table(&camera, true), &original) < 1e-6);
+    assert!(largest(&table(&camera, false), &original) > 10.0);
+}

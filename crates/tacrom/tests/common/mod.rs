@@ -8,14 +8,21 @@ use std::sync::Once;
 
 use tacrom::mujoco::sys;
 
-/// The cdylib built alongside this test binary (target/<profile>/libtacrom.so).
+/// The cdylib built alongside this test binary: `target/<profile>/deps/libtacrom.so`, which
+/// cargo builds from the same sources as the test. Cargo copies it up to
+/// `target/<profile>/libtacrom.so` only when the library itself is a build root (`cargo
+/// build`), so after `cargo test --test <name>` alone that copy can be stale; it is the
+/// fallback.
 pub fn plugin_path() -> PathBuf {
     let exe = std::env::current_exe().expect("test binary path");
-    let dir = exe
-        .parent()
-        .and_then(|p| p.parent())
-        .expect("target/<profile>");
-    dir.join("libtacrom.so")
+    let deps = exe.parent().expect("target/<profile>/deps");
+    let fresh = deps.join("libtacrom.so");
+    if fresh.is_file() {
+        return fresh;
+    }
+    deps.parent()
+        .expect("target/<profile>")
+        .join("libtacrom.so")
 }
 
 /// Registers the plugin with MuJoCo, once per process.

@@ -8,7 +8,8 @@ draws each sensor's deformed gel (thin tiles coloured by depth, at most 400 geom
 sensor) and, with contact forces shown, the sensor's total force as an arrow. It steps the
 simulation in real time (as fast as the sensors allow, when they are slower) and shows
 each sensor's images beside the scene, drawn into the viewer with ``Handle.set_images``:
-the depth image (black at zero, white at the frame's deepest point, at least 0.1 mm) and,
+the depth image (in the tiles' colours: grey where flat, through blue to red at the
+frame's deepest point, at least 0.1 mm) and,
 when the sensor outputs it, the RGB tactile image (with the markers drawn in, when
 configured). A text overlay gives each sensor's deepest point, force and the real-time
 factor. Toggle the drawing with the viewer's own contact-point / contact-force switches.
@@ -16,8 +17,9 @@ factor. Toggle the drawing with the viewer's own contact-point / contact-force s
 With a ``mujoco`` whose viewer has no ``set_images``, the images are written as PNGs into
 ``--png-dir`` (default ``out/view``) once a second instead, and their paths printed.
 
-The viewer needs a display: without one (no ``DISPLAY`` or ``WAYLAND_DISPLAY``, or GLFW
-cannot start) it exits with a message saying so. Offscreen, use ``mujoco.Renderer`` with
+The viewer needs a display: without one (no ``DISPLAY`` or ``WAYLAND_DISPLAY``, GLFW
+cannot start, or no window opens within 30 s) it exits with status 2 and a message saying
+so. Offscreen, use ``mujoco.Renderer`` with
 ``MUJOCO_GL=egl`` (the callback's geoms are in every ``mjv_updateScene``) or
 ``tacrom.save_png``.
 """
@@ -47,6 +49,8 @@ DEPTH_FLOOR = 1e-4
 FRAME_PERIOD = 1.0 / 60.0
 #: Distance (m) of the camera from the first sensor's site: four default gel widths.
 CAMERA_DISTANCE = 0.12
+#: How long (s) the viewer may take to open its window.
+LAUNCH_TIMEOUT = 30.0
 #: When the simulation falls this far behind the wall clock (s), it stops catching up.
 MAX_LAG = 0.1
 
@@ -108,7 +112,9 @@ def depth_to_rgb(depth: np.ndarray, vmax: Optional[float] = None) -> np.ndarray:
     return (rgb + 0.5).astype(np.uint8)
 
 
-def aim_camera(cam: mujoco.MjvCamera, model: mujoco.MjModel, data: mujoco.MjData, sensor: str) -> None:
+def aim_camera(
+    cam: mujoco.MjvCamera, model: mujoco.MjModel, data: mujoco.MjData, sensor: str
+) -> None:
     """Points the free camera at the site of ``sensor``, from above and aside,
     :data:`CAMERA_DISTANCE` away (the viewer's default frames the whole scene, where a
     30 mm gel can be a few pixels)."""
@@ -120,7 +126,9 @@ def aim_camera(cam: mujoco.MjvCamera, model: mujoco.MjModel, data: mujoco.MjData
     cam.elevation = -35.0
 
 
-def sensor_images(model: mujoco.MjModel, data: mujoco.MjData, name: str) -> List[Tuple[str, np.ndarray]]:
+def sensor_images(
+    model: mujoco.MjModel, data: mujoco.MjData, name: str
+) -> List[Tuple[str, np.ndarray]]:
     """The images of sensor ``name`` to show: ``("depth", uint8 (H, W, 3))`` when it has a
     depth image, ``("rgb", ...)`` when it outputs ``rgb`` (markers drawn in, when
     configured); labelled ``"<name> depth"`` and so on."""
@@ -216,6 +224,33 @@ def require_display() -> None:
     glfw.terminate()
 
 
+def _launch(mujoco_viewer, model, data, timeout: float = LAUNCH_TIMEOUT):
+    """``launch_passive``, with a time limit on Linux: when its window fails to open (an
+    exception in the viewer's thread), ``launch_passive`` waits forever. Returns the handle
+    and the helper thread that called it (``None`` elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return mujoco_viewer.launch_passive(model, data), None
+    box: Dict[str, object] = {}
+
+    def call():
+        try:
+            box["handle"] = mujoco_viewer.launch_passive(model, data)
+        except Exception as e:  # reported below, in the caller's thread
+            box["error"] = e
+
+    helper = threading.Thread(target=call, daemon=True)
+    helper.start()
+    helper.join(timeout)
+    if "error" in box:
+        raise ViewError(f"MuJoCo's viewer failed to start: {box['error']}")
+    if "handle" not in box:
+        raise ViewError(
+            f"MuJoCo's viewer opened no window within {timeout:.0f} s (no OpenGL on this "
+            "display?)"
+        )
+    return box["handle"], helper
+
+
 def _write_pngs(model, data, sensors: Sequence[str], folder: pathlib.Path) -> List[pathlib.Path]:
     folder.mkdir(parents=True, exist_ok=True)
     written = []
@@ -244,11 +279,11 @@ def run(
     from mujoco import viewer as mujoco_viewer
 
     before = set(threading.enumerate())
-    viewer = mujoco_viewer.launch_passive(model, data)
+    viewer, helper = _launch(mujoco_viewer, model, data)
     # The viewer's own thread: joined before returning, so that it has stopped rendering
     # when the process exits (GLFW terminates at exit, and a window still drawing then
     # crashes the process).
-    ui_threads = [t for t in threading.enumerate() if t not in before]
+    ui_threads = [t for t in threading.enumerate() if t not in before and t is not helper]
     with viewer.lock():
         show_contacts(viewer.opt)
         aim_camera(viewer.cam, model, data, sensors[0])
@@ -260,6 +295,7 @@ def run(
     wall0, sim0 = time.perf_counter(), data.time
     last_images = last_pngs = -np.inf
     factor = 1.0
+    last_sim, last_wall = data.time, wall0
     try:
         while viewer.is_running() and (seconds is None or data.time < seconds):
             now = time.perf_counter()
@@ -270,14 +306,14 @@ def run(
                 wall0, sim0 = now, data.time
                 target = data.time + model.opt.timestep
             frame_end = now + FRAME_PERIOD
-            t_sim, t_wall = data.time, now
+            # The real-time factor: simulated over wall time since the last frame.
+            if now > last_wall:
+                factor = 0.9 * factor + 0.1 * (data.time - last_sim) / (now - last_wall)
+            last_sim, last_wall = data.time, now
             # The viewer draws its own copy of the data (taken by sync), so stepping
             # needs no lock.
             while data.time < target and time.perf_counter() < frame_end:
                 mujoco.mj_step(model, data)
-            elapsed = time.perf_counter() - t_wall
-            if elapsed > 0:
-                factor = 0.9 * factor + 0.1 * (data.time - t_sim) / elapsed
             viewer.sync()
             now = time.perf_counter()
             if images_in_viewer and now - last_images >= IMAGE_PERIOD:

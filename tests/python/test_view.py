@@ -44,7 +44,8 @@ def posed(xml: str) -> str:
     i = xml.index(indenter_open)
     end = xml.index("</body>", i) + len("</body>")
     xml = xml[:end] + "\n    </body>" + xml[end:]
-    return xml.replace(indenter_open, f'<body name="indenter" pos="{PRESS_AT[0]} {PRESS_AT[1]} 0.005">')
+    x, y = PRESS_AT
+    return xml.replace(indenter_open, f'<body name="indenter" pos="{x} {y} 0.005">')
 
 
 def coarse(xml: str) -> str:
@@ -138,7 +139,8 @@ def test_contact_flags_draw_the_gel_under_the_site_deepest_at_the_press(posed_mo
 
     # The deepest tile is where the press is deepest, as deep as the image.
     k = int(np.argmin(pts[:, 2]))
-    assert abs(pts[k, 0] - PRESS_AT[0]) <= TILE[0] and abs(pts[k, 1] - PRESS_AT[1]) <= TILE[1], pts[k]
+    assert abs(pts[k, 0] - PRESS_AT[0]) <= TILE[0], pts[k]
+    assert abs(pts[k, 1] - PRESS_AT[1]) <= TILE[1], pts[k]
     r, c = np.unravel_index(np.argmax(depth), depth.shape)
     px, py = -FOV[0] / 2 + (c + 0.5) * FOV[0] / W, FOV[1] / 2 - (r + 0.5) * FOV[1] / H
     assert abs(pts[k, 0] - px) <= TILE[0] and abs(pts[k, 1] - py) <= TILE[1]
@@ -154,7 +156,8 @@ def test_contact_flags_draw_the_gel_under_the_site_deepest_at_the_press(posed_mo
         assert np.dot(direction, want / np.linalg.norm(want)) > 1 - 1e-5
         length = np.linalg.norm(f) * model.vis.map.force / model.stat.meanmass
         assert arrow.size[2] == pytest.approx(length, rel=1e-5)
-        assert arrow.size[0] == pytest.approx(model.vis.scale.forcewidth * model.stat.meansize, rel=1e-5)
+        width = model.vis.scale.forcewidth * model.stat.meansize
+        assert arrow.size[0] == pytest.approx(width, rel=1e-5)
         assert np.allclose(arrow.rgba, model.vis.rgba.contactforce)
         tail = local(frame, arrow.pos)
         assert np.hypot(tail[0] - PRESS_AT[0], tail[1] - PRESS_AT[1]) < 0.5e-3, tail
@@ -191,7 +194,8 @@ def test_no_contact_draws_nothing(posed_model):
 
 def test_a_rigid_sensor_draws_the_surface_and_no_arrow(press_xml):
     # The stock example: rigid physics, depth only, so there is no force to draw.
-    model = mujoco.MjModel.from_xml_string(with_config(press_xml, physics="rigid", resolution="320 240"))
+    xml = with_config(press_xml, physics="rigid", resolution="320 240")
+    model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
     evaluate(model, data, 0.5e-3)
     ours = tacrom_geoms(update_scene(model, data, options(True, True)), model)
@@ -228,7 +232,8 @@ def test_a_copy_of_the_data_draws_the_same(posed_model):
 def test_callback_cost(press_xml, capsys):
     """One mjv_updateScene with the flags off and on (320 x 240 depth image; reported, and
     bounded loosely against a stall)."""
-    model = mujoco.MjModel.from_xml_string(with_config(press_xml, physics="rigid", resolution="320 240"))
+    xml = with_config(press_xml, physics="rigid", resolution="320 240")
+    model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
     evaluate(model, data, 0.8e-3)
     scn = mujoco.MjvScene(model, 4000)
@@ -243,7 +248,8 @@ def test_callback_cost(press_xml, capsys):
         median[name] = float(np.median(times))
     with capsys.disabled():
         print(
-            f"\nmjv_updateScene, press example (320 x 240): flags off {median['off'] * 1e6:.1f} us, "
+            "\nmjv_updateScene, press example (320 x 240): "
+            f"flags off {median['off'] * 1e6:.1f} us, "
             f"on {median['on'] * 1e6:.1f} us ({scn.ngeom} geoms)"
         )
     assert median["on"] < 0.05
@@ -311,7 +317,9 @@ def test_view_lists_and_checks_sensors(press_xml):
     assert view.tacrom_sensors(model, "touch") == ["touch"]
     with pytest.raises(view.ViewError, match="no tacrom sensor named 'nope'.*touch"):
         view.tacrom_sensors(model, "nope")
-    bare = mujoco.MjModel.from_xml_string("<mujoco><worldbody><site name='s'/></worldbody></mujoco>")
+    bare = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><site name='s'/></worldbody></mujoco>"
+    )
     with pytest.raises(view.ViewError, match="no tacrom.tactile sensor"):
         view.tacrom_sensors(bare)
 
@@ -351,7 +359,8 @@ def test_view_images_of_a_sensor(press_xml):
     assert tuple(d[0, 0]) == tuple(view.DEPTH_COLOURS[0].astype(np.uint8))
     r, c = np.unravel_index(np.argmax(depth), depth.shape)
     assert tuple(d[r, c]) == tuple(view.DEPTH_COLOURS[-1].astype(np.uint8))
-    assert np.array_equal(images["touch rgb"], np.clip(tacrom.rgb(model, data, "touch") + 0.5, 0, 255).astype(np.uint8))
+    rgb = np.clip(tacrom.rgb(model, data, "touch") + 0.5, 0, 255).astype(np.uint8)
+    assert np.array_equal(images["touch rgb"], rgb)
     assert "depth 0." in view.sensor_summary(model, data, "touch")
 
 
@@ -392,8 +401,9 @@ def test_view_without_a_display_fails_clearly(monkeypatch):
         with pytest.raises(view.ViewError, match="no display"):
             view.require_display()
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    press = ROOT / "examples" / "press.xml"
     res = subprocess.run(
-        [sys.executable, "-m", "tacrom.view", str(ROOT / "examples" / "press.xml"), "--seconds", "1"],
+        [sys.executable, "-m", "tacrom.view", str(press), "--seconds", "1"],
         env=env,
         capture_output=True,
         text=True,
@@ -402,7 +412,7 @@ def test_view_without_a_display_fails_clearly(monkeypatch):
     assert res.returncode == 2, (res.stdout, res.stderr)
     assert "tacrom.view: no display" in res.stderr
     res = subprocess.run(
-        [sys.executable, "-m", "tacrom.view", str(ROOT / "examples" / "press.xml"), "--sensor", "x"],
+        [sys.executable, "-m", "tacrom.view", str(press), "--sensor", "x"],
         env=env,
         capture_output=True,
         text=True,

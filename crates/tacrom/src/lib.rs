@@ -2,7 +2,8 @@
 //!
 //! A rigid object presses a soft gel; the sensor reports the deformed surface as a depth
 //! image. `geometry`, `mpm`, `render`, `sensor` and `visual` (what the viewer draws) are
-//! plain Rust and know nothing of MuJoCo; only [`mujoco`] and the C shim in `include/` touch its C API.
+//! plain Rust and know nothing of MuJoCo; only [`mujoco`] and the C shim in `include/`
+//! touch its C API.
 #![warn(missing_docs)]
 #![warn(clippy::undocumented_unsafe_blocks)]
 

@@ -129,7 +129,9 @@ impl Tiles {
     pub fn pool(surface: &Surface<'_>, max_tiles: usize) -> Option<Self> {
         let grid = surface.grid;
         let (w, h, t) = (grid.width, grid.height, surface.thickness);
-        if surface.depth.len() != w * h || !(t > 0.0) {
+        // A NaN thickness fails `t > 0` too.
+        let positive = t > 0.0;
+        if surface.depth.len() != w * h || !positive {
             return None;
         }
         let (nx, ny) = tile_counts(grid, max_tiles);
@@ -313,7 +315,7 @@ pub fn force_arrow(
 ) -> Option<VisualGeom> {
     let vec = site.rotation * force * style.scale;
     let len = vec.norm();
-    if !(len.is_finite() && len > 1e-9) || !at.coords.iter().all(|x| x.is_finite()) {
+    if !(len.is_finite() && len > 1e-9 && at.coords.iter().all(|x| x.is_finite())) {
         return None;
     }
     // The minimal rotation taking z onto the arrow (half a turn about x when opposite).

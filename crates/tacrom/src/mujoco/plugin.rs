@@ -358,6 +358,8 @@ pub unsafe extern "C" fn tacrom_compute(
         let m = Model(unsafe { m.as_ref() }.ok_or("null model")?);
         // SAFETY: valid data; the instance was made by tacrom_init.
         let inst = unsafe { instance_mut(d, instance) }.ok_or("tacrom.tactile: no state")?;
+        // Set again once the evaluation ran: a failed one leaves nothing to draw.
+        inst.touching = false;
         // SAFETY: valid data, read-only view for the poses.
         let data = Data(unsafe { &*d });
         let adr = m.sensor_adr()[inst.sensor_id] as usize;

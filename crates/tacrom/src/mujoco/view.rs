@@ -158,7 +158,11 @@ impl<'a> Model<'a> {
             return None;
         }
         // SAFETY: a registered plugin's name is a NUL-terminated string the registry owns.
-        Some(unsafe { CStr::from_ptr(plugin.name) }.to_string_lossy().into_owned())
+        Some(
+            unsafe { CStr::from_ptr(plugin.name) }
+                .to_string_lossy()
+                .into_owned(),
+        )
     }
 
     /// The configured text of `attribute` for plugin `instance`.

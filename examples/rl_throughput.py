@@ -5,11 +5,15 @@ one process and in two (``gymnasium.vector.AsyncVectorEnv``), printed as a Markd
     .venv/bin/python examples/rl_throughput.py --envs tacrom/Press-v1 --physics rigid --procs 1
 
 The actions are scripted so that the sensors are in contact for most steps, as in a task
-being learned, not idle: Press-v1 presses 0.5 to 1 mm deep at a new spot every step;
+being learned, not idle: Press-v1 presses 0.5 to 1 mm deep at a new random spot every step
+(``--policy random``, an untrained policy: the gel starts each solve far from the last) or
+sweeps along x and back every 40 steps, 0.5 to 1 mm deep (``--policy sweep``, a smooth
+one);
 GripperLift-v1 runs 100-step episodes of descend (15 steps), close (10), lift (15), hold
 (40), put down (10), open (10), the sensors touching the object for about 70 of them. Each
 measurement follows a warm-up episode start and counts environment steps (with two
-processes, both processes' steps) over wall time; episode resets are included. The two
+processes, both processes' steps) over wall time, and for one process also the CPU time
+per step (what the machine's other jobs do not inflate); episode resets are included. The two
 worker processes start from a forkserver (see README, "Reinforcement learning").
 """
 
@@ -33,9 +37,12 @@ GRIPPER_CYCLE = (
 )
 
 
-def action(env_id: str, step: int, rng: np.random.Generator) -> np.ndarray:
+def action(env_id: str, step: int, rng: np.random.Generator, policy: str) -> np.ndarray:
     if env_id.startswith("tacrom/GripperLift"):
         return np.array(GRIPPER_CYCLE[step % len(GRIPPER_CYCLE)], np.float32)
+    if policy == "sweep":
+        phase = 2 * np.pi * step / 40
+        return np.array([np.sin(phase), 0.5 + 0.5 * np.sin(phase / 3)], np.float32)
     return np.array([rng.uniform(-1, 1), rng.uniform(0, 1)], np.float32)
 
 
@@ -48,20 +55,24 @@ def make(env_id: str, physics: str, resolution):
     return functools.partial(gym.make, f"tacrom.envs:{env_id}", **kwargs)
 
 
-def measure(env_id: str, physics: str, procs: int, steps: int, resolution) -> float:
-    """Environment steps per second over ``steps`` steps of each process."""
+def measure(
+    env_id: str, physics: str, procs: int, steps: int, resolution, policy: str
+) -> tuple[float, float | None]:
+    """Environment steps per second of wall time over ``steps`` steps of each process, and
+    (one process only) CPU milliseconds per step, which other jobs on the machine do not
+    inflate."""
     rng = np.random.default_rng(0)
     if procs == 1:
         env = make(env_id, physics, resolution)()
         env.reset(seed=0)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for i in range(steps):
-            _, _, terminated, truncated, _ = env.step(action(env_id, i, rng))
+            _, _, terminated, truncated, _ = env.step(action(env_id, i, rng, policy))
             if terminated or truncated:
                 env.reset()
-        elapsed = time.perf_counter() - t0
+        elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
         env.close()
-        return steps / elapsed
+        return steps / elapsed, 1e3 * cpu / steps
     # Workers start from a fresh forkserver, not by forking this process: a process forked
     # after a gel sensor (coarse, rom) ran here would hang in the plugin's thread pool.
     envs = gym.vector.AsyncVectorEnv(
@@ -71,11 +82,11 @@ def measure(env_id: str, physics: str, procs: int, steps: int, resolution) -> fl
         envs.reset(seed=0)
         t0 = time.perf_counter()
         for i in range(steps):
-            envs.step(np.stack([action(env_id, i, rng) for _ in range(procs)]))
+            envs.step(np.stack([action(env_id, i, rng, policy) for _ in range(procs)]))
         elapsed = time.perf_counter() - t0
     finally:
         envs.close()
-    return steps * procs / elapsed
+    return steps * procs / elapsed, None
 
 
 def main() -> None:
@@ -94,16 +105,19 @@ def main() -> None:
     parser.add_argument(
         "--resolution", type=int, nargs=2, metavar=("W", "H"), help="default: each env's own"
     )
+    parser.add_argument("--policy", default="random", choices=["random", "sweep"])
     args = parser.parse_args()
-    print("| environment | physics | processes | steps/s | ms/step |")
-    print("|---|---|---:|---:|---:|")
+    print("| environment | policy | physics | processes | steps/s | ms/step | CPU ms/step |")
+    print("|---|---|---|---:|---:|---:|---:|")
     for env_id in args.envs:
         for physics in args.physics:
             steps = args.steps[0] if physics == "rigid" else args.steps[1]
             for procs in args.procs:
-                rate = measure(env_id, physics, procs, steps, args.resolution)
+                rate, cpu = measure(env_id, physics, procs, steps, args.resolution, args.policy)
+                policy = "grasp cycle" if env_id.startswith("tacrom/GripperLift") else args.policy
                 print(
-                    f"| {env_id} | {physics} | {procs} | {rate:.1f} | {1e3 / rate:.1f} |",
+                    f"| {env_id} | {policy} | {physics} | {procs} | {rate:.1f} | "
+                    f"{1e3 / rate:.1f} | {'-' if cpu is None else f'{cpu:.1f}'} |",
                     flush=True,
                 )
 

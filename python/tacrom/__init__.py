@@ -5,6 +5,9 @@ Importing ``mujoco`` registers the ``tacrom.tactile`` sensor plugin through MuJo
 with :func:`depth`, :func:`force`, :func:`contact`, :func:`rgb`, :func:`pressure`,
 :func:`shear` and :func:`markers`, or all at once with :func:`outputs`.
 
+With Gymnasium installed, importing tacrom registers its environments,
+``tacrom/Press-v1`` and ``tacrom/GripperLift-v1`` (:mod:`tacrom.envs`).
+
 Image layout: row-major (H, W) (``rgb``: (H, W, 3)). Row 0 is the +y edge of the sensor
 site's frame and column 0 the -x edge: the gel seen from the indenter's side, x to the
 right, y up.

@@ -171,9 +171,9 @@ def test_async_vector_env_steps_press_in_two_processes():
 
 
 def test_async_vector_env_with_a_gel_in_forkserver_processes():
-    # Regression: a worker forked from a process in which a coarse or rom sensor had run
-    # hung in the plugin's thread pool (rayon's global pool does not survive fork); workers
-    # from a forkserver start clean. "tacrom.envs:" makes them import and register tacrom.
+    # Workers from a forkserver (the way to go with threads > 1, whose worker pool a forked
+    # child would not have; test_fork.py covers fork with one thread). "tacrom.envs:"
+    # makes them import and register tacrom.
     here = gym.make("tacrom/Press-v1", physics="coarse", resolution=(16, 12))
     here.reset(seed=0)
     here.step(np.array([0.0, 1.0], np.float32))

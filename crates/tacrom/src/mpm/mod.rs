@@ -279,8 +279,13 @@ impl Pool {
         })
     }
 
-    /// Runs `f` in the calling thread's pool; on the caller alone if none can be built.
+    /// Runs `f` in the calling thread's pool; directly when the caller is already a worker
+    /// of a pool of this size (a pass nested in the solve), on the caller alone if no pool
+    /// can be built.
     fn install<R: Send>(&self, f: impl FnOnce() -> R + Send) -> R {
+        if rayon::current_thread_index().is_some() && rayon::current_num_threads() == self.threads {
+            return f();
+        }
         match self.get() {
             Ok(pool) => pool.install(f),
             Err(_) => f(),

@@ -16,8 +16,8 @@ use crate::config::{Camera, Config};
 use crate::geometry::{Aabb, PixelGrid, Placed};
 use crate::mpm::SolveReport;
 use crate::render::markers::Markers;
-use crate::render::rgb::RgbModel;
 use crate::render::refraction::Refraction;
+use crate::render::rgb::RgbModel;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
 

@@ -19,8 +19,13 @@ fn ramp(x: f64, y: f64) -> [f64; 3] {
 
 /// Writes an optics file with the [`ramp`] background and a table that adds `(gx, gy)`
 /// times 100 to red and green; returns its path.
-fn write_optics() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("tacrom-calibrated-rgb-{}", std::process::id()));
+/// Writes the test's optics file into a folder of its own (`name`): the tests of this file
+/// run in parallel in one process.
+fn write_optics(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!(
+        "tacrom-calibrated-rgb-{}-{name}",
+        std::process::id()
+    ));
     std::fs::create_dir_all(&dir).unwrap();
     let (w, h) = (80, 60);
     let mut data = Vec::new();
@@ -63,7 +68,7 @@ fn sensor(path: &str, width: usize, height: usize) -> (TactileSensor, Config) {
 
 #[test]
 fn a_flat_gel_shows_the_calibrated_background_resampled_exactly() {
-    let path = write_optics();
+    let path = write_optics("flat");
     let file = CalibratedOptics::load(&path).unwrap();
     for (w, h) in [(80, 60), (40, 30), (120, 90), (33, 17)] {
         let (mut s, config) = sensor(path.to_str().unwrap(), w, h);
@@ -104,7 +109,7 @@ fn a_flat_gel_shows_the_calibrated_background_resampled_exactly() {
 
 #[test]
 fn a_press_changes_the_calibrated_image_only_where_the_surface_is_sloped() {
-    let path = write_optics();
+    let path = write_optics("press");
     let (w, h) = (64, 48);
     let (mut s, config) = sensor(path.to_str().unwrap(), w, h);
     let background = s.config().optics.as_ref().unwrap().background().clone();

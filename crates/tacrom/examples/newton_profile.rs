@@ -50,13 +50,14 @@ fn main() {
         let t0 = Instant::now();
         let r = g.solve(&at(0.02e-3 * f as f64, 0.1e-3 + 0.05e-3 * f as f64));
         println!(
-            "frame {f}: {:.1} ms it {} fac {} reuse {} conv {} res {:.2e} F {:?}",
+            "frame {f}: {:.1} ms it {} fac {} reuse {} conv {} res {:.2e} active {} F {:?}",
             t0.elapsed().as_secs_f64() * 1e3,
             r.iterations,
             r.factorisations,
             r.reused,
             r.converged,
             r.residual,
+            r.active_particles,
             g.force()
         );
     }

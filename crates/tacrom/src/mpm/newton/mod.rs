@@ -59,8 +59,9 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use super::contact::StepIndenter;
 use super::indenters::Sweep;
 use super::{Gel, Layout, Material, SolveReport, FBAR_POISSON, PAD_BOTTOM};
-use crate::geometry::Aabb;
+use crate::geometry::{Aabb, Sdf};
 use energy::{Density, Kind};
+use std::sync::Arc;
 use system::System;
 
 /// Surface contact points per particle spacing along each axis.
@@ -93,6 +94,19 @@ const FORCING: f64 = 1e-2;
 /// Conjugate gradient iterations with an earlier factorisation before the matrix is
 /// factored afresh.
 const REUSE_ITERATIONS: usize = 8;
+
+/// Stiffness systems of recent regions kept for reuse (their pattern and fill-reducing
+/// ordering).
+const KEPT_SYSTEMS: usize = 4;
+
+/// Fraction of the largest nodal displacement above which a node counts as displaced: the
+/// region always covers the displaced nodes, so that where an indenter was, the gel
+/// relaxes.
+const DEFORMED: f64 = 2e-3;
+
+/// Distance (cells) from an indenter within which a node column's surface point counts
+/// as in the contact footprint that the region is grown from.
+const FOOTPRINT_CELLS: f64 = 1.5;
 
 /// Line search halvings at most.
 const MAX_HALVINGS: usize = 30;
@@ -204,17 +218,31 @@ pub(crate) struct Newton {
     origin: Vector3<f64>,
     /// Free index of each grid node (`u32::MAX`: fixed).
     dof: Vec<u32>,
+    /// Grid index of each free node.
+    free_nodes: Vec<u32>,
     points: Vec<QPoint>,
     densities: Vec<Density>,
-    system: System,
+    /// The region the current solve moves: its node box `[x0, x1, y0, y1)` (every
+    /// height), the local index of each free node in it (`u32::MAX`: held), the free
+    /// index of each local node, and the quadrature points whose stencil reaches it.
+    region: Option<[usize; 4]>,
+    local: Vec<u32>,
+    region_nodes: Vec<u32>,
+    region_points: Vec<u32>,
+    /// The stiffness system of the current region, and those of recent regions.
+    system: Option<System>,
+    systems: Vec<([usize; 4], System)>,
+    /// Active margin (cells) around the contact, see [`super::SolverOptions::active_margin`].
+    margin: f64,
     /// Nodal displacements (cells), 3 per free node.
     pub u: Vec<f64>,
     grad: Vec<f64>,
-    /// Nodal contact and friction forces of the last assembly.
+    /// Nodal contact and friction forces of the last assembly (region numbering, as
+    /// `grad` and `direction`).
     load: Vec<f64>,
     direction: Vec<f64>,
     trial: Vec<f64>,
-    work: [Vec<f64>; 3],
+    work: [Vec<f64>; 4],
     /// Contact lattice: counts, spacing (cells), first point (cells), area per point.
     lattice: [usize; 2],
     spacing: [f64; 2],
@@ -329,9 +357,9 @@ impl Newton {
                 nodes.push(node as u32);
             }
         }
-        let system = System::new(dims, &nodes, &dof)?;
-        let n = system.n;
+        let n = 3 * nodes.len();
         let [lx, ly, t] = params.size;
+        let margin = gel.options.active_margin * t / layout.dx;
         let lattice = [nx * CONTACT_SUBDIVISION, ny * CONTACT_SUBDIVISION];
         let spacing = [lx / lattice[0] as f64 / dx, ly / lattice[1] as f64 / dx];
         let origin = layout.origin;
@@ -340,15 +368,22 @@ impl Newton {
             dx,
             origin,
             dof,
+            free_nodes: nodes,
             points,
             densities,
-            system,
+            region: None,
+            local: Vec::new(),
+            region_nodes: Vec::new(),
+            region_points: Vec::new(),
+            system: None,
+            systems: Vec::new(),
+            margin,
             u: vec![0.0; n],
-            grad: vec![0.0; n],
-            load: vec![0.0; n],
-            direction: vec![0.0; n],
+            grad: Vec::new(),
+            load: Vec::new(),
+            direction: Vec::new(),
             trial: vec![0.0; n],
-            work: [Vec::new(), Vec::new(), Vec::new()],
+            work: Default::default(),
             lattice,
             spacing,
             first: [
@@ -373,6 +408,18 @@ impl Newton {
             debug_assert!(t > 0.0);
             s
         })
+    }
+
+    /// Back to the undeformed gel, if no contact point at rest touches `indenters`.
+    fn release_if_free(&mut self, indenters: &[StepIndenter]) {
+        let free = self
+            .contact
+            .iter()
+            .chain(&self.culled)
+            .all(|c| self.touch(&c.rest, indenters).is_none());
+        if free {
+            self.reset();
+        }
     }
 
     /// Back to the undeformed gel without contact history.
@@ -424,6 +471,162 @@ impl Newton {
         }
         let d = self.dof[(x * self.dims[1] + y) * self.dims[2] + z];
         (d != u32::MAX).then_some(d as usize)
+    }
+
+    /// Local index (in the current region) of local node `l` of the stencil at `base`,
+    /// if that node is free and in the region.
+    #[inline(always)]
+    fn local_at(&self, base: &[i32; 3], l: usize) -> Option<usize> {
+        let d = self.dof_at(base, l)?;
+        let k = self.local[d];
+        (k != u32::MAX).then_some(k as usize)
+    }
+
+    /// The node box `[x0, x1, y0, y1)` a solve of indenters through `poses` (each
+    /// indenter at the start and at the end of each substep) moves: the node columns
+    /// whose surface point comes within [`FOOTPRINT_CELLS`] of an indenter at one of
+    /// those poses and the stick anchors, grown by the margin and the stencil's reach,
+    /// and every node displaced by more than [`DEFORMED`] of the largest displacement. `None` if no indenter reaches the surface and no
+    /// anchor is left: then the rest state is the minimum.
+    fn region_box(&self, poses: &[(Arc<dyn Sdf>, Isometry3<f64>)]) -> Option<[usize; 4]> {
+        let whole = [0, self.dims[0], 0, self.dims[1]];
+        let mut bx = [
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        let add = |bx: &mut [f64; 4], x: f64, y: f64| {
+            *bx = [bx[0].min(x), bx[1].max(x), bx[2].min(y), bx[3].max(y)];
+        };
+        let umax = Self::max_node_norm(&self.u);
+        let lift = self.u.chunks_exact(3).map(|c| c[2]).fold(0.0, f64::max);
+        // Columns whose surface point comes within FOOTPRINT_CELLS of an indenter at one
+        // of its poses.
+        for (shape, pose) in poses {
+            let b = shape.aabb().transformed(pose);
+            let cells = |v: &Point3<f64>| (v.coords - self.origin) / self.dx;
+            let (lo, hi) = (cells(&b.min), cells(&b.max));
+            if !lo.iter().chain(hi.iter()).all(|v| v.is_finite()) {
+                continue;
+            }
+            if lo.z > self.top + lift + FOOTPRINT_CELLS {
+                continue;
+            }
+            let range = |k: usize| {
+                let a = (lo[k] - FOOTPRINT_CELLS - 1.0).floor().max(0.0) as usize;
+                let b =
+                    ((hi[k] + FOOTPRINT_CELLS + 1.0).ceil().max(0.0) as usize).min(self.dims[k]);
+                a..b
+            };
+            for ix in range(0) {
+                for iy in range(1) {
+                    let rest = Vector3::new(ix as f64, iy as f64, self.top);
+                    let x = rest + self.displacement(&Stencil::at(&rest), &self.u);
+                    let w = Point3::from(self.origin + x * self.dx);
+                    let d = shape.distance(&pose.inverse_transform_point(&w)) / self.dx;
+                    if !d.is_finite() || d < FOOTPRINT_CELLS {
+                        add(&mut bx, ix as f64, iy as f64);
+                    }
+                }
+            }
+        }
+        for (&index, _) in self.anchors.iter() {
+            let (ix, iy) = (
+                index as usize % self.lattice[0],
+                index as usize / self.lattice[0],
+            );
+            add(
+                &mut bx,
+                self.first[0] + ix as f64 * self.spacing[0],
+                self.first[1] + iy as f64 * self.spacing[1],
+            );
+        }
+        if !(bx[0] <= bx[1] && bx[2] <= bx[3]) {
+            return None;
+        }
+        if !self.margin.is_finite() {
+            return Some(whole);
+        }
+        // The stencil of a point at x reaches nodes floor(x - 0.5) .. + 2.
+        let grow = self.margin + 2.0;
+        let mut bx = [
+            bx[0] - grow,
+            bx[1] + grow + 1.0,
+            bx[2] - grow,
+            bx[3] + grow + 1.0,
+        ];
+        if umax > 0.0 {
+            for (k, c) in self.u.chunks_exact(3).enumerate() {
+                if (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() > DEFORMED * umax {
+                    let node = self.free_nodes[k] as usize;
+                    let (ix, iy) = (
+                        node / (self.dims[1] * self.dims[2]),
+                        node / self.dims[2] % self.dims[1],
+                    );
+                    add(&mut bx, ix as f64, iy as f64 + 1.0);
+                    add(&mut bx, ix as f64 + 1.0, iy as f64);
+                }
+            }
+        }
+        let clamp = |v: f64, n: usize| v.clamp(0.0, n as f64) as usize;
+        Some([
+            clamp(bx[0].floor(), self.dims[0]),
+            clamp(bx[1].ceil(), self.dims[0]),
+            clamp(bx[2].floor(), self.dims[1]),
+            clamp(bx[3].ceil(), self.dims[1]),
+        ])
+    }
+
+    /// Makes `bx` the region the next minimisations move: its node numbering, its
+    /// quadrature points and its stiffness system (built, or kept from a recent solve
+    /// over the same box).
+    fn set_region(&mut self, bx: [usize; 4]) -> Result<(), String> {
+        if self.region == Some(bx) && self.system.is_some() {
+            return Ok(());
+        }
+        let [x0, x1, y0, y1] = bx;
+        let (ny, nz) = (self.dims[1], self.dims[2]);
+        let inside = |node: usize| {
+            let (ix, iy) = (node / (ny * nz), node / nz % ny);
+            (x0..x1).contains(&ix) && (y0..y1).contains(&iy)
+        };
+        self.local = vec![u32::MAX; self.free_nodes.len()];
+        self.region_nodes.clear();
+        let mut grid_dof = vec![u32::MAX; self.dof.len()];
+        let mut grid_nodes = Vec::new();
+        for (k, &node) in self.free_nodes.iter().enumerate() {
+            if inside(node as usize) {
+                self.local[k] = self.region_nodes.len() as u32;
+                grid_dof[node as usize] = self.region_nodes.len() as u32;
+                self.region_nodes.push(k as u32);
+                grid_nodes.push(node);
+            }
+        }
+        let reaches = |base: i32, lo: usize, hi: usize| base + 2 >= lo as i32 && base < hi as i32;
+        self.region_points = (0..self.points.len() as u32)
+            .filter(|&i| {
+                let b = self.points[i as usize].stencil.base;
+                reaches(b[0], x0, x1) && reaches(b[1], y0, y1)
+            })
+            .collect();
+        if let Some(old) = self.system.take() {
+            if let Some(r) = self.region {
+                self.systems.insert(0, (r, old));
+                self.systems.truncate(KEPT_SYSTEMS);
+            }
+        }
+        self.system = match self.systems.iter().position(|(r, _)| *r == bx) {
+            Some(i) => Some(self.systems.remove(i).1),
+            None => Some(System::new(self.dims, &grid_nodes, &grid_dof)?),
+        };
+        self.region = Some(bx);
+        let n = 3 * self.region_nodes.len();
+        for v in [&mut self.grad, &mut self.load, &mut self.direction] {
+            v.clear();
+            v.resize(n, 0.0);
+        }
+        Ok(())
     }
 
     /// `F` of a point under displacement `u`.
@@ -583,7 +786,7 @@ impl Newton {
     /// the material is not defined.
     fn energy(&self, u: &[f64], indenters: &[StepIndenter]) -> f64 {
         let mut e = 0.0;
-        for q in &self.points {
+        for q in self.region_points.iter().map(|&i| &self.points[i as usize]) {
             let f = self.deformation(q, u);
             e += q.vol * self.densities[q.density as usize].energy(&f);
         }
@@ -660,12 +863,13 @@ impl Newton {
     fn assemble(&mut self, indenters: &[StepIndenter]) -> Option<(f64, f64, f64)> {
         self.grad.fill(0.0);
         self.load.fill(0.0);
-        self.system.clear();
+        self.system.as_mut().expect("region set").clear();
         let mut energy = 0.0;
         let (mut jmin, mut jmax) = (f64::INFINITY, f64::NEG_INFINITY);
         let points = std::mem::take(&mut self.points);
+        let region_points = std::mem::take(&mut self.region_points);
         let mut ok = true;
-        for q in &points {
+        for q in region_points.iter().map(|&i| &points[i as usize]) {
             let f = self.deformation(q, &self.u);
             let j = f.determinant();
             jmin = jmin.min(j);
@@ -678,6 +882,7 @@ impl Newton {
             self.add_point(q, &ev);
         }
         self.points = points;
+        self.region_points = region_points;
         if !ok {
             return None;
         }
@@ -701,7 +906,7 @@ impl Newton {
         // T_l[a][3 c + d] = sum_b g_l[b] H[3 a + b][3 c + d], scaled by the volume.
         let mut tl = [[[0.0f64; 9]; 3]; 27];
         for l in 0..27 {
-            let Some(d) = self.dof_at(&q.stencil.base, l) else {
+            let Some(d) = self.local_at(&q.stencil.base, l) else {
                 continue;
             };
             let g = q.stencil.gradient(l);
@@ -720,7 +925,8 @@ impl Newton {
                 }
             }
         }
-        add_pairs(&mut self.system, &dofs, |l1, l2| {
+        let system = self.system.as_mut().expect("region set");
+        add_pairs(system, &dofs, |l1, l2| {
             let g2 = &grads[l2];
             Matrix3::from_fn(|a, c| {
                 tl[l1][a][3 * c] * g2[0]
@@ -735,7 +941,7 @@ impl Newton {
         let mut dofs = [usize::MAX; 27];
         let mut w = [0.0; 27];
         for l in 0..27 {
-            if let Some(d) = self.dof_at(&s.base, l) {
+            if let Some(d) = self.local_at(&s.base, l) {
                 dofs[l] = d;
                 w[l] = s.weight(l);
                 for k in 0..3 {
@@ -744,7 +950,8 @@ impl Newton {
                 }
             }
         }
-        add_pairs(&mut self.system, &dofs, |l1, l2| h * (w[l1] * w[l2]));
+        let system = self.system.as_mut().expect("region set");
+        add_pairs(system, &dofs, |l1, l2| h * (w[l1] * w[l2]));
     }
 
     /// Largest nodal norm of `v`.
@@ -763,6 +970,8 @@ impl Newton {
         report: &mut SolveReport,
     ) -> Option<f64> {
         let mut residual = f64::INFINITY;
+        // Held nodes keep their displacement in every trial state.
+        self.trial.copy_from_slice(&self.u);
         for _ in 0..MAX_NEWTON {
             let (energy, jmin, jmax) = self.assemble(indenters)?;
             report.det_f_min = jmin;
@@ -779,25 +988,27 @@ impl Newton {
                 return Some(residual);
             }
             report.iterations += 1;
-            self.trial.copy_from_slice(&self.grad);
-            self.trial.iter_mut().for_each(|v| *v = -*v);
-            let reused = self.system.factored
-                && self.system.solve_preconditioned(
-                    &self.trial,
+            let [rhs, work @ ..] = &mut self.work;
+            rhs.clear();
+            rhs.extend(self.grad.iter().map(|g| -g));
+            let system = self.system.as_mut().expect("region set");
+            let reused = system.factored
+                && system.solve_preconditioned(
+                    rhs,
                     &mut self.direction,
                     FORCING,
                     REUSE_ITERATIONS,
-                    &mut self.work,
+                    work,
                 );
             if reused {
                 report.reused += 1;
             } else {
                 report.factorisations += 1;
-                if self.system.factor().is_err() {
+                if system.factor().is_err() {
                     return Some(residual);
                 }
-                self.direction.copy_from_slice(&self.trial);
-                self.system.solve(&mut self.direction);
+                self.direction.copy_from_slice(rhs);
+                system.solve(&mut self.direction);
             }
             let slope: f64 = self
                 .direction
@@ -820,12 +1031,16 @@ impl Newton {
             let mut alpha = 1.0;
             let mut accepted = false;
             for _ in 0..MAX_HALVINGS {
-                for ((t, u), p) in self.trial.iter_mut().zip(&self.u).zip(&self.direction) {
-                    *t = u + alpha * p;
+                for (k, &g) in self.region_nodes.iter().enumerate() {
+                    for c in 0..3 {
+                        let i = 3 * g as usize + c;
+                        self.trial[i] = self.u[i] + alpha * self.direction[3 * k + c];
+                    }
                 }
                 let e = self.energy(&self.trial, indenters);
                 if e.is_finite() && e <= energy + 1e-4 * alpha * slope {
                     std::mem::swap(&mut self.u, &mut self.trial);
+                    self.trial.copy_from_slice(&self.u);
                     self.history.push(e);
                     accepted = true;
                     break;
@@ -1089,6 +1304,42 @@ impl Gel {
         let mut newton = self.newton.take().expect("built above");
         newton.remap(matched);
         newton.history.clear();
+        let motion = sweep.steps as f64 * self.options.sweep_rate;
+        let substeps = ((motion / SUBSTEP_CELLS).ceil() as usize).clamp(1, 64);
+        let plan = Sweep {
+            indenters: sweep.indenters.clone(),
+            starts: sweep.starts.clone(),
+            steps: substeps,
+        };
+        let mut poses: Vec<(Arc<dyn Sdf>, Isometry3<f64>)> = sweep
+            .indenters
+            .iter()
+            .zip(&sweep.starts)
+            .map(|(p, s)| (p.shape.clone(), *s))
+            .collect();
+        let mut placed = Vec::new();
+        for s in 0..substeps {
+            plan.place(s, dx, &mut placed);
+            poses.extend(placed.iter().map(|p| (p.shape.clone(), p.now)));
+        }
+        let Some(bx) = newton.region_box(&poses) else {
+            // Nothing reaches the gel: without a load the undeformed gel is the minimum.
+            newton.reset();
+            report.sweep_steps = 0;
+            report.residual = 0.0;
+            self.force = Vector3::zeros();
+            self.loads.clear();
+            self.set_surface(|_| Vector3::zeros());
+            self.newton = Some(newton);
+            return;
+        };
+        if newton.set_region(bx).is_err() {
+            report.converged = false;
+            report.residual = f64::INFINITY;
+            self.newton = Some(newton);
+            return;
+        }
+        report.active_particles = newton.region_points.len();
         let saved = newton.u.clone();
         let motion = sweep.steps as f64 * self.options.sweep_rate;
         let substeps = ((motion / SUBSTEP_CELLS).ceil() as usize).clamp(1, 64);
@@ -1099,7 +1350,6 @@ impl Gel {
         };
         report.sweep_steps = substeps;
         report.residual = 0.0;
-        report.active_particles = self.particles.len();
         let mut placed = Vec::new();
         let mut starts = sweep.starts.clone();
         let mut force = Some(Vector3::zeros());
@@ -1110,6 +1360,11 @@ impl Gel {
                 break;
             }
             starts = placed.iter().map(|p| p.now).collect();
+        }
+        if force.is_some() && newton.loads.is_empty() && newton.anchors.is_empty() {
+            // No contact force at the equilibrium: it is the undeformed gel, up to the
+            // tolerance; take it exactly unless an indenter reaches the undeformed gel.
+            newton.release_if_free(&placed);
         }
         match force {
             Some(f) if newton.u.iter().all(|v| v.is_finite()) => {

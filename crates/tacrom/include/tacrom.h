@@ -33,6 +33,8 @@ int tacrom_copy(mjData* dest, const mjModel* m, const mjData* src, int instance,
                 int len);
 void tacrom_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance);
 int tacrom_compute(const mjModel* m, mjData* d, int instance, char* msg, int len);
+/* The coupling: adds the gel's contact wrenches to qfrc_passive (coupling="on"). */
+int tacrom_passive(const mjModel* m, mjData* d, int instance, char* msg, int len);
 /* Adds the sensor's geoms to the scene when opt shows contact points or forces. */
 void tacrom_visualize(const mjModel* m, mjData* d, const mjvOption* opt, mjvScene* scn,
                       int instance);

@@ -53,11 +53,13 @@ static void reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int
 }
 
 static void compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
-  (void)capability_bit;
   char msg[TACROM_MSG_LEN] = {0};
   /* Compute never raises an error: a failed evaluation writes zeros and warns, so one bad
-   * frame cannot take down a long simulation. */
-  if (tacrom_compute(m, d, instance, msg, sizeof(msg)) != TACROM_OK && msg[0]) {
+   * frame cannot take down a long simulation. The passive stage applies the coupling. */
+  int status = capability_bit == mjPLUGIN_PASSIVE
+                   ? tacrom_passive(m, d, instance, msg, sizeof(msg))
+                   : tacrom_compute(m, d, instance, msg, sizeof(msg));
+  if (status != TACROM_OK && msg[0]) {
     mju_warning("%s", msg);
   }
 }
@@ -71,7 +73,8 @@ mjPLUGIN_LIB_INIT(tacrom) {
   mjpPlugin plugin;
   mjp_defaultPlugin(&plugin);
   plugin.name = "tacrom.tactile";
-  plugin.capabilityflags |= mjPLUGIN_SENSOR;
+  /* Passive: the optional coupling, which pushes the bodies back (coupling="on"). */
+  plugin.capabilityflags |= mjPLUGIN_SENSOR | mjPLUGIN_PASSIVE;
   plugin.needstage = mjSTAGE_POS;
   plugin.attributes = tacrom_attributes(&plugin.nattribute);
   plugin.nstate = nstate;

@@ -89,7 +89,7 @@ mod transfer;
 #[cfg(test)]
 mod tests;
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use std::sync::Arc;
 
@@ -293,6 +293,15 @@ impl Pool {
     }
 }
 
+/// A force and a torque (about a stated point), in one frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Wrench {
+    /// N.
+    pub force: Vector3<f64>,
+    /// N m.
+    pub torque: Vector3<f64>,
+}
+
 /// The gel: particles, grid, workspaces and the state carried between solves.
 #[derive(Clone)]
 pub struct Gel {
@@ -483,6 +492,35 @@ impl Gel {
         self.force
     }
 
+    /// The force and torque (about the sensor origin) of the gel on each of `indenters`
+    /// (sensor frame; N and N m), from the last solve's contact loads: each load goes to
+    /// the indenter nearest to the point where it acts. Their sum is [`Gel::force`] for
+    /// the indenters that the last solve saw.
+    pub fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
+        let mut out = vec![Wrench::default(); indenters.len()];
+        if indenters.is_empty() {
+            return out;
+        }
+        for load in &self.loads {
+            let p = Point3::new(load.at[0], load.at[1], load.z);
+            let nearest = if indenters.len() == 1 {
+                0
+            } else {
+                let mut best = (f64::INFINITY, 0);
+                for (i, ind) in indenters.iter().enumerate() {
+                    let d = ind.shape.distance(&ind.pose.inverse_transform_point(&p));
+                    if d < best.0 {
+                        best = (d, i);
+                    }
+                }
+                best.1
+            };
+            out[nearest].force += load.force;
+            out[nearest].torque += p.coords.cross(&load.force);
+        }
+        out
+    }
+
     /// Bytes held per particle (state, snapshot of the elastic state, stencil, sort
     /// index), not counting the grid.
     pub fn bytes_per_particle() -> usize {
@@ -612,6 +650,7 @@ impl Gel {
             let x = (self.particles[a.particle as usize].x + a.d).cast::<f64>() * dx + origin;
             self.loads.push(pressure::ContactLoad {
                 at: [x.x, x.y],
+                z: x.z,
                 force: -a.f.cast::<f64>() * scale,
             });
         }

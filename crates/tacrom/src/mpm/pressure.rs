@@ -24,6 +24,8 @@ use crate::geometry::PixelGrid;
 pub(crate) struct ContactLoad {
     /// Deformed position in the gel plane (sensor frame x, y; m).
     pub at: [f64; 2],
+    /// Its height (sensor frame z; m).
+    pub z: f64,
     /// Force on the indenters (N, sensor frame).
     pub force: Vector3<f64>,
 }

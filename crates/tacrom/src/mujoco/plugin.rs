@@ -6,6 +6,7 @@
 
 use std::ffi::{c_char, c_int, c_void, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::Arc;
 use std::sync::OnceLock;
 
 use super::draw;
@@ -14,8 +15,10 @@ use super::sys;
 use super::view::{pose, Data, Model};
 use crate::config::{Config, RawConfig, ATTRIBUTES};
 use crate::geometry::Placed;
+use crate::mpm::Wrench;
 use crate::sensor::TactileSensor;
 use crate::visual::{self, ArrowStyle, Surface, GEOM_BUDGET};
+use nalgebra::Vector3;
 
 /// The name the shim registers the plugin under.
 const PLUGIN_NAME: &str = "tacrom.tactile";
@@ -34,10 +37,116 @@ struct Instance {
     scene: SceneSpec,
     sensor: TactileSensor,
     placed: Vec<Placed>,
+    /// The geom of each of `placed`.
+    geoms: Vec<usize>,
     warnings_given: u32,
     /// Whether an indenter reached the gel in the last evaluation (the viewer draws
     /// nothing otherwise).
     touching: bool,
+    /// The coupling's memory (`coupling="on"`).
+    coupling: Coupling,
+    /// Sensordata written by an evaluation that the passive stage had to run itself.
+    scratch: Vec<f64>,
+}
+
+/// What the coupling keeps between evaluations for its Kelvin-Voigt damping: the time of
+/// the last evaluation and, per geom, the elastic wrench and the geom's position (sensor
+/// frame) then, and their rates of change.
+#[derive(Clone, Debug, Default)]
+struct Coupling {
+    time: Option<f64>,
+    last: Vec<Sample>,
+    rates: Vec<Sample>,
+}
+
+/// One geom's elastic wrench and position, or their rates of change.
+#[derive(Clone, Copy, Debug, Default)]
+struct Sample {
+    geom: usize,
+    wrench: Wrench,
+    at: Vector3<f64>,
+}
+
+impl Coupling {
+    /// Records the samples `now` (per geom) at `time` and returns their rates: the
+    /// difference from the last evaluation over the time between (a geom missing then had
+    /// no wrench and has no rate); the rates kept when the time has not moved (the same
+    /// state evaluated again); zero after a step back in time.
+    fn update(&mut self, time: f64, now: Vec<Sample>) -> &[Sample] {
+        let zero = |s: &Sample| Sample {
+            geom: s.geom,
+            ..Sample::default()
+        };
+        let rates = match self.time {
+            Some(t) if time == t => now
+                .iter()
+                .map(|s| {
+                    let kept = self.rates.iter().find(|r| r.geom == s.geom);
+                    kept.copied().unwrap_or_else(|| zero(s))
+                })
+                .collect(),
+            Some(t) if time > t => {
+                let h = time - t;
+                now.iter()
+                    .map(|s| match self.last.iter().find(|b| b.geom == s.geom) {
+                        Some(b) => Sample {
+                            geom: s.geom,
+                            wrench: Wrench {
+                                force: (s.wrench.force - b.wrench.force) / h,
+                                torque: (s.wrench.torque - b.wrench.torque) / h,
+                            },
+                            at: (s.at - b.at) / h,
+                        },
+                        None => Sample {
+                            wrench: Wrench {
+                                force: s.wrench.force / h,
+                                torque: s.wrench.torque / h,
+                            },
+                            ..zero(s)
+                        },
+                    })
+                    .collect()
+            }
+            _ => now.iter().map(zero).collect(),
+        };
+        self.rates = rates;
+        self.time = Some(time);
+        self.last = now;
+        &self.rates
+    }
+
+    /// The time between the last two evaluations, if known.
+    fn step(&self, before: Option<f64>) -> Option<f64> {
+        match (before, self.time) {
+            (Some(a), Some(b)) if b > a => Some(b - a),
+            _ => None,
+        }
+    }
+}
+
+/// The wrench the coupling applies for elastic wrench `w` changing at `rate.wrench`, with
+/// retardation time `tau` (Kelvin-Voigt: `w + tau dw/dt`). The damping part is scaled
+/// down where it would make the gel pull the body towards it (a gel pushes only), and
+/// where it exceeds `mass * |v| / h`, the force that stops the relative velocity
+/// `v = rate.at` of the bodies (reduced mass `mass`) within the step `h`: an explicit
+/// damper stronger than that overshoots and grows (measured: a 2 g ball with 10 ms
+/// blows up at 2 ms steps without this cap).
+fn kelvin_voigt(w: &Wrench, rate: &Sample, tau: f64, mass: f64, h: Option<f64>) -> Wrench {
+    let (df, dt) = (rate.wrench.force * tau, rate.wrench.torque * tau);
+    let mut s = 1.0f64;
+    if w.force.z + df.z < 0.0 && df.z < 0.0 {
+        s = s.min((w.force.z.max(0.0) / -df.z).clamp(0.0, 1.0));
+    }
+    if let Some(h) = h {
+        let stop = mass * rate.at.norm() / h;
+        if df.norm() > stop {
+            s = s.min(stop / df.norm());
+        }
+    }
+    Wrench {
+        force: w.force + df * s,
+        torque: w.torque + dt * s,
+    }
 }
 
 impl Instance {
@@ -48,8 +157,11 @@ impl Instance {
             scene: self.scene.clone(),
             sensor: self.sensor.try_clone().map_err(|e| e.to_string())?,
             placed: self.placed.clone(),
+            geoms: self.geoms.clone(),
             warnings_given: self.warnings_given,
             touching: self.touching,
+            coupling: self.coupling.clone(),
+            scratch: Vec::new(),
         })
     }
 }
@@ -233,8 +345,11 @@ pub unsafe extern "C" fn tacrom_init(
             scene,
             sensor,
             placed: Vec::new(),
+            geoms: Vec::new(),
             warnings_given: 0,
             touching: false,
+            coupling: Coupling::default(),
+            scratch: Vec::new(),
         });
         let slot = plugin_slot(dr, instance)?;
         *slot = Box::into_raw(state) as usize;
@@ -336,6 +451,9 @@ pub unsafe extern "C" fn tacrom_reset(
             inst.sensor.reset();
             inst.warnings_given = 0;
             inst.touching = false;
+            inst.coupling = Coupling::default();
+            inst.placed.clear();
+            inst.geoms.clear();
         }
     });
 }
@@ -371,7 +489,9 @@ pub unsafe extern "C" fn tacrom_compute(
         let out = unsafe { std::slice::from_raw_parts_mut(data.0.sensordata.add(adr), dim) };
         out_ptr = Some((out.as_mut_ptr(), dim));
 
-        let issues = inst.scene.gather(m, data, &mut inst.placed);
+        let issues = inst
+            .scene
+            .gather(m, data, &mut inst.placed, &mut inst.geoms);
         let eval = if issues.nonfinite_site {
             out.fill(0.0);
             None
@@ -403,6 +523,134 @@ pub unsafe extern "C" fn tacrom_compute(
         }
     }
     status
+}
+
+/// The coupling (`coupling="on"`), called in MuJoCo's passive-force stage: applies the
+/// gel's contact force and torque on each geom pressing it, plus its Kelvin-Voigt damping
+/// (`damping` times the wrench's rate of change between evaluations), to the geom's body,
+/// and the opposite to the sensor's body, into `qfrc_passive`. The wrenches come from the
+/// solve of this state's sensor evaluation, which runs earlier in the same `mj_forward`;
+/// where none ran (sensors disabled, or a Runge-Kutta stage that skips them) it solves
+/// here. Without coupling it returns at once.
+///
+/// # Safety
+/// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
+#[no_mangle]
+pub unsafe extern "C" fn tacrom_passive(
+    m: *const sys::mjModel,
+    d: *mut sys::mjData,
+    instance: c_int,
+    msg: *mut c_char,
+    len: c_int,
+) -> c_int {
+    edge(msg, len, || {
+        // SAFETY: MuJoCo passes valid model and data.
+        let mr = unsafe { m.as_ref() }.ok_or("null model")?;
+        let m = Model(mr);
+        // SAFETY: valid data; the instance was made by tacrom_init.
+        let inst = unsafe { instance_mut(d, instance) }.ok_or("tacrom.tactile: no state")?;
+        if !inst.sensor.config().coupling {
+            return Ok(None);
+        }
+        // SAFETY: valid data, read-only view for the poses (no other reference to it lives
+        // while mj_applyFT writes below).
+        let data = Data(unsafe { &*d });
+        let (time, qfrc) = (data.0.time, data.0.qfrc_passive);
+        let mut placed = Vec::new();
+        let mut geoms = Vec::new();
+        let issues = inst.scene.gather(m, data, &mut placed, &mut geoms);
+        let s = inst.scene.site();
+        let site = pose(
+            data.site_xpos(&m).get(3 * s..3 * s + 3).unwrap_or(&[]),
+            data.site_xmat(&m).get(9 * s..9 * s + 9).unwrap_or(&[]),
+        );
+        let Some(site) = site.filter(|_| !issues.nonfinite_site) else {
+            return Ok(None);
+        };
+        let mut warnings = Vec::new();
+        let evaluated = geoms == inst.geoms
+            && placed
+                .iter()
+                .zip(&inst.placed)
+                .all(|(a, b)| Arc::ptr_eq(&a.shape, &b.shape) && a.pose == b.pose);
+        if !evaluated {
+            let dim = inst.sensor.config().sensordata_len();
+            inst.scratch.resize(dim, 0.0);
+            let eval = inst.sensor.evaluate(&placed, &mut inst.scratch);
+            inst.touching = eval.contact;
+            warnings.extend(eval.warnings);
+            inst.placed = placed;
+            inst.geoms = geoms;
+        }
+        let wrenches = inst.sensor.wrenches(&inst.placed);
+        let samples: Vec<Sample> = inst
+            .geoms
+            .iter()
+            .zip(&inst.placed)
+            .zip(wrenches)
+            .map(|((&geom, p), wrench)| Sample {
+                geom,
+                wrench,
+                at: p.pose.translation.vector,
+            })
+            .collect();
+        let tau = inst.sensor.config().damping;
+        let before = inst.coupling.time;
+        let rates = inst.coupling.update(time, samples.clone()).to_vec();
+        let h = inst.coupling.step(before);
+        let bodies = m.geom_bodyid();
+        let sensor_body = m.site_bodyid()[s];
+        let welded = |b: i32| m.body_weldid().get(b as usize).is_none_or(|&w| w == 0);
+        let mass = |b: i32| {
+            if welded(b) {
+                f64::INFINITY
+            } else {
+                m.body_mass()
+                    .get(b as usize)
+                    .copied()
+                    .unwrap_or(f64::INFINITY)
+            }
+        };
+        let point = site.translation.vector;
+        for (sample, rate) in samples.iter().zip(&rates) {
+            let body = bodies[sample.geom];
+            let (m1, m2) = (mass(body), mass(sensor_body));
+            let reduced = if m1.is_infinite() {
+                m2
+            } else if m2.is_infinite() {
+                m1
+            } else {
+                m1 * m2 / (m1 + m2)
+            };
+            let applied = kelvin_voigt(&sample.wrench, rate, tau, reduced, h);
+            if applied == Wrench::default() {
+                continue;
+            }
+            let (f, t) = (
+                site.rotation * applied.force,
+                site.rotation * applied.torque,
+            );
+            if !(f.iter().chain(t.iter()).all(|v| v.is_finite())) {
+                continue;
+            }
+            let (nf, nt) = (-f, -t);
+            // SAFETY: valid model and data; the vectors hold three numbers each; the
+            // bodies are ids of this model; qfrc_passive has nv entries.
+            unsafe {
+                sys::mj_applyFT(mr, d, f.as_ptr(), t.as_ptr(), point.as_ptr(), body, qfrc);
+                sys::mj_applyFT(
+                    mr,
+                    d,
+                    nf.as_ptr(),
+                    nt.as_ptr(),
+                    point.as_ptr(),
+                    sensor_body,
+                    qfrc,
+                );
+            }
+        }
+        Ok((!warnings.is_empty()).then(|| warnings.join("; ")))
+    })
 }
 
 /// Draws the sensor into MuJoCo's scene, as [`crate::visual`] lays it out: the deformed

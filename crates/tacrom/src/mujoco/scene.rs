@@ -140,10 +140,18 @@ impl SceneSpec {
         self.site
     }
 
-    /// Fills `out` with the candidate geoms near the gel, posed in the sensor frame. Geoms
-    /// whose bounding sphere cannot reach the gel's bounding sphere cost one distance test.
-    pub fn gather(&self, m: Model<'_>, d: Data<'_>, out: &mut Vec<Placed>) -> GatherIssues {
+    /// Fills `out` with the candidate geoms near the gel, posed in the sensor frame, and
+    /// `geoms` with their ids. Geoms whose bounding sphere cannot reach the gel's bounding
+    /// sphere cost one distance test.
+    pub fn gather(
+        &self,
+        m: Model<'_>,
+        d: Data<'_>,
+        out: &mut Vec<Placed>,
+        geoms: &mut Vec<usize>,
+    ) -> GatherIssues {
         out.clear();
+        geoms.clear();
         let mut issues = GatherIssues::default();
         let s = self.site;
         let Some(site_pose) = pose(
@@ -166,10 +174,13 @@ impl SceneSpec {
                 continue;
             }
             match pose(p, &xmat[9 * g..9 * g + 9]) {
-                Some(geom_pose) => out.push(Placed {
-                    shape: c.shape.clone(),
-                    pose: site_pose.inv_mul(&geom_pose),
-                }),
+                Some(geom_pose) => {
+                    out.push(Placed {
+                        shape: c.shape.clone(),
+                        pose: site_pose.inv_mul(&geom_pose),
+                    });
+                    geoms.push(g);
+                }
                 None => issues.nonfinite_geoms.push(g),
             }
         }

@@ -53,6 +53,8 @@ macro_rules! model_array {
 model_array! {
     /// `body_weldid` (nbody).
     body_weldid: i32, body_weldid, nbody * 1;
+    /// `body_mass` (nbody).
+    body_mass: f64, body_mass, nbody * 1;
     /// `name_bodyadr` (nbody).
     name_bodyadr: i32, name_bodyadr, nbody * 1;
     /// `geom_type` (ngeom).

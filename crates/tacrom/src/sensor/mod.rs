@@ -14,7 +14,7 @@ use nalgebra::Vector3;
 
 use crate::config::{Camera, Config};
 use crate::geometry::{Aabb, PixelGrid, Placed};
-use crate::mpm::SolveReport;
+use crate::mpm::{SolveReport, Wrench};
 use crate::render::markers::Markers;
 use crate::render::refraction::Refraction;
 use crate::render::rgb::RgbModel;
@@ -271,6 +271,13 @@ impl TactileSensor {
     /// configured output needs them.
     pub fn markers(&self) -> &Markers {
         &self.markers
+    }
+
+    /// The force and torque (about the sensor origin; sensor frame) of the gel on each of
+    /// `indenters` after the last evaluation, whatever the outputs: each contact load
+    /// goes to the indenter nearest to where it acts. Zero for rigid physics.
+    pub fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
+        self.model.wrenches(indenters)
     }
 
     /// Back to the undeformed gel.

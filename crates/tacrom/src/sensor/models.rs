@@ -6,8 +6,8 @@ use nalgebra::Vector3;
 
 use super::{Evaluation, Scene, SensorError};
 use crate::config::{material_name, Config, Physics};
-use crate::geometry::PixelGrid;
-use crate::mpm::{Gel, GelParams, SolverOptions};
+use crate::geometry::{PixelGrid, Placed};
+use crate::mpm::{Gel, GelParams, SolverOptions, Wrench};
 use crate::rom::{Rom, RomOptions};
 
 /// A model of the gel's surface.
@@ -26,6 +26,12 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
 
     /// The total force of the gel on the indenters after the last solve (N, sensor frame).
     fn force(&self) -> Vector3<f64>;
+
+    /// The force and torque (about the sensor origin) of the gel on each of `indenters`
+    /// after the last solve (sensor frame); zero for a model without a gel.
+    fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
+        vec![Wrench::default(); indenters.len()]
+    }
 
     /// The normal contact pressure on the image grid after the last solve (Pa); zero
     /// where the model has none.
@@ -216,6 +222,13 @@ impl SurfaceModel for Mpm {
         self.gel().map_or_else(Vector3::zeros, Gel::force)
     }
 
+    fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
+        match self.gel() {
+            Some(gel) if self.deformed => gel.wrenches(indenters),
+            _ => vec![Wrench::default(); indenters.len()],
+        }
+    }
+
     fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
         match self.gel() {
             Some(gel) if self.deformed => gel.contact_pressure(grid, out),
@@ -302,6 +315,11 @@ impl SurfaceModel for Reduced {
 
     fn force(&self) -> Vector3<f64> {
         self.mpm.force()
+    }
+
+    /// The coarse gel's, as the force.
+    fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
+        self.mpm.wrenches(indenters)
     }
 
     /// The coarse gel's pressure (the decoder restores depth only).

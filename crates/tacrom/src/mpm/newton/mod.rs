@@ -1377,6 +1377,7 @@ impl Gel {
                         let at = self.layout.origin + x * dx;
                         super::pressure::ContactLoad {
                             at: [at.x, at.y],
+                            z: at.z,
                             force: f * scale,
                         }
                     })

@@ -841,3 +841,44 @@ fn shear_and_depth_are_the_displacement_of_the_point_seen() {
     }
     assert!(worst < 1e-9, "worst {worst} (peak shear {peak})");
 }
+
+/// Two spheres pressed 0.3 mm at x = -6 and +6 mm on the coarse gel, with friction and
+/// each solver: each load goes to its own sphere, so the two wrenches mirror each other
+/// (force z within 1 %, opposite torques about y), add up to the total force, and each
+/// torque about the sensor origin is the lever of its force, `-x F_z` about y, to within
+/// 5 % (the patch's centre and the friction's own lever move it by 2 %).
+#[test]
+fn wrenches_split_the_force_between_indenters() {
+    for solver in Solver::ALL {
+        let mut g = gel(
+            GelParams::default(),
+            SolverOptions {
+                solver,
+                ..Default::default()
+            },
+        );
+        let x = 6e-3;
+        let pair = [
+            sphere_at(R, -x, 0.0, R - 0.3e-3),
+            sphere_at(R, x, 0.0, R - 0.3e-3),
+        ];
+        let rep = g.solve(&pair);
+        assert!(rep.converged, "{solver:?}: {rep:?}");
+        let w = g.wrenches(&pair);
+        let sum = w[0].force + w[1].force;
+        assert!(
+            (sum - g.force()).norm() <= 1e-9 * g.force().norm(),
+            "{solver:?}"
+        );
+        let (a, b) = (w[0].force.z, w[1].force.z);
+        assert!(a > 0.0 && (a - b).abs() <= 1e-2 * a, "{solver:?}: {a} {b}");
+        for (k, xc) in [(0, -x), (1, x)] {
+            let lever = -xc * w[k].force.z;
+            assert!(
+                (w[k].torque.y - lever).abs() <= 5e-2 * lever.abs(),
+                "{solver:?}: torque {} against {lever}",
+                w[k].torque.y
+            );
+        }
+    }
+}

@@ -124,6 +124,17 @@ impl Coupling {
     }
 }
 
+/// Largest `stiffness * timestep^2 / mass` at which the explicit coupling is stable with
+/// a margin: the undamped limit of the integration is 4.
+const STABLE_RATIO: f64 = 2.0;
+
+/// The gel's stiffness along the motion seen in `rate` (N/m): the rate of the elastic
+/// force over the relative speed, for a body moving faster than 1 um/s.
+fn stiff_warning(rate: &Sample, mass: f64) -> Option<f64> {
+    let speed = rate.at.norm();
+    (speed > 1e-6 && mass.is_finite()).then(|| rate.wrench.force.norm() / speed)
+}
+
 /// The wrench the coupling applies for elastic wrench `w` changing at `rate.wrench`, with
 /// retardation time `tau` (Kelvin-Voigt: `w + tau dw/dt`). The damping part is scaled
 /// down where it would make the gel pull the body towards it (a gel pushes only), and
@@ -150,6 +161,19 @@ fn kelvin_voigt(w: &Wrench, rate: &Sample, tau: f64, mass: f64, h: Option<f64>) 
 }
 
 impl Instance {
+    /// `warnings` as one message, unless this sensor has warned
+    /// [`MAX_REPEATED_WARNINGS`] times already.
+    fn limit(&mut self, mut warnings: Vec<String>) -> Option<String> {
+        if warnings.is_empty() || self.warnings_given >= MAX_REPEATED_WARNINGS {
+            return None;
+        }
+        self.warnings_given += 1;
+        if self.warnings_given == MAX_REPEATED_WARNINGS {
+            warnings.push("further warnings of this sensor are suppressed".into());
+        }
+        Some(warnings.join("; "))
+    }
+
     /// A copy with the same gel state, for `mj_copyData`.
     fn try_clone(&self) -> Result<Self, String> {
         Ok(Self {
@@ -507,14 +531,7 @@ pub unsafe extern "C" fn tacrom_compute(
         if let Some(e) = eval {
             warnings.extend(e.warnings);
         }
-        if warnings.is_empty() || inst.warnings_given >= MAX_REPEATED_WARNINGS {
-            return Ok(None);
-        }
-        inst.warnings_given += 1;
-        if inst.warnings_given == MAX_REPEATED_WARNINGS {
-            warnings.push("further warnings of this sensor are suppressed".into());
-        }
-        Ok(Some(warnings.join("; ")))
+        Ok(inst.limit(warnings))
     });
     if status == ERROR {
         if let Some((ptr, dim)) = out_ptr {
@@ -622,6 +639,20 @@ pub unsafe extern "C" fn tacrom_passive(
             } else {
                 m1 * m2 / (m1 + m2)
             };
+            if let (Some(h), Some(w)) = (h, stiff_warning(rate, reduced)) {
+                let ratio = w * h * h / reduced;
+                if ratio > STABLE_RATIO {
+                    warnings.push(format!(
+                        "tacrom.tactile sensor '{}': the coupling may be unstable: the gel's \
+                         stiffness on body '{}' is about {w:.3e} N/m, and stiffness * \
+                         timestep^2 / mass = {ratio:.2} exceeds {STABLE_RATIO} (timestep \
+                         {h:.3e} s, mass {reduced:.3e} kg); use a smaller timestep or a \
+                         heavier body",
+                        inst.sensor.config().name,
+                        m.body_name(body as usize),
+                    ));
+                }
+            }
             let applied = kelvin_voigt(&sample.wrench, rate, tau, reduced, h);
             if applied == Wrench::default() {
                 continue;
@@ -649,7 +680,7 @@ pub unsafe extern "C" fn tacrom_passive(
                 );
             }
         }
-        Ok((!warnings.is_empty()).then(|| warnings.join("; ")))
+        Ok(inst.limit(warnings))
     })
 }
 

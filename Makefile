@@ -39,6 +39,7 @@ wheel: build
 demo: build
 	$(PY) examples/demo.py --out out/demo --physics rigid coarse rom
 	$(PY) examples/gripper.py --out out/gripper --physics rigid --resolution 64 48
+	$(PY) examples/rest.py --physics coarse --seconds 0.3
 
 test-rust: venv
 	$(CARGO) test --release

@@ -128,12 +128,16 @@ impl Coupling {
 /// a margin: the undamped limit of the integration is 4.
 const STABLE_RATIO: f64 = 2.0;
 
-/// The gel's stiffness along the motion seen in `rate` (N/m): the rate of the elastic
-/// force over the relative speed, for a body moving faster than 1 um/s.
-fn stiff_warning(rate: &Sample, mass: f64) -> Option<f64> {
+/// The gel's stiffness along the motion seen in `rate` over a step `h` (N/m): the rate of
+/// the elastic force along the relative velocity over the speed, once the body moves by
+/// more than [`MOVED`] per step (below that the solver's tolerance dominates the change).
+fn stiffness(rate: &Sample, h: f64) -> Option<f64> {
     let speed = rate.at.norm();
-    (speed > 1e-6 && mass.is_finite()).then(|| rate.wrench.force.norm() / speed)
+    (speed * h > MOVED).then(|| (-rate.wrench.force.dot(&rate.at) / (speed * speed)).abs())
 }
+
+/// Motion per step (m) beyond which the coupling estimates the gel's stiffness.
+const MOVED: f64 = 1e-6;
 
 /// The wrench the coupling applies for elastic wrench `w` changing at `rate.wrench`, with
 /// retardation time `tau` (Kelvin-Voigt: `w + tau dw/dt`). The damping part is scaled
@@ -639,7 +643,8 @@ pub unsafe extern "C" fn tacrom_passive(
             } else {
                 m1 * m2 / (m1 + m2)
             };
-            if let (Some(h), Some(w)) = (h, stiff_warning(rate, reduced)) {
+            let k = h.and_then(|h| stiffness(rate, h).map(|k| (h, k)));
+            if let (Some((h, w)), true) = (k, reduced.is_finite()) {
                 let ratio = w * h * h / reduced;
                 if ratio > STABLE_RATIO {
                     warnings.push(format!(

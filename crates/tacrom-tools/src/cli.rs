@@ -255,6 +255,8 @@ pub enum MpmPart {
     Hertz,
     /// Solver cost only.
     Speed,
+    /// Work per frame against Young's modulus and Poisson's ratio only.
+    Work,
 }
 
 /// Options of `tacrom mpm`: Hertz contact on a bonded layer (frictionless sphere,

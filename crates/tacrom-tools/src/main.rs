@@ -217,10 +217,19 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
     if a.fine {
         options = options.with_fine();
     }
-    match a.only {
-        Some(MpmPart::Hertz) => options.speed_dx.clear(),
-        Some(MpmPart::Speed) => options.hertz_dx.clear(),
-        None => {}
+    let parts = [MpmPart::Hertz, MpmPart::Speed, MpmPart::Work];
+    for part in parts
+        .into_iter()
+        .filter(|p| a.only.is_some_and(|o| o != *p))
+    {
+        match part {
+            MpmPart::Hertz => options.hertz_dx.clear(),
+            MpmPart::Speed => options.speed_dx.clear(),
+            MpmPart::Work => {
+                options.youngs.clear();
+                options.poissons.clear();
+            }
+        }
     }
     let result = run(&options)?;
     print!("{}", markdown(&result));

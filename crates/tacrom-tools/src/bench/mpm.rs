@@ -56,6 +56,12 @@ pub struct MpmBenchOptions {
     pub progress: bool,
     /// The equilibrium solvers, each run on every row.
     pub solvers: Vec<Solver>,
+    /// Young's moduli (Pa) of the work-per-frame runs (coarse grid, Poisson 0.43).
+    pub youngs: Vec<f64>,
+    /// Poisson's ratios of the work-per-frame runs (coarse grid, the default modulus).
+    pub poissons: Vec<f64>,
+    /// Measured frames of a work-per-frame run.
+    pub work_frames: usize,
 }
 
 impl MpmBenchOptions {
@@ -72,6 +78,9 @@ impl MpmBenchOptions {
             out: PathBuf::from("out/bench/mpm"),
             solvers: vec![Solver::default()],
             progress: true,
+            youngs: vec![1e4, 1e5, 1e6, 1e7],
+            poissons: vec![0.3, 0.43, 0.49, 0.499],
+            work_frames: 4,
         }
     }
 
@@ -189,6 +198,33 @@ impl SpeedRow {
     }
 }
 
+/// The work per frame of one gel material in the moving press (coarse grid, one
+/// thread, the default tolerance).
+#[derive(Clone, Debug)]
+pub struct WorkRow {
+    /// Equilibrium solver.
+    pub solver: Solver,
+    /// Young's modulus (Pa).
+    pub young: f64,
+    /// Poisson's ratio.
+    pub poisson: f64,
+    /// Measured frames.
+    pub frames: usize,
+    /// Median and largest iterations per frame (explicit steps or Newton steps).
+    pub median_iterations: usize,
+    /// See `median_iterations`.
+    pub max_iterations: usize,
+    /// Sparse factorisations and steps solved by conjugate gradients with an earlier one,
+    /// summed over the frames (Newton).
+    pub factorisations: usize,
+    /// See `factorisations`.
+    pub reused: usize,
+    /// Median solve time per frame (ms).
+    pub median_ms: f64,
+    /// Frames that hit the iteration cap.
+    pub unconverged: usize,
+}
+
 /// Everything `tacrom mpm` measured.
 #[derive(Clone, Debug, Default)]
 pub struct MpmBenchResult {
@@ -196,6 +232,8 @@ pub struct MpmBenchResult {
     pub hertz: Vec<HertzRow>,
     /// Cost runs, per spacing then thread count.
     pub speed: Vec<SpeedRow>,
+    /// Work per frame, per material.
+    pub work: Vec<WorkRow>,
 }
 
 fn sphere() -> Arc<dyn Sdf> {
@@ -334,6 +372,56 @@ pub fn speed_run(
     })
 }
 
+/// The moving press of [`speed_run`] on the coarse grid (one thread, the default
+/// tolerance) for a gel of modulus `young` and Poisson's ratio `poisson`: the work per
+/// frame.
+pub fn work_run(
+    young: f64,
+    poisson: f64,
+    frames: usize,
+    solver: Solver,
+) -> Result<WorkRow, BenchError> {
+    let params = GelParams {
+        young,
+        poisson,
+        ..Default::default()
+    };
+    let options = SolverOptions {
+        solver,
+        ..Default::default()
+    };
+    let mut g = Gel::new(params, options)
+        .map_err(|e| BenchError::Usage(format!("E {young:e} Pa, Poisson {poisson}: {e}")))?;
+    let ball = sphere();
+    g.solve(&at(&ball, 0.0, 0.1e-3));
+    let (mut times, mut iters) = (Vec::new(), Vec::new());
+    let (mut factorisations, mut reused, mut unconverged) = (0, 0, 0);
+    for f in 1..=frames.max(1) {
+        let placed = at(&ball, 0.02e-3 * f as f64, 0.1e-3 + 0.05e-3 * f as f64);
+        let t0 = Instant::now();
+        let rep = g.solve(&placed);
+        times.push(t0.elapsed().as_secs_f64());
+        iters.push(rep.iterations);
+        factorisations += rep.factorisations;
+        reused += rep.reused;
+        unconverged += usize::from(!rep.converged);
+    }
+    times.sort_by(f64::total_cmp);
+    iters.sort_unstable();
+    Ok(WorkRow {
+        solver,
+        young,
+        poisson,
+        frames: times.len(),
+        median_iterations: iters[iters.len() / 2],
+        max_iterations: *iters.last().unwrap_or(&0),
+        factorisations,
+        reused,
+        median_ms: quantile(&times, 0.5) * 1e3,
+        unconverged,
+    })
+}
+
 /// Runs both parts and writes `report.md`, `hertz.csv` and `speed.csv` into
 /// `options.out`.
 pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
@@ -342,7 +430,9 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
     let progress = Progress::new(
         options.solvers.len()
             * (options.hertz_dx.len() * options.depths.len()
-                + options.speed_dx.len() * options.tolerances.len() * options.threads.len()),
+                + options.speed_dx.len() * options.tolerances.len() * options.threads.len()
+                + options.youngs.len()
+                + options.poissons.len()),
         options.progress,
     );
     for &dx in &options.hertz_dx {
@@ -377,6 +467,25 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
                 }
             }
         }
+    }
+    let default = GelParams::default();
+    let materials = options
+        .youngs
+        .iter()
+        .map(|&e| (e, default.poisson))
+        .chain(options.poissons.iter().map(|&nu| (default.young, nu)));
+    for (young, poisson) in materials {
+        for &solver in &options.solvers {
+            let what = format!("work {} E {young:.0e} Pa, Poisson {poisson}", solver.name());
+            progress.message(what.clone());
+            let row = work_run(young, poisson, options.work_frames, solver)?;
+            progress.line(&format!(
+                "{what}: median {} it ({} at most), {:.1} ms/frame, {} unconverged",
+                row.median_iterations, row.max_iterations, row.median_ms, row.unconverged
+            ));
+            result.work.push(row);
+        }
+        progress.advance(1);
     }
     progress.finish();
     write_report(&options.out, &result)?;
@@ -474,7 +583,41 @@ pub fn markdown(result: &MpmBenchResult) -> String {
             let _ = writeln!(s, "| {} |", r.cells(false).join(" | "));
         }
     }
+    if !result.work.is_empty() {
+        s.push_str(
+            "\n## Work per frame against the material\n\nThe moving press above on the coarse \
+             grid (1.4 mm), one thread, tolerance 3e-3, friction 0.5; Young's modulus varied \
+             at Poisson 0.43, Poisson's ratio at E = 1.19e5 Pa. Iterations: explicit steps \
+             (relaxation) or Newton steps (newton); factorisations and conjugate-gradient \
+             steps summed over the frames.\n\n| solver | E (Pa) | Poisson | frames | \
+             iterations (median) | iterations (max) | factorisations | CG steps | median ms \
+             | unconverged |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        );
+        for r in &result.work {
+            let _ = writeln!(s, "| {} |", work_cells(r, false).join(" | "));
+        }
+    }
     s
+}
+
+/// A work row's values in column order (`csv`: full precision).
+fn work_cells(r: &WorkRow, csv: bool) -> [String; 10] {
+    [
+        r.solver.name().to_string(),
+        format!("{:.2e}", r.young),
+        format!("{}", r.poisson),
+        r.frames.to_string(),
+        r.median_iterations.to_string(),
+        r.max_iterations.to_string(),
+        r.factorisations.to_string(),
+        r.reused.to_string(),
+        if csv {
+            format!("{:.3}", r.median_ms)
+        } else {
+            format!("{:.1}", r.median_ms)
+        },
+        r.unconverged.to_string(),
+    ]
 }
 
 fn write_file(out: &Path, name: &str, text: String) -> Result<(), BenchError> {
@@ -511,7 +654,14 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     for r in &result.speed {
         let _ = writeln!(speed, "{}", r.cells(true).join(","));
     }
-    write_file(out, "speed.csv", speed)
+    write_file(out, "speed.csv", speed)?;
+    let mut work = String::from(
+        "solver,young_pa,poisson,frames,median_iterations,max_iterations,factorisations,cg_steps,median_ms,unconverged\n",
+    );
+    for r in &result.work {
+        let _ = writeln!(work, "{}", work_cells(r, true).join(","));
+    }
+    write_file(out, "work.csv", work)
 }
 
 #[cfg(test)]
@@ -540,6 +690,7 @@ mod tests {
                 row(5e-4, 2e-4, true),
             ],
             speed: Vec::new(),
+            work: Vec::new(),
         };
         let md = markdown(&result);
         let lines: Vec<&str> = md.lines().filter(|l| l.starts_with("| ")).collect();
@@ -569,6 +720,7 @@ mod tests {
                 row(Solver::Relaxation, 5e-4),
             ],
             speed: Vec::new(),
+            work: Vec::new(),
         };
         let md = markdown(&result);
         let lines: Vec<&str> = md.lines().filter(|l| l.starts_with("| ")).collect();
@@ -586,5 +738,20 @@ mod tests {
         assert!(r.median_iterations > 0 && r.particle_steps_per_s > 0.0);
         assert!(r.bytes_per_particle >= Gel::bytes_per_particle() as f64);
         assert!(r.p90_ms >= r.median_ms);
+    }
+
+    // The work run of a stiff material on the Newton solver counts its factorisations and
+    // conjugate-gradient steps: every Newton step is one or the other.
+    #[test]
+    fn work_run_counts_newton_steps() {
+        let r = work_run(1e6, 0.43, 1, Solver::Newton).expect("run");
+        assert_eq!((r.frames, r.unconverged), (1, 0));
+        assert!(r.median_iterations > 0);
+        assert_eq!(r.factorisations + r.reused, r.median_iterations);
+        let md = markdown(&MpmBenchResult {
+            work: vec![r],
+            ..Default::default()
+        });
+        assert!(md.contains("| newton | 1.00e6 | 0.43 | 1 |"), "{md}");
     }
 }

@@ -10,7 +10,7 @@ use std::fmt;
 use std::path::Path;
 use std::sync::Arc;
 
-use crate::mpm::Material;
+use crate::mpm::{Material, Solver};
 use crate::render::calibrated::CalibratedOptics;
 pub use crate::render::refraction::Camera;
 
@@ -71,6 +71,11 @@ pub const ATTR_CAMERA: &str = "camera";
 /// refraction at the gel's bottom face); only a pinhole camera sees it.
 pub const ATTR_INDEX: &str = "index";
 
+/// `solver`: the gel's equilibrium solver, `relaxation` (dynamic relaxation, the
+/// default) or `newton` (energy minimisation by Newton's method: slower, more accurate,
+/// contact below the particle spacing, near-incompressible gels; `mpm::newton`).
+pub const ATTR_SOLVER: &str = "solver";
+
 /// `coupling`: `on` makes the gel push back: the plugin applies the gel's contact force
 /// and torque to each body pressing it and the opposite to the sensor's body, as MuJoCo
 /// passive forces (`off`, the default: the sensor only observes). Needs a gel physics.
@@ -105,6 +110,7 @@ pub const ATTRIBUTES: &[&str] = &[
     ATTR_INDEX,
     ATTR_COUPLING,
     ATTR_DAMPING,
+    ATTR_SOLVER,
 ];
 
 /// The `material` attribute's values.
@@ -302,6 +308,8 @@ pub struct Config {
     pub coupling: bool,
     /// Kelvin-Voigt retardation time of the coupling (s).
     pub damping: f64,
+    /// The gel's equilibrium solver.
+    pub solver: Solver,
 }
 
 /// The defaults (GelSight Mini-like gel, paper's material).
@@ -480,6 +488,16 @@ impl Config {
                 .then_some(())
                 .ok_or("must be in [0, 1] seconds")
         })?;
+        let solver = match raw.get(ATTR_SOLVER).map(str::trim) {
+            None => Solver::default(),
+            Some(v) => Solver::named(v).ok_or_else(|| {
+                let valid: Vec<_> = Solver::ALL.iter().map(|s| s.name()).collect();
+                p.error(
+                    ATTR_SOLVER,
+                    format!("unknown solver; valid values: {}", valid.join(", ")),
+                )
+            })?,
+        };
         let indenters = raw
             .get(ATTR_INDENTERS)
             .map(|v| v.split_whitespace().map(str::to_owned).collect())
@@ -510,6 +528,7 @@ impl Config {
             index,
             coupling,
             damping,
+            solver,
         })
     }
 
@@ -980,6 +999,18 @@ mod tests {
         let msg = err(&[(ATTR_PHYSICS, "magic")]).to_string();
         for (name, _) in Physics::ALL {
             assert!(msg.contains(name), "{msg}");
+        }
+    }
+
+    #[test]
+    fn solver_is_parsed_and_an_unknown_one_lists_the_valid_ones() {
+        let c = parse(&[(ATTR_PHYSICS, "coarse"), (ATTR_SOLVER, "newton")]).unwrap();
+        assert_eq!(c.solver, Solver::Newton);
+        assert_eq!(parse(&[]).unwrap().solver, Solver::Relaxation);
+        let msg = err(&[(ATTR_SOLVER, "magic")]).to_string();
+        assert!(msg.contains("'solver'") && msg.contains("magic"), "{msg}");
+        for s in Solver::ALL {
+            assert!(msg.contains(s.name()), "{msg}");
         }
     }
 

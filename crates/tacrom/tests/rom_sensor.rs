@@ -6,7 +6,7 @@ use std::sync::Arc;
 use nalgebra::Isometry3;
 use tacrom::config::{
     Config, RawConfig, ATTR_MATERIAL, ATTR_MODEL, ATTR_PHYSICS, ATTR_RESOLUTION, ATTR_SIZE,
-    ATTR_TOLERANCE,
+    ATTR_SOLVER, ATTR_TOLERANCE,
 };
 use tacrom::geometry::{Placed, Sphere};
 use tacrom::sensor::TactileSensor;
@@ -95,6 +95,9 @@ fn a_coarse_solve_other_than_the_models_recipe_is_refused() {
         e.contains("newton") && e.contains(tacrom::mpm::SOLVER),
         "{e}"
     );
+    // The shipped model (relaxation) under the Newton solver.
+    let e = load_error(RawConfig::default().with(ATTR_SOLVER, "newton"));
+    assert!(e.contains("newton") && e.contains("relaxation"), "{e}");
     // The shipped model through the material attribute.
     let e = load_error(RawConfig::default().with(ATTR_MATERIAL, "neohookean"));
     assert!(e.contains("neohookean") && e.contains("corotated"), "{e}");

@@ -149,6 +149,7 @@ impl Mpm {
         let options = SolverOptions {
             threads: config.threads,
             tolerance: config.tolerance,
+            solver: config.solver,
             ..SolverOptions::default()
         };
         Gel::validate(&params, &options).map_err(|e| SensorError::Physics {
@@ -383,7 +384,7 @@ fn load_rom(config: &Config, dx: f64) -> Result<Rom, String> {
     m.check_recipe(
         dx,
         material_name(config.material),
-        crate::mpm::SOLVER,
+        config.solver.name(),
         config.tolerance,
     )
     .map_err(in_dir)?;

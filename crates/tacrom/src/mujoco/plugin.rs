@@ -621,7 +621,7 @@ pub unsafe extern "C" fn tacrom_passive(
         let h = inst.coupling.step(before);
         let bodies = m.geom_bodyid();
         let sensor_body = m.site_bodyid()[s];
-        let welded = |b: i32| m.body_weldid().get(b as usize).is_none_or(|&w| w == 0);
+        let welded = |b: i32| m.body_weldid().get(b as usize).map_or(true, |&w| w == 0);
         let mass = |b: i32| {
             if welded(b) {
                 f64::INFINITY

@@ -404,10 +404,6 @@ impl Newton {
             last_change: Vec::new(),
             last_motion: Vec::new(),
         })
-        .map(|s: Newton| {
-            debug_assert!(t > 0.0);
-            s
-        })
     }
 
     /// Back to the undeformed gel, if no contact point at rest touches `indenters`.
@@ -670,7 +666,7 @@ impl Newton {
             if !(dist < 0.0) {
                 continue;
             }
-            if best.as_ref().is_none_or(|b| -dist > b.gap) {
+            if best.as_ref().map_or(true, |b| -dist > b.gap) {
                 let normal = ind.now.rotation * ind.shape.gradient(&local);
                 best = Some(Touch {
                     gap: -dist,

@@ -246,6 +246,9 @@ pub struct StabilityArgs {
     /// MPM grid spacing [the mode's default].
     #[arg(long, value_name = "MM", value_parser = positive_mm)]
     pub dx: Option<f64>,
+    /// Equilibrium solver of the gel modes [relaxation].
+    #[arg(long, value_name = "NAME", value_parser = solver_name)]
+    pub solver: Option<tacrom::mpm::Solver>,
 }
 
 /// The part of `tacrom mpm` to run.

@@ -370,12 +370,15 @@ fn stability(a: StabilityArgs) -> Result<(), BenchError> {
         if let Some(dx) = dx {
             raw = raw.with("dx", &dx.to_string());
         }
+        if let Some(solver) = a.solver {
+            raw = raw.with("solver", solver.name());
+        }
         Config::from_raw("stability", &raw).map_err(|e| BenchError::Config(e.to_string()))?;
         let rows: Vec<_> = cases
             .iter()
             .map(|case| {
                 progress.message(format!("{mode}: {}", case.name));
-                let row = tacrom_tools::stability::run_case(case, mode, dx);
+                let row = tacrom_tools::stability::run_case(case, mode, dx, a.solver);
                 progress.advance(1);
                 progress.line(&format!(
                     "  {mode}: {} {}",

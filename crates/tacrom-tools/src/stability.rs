@@ -302,13 +302,22 @@ pub fn cases(patterns: Option<&std::path::Path>) -> Result<Vec<Case>, String> {
     Ok(cases)
 }
 
-/// Runs `case` in `physics` mode (with `dx` if given) and checks every frame.
-pub fn run_case(case: &Case, physics: &str, dx: Option<f64>) -> Row {
+/// Runs `case` in `physics` mode (with `dx` and `solver` if given) and checks every
+/// frame.
+pub fn run_case(
+    case: &Case,
+    physics: &str,
+    dx: Option<f64>,
+    solver: Option<tacrom::mpm::Solver>,
+) -> Row {
     let mut raw = RawConfig::default()
         .with("physics", physics)
         .with("resolution", RES);
     if let Some(dx) = dx {
         raw = raw.with("dx", &dx.to_string());
+    }
+    if let Some(solver) = solver {
+        raw = raw.with("solver", solver.name());
     }
     for (a, v) in &case.config {
         raw = raw.with(a, v);

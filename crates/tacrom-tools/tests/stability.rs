@@ -43,7 +43,10 @@ fn rows(physics: &str) -> Vec<Row> {
         "cases: {:?}",
         cases.iter().map(|c| &c.name).collect::<Vec<_>>()
     );
-    let rows: Vec<_> = cases.iter().map(|c| run_case(c, physics, None)).collect();
+    let rows: Vec<_> = cases
+        .iter()
+        .map(|c| run_case(c, physics, None, None))
+        .collect();
     println!("{physics}\n{}", table(&rows));
     rows
 }

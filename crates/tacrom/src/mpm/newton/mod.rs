@@ -427,6 +427,17 @@ impl Newton {
         self.last_scale = 0.0;
         self.last_change.clear();
         self.last_motion.clear();
+        // A factorisation kept from before would precondition the next press's first
+        // steps, which a fresh gel factors: forget it, so that the next press equals a
+        // fresh gel's bit for bit (the patterns and orderings stay: they depend on the
+        // region alone).
+        for s in self
+            .system
+            .iter_mut()
+            .chain(self.systems.iter_mut().map(|(_, s)| s))
+        {
+            s.factored = false;
+        }
     }
 
     /// Renumbers the anchors' indenters (`matched[i]`: previous index of indenter `i`);

@@ -231,3 +231,26 @@ fn the_active_region_agrees_with_the_whole_gel() {
     assert_eq!(*f, Vector3::zeros());
     assert!(s.iter().all(|v| *v == Vector3::zeros()));
 }
+
+/// After presses and a reset (what the sensor does once nothing touches the gel), the
+/// next press equals a fresh gel's bit for bit: a factorisation kept from the earlier
+/// presses must not precondition it (it did, and the force differed in the fifth digit).
+#[test]
+fn after_a_reset_the_next_press_equals_a_fresh_gel() {
+    let s = ball(5e-3);
+    let params = GelParams::default();
+    let mut used = Gel::new(params, options(3e-3)).unwrap();
+    for d in [0.5e-3, 1e-3] {
+        used.solve(&[at(&s, 5e-3, 0.0, d)]);
+    }
+    used.reset();
+    let press = [at(&s, 5e-3, 0.0, 0.3e-3)];
+    used.solve(&press);
+    let mut fresh = Gel::new(params, options(3e-3)).unwrap();
+    fresh.solve(&press);
+    assert_eq!(used.force(), fresh.force());
+    assert_eq!(
+        used.newton.as_ref().unwrap().u,
+        fresh.newton.as_ref().unwrap().u
+    );
+}

@@ -58,7 +58,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 use super::contact::StepIndenter;
 use super::indenters::Sweep;
-use super::{Gel, Layout, Material, SolveReport, FBAR_POISSON, PAD_BOTTOM};
+use super::{Gel, Layout, Material, SolveReport, FBAR_POISSON, J_MAX, J_MIN, PAD_BOTTOM};
 use crate::geometry::{Aabb, Sdf};
 use energy::{Density, Kind};
 use std::sync::Arc;
@@ -790,11 +790,18 @@ impl Newton {
     }
 
     /// The energy at `u` (elastic, contact, friction with the lagged forces); `+inf` where
-    /// the material is not defined.
+    /// the material is not defined or a point's `det F` leaves `[J_MIN, J_MAX]`.
     fn energy(&self, u: &[f64], indenters: &[StepIndenter]) -> f64 {
         let mut e = 0.0;
         for q in self.region_points.iter().map(|&i| &self.points[i as usize]) {
             let f = self.deformation(q, u);
+            // The gel's admissible states keep `det F` within the bounds the relaxation
+            // clamps to: the line search does not step out of them (an indenter driven
+            // through the gel to its base would otherwise invert it).
+            let j = f.determinant();
+            if !((J_MIN..=J_MAX).contains(&j)) {
+                return f64::INFINITY;
+            }
             e += q.vol * self.densities[q.density as usize].energy(&f);
         }
         if !e.is_finite() {

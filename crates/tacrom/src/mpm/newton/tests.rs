@@ -254,3 +254,22 @@ fn after_a_reset_the_next_press_equals_a_fresh_gel() {
         fresh.newton.as_ref().unwrap().u
     );
 }
+
+/// A sphere driven through the gel to its base and beyond (3 mm into a 2 mm layer): the
+/// solve never leaves `det F` in `[J_MIN, J_MAX]` (the line search stays among the gel's
+/// admissible states), and force and surface stay finite.
+#[test]
+fn an_indenter_through_the_base_does_not_invert_the_gel() {
+    let s = ball(3e-3);
+    let mut g = Gel::new(small_gel(0.5, 0.43), options(3e-3)).unwrap();
+    for d in [1e-3, 3e-3] {
+        let rep = g.solve(&[at(&s, 3e-3, 0.0, d)]);
+        assert!(
+            rep.det_f_min >= J_MIN && rep.det_f_max <= J_MAX,
+            "depth {d}: {rep:?}"
+        );
+        assert!(g.force().iter().all(|v| v.is_finite()), "{rep:?}");
+        let n = g.newton.as_ref().unwrap();
+        assert!(n.u.iter().all(|v| v.is_finite()));
+    }
+}

@@ -1355,13 +1355,6 @@ impl Gel {
         }
         report.active_particles = newton.region_points.len();
         let saved = newton.u.clone();
-        let motion = sweep.steps as f64 * self.options.sweep_rate;
-        let substeps = ((motion / SUBSTEP_CELLS).ceil() as usize).clamp(1, 64);
-        let plan = Sweep {
-            indenters: sweep.indenters.clone(),
-            starts: sweep.starts.clone(),
-            steps: substeps,
-        };
         report.sweep_steps = substeps;
         report.residual = 0.0;
         let mut placed = Vec::new();

@@ -573,8 +573,8 @@ pub unsafe extern "C" fn tacrom_passive(
         if !inst.sensor.config().coupling {
             return Ok(None);
         }
-        // SAFETY: valid data, read-only view for the poses (no other reference to it lives
-        // while mj_applyFT writes below).
+        // SAFETY: valid data, a read-only view for the time and the poses; its last use is
+        // before mj_applyFT writes through `d` below.
         let data = Data(unsafe { &*d });
         let (time, qfrc) = (data.0.time, data.0.qfrc_passive);
         let mut placed = Vec::new();

@@ -201,3 +201,18 @@ def test_a_body_too_light_for_the_time_step_is_warned_about(capfd):
     drop(REST, 0.05, 0.0002)
     err = capfd.readouterr().err
     assert "coupling may be unstable" in err and "body 'ball'" in err, err
+
+
+def test_evaluating_a_state_twice_keeps_the_damping_capped():
+    """A loop that calls ``mj_forward`` before each ``mj_step`` (as viewers and wrappers
+    do) evaluates each state twice at the same time: the second evaluation keeps the first
+    one's damping and its cap, so the 2 g ball still settles."""
+    model = mujoco.MjModel.from_xml_string(REST.replace('mass="0.02"', 'mass="0.002"'))
+    data = mujoco.MjData(model)
+    speeds = []
+    for _ in range(250):
+        mujoco.mj_forward(model, data)
+        mujoco.mj_step(model, data)
+        speeds.append(abs(data.qvel[2]))
+    assert max(speeds[50:]) < 5e-4, max(speeds[50:])
+    assert 0 < R - data.qpos[2] < 0.2e-3, data.qpos[2]

@@ -50,11 +50,14 @@ struct Instance {
 }
 
 /// What the coupling keeps between evaluations for its Kelvin-Voigt damping: the time of
-/// the last evaluation and, per geom, the elastic wrench and the geom's position (sensor
-/// frame) then, and their rates of change.
+/// the last evaluation and the step before it, and, per geom, the elastic wrench and the
+/// geom's position (sensor frame) then, and their rates of change. A state evaluated again
+/// at the same time keeps the rates and the step (so the damping and its cap stay as
+/// they were).
 #[derive(Clone, Debug, Default)]
 struct Coupling {
     time: Option<f64>,
+    step: Option<f64>,
     last: Vec<Sample>,
     rates: Vec<Sample>,
 }
@@ -68,11 +71,12 @@ struct Sample {
 }
 
 impl Coupling {
-    /// Records the samples `now` (per geom) at `time` and returns their rates: the
-    /// difference from the last evaluation over the time between (a geom missing then had
+    /// Records the samples `now` (per geom) at `time` and their rates (`rates`, over the
+    /// `step` between the evaluations): the difference from the last evaluation over the
+    /// time between (a geom missing then had
     /// no wrench and has no rate); the rates kept when the time has not moved (the same
     /// state evaluated again); zero after a step back in time.
-    fn update(&mut self, time: f64, now: Vec<Sample>) -> &[Sample] {
+    fn update(&mut self, time: f64, now: Vec<Sample>) {
         let zero = |s: &Sample| Sample {
             geom: s.geom,
             ..Sample::default()
@@ -87,6 +91,7 @@ impl Coupling {
                 .collect(),
             Some(t) if time > t => {
                 let h = time - t;
+                self.step = Some(h);
                 now.iter()
                     .map(|s| match self.last.iter().find(|b| b.geom == s.geom) {
                         Some(b) => Sample {
@@ -107,20 +112,14 @@ impl Coupling {
                     })
                     .collect()
             }
-            _ => now.iter().map(zero).collect(),
+            _ => {
+                self.step = None;
+                now.iter().map(zero).collect()
+            }
         };
         self.rates = rates;
         self.time = Some(time);
         self.last = now;
-        &self.rates
-    }
-
-    /// The time between the last two evaluations, if known.
-    fn step(&self, before: Option<f64>) -> Option<f64> {
-        match (before, self.time) {
-            (Some(a), Some(b)) if b > a => Some(b - a),
-            _ => None,
-        }
     }
 }
 
@@ -616,9 +615,12 @@ pub unsafe extern "C" fn tacrom_passive(
             })
             .collect();
         let tau = inst.sensor.config().damping;
-        let before = inst.coupling.time;
-        let rates = inst.coupling.update(time, samples.clone()).to_vec();
-        let h = inst.coupling.step(before);
+        inst.coupling.update(time, samples);
+        let (samples, rates, h) = (
+            &inst.coupling.last,
+            &inst.coupling.rates,
+            inst.coupling.step,
+        );
         let bodies = m.geom_bodyid();
         let sensor_body = m.site_bodyid()[s];
         let welded = |b: i32| m.body_weldid().get(b as usize).map_or(true, |&w| w == 0);
@@ -633,7 +635,7 @@ pub unsafe extern "C" fn tacrom_passive(
             }
         };
         let point = site.translation.vector;
-        for (sample, rate) in samples.iter().zip(&rates) {
+        for (sample, rate) in samples.iter().zip(rates.iter()) {
             let body = bodies[sample.geom];
             let (m1, m2) = (mass(body), mass(sensor_body));
             let reduced = if m1.is_infinite() {

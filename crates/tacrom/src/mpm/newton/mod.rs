@@ -1184,8 +1184,8 @@ impl Newton {
             .zip(starts)
             .map(|(i, s)| (i.now.translation.vector - s.translation.vector) / self.dx)
             .collect();
-        self.predict(&motion, indenters);
         let start = self.u.clone();
+        self.predict(&motion, indenters);
         let mut residual = self.minimise(indenters, tolerance, report)?;
         if self.restore_culled(indenters) {
             residual = self.minimise(indenters, tolerance, report)?;

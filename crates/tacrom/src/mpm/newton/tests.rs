@@ -273,3 +273,24 @@ fn an_indenter_through_the_base_does_not_invert_the_gel() {
         assert!(n.u.iter().all(|v| v.is_finite()));
     }
 }
+
+/// The secant predictor moves the gel on by its whole change over the last substep (the
+/// equilibrium before it to the one after), not by the Newton correction alone.
+#[test]
+fn the_predictor_remembers_the_whole_change_of_the_last_substep() {
+    let mut g = Gel::new(small_gel(0.0, 0.43), options(1e-3)).unwrap();
+    let s = ball(3e-3);
+    let mut before = Vec::new();
+    for d in [0.1e-3, 0.15e-3, 0.2e-3] {
+        before = g.newton.as_ref().map(|n| n.u.clone()).unwrap_or_default();
+        let rep = g.solve(&[at(&s, 3e-3, 0.0, d)]);
+        assert!(rep.converged, "{rep:?}");
+    }
+    let n = g.newton.as_ref().unwrap();
+    let change: Vec<f64> = n.u.iter().zip(&before).map(|(a, b)| a - b).collect();
+    let largest = change.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    assert!(largest > 0.0);
+    for (c, l) in change.iter().zip(&n.last_change) {
+        assert!((c - l).abs() <= 1e-12 * largest, "{c} against {l}");
+    }
+}

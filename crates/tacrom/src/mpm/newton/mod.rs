@@ -36,7 +36,12 @@
 //! Newton's method: the Hessian assembled from each point's projected stress derivative
 //! (see `energy.rs`) plus the Gauss-Newton terms of contact and friction, solved by a
 //! sparse Cholesky factorisation (faer; the fill-reducing ordering is computed once per
-//! gel), then a backtracking line search that accepts a step only if the energy does not
+//! region). A factorisation is kept: later steps solve by conjugate gradients
+//! preconditioned with it, the Hessian's products taken point by point from the tangents
+//! of the evaluation (no assembly), and the matrix is assembled and factored afresh only
+//! when that does not converge within [`REUSE_ITERATIONS`]. The points are evaluated in
+//! parallel and their forces added in a fixed order, so threads do not change the result.
+//! Then a backtracking line search that accepts a step only if the energy does not
 //! increase (Armijo). It stops when the largest out-of-balance nodal force is below
 //! [`super::SolverOptions::tolerance`] times the load scale (the largest nodal contact
 //! force, at least a strain of 1e-4 over a cell). With friction the lagged normal forces
@@ -55,6 +60,7 @@ mod tests;
 use std::collections::BTreeMap;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+use rayon::prelude::*;
 
 use super::contact::StepIndenter;
 use super::indenters::Sweep;
@@ -174,6 +180,35 @@ struct QPoint {
     density: u8,
 }
 
+/// An elastic point at the last evaluation: its energy and `det F`, and its stress and
+/// projected tangent weighted by its volume (the tangent kept for the Hessian's products
+/// and its assembly).
+#[derive(Clone, Copy, Debug)]
+struct PointState {
+    energy: f64,
+    j: f64,
+    /// Whether the density was defined at the point's `F`.
+    defined: bool,
+    stress: Matrix3<f64>,
+    tangent: [[f64; 9]; 9],
+}
+
+impl Default for PointState {
+    fn default() -> Self {
+        Self {
+            energy: 0.0,
+            j: 1.0,
+            defined: true,
+            stress: Matrix3::zeros(),
+            tangent: [[0.0; 9]; 9],
+        }
+    }
+}
+
+/// Points summed per chunk in a parallel sum: the chunks, not the threads, fix the order
+/// of the additions, so the result does not depend on the thread count.
+const CHUNK: usize = 256;
+
 /// A surface contact point considered in the current substep.
 #[derive(Clone, Copy, Debug)]
 struct ContactPoint {
@@ -229,6 +264,15 @@ pub(crate) struct Newton {
     local: Vec<u32>,
     region_nodes: Vec<u32>,
     region_points: Vec<u32>,
+    /// Per region point, per stencil node: its free index (into `u`; `u32::MAX` where
+    /// fixed) and its region index (into `grad`; `u32::MAX` where fixed or held).
+    point_free: Vec<[u32; 27]>,
+    point_local: Vec<[u32; 27]>,
+    /// Per region point: its state at the last evaluation.
+    states: Vec<PointState>,
+    /// The contact points with a stiffness at the last evaluation (index into
+    /// `contact`) and that stiffness.
+    contact_stiffness: Vec<(u32, Matrix3<f64>)>,
     /// The stiffness system of the current region, and those of recent regions.
     system: Option<System>,
     systems: Vec<([usize; 4], System)>,
@@ -375,6 +419,10 @@ impl Newton {
             local: Vec::new(),
             region_nodes: Vec::new(),
             region_points: Vec::new(),
+            point_free: Vec::new(),
+            point_local: Vec::new(),
+            states: Vec::new(),
+            contact_stiffness: Vec::new(),
             system: None,
             systems: Vec::new(),
             margin,
@@ -628,24 +676,30 @@ impl Newton {
             None => Some(System::new(self.dims, &grid_nodes, &grid_dof)?),
         };
         self.region = Some(bx);
+        let (mut free, mut local) = (Vec::new(), Vec::new());
+        for &i in &self.region_points {
+            let base = self.points[i as usize].stencil.base;
+            let f: [u32; 27] =
+                std::array::from_fn(|l| self.dof_at(&base, l).map_or(u32::MAX, |d| d as u32));
+            local.push(f.map(|d| {
+                if d == u32::MAX {
+                    d
+                } else {
+                    self.local[d as usize]
+                }
+            }));
+            free.push(f);
+        }
+        self.point_free = free;
+        self.point_local = local;
+        self.states
+            .resize(self.region_points.len(), PointState::default());
         let n = 3 * self.region_nodes.len();
         for v in [&mut self.grad, &mut self.load, &mut self.direction] {
             v.clear();
             v.resize(n, 0.0);
         }
         Ok(())
-    }
-
-    /// `F` of a point under displacement `u`.
-    fn deformation(&self, q: &QPoint, u: &[f64]) -> Matrix3<f64> {
-        let mut f = Matrix3::identity();
-        for l in 0..27 {
-            if let Some(d) = self.dof_at(&q.stencil.base, l) {
-                let ui = Vector3::new(u[3 * d], u[3 * d + 1], u[3 * d + 2]);
-                f += ui * q.stencil.gradient(l).transpose();
-            }
-        }
-        f
     }
 
     /// Displacement (cells) of the material point with stencil `s` under `u`.
@@ -792,18 +846,30 @@ impl Newton {
     /// The energy at `u` (elastic, contact, friction with the lagged forces); `+inf` where
     /// the material is not defined or a point's `det F` leaves `[J_MIN, J_MAX]`.
     fn energy(&self, u: &[f64], indenters: &[StepIndenter]) -> f64 {
-        let mut e = 0.0;
-        for q in self.region_points.iter().map(|&i| &self.points[i as usize]) {
-            let f = self.deformation(q, u);
-            // The gel's admissible states keep `det F` within the bounds the relaxation
-            // clamps to: the line search does not step out of them (an indenter driven
-            // through the gel to its base would otherwise invert it).
-            let j = f.determinant();
-            if !((J_MIN..=J_MAX).contains(&j)) {
-                return f64::INFINITY;
-            }
-            e += q.vol * self.densities[q.density as usize].energy(&f);
-        }
+        let (points, densities) = (&self.points, &self.densities);
+        let chunks: Vec<f64> = self
+            .region_points
+            .par_chunks(CHUNK)
+            .zip(self.point_free.par_chunks(CHUNK))
+            .map(|(ids, free)| {
+                let mut e = 0.0;
+                for (&i, dofs) in ids.iter().zip(free) {
+                    let q = &points[i as usize];
+                    let f = deformation(&q.stencil, dofs, u);
+                    // The gel's admissible states keep `det F` within the bounds the
+                    // relaxation clamps to: the line search does not step out of them (an
+                    // indenter driven through the gel to its base would otherwise invert
+                    // it).
+                    let j = f.determinant();
+                    if !((J_MIN..=J_MAX).contains(&j)) {
+                        return f64::INFINITY;
+                    }
+                    e += q.vol * densities[q.density as usize].energy(&f);
+                }
+                e
+            })
+            .collect();
+        let mut e: f64 = chunks.iter().sum();
         if !e.is_finite() {
             return f64::INFINITY;
         }
@@ -871,101 +937,196 @@ impl Newton {
         Some((t.norm(), t))
     }
 
-    /// Energy, gradient (into `grad`), contact load (into `load`) and Hessian (into the
-    /// system) at `u`; also the smallest and largest `det F`. `None` where the material is
-    /// not defined.
-    fn assemble(&mut self, indenters: &[StepIndenter]) -> Option<(f64, f64, f64)> {
+    /// Energy, gradient (into `grad`) and contact load (into `load`) at `u`, keeping each
+    /// point's stress and tangent and each contact point's stiffness for the Hessian
+    /// ([`Self::hessian_product`], [`Self::fill_matrix`]); also the smallest and largest
+    /// `det F`. `None` where the material is not defined.
+    fn evaluate(&mut self, indenters: &[StepIndenter]) -> Option<(f64, f64, f64)> {
         self.grad.fill(0.0);
         self.load.fill(0.0);
-        self.system.as_mut().expect("region set").clear();
+        let (points, densities, u) = (&self.points, &self.densities, &self.u);
+        self.states
+            .par_iter_mut()
+            .zip(self.region_points.par_iter())
+            .zip(self.point_free.par_iter())
+            .with_min_len(CHUNK)
+            .for_each(|((state, &i), dofs)| {
+                let q = &points[i as usize];
+                let f = deformation(&q.stencil, dofs, u);
+                state.j = f.determinant();
+                match densities[q.density as usize].evaluate(&f) {
+                    Some(ev) => {
+                        state.defined = true;
+                        state.energy = q.vol * ev.energy;
+                        state.stress = ev.stress * q.vol;
+                        for (t, e) in state.tangent.iter_mut().zip(&ev.tangent) {
+                            for (t, e) in t.iter_mut().zip(e) {
+                                *t = q.vol * e;
+                            }
+                        }
+                    }
+                    None => state.defined = false,
+                }
+            });
         let mut energy = 0.0;
         let (mut jmin, mut jmax) = (f64::INFINITY, f64::NEG_INFINITY);
-        let points = std::mem::take(&mut self.points);
-        let region_points = std::mem::take(&mut self.region_points);
-        let mut ok = true;
-        for q in region_points.iter().map(|&i| &points[i as usize]) {
-            let f = self.deformation(q, &self.u);
-            let j = f.determinant();
-            jmin = jmin.min(j);
-            jmax = jmax.max(j);
-            let Some(ev) = self.densities[q.density as usize].evaluate(&f) else {
-                ok = false;
-                break;
-            };
-            energy += q.vol * ev.energy;
-            self.add_point(q, &ev);
+        for ((state, &i), dofs) in self
+            .states
+            .iter()
+            .zip(&self.region_points)
+            .zip(&self.point_local)
+        {
+            if !state.defined {
+                return None;
+            }
+            jmin = jmin.min(state.j);
+            jmax = jmax.max(state.j);
+            energy += state.energy;
+            let stencil = &self.points[i as usize].stencil;
+            for (l, &d) in dofs.iter().enumerate() {
+                if d != u32::MAX {
+                    let force = state.stress * stencil.gradient(l);
+                    for k in 0..3 {
+                        self.grad[3 * d as usize + k] += force[k];
+                    }
+                }
+            }
         }
-        self.points = points;
-        self.region_points = region_points;
-        if !ok {
-            return None;
-        }
+        self.contact_stiffness.clear();
         let contact = std::mem::take(&mut self.contact);
-        for c in &contact {
+        for (k, c) in contact.iter().enumerate() {
             let x = c.rest + self.displacement(&c.stencil, &self.u);
             let term = self.contact_term(c, &x, indenters);
             energy += term.energy;
             if term.gradient != Vector3::zeros() {
-                self.add_surface(&c.stencil, &term.gradient, &term.stiffness);
+                for l in 0..27 {
+                    if let Some(d) = self.local_at(&c.stencil.base, l) {
+                        let w = c.stencil.weight(l);
+                        for k in 0..3 {
+                            self.grad[3 * d + k] += w * term.gradient[k];
+                            self.load[3 * d + k] += w * term.gradient[k];
+                        }
+                    }
+                }
+                self.contact_stiffness.push((k as u32, term.stiffness));
             }
         }
         self.contact = contact;
         Some((energy, jmin, jmax))
     }
 
-    /// Adds an elastic point's gradient and stiffness.
-    fn add_point(&mut self, q: &QPoint, ev: &energy::Evaluated) {
-        let mut dofs = [usize::MAX; 27];
-        let mut grads = [Vector3::zeros(); 27];
-        // T_l[a][3 c + d] = sum_b g_l[b] H[3 a + b][3 c + d], scaled by the volume.
-        let mut tl = [[[0.0f64; 9]; 3]; 27];
-        for l in 0..27 {
-            let Some(d) = self.local_at(&q.stencil.base, l) else {
-                continue;
-            };
-            let g = q.stencil.gradient(l);
-            dofs[l] = d;
-            grads[l] = g;
-            let force = ev.stress * g * q.vol;
-            for k in 0..3 {
-                self.grad[3 * d + k] += force[k];
-            }
-            for a in 0..3 {
-                for e in 0..9 {
-                    tl[l][a][e] = q.vol
-                        * (g[0] * ev.tangent[3 * a][e]
-                            + g[1] * ev.tangent[3 * a + 1][e]
-                            + g[2] * ev.tangent[3 * a + 2][e]);
+    /// `y = H x` with the Hessian of the last evaluation, without assembling it (region
+    /// numbering).
+    fn hessian_product(&self, x: &[f64], y: &mut [f64]) {
+        let points = &self.points;
+        // Each point's stress change `dP = T dF(x)`, in parallel; added up in order.
+        let changes: Vec<Matrix3<f64>> = self
+            .states
+            .par_iter()
+            .zip(self.region_points.par_iter())
+            .zip(self.point_local.par_iter())
+            .with_min_len(CHUNK)
+            .map(|((state, &i), dofs)| {
+                let df = deformation(&points[i as usize].stencil, dofs, x) - Matrix3::identity();
+                let v: [f64; 9] = std::array::from_fn(|e| df[(e / 3, e % 3)]);
+                Matrix3::from_fn(|a, b| {
+                    let row = &state.tangent[3 * a + b];
+                    row.iter().zip(&v).map(|(t, v)| t * v).sum()
+                })
+            })
+            .collect();
+        y.fill(0.0);
+        for ((dp, &i), dofs) in changes
+            .iter()
+            .zip(&self.region_points)
+            .zip(&self.point_local)
+        {
+            let stencil = &points[i as usize].stencil;
+            for (l, &d) in dofs.iter().enumerate() {
+                if d != u32::MAX {
+                    let f = dp * stencil.gradient(l);
+                    for k in 0..3 {
+                        y[3 * d as usize + k] += f[k];
+                    }
                 }
             }
         }
-        let system = self.system.as_mut().expect("region set");
-        add_pairs(system, &dofs, |l1, l2| {
-            let g2 = &grads[l2];
-            Matrix3::from_fn(|a, c| {
-                tl[l1][a][3 * c] * g2[0]
-                    + tl[l1][a][3 * c + 1] * g2[1]
-                    + tl[l1][a][3 * c + 2] * g2[2]
-            })
-        });
+        for (k, h) in &self.contact_stiffness {
+            let s = &self.contact[*k as usize].stencil;
+            let mut dofs = [usize::MAX; 27];
+            let mut v = Vector3::zeros();
+            for (l, d) in dofs.iter_mut().enumerate() {
+                if let Some(k) = self.local_at(&s.base, l) {
+                    *d = k;
+                    v += Vector3::new(x[3 * k], x[3 * k + 1], x[3 * k + 2]) * s.weight(l);
+                }
+            }
+            let hv = h * v;
+            for (l, &d) in dofs.iter().enumerate() {
+                if d != usize::MAX {
+                    let w = s.weight(l);
+                    for c in 0..3 {
+                        y[3 * d + c] += w * hv[c];
+                    }
+                }
+            }
+        }
     }
 
-    /// Adds a surface point's force gradient `g` and stiffness `h` through its weights.
-    fn add_surface(&mut self, s: &Stencil, g: &Vector3<f64>, h: &Matrix3<f64>) {
-        let mut dofs = [usize::MAX; 27];
-        let mut w = [0.0; 27];
-        for l in 0..27 {
-            if let Some(d) = self.local_at(&s.base, l) {
-                dofs[l] = d;
-                w[l] = s.weight(l);
-                for k in 0..3 {
-                    self.grad[3 * d + k] += w[l] * g[k];
-                    self.load[3 * d + k] += w[l] * g[k];
+    /// Assembles the Hessian of the last evaluation into `system`.
+    fn fill_matrix(&self, system: &mut System) {
+        system.clear();
+        for ((state, &i), local) in self
+            .states
+            .iter()
+            .zip(&self.region_points)
+            .zip(&self.point_local)
+        {
+            let stencil = &self.points[i as usize].stencil;
+            let dofs: [usize; 27] = local.map(|d| {
+                if d == u32::MAX {
+                    usize::MAX
+                } else {
+                    d as usize
+                }
+            });
+            let grads: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
+            // T_l[a][3 c + d] = sum_b g_l[b] H[3 a + b][3 c + d].
+            let mut tl = [[[0.0f64; 9]; 3]; 27];
+            for l in 0..27 {
+                if dofs[l] == usize::MAX {
+                    continue;
+                }
+                let g = grads[l];
+                for a in 0..3 {
+                    for e in 0..9 {
+                        tl[l][a][e] = g[0] * state.tangent[3 * a][e]
+                            + g[1] * state.tangent[3 * a + 1][e]
+                            + g[2] * state.tangent[3 * a + 2][e];
+                    }
                 }
             }
+            add_pairs(system, &dofs, |l1, l2| {
+                let g2 = &grads[l2];
+                Matrix3::from_fn(|a, c| {
+                    tl[l1][a][3 * c] * g2[0]
+                        + tl[l1][a][3 * c + 1] * g2[1]
+                        + tl[l1][a][3 * c + 2] * g2[2]
+                })
+            });
         }
-        let system = self.system.as_mut().expect("region set");
-        add_pairs(system, &dofs, |l1, l2| h * (w[l1] * w[l2]));
+        for (k, h) in &self.contact_stiffness {
+            let s = &self.contact[*k as usize].stencil;
+            let mut dofs = [usize::MAX; 27];
+            let mut w = [0.0; 27];
+            for l in 0..27 {
+                if let Some(d) = self.local_at(&s.base, l) {
+                    dofs[l] = d;
+                    w[l] = s.weight(l);
+                }
+            }
+            add_pairs(system, &dofs, |l1, l2| h * (w[l1] * w[l2]));
+        }
     }
 
     /// Largest nodal norm of `v`.
@@ -987,7 +1148,7 @@ impl Newton {
         // Held nodes keep their displacement in every trial state.
         self.trial.copy_from_slice(&self.u);
         for _ in 0..MAX_NEWTON {
-            let (energy, jmin, jmax) = self.assemble(indenters)?;
+            let (energy, jmin, jmax) = self.evaluate(indenters)?;
             report.det_f_min = jmin;
             report.det_f_max = jmax;
             let scale = Self::max_node_norm(&self.load)
@@ -1002,27 +1163,39 @@ impl Newton {
                 return Some(residual);
             }
             report.iterations += 1;
-            let [rhs, work @ ..] = &mut self.work;
+            let mut work = std::mem::take(&mut self.work);
+            let mut direction = std::mem::take(&mut self.direction);
+            let mut system = self.system.take().expect("region set");
+            let [rhs, scratch @ ..] = &mut work;
             rhs.clear();
             rhs.extend(self.grad.iter().map(|g| -g));
-            let system = self.system.as_mut().expect("region set");
             let reused = system.factored
                 && system.solve_preconditioned(
                     rhs,
-                    &mut self.direction,
+                    &mut direction,
                     FORCING,
                     REUSE_ITERATIONS,
-                    work,
+                    scratch,
+                    |x, y| self.hessian_product(x, y),
                 );
+            let mut failed = false;
             if reused {
                 report.reused += 1;
             } else {
                 report.factorisations += 1;
+                self.fill_matrix(&mut system);
                 if system.factor().is_err() {
-                    return Some(residual);
+                    failed = true;
+                } else {
+                    direction.copy_from_slice(rhs);
+                    system.solve(&mut direction);
                 }
-                self.direction.copy_from_slice(rhs);
-                system.solve(&mut self.direction);
+            }
+            self.system = Some(system);
+            self.work = work;
+            self.direction = direction;
+            if failed {
+                return Some(residual);
             }
             let slope: f64 = self
                 .direction
@@ -1250,6 +1423,20 @@ impl Newton {
             std::mem::swap(&mut self.u, &mut self.trial);
         }
     }
+}
+
+/// `I + sum_l u_l grad w_l^T` at a point with `stencil` whose nodes have the indices
+/// `dofs` into `u` (`u32::MAX`: no displacement).
+#[inline]
+fn deformation(stencil: &Stencil, dofs: &[u32; 27], u: &[f64]) -> Matrix3<f64> {
+    let mut f = Matrix3::identity();
+    for (l, &d) in dofs.iter().enumerate() {
+        if d != u32::MAX {
+            let d = 3 * d as usize;
+            f += Vector3::new(u[d], u[d + 1], u[d + 2]) * stencil.gradient(l).transpose();
+        }
+    }
+    f
 }
 
 /// Adds `block(l1, l2)` for every pair of a stencil's free local nodes (`dofs[l]`: free

@@ -226,6 +226,7 @@ impl System {
     }
 
     /// `y = K x` (the symmetric matrix from its lower triangle).
+    #[cfg(test)]
     pub fn multiply(&self, x: &[f64], y: &mut [f64]) {
         y.fill(0.0);
         for col in 0..self.n {
@@ -244,10 +245,11 @@ impl System {
         }
     }
 
-    /// Solves `K x = b` by conjugate gradients preconditioned with the last factorisation
-    /// (of an earlier, nearby matrix), to a residual of `rtol |b|` in at most `max_iter`
-    /// iterations. `x` gets the solution; returns whether it converged. `work` holds three
-    /// vectors of scratch.
+    /// Solves `K x = b`, `K` given by its product `multiply(x, y)` (`y = K x`), by
+    /// conjugate gradients preconditioned with the last factorisation (of an earlier,
+    /// nearby matrix), to a residual of `rtol |b|` in at most `max_iter` iterations. `x`
+    /// gets the solution; returns whether it converged. `work` holds three vectors of
+    /// scratch.
     pub fn solve_preconditioned(
         &self,
         b: &[f64],
@@ -255,6 +257,7 @@ impl System {
         rtol: f64,
         max_iter: usize,
         work: &mut [Vec<f64>; 3],
+        mut multiply: impl FnMut(&[f64], &mut [f64]),
     ) -> bool {
         let n = self.n;
         let [r, z, q] = work;
@@ -269,7 +272,7 @@ impl System {
         let mut p = z.clone();
         let mut rz = dot(r, z);
         for _ in 0..max_iter {
-            self.multiply(&p, q);
+            multiply(&p, q);
             let pq = dot(&p, q);
             if !(pq > 0.0) {
                 return false;

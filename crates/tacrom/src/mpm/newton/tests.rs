@@ -294,3 +294,28 @@ fn the_predictor_remembers_the_whole_change_of_the_last_substep() {
         assert!((c - l).abs() <= 1e-12 * largest, "{c} against {l}");
     }
 }
+
+/// The Hessian's product without assembly equals the assembled matrix's, on a pressed and
+/// rubbed gel (elastic points, contact and friction terms).
+#[test]
+fn the_hessian_product_equals_the_assembled_matrix() {
+    let mut g = Gel::new(small_gel(0.5, 0.43), options(1e-3)).unwrap();
+    let s = ball(3e-3);
+    g.solve(&[at(&s, 3e-3, 0.0, 0.3e-3)]);
+    g.solve(&[at(&s, 3e-3, 0.5e-3, 0.35e-3)]);
+    let n = g.newton.as_mut().unwrap();
+    assert!(!n.contact_stiffness.is_empty());
+    let mut system = n.system.clone().unwrap();
+    n.fill_matrix(&mut system);
+    let x: Vec<f64> = (0..system.n)
+        .map(|i| ((i * 7919) % 113) as f64 / 113.0 - 0.5)
+        .collect();
+    let (mut a, mut b) = (vec![0.0; system.n], vec![0.0; system.n]);
+    system.multiply(&x, &mut a);
+    n.hessian_product(&x, &mut b);
+    let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(scale > 0.0);
+    for (a, b) in a.iter().zip(&b) {
+        assert!((a - b).abs() <= 1e-12 * scale, "{a} against {b}");
+    }
+}

@@ -71,9 +71,12 @@ pub const ATTR_CAMERA: &str = "camera";
 /// refraction at the gel's bottom face); only a pinhole camera sees it.
 pub const ATTR_INDEX: &str = "index";
 
-/// `solver`: the gel's equilibrium solver, `relaxation` (dynamic relaxation, the
-/// default) or `newton` (energy minimisation by Newton's method: slower, more accurate,
-/// contact below the particle spacing, near-incompressible gels; `mpm::newton`).
+/// `solver`: the gel's equilibrium solver, `relaxation` (dynamic relaxation) or `newton`
+/// (energy minimisation by Newton's method: slower, more accurate, contact below the
+/// particle spacing, near-incompressible gels; `mpm::newton`). Unset, the gel's own choice
+/// ([`crate::mpm::Solver::automatic`]: Newton for Poisson's ratios of 0.49 and more on
+/// grids up to the 0.7 mm one, relaxation elsewhere); a reduced-order model uses its
+/// recipe's.
 pub const ATTR_SOLVER: &str = "solver";
 
 /// `coupling`: `on` makes the gel push back: the plugin applies the gel's contact force
@@ -308,8 +311,9 @@ pub struct Config {
     pub coupling: bool,
     /// Kelvin-Voigt retardation time of the coupling (s).
     pub damping: f64,
-    /// The gel's equilibrium solver.
-    pub solver: Solver,
+    /// The gel's equilibrium solver; `None` leaves the choice to the gel
+    /// ([`Solver::automatic`]) or the reduced-order model's recipe.
+    pub solver: Option<Solver>,
 }
 
 /// The defaults (GelSight Mini-like gel, paper's material).
@@ -489,14 +493,14 @@ impl Config {
                 .ok_or("must be in [0, 1] seconds")
         })?;
         let solver = match raw.get(ATTR_SOLVER).map(str::trim) {
-            None => Solver::default(),
-            Some(v) => Solver::named(v).ok_or_else(|| {
+            None => None,
+            Some(v) => Some(Solver::named(v).ok_or_else(|| {
                 let valid: Vec<_> = Solver::ALL.iter().map(|s| s.name()).collect();
                 p.error(
                     ATTR_SOLVER,
                     format!("unknown solver; valid values: {}", valid.join(", ")),
                 )
-            })?,
+            })?),
         };
         let indenters = raw
             .get(ATTR_INDENTERS)
@@ -1005,13 +1009,31 @@ mod tests {
     #[test]
     fn solver_is_parsed_and_an_unknown_one_lists_the_valid_ones() {
         let c = parse(&[(ATTR_PHYSICS, "coarse"), (ATTR_SOLVER, "newton")]).unwrap();
-        assert_eq!(c.solver, Solver::Newton);
-        assert_eq!(parse(&[]).unwrap().solver, Solver::Relaxation);
+        assert_eq!(c.solver, Some(Solver::Newton));
+        assert_eq!(parse(&[]).unwrap().solver, None);
         let msg = err(&[(ATTR_SOLVER, "magic")]).to_string();
         assert!(msg.contains("'solver'") && msg.contains("magic"), "{msg}");
         for s in Solver::ALL {
             assert!(msg.contains(s.name()), "{msg}");
         }
+    }
+
+    /// Unset, the solver is Newton's method exactly where relaxation does not converge
+    /// (Poisson's ratio 0.49 and more) and the grid allows a factorisation.
+    #[test]
+    fn the_automatic_solver_follows_the_material_and_the_grid() {
+        use crate::mpm::GelParams;
+        let gel = |poisson: f64, dx: f64| GelParams {
+            poisson,
+            dx,
+            ..GelParams::default()
+        };
+        assert_eq!(Solver::automatic(&gel(0.43, 1.4e-3)), Solver::Relaxation);
+        assert_eq!(Solver::automatic(&gel(0.48, 1.4e-3)), Solver::Relaxation);
+        assert_eq!(Solver::automatic(&gel(0.49, 1.4e-3)), Solver::Newton);
+        assert_eq!(Solver::automatic(&gel(0.499, 0.7e-3)), Solver::Newton);
+        assert_eq!(Solver::automatic(&gel(0.499, 0.5e-3)), Solver::Relaxation);
+        assert_eq!(Solver::automatic(&gel(0.499, 0.3e-3)), Solver::Relaxation);
     }
 
     #[test]

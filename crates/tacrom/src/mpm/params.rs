@@ -16,6 +16,14 @@ pub const J_MAX: f64 = 5.0;
 /// iterations, R = 5 mm sphere at d = 0.2 mm, dx = 1.4 mm, Poisson 0.43).
 pub const FBAR_POISSON: f64 = 0.45;
 
+/// Poisson's ratio from which [`Solver::automatic`] chooses Newton's method.
+pub const AUTO_NEWTON_POISSON: f64 = 0.49;
+
+/// Most grid cells in a gel for which [`Solver::automatic`] chooses Newton's method: the
+/// default 30 x 30 x 4 mm gel at dx = 0.7 mm (10,500 cells; a factor of 21e6 entries,
+/// about 2 s to factor); the fill of the factor grows about as the cells to the power 4/3.
+pub const AUTO_NEWTON_CELLS: f64 = 12_000.0;
+
 /// Default [`SolverOptions::active_margin`] (gel thicknesses). The surface of a bonded
 /// layer settles within about one thickness of a contact (measured at dx = 0.7 mm, a
 /// 0.5 mm sphere press: 29 um of indentation 2 mm beyond the contact edge, 1.2 um at
@@ -138,6 +146,22 @@ impl Solver {
     /// The solver called `name`.
     pub fn named(name: &str) -> Option<Solver> {
         Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    /// The solver for a gel whose configuration names none: Newton's method where dynamic
+    /// relaxation does not reach equilibrium within its iteration cap, a Poisson's ratio
+    /// of at least [`AUTO_NEWTON_POISSON`] (`tacrom mpm --only work`: at 0.49 one frame in
+    /// four stops at the cap, at 0.499 every frame; Newton converges in 17 to 47 steps at
+    /// every ratio), on a grid small enough for its sparse factorisation (at most
+    /// [`AUTO_NEWTON_CELLS`] cells); relaxation everywhere else, where it is the faster.
+    pub fn automatic(params: &GelParams) -> Solver {
+        let [lx, ly, t] = params.size;
+        let cells = lx * ly * t / params.dx.powi(3);
+        if params.poisson >= AUTO_NEWTON_POISSON && cells <= AUTO_NEWTON_CELLS {
+            Solver::Newton
+        } else {
+            Solver::Relaxation
+        }
     }
 }
 

@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 use super::{Evaluation, Scene, SensorError};
 use crate::config::{material_name, Config, Physics};
 use crate::geometry::{PixelGrid, Placed};
-use crate::mpm::{Gel, GelParams, SolverOptions, Wrench};
+use crate::mpm::{Gel, GelParams, Solver, SolverOptions, Wrench};
 use crate::rom::{Rom, RomOptions};
 
 /// A model of the gel's surface.
@@ -124,6 +124,24 @@ impl SurfaceModel for Rigid {
     }
 }
 
+/// The gel a sensor's configuration describes, at grid spacing `dx`.
+fn gel_params(config: &Config, dx: f64) -> GelParams {
+    GelParams {
+        size: config.size,
+        young: config.young,
+        poisson: config.poisson,
+        density: config.density,
+        friction: config.friction,
+        dx,
+        material: config.material,
+    }
+}
+
+/// The solver the configuration names, or the gel's own choice.
+fn solver(config: &Config, params: &GelParams) -> Solver {
+    config.solver.unwrap_or_else(|| Solver::automatic(params))
+}
+
 /// An MPM gel solved to quasi-static equilibrium (`coarse` and `fine`), created on first
 /// contact: a scene that never touches costs nothing.
 #[derive(Clone, Debug)]
@@ -137,19 +155,11 @@ struct Mpm {
 
 impl Mpm {
     fn new(config: &Config, dx: f64) -> Result<Self, SensorError> {
-        let params = GelParams {
-            size: config.size,
-            young: config.young,
-            poisson: config.poisson,
-            density: config.density,
-            friction: config.friction,
-            dx,
-            material: config.material,
-        };
+        let params = gel_params(config, dx);
         let options = SolverOptions {
             threads: config.threads,
             tolerance: config.tolerance,
-            solver: config.solver,
+            solver: solver(config, &params),
             ..SolverOptions::default()
         };
         Gel::validate(&params, &options).map_err(|e| SensorError::Physics {
@@ -384,7 +394,7 @@ fn load_rom(config: &Config, dx: f64) -> Result<Rom, String> {
     m.check_recipe(
         dx,
         material_name(config.material),
-        config.solver.name(),
+        solver(config, &gel_params(config, dx)).name(),
         config.tolerance,
     )
     .map_err(in_dir)?;

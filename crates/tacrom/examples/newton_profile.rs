@@ -1,6 +1,6 @@
 //! The benchmark's moving press, frame by frame, for profiling a solver:
 //! `cargo run --release --example newton_profile -- SOLVER DX_M FRICTION FRAMES THREADS
-//! POISSON` (defaults: newton 1.4e-3 0.5 6 1 0.43). Prints each frame's time, steps, factorisations,
+//! POISSON TOLERANCE` (defaults: newton 1.4e-3 0.5 6 1 0.43 1e-3). Prints each frame's time, steps, factorisations,
 //! steps that reused one, convergence and force; `perf record` on it shows where a
 //! solver spends its time.
 
@@ -18,6 +18,7 @@ fn main() {
     let frames: usize = args.get(4).map(|s| s.parse().unwrap()).unwrap_or(6);
     let threads: usize = args.get(5).map(|s| s.parse().unwrap()).unwrap_or(1);
     let poisson: f64 = args.get(6).map(|s| s.parse().unwrap()).unwrap_or(0.43);
+    let tolerance: f64 = args.get(7).map(|s| s.parse().unwrap()).unwrap_or(1e-3);
     let params = GelParams {
         dx,
         friction,
@@ -27,6 +28,7 @@ fn main() {
     let options = SolverOptions {
         solver,
         threads,
+        tolerance,
         ..Default::default()
     };
     let mut g = Gel::new(params, options).unwrap();

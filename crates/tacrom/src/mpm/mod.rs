@@ -293,6 +293,19 @@ impl Pool {
     }
 }
 
+/// The secant predictor's step: when every indenter moves on along the path of the last
+/// solve (`last`, the same indenters' translations then), the multiple of the gel's last
+/// change to move it on by (the projection of `motion` on `last`, at most 2); `None`
+/// otherwise.
+pub(crate) fn secant_scale(motion: &[Vector3<f64>], last: &[Vector3<f64>]) -> Option<f64> {
+    if motion.len() != last.len() || motion.is_empty() {
+        return None;
+    }
+    let along: f64 = motion.iter().zip(last).map(|(a, b)| a.dot(b)).sum();
+    let before: f64 = last.iter().map(|b| b.norm_squared()).sum();
+    (before > 0.0 && along > 0.0).then(|| (along / before).min(2.0))
+}
+
 /// A force and a torque (about a stated point), in one frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Wrench {
@@ -357,6 +370,11 @@ pub struct Gel {
     reaction: f32,
     /// Whether the last solve ended with `det F` at a clamp.
     clamped: bool,
+    /// The secant predictor's memory: each particle's change of position and deformation
+    /// gradient over the last solve (empty when there is none to use), and the indenters'
+    /// translations (m) in it.
+    last_change: Vec<(Vector3<f32>, nalgebra::Matrix3<f32>)>,
+    last_motion: Vec<Vector3<f64>>,
     /// Lattice box of the top slots in contact at the end of the last solve.
     last_footprint: Option<[usize; 4]>,
     /// The Newton solver's state, built at the first solve that needs it.
@@ -428,6 +446,8 @@ impl Gel {
             reaction: 0.0,
             clamped: false,
             last_footprint: None,
+            last_change: Vec::new(),
+            last_motion: Vec::new(),
             newton: None,
             loads: Vec::new(),
         })
@@ -476,6 +496,8 @@ impl Gel {
         self.last_footprint = None;
         self.contacts.fill(SlotContact::NONE);
         self.loads.clear();
+        self.last_change.clear();
+        self.last_motion.clear();
         if let Some(n) = self.newton.as_mut() {
             n.reset();
         }

@@ -4,7 +4,11 @@
 //! `c = 2 zeta omega_1`, tuned to the lowest mode of the bonded layer, the thickness-shear
 //! quarter wave `omega_1 = (pi / 2) c_s / T` (`zeta` = [`SolverOptions::damping`], 1 for
 //! critical). Every mode then decays at least like `exp(-omega_1 t)`. Each solve starts
-//! from the previous equilibrium (warm start) with zero velocity. It stops when the
+//! from the previous equilibrium (warm start) with zero velocity, moved on by the secant
+//! predictor when the indenters move on along their last path ([`Gel::predict`]: the
+//! active particles' last change of position and `F`, scaled by how far along that path
+//! they move now; it halves the steps of a steady moving press at tolerance 1e-3 and
+//! brings the force nearer a tight solve's). It stops when the
 //! largest out-of-balance nodal force (stress plus contact force left after the
 //! constraints, plus the damping force) divided by the force scale is below
 //! [`SolverOptions::tolerance`], or after [`Gel::iteration_cap`] steps. The
@@ -29,6 +33,11 @@ use super::indenters::Sweep;
 use super::material::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 use super::transfer::{self, P2gInput, Particle};
 use super::{Gel, Material, Snapshot, SolveReport};
+
+/// A solve's change (largest particle displacement) must exceed this many times the
+/// tolerance times the gel's deformation (largest surface displacement, from the solve
+/// before) for the next solve to extrapolate it ([`Gel::predict`]).
+const PREDICT_ABOVE: f64 = 10.0;
 
 /// What the convergence test reads after a step.
 struct StepOutcome {
@@ -61,6 +70,7 @@ impl Gel {
     /// [`Gel::recover`]) or [`Gel::iteration_cap`] steps.
     fn relax<M: ConstitutiveModel>(&mut self, model: &M, sweep: &Sweep, report: &mut SolveReport) {
         self.warm_start();
+        let motion = self.predict(sweep);
         let tol = self.options.tolerance;
         for it in 0..self.iteration_cap() {
             sweep.place(it, self.layout.dx, &mut self.step_ind);
@@ -82,6 +92,76 @@ impl Gel {
                 break;
             }
         }
+        self.remember_change(motion, report);
+    }
+
+    /// The secant predictor (as the Newton solver's): when the indenters move on along
+    /// the path of the last solve, the active particles are first moved on by the same
+    /// multiple of their last change of position and deformation gradient, so that the
+    /// relaxation starts near the new equilibrium rather than at the old one. Returns the
+    /// indenters' translations in this solve (m).
+    fn predict(&mut self, sweep: &Sweep) -> Vec<Vector3<f64>> {
+        let motion: Vec<Vector3<f64>> = sweep
+            .indenters
+            .iter()
+            .zip(&sweep.starts)
+            .map(|(p, s)| p.pose.translation.vector - s.translation.vector)
+            .collect();
+        if self.last_change.len() != self.particles.len() {
+            return motion;
+        }
+        let Some(s) = super::secant_scale(&motion, &self.last_motion) else {
+            return motion;
+        };
+        let s = s as f32;
+        let nzp = self.ctx.column_len;
+        let [x0, x1, y0, y1] = self.ctx.region.lattice;
+        let nyp = self.layout.lattice[1];
+        for ix in x0..x1 {
+            for iy in y0..y1 {
+                let first = (ix * nyp + iy) * nzp;
+                for k in first..first + nzp {
+                    let (dx, df) = &self.last_change[k];
+                    let p = &mut self.particles[k];
+                    p.x += dx * s;
+                    p.f += df * s;
+                }
+            }
+        }
+        transfer::compute_stencils(&self.particles, &mut self.stencils);
+        self.binned = false;
+        motion
+    }
+
+    /// Keeps each particle's change over a converged solve, and the indenters' motion in
+    /// it, for the next solve's [`Gel::predict`]; forgets them after any other, and when
+    /// the change is within [`PREDICT_ABOVE`] times the solve's tolerance of the gel's
+    /// deformation: a solve stops that far from the exact equilibrium, so such a change is
+    /// mostly that error, and extrapolating it would add to the next one (a body resting
+    /// on a coupled gel then jitters).
+    fn remember_change(&mut self, motion: Vec<Vector3<f64>>, report: &SolveReport) {
+        self.last_change.clear();
+        self.last_motion.clear();
+        if !report.converged || report.nonfinite_recovered {
+            return;
+        }
+        let moved = self
+            .particles
+            .iter()
+            .zip(&self.snapshot)
+            .map(|(p, s)| (p.x - s.x).norm())
+            .fold(0.0f32, f32::max) as f64;
+        let deformed = self.surface_u.iter().map(|u| u.norm()).fold(0.0, f64::max) / self.layout.dx;
+        if moved <= PREDICT_ABOVE * self.options.tolerance * deformed {
+            return;
+        }
+        self.last_change.extend(
+            self.particles
+                .iter()
+                .zip(&self.snapshot)
+                .map(|(p, s)| (p.x - s.x, p.f - s.f)),
+        );
+        self.last_motion = motion;
     }
 
     /// Records the state the solve starts from and sets every particle at rest.

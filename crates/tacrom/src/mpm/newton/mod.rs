@@ -1398,19 +1398,12 @@ impl Newton {
     /// contact at the solution, and Newton's method then sheds the extra contact points
     /// a ring per step; the prediction starts it near the solution's contact patch.
     fn predict(&mut self, motion: &[Vector3<f64>], indenters: &[StepIndenter]) {
-        if motion.len() != self.last_motion.len() || self.last_change.len() != self.u.len() {
+        if self.last_change.len() != self.u.len() {
             return;
         }
-        let along: f64 = motion
-            .iter()
-            .zip(&self.last_motion)
-            .map(|(a, b)| a.dot(b))
-            .sum();
-        let before: f64 = self.last_motion.iter().map(|b| b.norm_squared()).sum();
-        if !(before > 0.0 && along > 0.0) {
+        let Some(s) = super::secant_scale(motion, &self.last_motion) else {
             return;
-        }
-        let s = (along / before).min(2.0);
+        };
         for ((t, u), d) in self.trial.iter_mut().zip(&self.u).zip(&self.last_change) {
             *t = u + s * d;
         }

@@ -882,3 +882,34 @@ fn wrenches_split_the_force_between_indenters() {
         }
     }
 }
+
+/// The relaxation's secant predictor remembers the whole change of a converged solve (each
+/// particle's position and `F`, from the equilibrium before to the one after) and the
+/// indenter's translation; a change within the tolerance's noise of the deformation (a
+/// press moved by 0.1 um) is not kept, so it is not extrapolated.
+#[test]
+fn the_relaxation_predictor_remembers_the_whole_change_and_not_the_noise() {
+    let mut g = gel(GelParams::default(), SolverOptions::default());
+    let mut before = Vec::new();
+    for d in [0.1e-3, 0.15e-3, 0.2e-3] {
+        before = g.particles.iter().map(|p| (p.x, p.f)).collect();
+        let rep = g.solve(&[press(0.0, 0.0, d)]);
+        assert!(rep.converged, "{rep:?}");
+    }
+    assert_eq!(g.last_change.len(), g.particles.len());
+    let largest = g
+        .last_change
+        .iter()
+        .map(|c| c.0.norm())
+        .fold(0.0f32, f32::max);
+    assert!(largest > 0.0);
+    for ((p, b), c) in g.particles.iter().zip(&before).zip(&g.last_change) {
+        assert!((p.x - b.0 - c.0).norm() <= 1e-6 * largest, "{c:?}");
+        assert!((p.f - b.1 - c.1).norm() <= 1e-6, "{c:?}");
+    }
+    assert_eq!(g.last_motion.len(), 1);
+    assert!((g.last_motion[0] - Vector3::new(0.0, 0.0, -0.05e-3)).norm() < 1e-12);
+    let rep = g.solve(&[press(0.0, 0.0, 0.2e-3 + 1e-7)]);
+    assert!(rep.converged, "{rep:?}");
+    assert!(g.last_change.is_empty() && g.last_motion.is_empty());
+}

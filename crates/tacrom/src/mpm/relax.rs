@@ -69,8 +69,7 @@ impl Gel {
     /// the sweep, a non-finite value appears (the gel is then restored, see
     /// [`Gel::recover`]) or [`Gel::iteration_cap`] steps.
     fn relax<M: ConstitutiveModel>(&mut self, model: &M, sweep: &Sweep, report: &mut SolveReport) {
-        self.warm_start();
-        let motion = self.predict(sweep);
+        let motion = self.warm_start(sweep);
         let tol = self.options.tolerance;
         for it in 0..self.iteration_cap() {
             sweep.place(it, self.layout.dx, &mut self.step_ind);
@@ -99,7 +98,7 @@ impl Gel {
     /// the path of the last solve, the active particles are first moved on by the same
     /// multiple of their last change of position and deformation gradient, so that the
     /// relaxation starts near the new equilibrium rather than at the old one. Returns the
-    /// indenters' translations in this solve (m).
+    /// indenters' translations in this solve (m). The stencils are the caller's to update.
     fn predict(&mut self, sweep: &Sweep) -> Vec<Vector3<f64>> {
         let motion: Vec<Vector3<f64>> = sweep
             .indenters
@@ -128,8 +127,6 @@ impl Gel {
                 }
             }
         }
-        transfer::compute_stencils(&self.particles, &mut self.stencils);
-        self.binned = false;
         motion
     }
 
@@ -164,15 +161,20 @@ impl Gel {
         self.last_motion = motion;
     }
 
-    /// Records the state the solve starts from and sets every particle at rest.
-    fn warm_start(&mut self) {
+    /// Records the state the solve starts from (the last equilibrium, for
+    /// [`Gel::recover`] and for the change [`Gel::remember_change`] keeps), sets every
+    /// particle at rest, moves it on by [`Gel::predict`] and computes the stencils once.
+    /// Returns the indenters' translations in this solve (m).
+    fn warm_start(&mut self, sweep: &Sweep) -> Vec<Vector3<f64>> {
         for (s, p) in self.snapshot.iter_mut().zip(&mut self.particles) {
             *s = Snapshot::of(p);
             p.v = Vector3::zeros();
             p.c = Matrix3::zeros();
         }
+        let motion = self.predict(sweep);
         transfer::compute_stencils(&self.particles, &mut self.stencils);
         self.binned = false;
+        motion
     }
 
     /// One MLS-MPM step: the contact forces of the top particles, then the four parts

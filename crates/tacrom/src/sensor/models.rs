@@ -81,7 +81,7 @@ pub fn build(config: &Config) -> Result<Box<dyn SurfaceModel>, SensorError> {
         (Physics::Coarse | Physics::Fine, Some(dx)) => Ok(Box::new(Mpm::new(config, dx)?)),
         (Physics::Rom, Some(dx)) => {
             let mpm = Mpm::new(config, dx)?;
-            let rom = load_rom(config, dx).map_err(fail)?;
+            let rom = load_rom(config, dx, mpm.options.solver).map_err(fail)?;
             Ok(Box::new(Reduced {
                 mpm,
                 rom: Box::new(rom),
@@ -124,24 +124,6 @@ impl SurfaceModel for Rigid {
     }
 }
 
-/// The gel a sensor's configuration describes, at grid spacing `dx`.
-fn gel_params(config: &Config, dx: f64) -> GelParams {
-    GelParams {
-        size: config.size,
-        young: config.young,
-        poisson: config.poisson,
-        density: config.density,
-        friction: config.friction,
-        dx,
-        material: config.material,
-    }
-}
-
-/// The solver the configuration names, or the gel's own choice.
-fn solver(config: &Config, params: &GelParams) -> Solver {
-    config.solver.unwrap_or_else(|| Solver::automatic(params))
-}
-
 /// An MPM gel solved to quasi-static equilibrium (`coarse` and `fine`), created on first
 /// contact: a scene that never touches costs nothing.
 #[derive(Clone, Debug)]
@@ -155,11 +137,21 @@ struct Mpm {
 
 impl Mpm {
     fn new(config: &Config, dx: f64) -> Result<Self, SensorError> {
-        let params = gel_params(config, dx);
+        let params = GelParams {
+            size: config.size,
+            young: config.young,
+            poisson: config.poisson,
+            density: config.density,
+            friction: config.friction,
+            dx,
+            material: config.material,
+        };
         let options = SolverOptions {
             threads: config.threads,
             tolerance: config.tolerance,
-            solver: solver(config, &params),
+            // The solver the configuration names, or the gel's own choice; a
+            // reduced-order model checks its recipe against this one.
+            solver: config.solver.unwrap_or_else(|| Solver::automatic(&params)),
             ..SolverOptions::default()
         };
         Gel::validate(&params, &options).map_err(|e| SensorError::Physics {
@@ -366,7 +358,7 @@ impl SurfaceModel for Reduced {
 
 /// Loads the reduced-order model of a `physics="rom"` sensor: the `model` directory or the
 /// shipped one, checked against the sensor's gel and coarse solve.
-fn load_rom(config: &Config, dx: f64) -> Result<Rom, String> {
+fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
     let attr = crate::config::ATTR_MODEL;
     let dir = match &config.model {
         Some(d) => d.clone(),
@@ -394,7 +386,7 @@ fn load_rom(config: &Config, dx: f64) -> Result<Rom, String> {
     m.check_recipe(
         dx,
         material_name(config.material),
-        solver(config, &gel_params(config, dx)).name(),
+        solver.name(),
         config.tolerance,
     )
     .map_err(in_dir)?;

@@ -205,6 +205,16 @@ impl Default for PointState {
     }
 }
 
+/// A contact point's Gauss-Newton stiffness at the last evaluation, with its stencil's
+/// region indices (`usize::MAX`: fixed or held) and weights, looked up once per
+/// evaluation for the Hessian's products and its assembly.
+#[derive(Clone, Copy, Debug)]
+struct ContactStiffness {
+    dofs: [usize; 27],
+    w: [f64; 27],
+    h: Matrix3<f64>,
+}
+
 /// Points summed per chunk in a parallel sum: the chunks, not the threads, fix the order
 /// of the additions, so the result does not depend on the thread count.
 const CHUNK: usize = 256;
@@ -270,9 +280,8 @@ pub(crate) struct Newton {
     point_local: Vec<[u32; 27]>,
     /// Per region point: its state at the last evaluation.
     states: Vec<PointState>,
-    /// The contact points with a stiffness at the last evaluation (index into
-    /// `contact`) and that stiffness.
-    contact_stiffness: Vec<(u32, Matrix3<f64>)>,
+    /// The contact points with a stiffness at the last evaluation.
+    contact_stiffness: Vec<ContactStiffness>,
     /// The stiffness system of the current region, and those of recent regions.
     system: Option<System>,
     systems: Vec<([usize; 4], System)>,
@@ -994,21 +1003,27 @@ impl Newton {
         }
         self.contact_stiffness.clear();
         let contact = std::mem::take(&mut self.contact);
-        for (k, c) in contact.iter().enumerate() {
+        for c in &contact {
             let x = c.rest + self.displacement(&c.stencil, &self.u);
             let term = self.contact_term(c, &x, indenters);
             energy += term.energy;
             if term.gradient != Vector3::zeros() {
+                let mut stiff = ContactStiffness {
+                    dofs: [usize::MAX; 27],
+                    w: [0.0; 27],
+                    h: term.stiffness,
+                };
                 for l in 0..27 {
                     if let Some(d) = self.local_at(&c.stencil.base, l) {
                         let w = c.stencil.weight(l);
+                        (stiff.dofs[l], stiff.w[l]) = (d, w);
                         for k in 0..3 {
                             self.grad[3 * d + k] += w * term.gradient[k];
                             self.load[3 * d + k] += w * term.gradient[k];
                         }
                     }
                 }
-                self.contact_stiffness.push((k as u32, term.stiffness));
+                self.contact_stiffness.push(stiff);
             }
         }
         self.contact = contact;
@@ -1051,20 +1066,16 @@ impl Newton {
                 }
             }
         }
-        for (k, h) in &self.contact_stiffness {
-            let s = &self.contact[*k as usize].stencil;
-            let mut dofs = [usize::MAX; 27];
+        for k in &self.contact_stiffness {
             let mut v = Vector3::zeros();
-            for (l, d) in dofs.iter_mut().enumerate() {
-                if let Some(k) = self.local_at(&s.base, l) {
-                    *d = k;
-                    v += Vector3::new(x[3 * k], x[3 * k + 1], x[3 * k + 2]) * s.weight(l);
+            for (&d, &w) in k.dofs.iter().zip(&k.w) {
+                if d != usize::MAX {
+                    v += Vector3::new(x[3 * d], x[3 * d + 1], x[3 * d + 2]) * w;
                 }
             }
-            let hv = h * v;
-            for (l, &d) in dofs.iter().enumerate() {
+            let hv = k.h * v;
+            for (&d, &w) in k.dofs.iter().zip(&k.w) {
                 if d != usize::MAX {
-                    let w = s.weight(l);
                     for c in 0..3 {
                         y[3 * d + c] += w * hv[c];
                     }
@@ -1115,17 +1126,8 @@ impl Newton {
                 })
             });
         }
-        for (k, h) in &self.contact_stiffness {
-            let s = &self.contact[*k as usize].stencil;
-            let mut dofs = [usize::MAX; 27];
-            let mut w = [0.0; 27];
-            for l in 0..27 {
-                if let Some(d) = self.local_at(&s.base, l) {
-                    dofs[l] = d;
-                    w[l] = s.weight(l);
-                }
-            }
-            add_pairs(system, &dofs, |l1, l2| h * (w[l1] * w[l2]));
+        for k in &self.contact_stiffness {
+            add_pairs(system, &k.dofs, |l1, l2| k.h * (k.w[l1] * k.w[l2]));
         }
     }
 

@@ -260,6 +260,8 @@ pub enum MpmPart {
     Speed,
     /// Work per frame against Young's modulus and Poisson's ratio only.
     Work,
+    /// Small contacts (a 0.5 mm sphere and a cone tip) on the coarse grid only.
+    Small,
 }
 
 /// Options of `tacrom mpm`: Hertz contact on a bonded layer (frictionless sphere,

@@ -217,7 +217,12 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
     if a.fine {
         options = options.with_fine();
     }
-    let parts = [MpmPart::Hertz, MpmPart::Speed, MpmPart::Work];
+    let parts = [
+        MpmPart::Hertz,
+        MpmPart::Speed,
+        MpmPart::Work,
+        MpmPart::Small,
+    ];
     for part in parts
         .into_iter()
         .filter(|p| a.only.is_some_and(|o| o != *p))
@@ -229,6 +234,7 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
                 options.youngs.clear();
                 options.poissons.clear();
             }
+            MpmPart::Small => options.small_depths.clear(),
         }
     }
     let result = run(&options)?;

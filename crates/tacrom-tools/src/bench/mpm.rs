@@ -13,6 +13,11 @@
 //!   particle-steps per second (active particles times iterations over solve time), and memory per
 //!   particle (particle state plus the grid's share).
 //!
+//! * **Small contacts.** A sphere of radius 0.5 mm and a 90-degree cone tip pressed 0.1
+//!   to 0.4 mm (frictionless, one continuous sequence each) into the coarse gel, whose
+//!   surface particles lie 0.7 mm apart, against the same presses on a 0.5 mm grid
+//!   ([`SMALL_REFERENCE_DX`], relaxation): the force ratio per depth.
+//!
 //! The fine spacing (0.3 mm, about 1e6 particles) takes minutes per frame; it runs with
 //! `--fine`, a few frames only.
 
@@ -25,12 +30,21 @@ use nalgebra::Isometry3;
 
 use super::BenchError;
 use crate::progress::Progress;
-use tacrom::geometry::{Placed, Sdf, Sphere};
+use tacrom::geometry::{Placed, Sdf, Sphere, TriMesh};
 use tacrom::mpm::hertz::hertz_bonded;
 use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
 /// Radius of the validation sphere (m).
 pub const SPHERE_RADIUS: f64 = 5e-3;
+
+/// Radius of the small-contact sphere (m).
+pub const SMALL_SPHERE_RADIUS: f64 = 0.5e-3;
+
+/// Grid spacing of the small-contact reference presses (m).
+pub const SMALL_REFERENCE_DX: f64 = 0.5e-3;
+
+/// Grid spacing the small contacts are measured on: the coarse gel's (m).
+pub const SMALL_DX: f64 = 1.4e-3;
 
 /// What `tacrom mpm` runs.
 #[derive(Clone, Debug)]
@@ -62,6 +76,8 @@ pub struct MpmBenchOptions {
     pub poissons: Vec<f64>,
     /// Measured frames of a work-per-frame run.
     pub work_frames: usize,
+    /// Depths of the small-contact presses (m), increasing; empty: not run.
+    pub small_depths: Vec<f64>,
 }
 
 impl MpmBenchOptions {
@@ -81,6 +97,7 @@ impl MpmBenchOptions {
             youngs: vec![1e4, 1e5, 1e6, 1e7],
             poissons: vec![0.3, 0.43, 0.49, 0.499],
             work_frames: 4,
+            small_depths: vec![0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3],
         }
     }
 
@@ -234,6 +251,125 @@ pub struct MpmBenchResult {
     pub speed: Vec<SpeedRow>,
     /// Work per frame, per material.
     pub work: Vec<WorkRow>,
+    /// Small contacts, per shape, solver and depth.
+    pub small: Vec<SmallRow>,
+}
+
+/// One small-contact press.
+#[derive(Clone, Debug)]
+pub struct SmallRow {
+    /// Indenter (`sphere` or `cone`).
+    pub shape: &'static str,
+    /// Equilibrium solver on the coarse grid.
+    pub solver: Solver,
+    /// Depth (m).
+    pub depth: f64,
+    /// Force on the coarse grid (N).
+    pub force: f64,
+    /// Force on the reference grid (N).
+    pub reference: f64,
+    /// Whether both solves (coarse and reference) converged.
+    pub converged: bool,
+}
+
+impl SmallRow {
+    /// Coarse force over the reference's.
+    pub fn ratio(&self) -> f64 {
+        self.force / self.reference
+    }
+}
+
+/// A cone with its tip at the origin pointing down (-z), half-angle 45 degrees, 3 mm tall
+/// with a flat top, as a closed triangle mesh of 64 sides.
+pub fn cone_tip() -> Arc<dyn Sdf> {
+    let cone = TriMesh::cone_tip(3e-3, std::f64::consts::FRAC_PI_4, 64);
+    Arc::new(cone.expect("the cone mesh is valid"))
+}
+
+/// The forces of a frictionless press of `shape` (lowest point `lowest` below its local
+/// origin) through `depths` at spacing `dx`, one continuous sequence, each with whether
+/// its solve converged.
+fn small_sequence(
+    shape: &Arc<dyn Sdf>,
+    lowest: f64,
+    depths: &[f64],
+    dx: f64,
+    solver: Solver,
+    threads: usize,
+) -> Result<Vec<(f64, bool)>, BenchError> {
+    let mut g = gel(dx, 0.0, threads, SolverOptions::default().tolerance, solver)?;
+    Ok(depths
+        .iter()
+        .map(|&d| {
+            let placed = [Placed {
+                shape: shape.clone(),
+                pose: Isometry3::translation(0.0, 0.0, lowest - d),
+            }];
+            let converged = g.solve(&placed).converged;
+            (g.force().z, converged)
+        })
+        .collect())
+}
+
+/// The small-contact presses (see the module docs) on the coarse grid per solver against
+/// the reference grid.
+pub fn small_run(
+    depths: &[f64],
+    solvers: &[Solver],
+    threads: usize,
+    progress: &Progress,
+) -> Result<Vec<SmallRow>, BenchError> {
+    // Each shape with the height of its lowest point below its local origin.
+    let shapes: [(&'static str, Arc<dyn Sdf>, f64); 2] = [
+        (
+            "sphere",
+            Arc::new(Sphere::new(SMALL_SPHERE_RADIUS)),
+            SMALL_SPHERE_RADIUS,
+        ),
+        ("cone", cone_tip(), 0.0),
+    ];
+    let mut rows = Vec::new();
+    for (name, shape, lowest) in &shapes {
+        progress.message(format!(
+            "small {name}: reference dx {:.1} mm",
+            SMALL_REFERENCE_DX * 1e3
+        ));
+        let reference = small_sequence(
+            shape,
+            *lowest,
+            depths,
+            SMALL_REFERENCE_DX,
+            Solver::Relaxation,
+            threads,
+        )?;
+        for &solver in solvers {
+            let forces = small_sequence(shape, *lowest, depths, SMALL_DX, solver, threads)?;
+            for ((&depth, &(force, ok)), &(reference, ref_ok)) in
+                depths.iter().zip(&forces).zip(&reference)
+            {
+                rows.push(SmallRow {
+                    shape: name,
+                    solver,
+                    depth,
+                    force,
+                    reference,
+                    converged: ok && ref_ok,
+                });
+            }
+            let ratios: Vec<String> = rows[rows.len() - depths.len()..]
+                .iter()
+                .map(|r| format!("{:.2}", r.ratio()))
+                .collect();
+            progress.line(&format!(
+                "small {name} {}: force / {:.1} mm grid's {}",
+                solver.name(),
+                SMALL_REFERENCE_DX * 1e3,
+                ratios.join(", ")
+            ));
+        }
+        progress.advance(1);
+    }
+    Ok(rows)
 }
 
 fn sphere() -> Arc<dyn Sdf> {
@@ -438,7 +574,12 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
             * (options.hertz_dx.len() * options.depths.len()
                 + options.speed_dx.len() * options.tolerances.len() * options.threads.len()
                 + options.youngs.len()
-                + options.poissons.len()),
+                + options.poissons.len())
+            + if options.small_depths.is_empty() {
+                0
+            } else {
+                2
+            },
         options.progress,
     );
     for &dx in &options.hertz_dx {
@@ -492,6 +633,14 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
             result.work.push(row);
         }
         progress.advance(1);
+    }
+    if !options.small_depths.is_empty() {
+        result.small = small_run(
+            &options.small_depths,
+            &options.solvers,
+            most_threads,
+            &progress,
+        )?;
     }
     progress.finish();
     write_report(&options.out, &result)?;
@@ -603,7 +752,43 @@ pub fn markdown(result: &MpmBenchResult) -> String {
             let _ = writeln!(s, "| {} |", work_cells(r, false).join(" | "));
         }
     }
+    if !result.small.is_empty() {
+        let _ = write!(
+            s,
+            "\n## Small contacts\n\nA sphere of radius {:.1} mm and a 90-degree cone tip \
+             pressed into the default gel (frictionless, one continuous sequence each) on the \
+             coarse grid ({:.1} mm; surface particles {:.2} mm apart) against the same presses \
+             on a {:.1} mm grid (relaxation). `*`: a solve hit the iteration cap.\n\n| shape \
+             | solver | depth (mm) | force (N) | {:.1} mm grid (N) | ratio |\n\
+             |---|---|---|---|---|---|\n",
+            SMALL_SPHERE_RADIUS * 1e3,
+            SMALL_DX * 1e3,
+            0.5 * SMALL_DX * 1e3,
+            SMALL_REFERENCE_DX * 1e3,
+            SMALL_REFERENCE_DX * 1e3,
+        );
+        for r in &result.small {
+            let _ = writeln!(s, "| {} |", small_cells(r, false).join(" | "));
+        }
+    }
     s
+}
+
+/// A small-contact row's values in column order (`csv`: full precision).
+fn small_cells(r: &SmallRow, csv: bool) -> [String; 6] {
+    let star = if r.converged || csv { "" } else { "*" };
+    [
+        r.shape.to_string(),
+        r.solver.name().to_string(),
+        if csv {
+            format!("{:e}", r.depth)
+        } else {
+            format!("{:.2}", r.depth * 1e3)
+        },
+        format!("{:.5}", r.force),
+        format!("{:.5}", r.reference),
+        format!("{:.3}{star}", r.ratio()),
+    ]
 }
 
 /// A work row's values in column order (`csv`: full precision).
@@ -667,7 +852,12 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     for r in &result.work {
         let _ = writeln!(work, "{}", work_cells(r, true).join(","));
     }
-    write_file(out, "work.csv", work)
+    write_file(out, "work.csv", work)?;
+    let mut small = String::from("shape,solver,depth_m,force_n,reference_n,ratio,converged\n");
+    for r in &result.small {
+        let _ = writeln!(small, "{},{}", small_cells(r, true).join(","), r.converged);
+    }
+    write_file(out, "small.csv", small)
 }
 
 #[cfg(test)]

@@ -125,6 +125,25 @@ impl TriMesh {
         Self::with_options(vertices, faces, &MeshSdfOptions::default())
     }
 
+    /// A right circular cone with its tip at the origin pointing down (-z): `height` tall
+    /// with a flat top, half-angle `half_angle` (rad), `sides` sides (at least 3), closed.
+    pub fn cone_tip(height: f64, half_angle: f64, sides: u32) -> Result<Self, GeometryError> {
+        let sides = sides.max(3);
+        let r = height * half_angle.tan();
+        let mut vertices = vec![Point3::origin(), Point3::new(0.0, 0.0, height)];
+        for k in 0..sides {
+            let a = std::f64::consts::TAU * k as f64 / sides as f64;
+            vertices.push(Point3::new(r * a.cos(), r * a.sin(), height));
+        }
+        let mut faces = Vec::with_capacity(2 * sides as usize);
+        for k in 0..sides {
+            let (a, b) = (2 + k, 2 + (k + 1) % sides);
+            faces.push([0, b, a]);
+            faces.push([1, a, b]);
+        }
+        Self::new(vertices, faces)
+    }
+
     /// A mesh from MuJoCo's arrays: `vertices` holds `x y z` triples, `faces` index
     /// triples; coordinates are multiplied by `scale`.
     pub fn from_flat(
@@ -746,6 +765,11 @@ impl Sdf for TriMesh {
         }
     }
 
+    /// The trilinear interpolant of the distance grid and its exact derivative.
+    fn distance_and_slope(&self, p: &Point3<f64>) -> (f64, Vector3<f64>) {
+        self.grid().query(p)
+    }
+
     fn aabb(&self) -> Aabb {
         self.aabb
     }
@@ -865,6 +889,43 @@ fn row_span(t: &[Point3<f64>; 3], y: f64) -> (f64, f64) {
 
 #[cfg(test)]
 mod tests {
+
+    /// The slope a minimisation uses is the derivative of the distance it evaluates
+    /// (central differences, within a cell of the sampling grid), near a cone's tip, where
+    /// the interpolated distance is rounded and its slope's length is not one (0.83 to
+    /// 1.31 around this tip), and on the flank, where it is the unit normal.
+    #[test]
+    fn the_slope_is_the_derivative_of_the_sampled_distance() {
+        let cone = TriMesh::cone_tip(3e-3, std::f64::consts::FRAC_PI_4, 64).unwrap();
+        let h = 1e-9;
+        let tip = Point3::new(3.9e-5, 4.4e-5, -8.5e-5);
+        let flank = Point3::new(0.9e-3, 0.1e-3, 1.9e-3);
+        for p in [tip, Point3::new(1.3e-5, 2.1e-5, -1.7e-5), flank] {
+            let (_, slope) = cone.distance_and_slope(&p);
+            for k in 0..3 {
+                let (mut a, mut b) = (p, p);
+                a[k] += h;
+                b[k] -= h;
+                let fd = (cone.distance(&a) - cone.distance(&b)) / (2.0 * h);
+                assert!(
+                    (fd - slope[k]).abs() < 1e-5,
+                    "{p}: axis {k}: {fd} vs {}",
+                    slope[k]
+                );
+            }
+        }
+        let length = |p: &Point3<f64>| cone.distance_and_slope(p).1.norm();
+        assert!(
+            (length(&tip) - 1.0).abs() > 0.1,
+            "slope length {} at the tip",
+            length(&tip)
+        );
+        assert!(
+            (length(&flank) - 1.0).abs() < 0.02,
+            "flank slope {}",
+            length(&flank)
+        );
+    }
 
     /// Rigid rendering rasterises the triangles: it must not build the distance grid.
     #[test]

@@ -157,6 +157,16 @@ pub trait Sdf: Send + Sync + Debug {
         }
     }
 
+    /// The distance at `p` and its derivative with respect to `p`. For an exact signed
+    /// distance the derivative is the unit normal ([`Sdf::gradient`], the default); a
+    /// sampled one overrides it with the derivative of its interpolant, whose length falls
+    /// below one near sharp features. An energy minimisation needs this one: a penalty on
+    /// the interpolated distance whose gradient used the unit normal would not be the
+    /// gradient of the energy it evaluates, and its line search would stall there.
+    fn distance_and_slope(&self, p: &Point3<f64>) -> (f64, Vector3<f64>) {
+        (self.distance(p), self.gradient(p))
+    }
+
     /// Bounding box of the solid in the local frame.
     fn aabb(&self) -> Aabb;
 

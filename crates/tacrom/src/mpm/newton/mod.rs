@@ -251,6 +251,10 @@ struct Anchor {
 struct Touch {
     /// Penetration depth (cells; the signed distance's negative).
     gap: f64,
+    /// The signed distance's derivative (sensor frame): the unit normal for an exact
+    /// distance, shorter near a sampled one's sharp features ([`Sdf::distance_and_slope`]).
+    slope: Vector3<f64>,
+    /// Unit outward normal (sensor frame).
     normal: Vector3<f64>,
     indenter: usize,
 }
@@ -736,15 +740,21 @@ impl Newton {
                 continue;
             }
             let local = ind.now.inverse_transform_point(&p);
-            let dist = ind.shape.distance(&local) / self.dx;
+            let (dist, slope) = ind.shape.distance_and_slope(&local);
+            let dist = dist / self.dx;
             if !(dist < 0.0) {
                 continue;
             }
             if best.as_ref().map_or(true, |b| -dist > b.gap) {
-                let normal = ind.now.rotation * ind.shape.gradient(&local);
+                let slope = ind.now.rotation * slope;
+                let length = slope.norm();
+                if !(length > 1e-12 && length.is_finite()) {
+                    continue;
+                }
                 best = Some(Touch {
                     gap: -dist,
-                    normal,
+                    slope,
+                    normal: slope / length,
                     indenter: m,
                 });
             }
@@ -906,8 +916,8 @@ impl Newton {
         if let Some(t) = self.touch(x, indenters) {
             let (e, f, k) = penalty(t.gap);
             term.energy += self.area * e;
-            term.gradient -= t.normal * (self.area * f);
-            term.stiffness += t.normal * t.normal.transpose() * (self.area * k);
+            term.gradient -= t.slope * (self.area * f);
+            term.stiffness += t.slope * t.slope.transpose() * (self.area * k);
         }
         if let Some((y, d)) = self.slip(c, x, indenters) {
             let scale = self.friction * c.lag_force;

@@ -267,7 +267,9 @@ pub enum MpmPart {
 /// Options of `tacrom mpm`: Hertz contact on a bonded layer (frictionless sphere,
 /// R = 5 mm, force error per depth and grid spacing) and the solver's cost in a moving
 /// press (ms per frame, iterations, particle-steps/s, bytes per particle) per grid spacing
-/// and thread count. Writes report.md, hertz.csv and speed.csv into --out.
+/// and thread count, the work per frame against the material, and small contacts (a 0.5 mm
+/// sphere and a cone tip on the coarse grid). Writes report.md, hertz.csv, speed.csv,
+/// work.csv and small.csv into --out.
 #[derive(Debug, Args)]
 #[command(after_help = UNITS)]
 pub struct MpmArgs {

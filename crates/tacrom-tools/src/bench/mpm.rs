@@ -1,5 +1,6 @@
-//! The gel's own benchmark (`tacrom mpm`): Hertz validation per resolution, and the
-//! solver's cost per resolution and thread count.
+//! The gel's own benchmark (`tacrom mpm`): Hertz validation per resolution, the solver's
+//! cost per resolution and thread count, its work per frame against the material, and
+//! contacts smaller than the coarse grid's particle spacing.
 //!
 //! * **Hertz.** A frictionless rigid sphere (R = 5 mm) pressed at the centre of the
 //!   default gel through increasing depths, one continuous sequence per grid spacing (the
@@ -31,7 +32,7 @@ use nalgebra::Isometry3;
 use super::BenchError;
 use crate::progress::Progress;
 use tacrom::geometry::{Placed, Sdf, Sphere, TriMesh};
-use tacrom::mpm::hertz::hertz_bonded;
+use tacrom::mpm::hertz::{hertz_bonded, sneddon_cone};
 use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
 /// Radius of the validation sphere (m).
@@ -268,21 +269,32 @@ pub struct SmallRow {
     pub force: f64,
     /// Force on the reference grid (N).
     pub reference: f64,
+    /// The analytic force (N): Hertz on the bonded layer for the sphere, Sneddon's
+    /// half-space cone for the cone.
+    pub analytic: f64,
     /// Whether both solves (coarse and reference) converged.
     pub converged: bool,
 }
 
 impl SmallRow {
-    /// Coarse force over the reference's.
+    /// Coarse force over the reference grid's.
     pub fn ratio(&self) -> f64 {
         self.force / self.reference
     }
+
+    /// Coarse force over the analytic one.
+    pub fn analytic_ratio(&self) -> f64 {
+        self.force / self.analytic
+    }
 }
+
+/// Semi-vertical angle of the small-contact cone (rad).
+pub const CONE_HALF_ANGLE: f64 = std::f64::consts::FRAC_PI_4;
 
 /// A cone with its tip at the origin pointing down (-z), half-angle 45 degrees, 3 mm tall
 /// with a flat top, as a closed triangle mesh of 64 sides.
 pub fn cone_tip() -> Arc<dyn Sdf> {
-    let cone = TriMesh::cone_tip(3e-3, std::f64::consts::FRAC_PI_4, 64);
+    let cone = TriMesh::cone_tip(3e-3, CONE_HALF_ANGLE, 64);
     Arc::new(cone.expect("the cone mesh is valid"))
 }
 
@@ -328,6 +340,11 @@ pub fn small_run(
         ),
         ("cone", cone_tip(), 0.0),
     ];
+    let p = GelParams::default();
+    let analytic = |name: &str, d: f64| match name {
+        "sphere" => hertz_bonded(p.young, p.poisson, SMALL_SPHERE_RADIUS, d, p.size[2]),
+        _ => sneddon_cone(p.young, p.poisson, CONE_HALF_ANGLE, d),
+    };
     let mut rows = Vec::new();
     for (name, shape, lowest) in &shapes {
         progress.message(format!(
@@ -353,6 +370,7 @@ pub fn small_run(
                     depth,
                     force,
                     reference,
+                    analytic: analytic(name, depth),
                     converged: ok && ref_ok,
                 });
             }
@@ -564,8 +582,8 @@ pub fn work_run(
     })
 }
 
-/// Runs both parts and writes `report.md`, `hertz.csv` and `speed.csv` into
-/// `options.out`.
+/// Runs the parts the options ask for and writes `report.md`, `hertz.csv`, `speed.csv`,
+/// `work.csv` and `small.csv` into `options.out`.
 pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
     let mut result = MpmBenchResult::default();
     let most_threads = options.threads.iter().copied().max().unwrap_or(1);
@@ -758,9 +776,10 @@ pub fn markdown(result: &MpmBenchResult) -> String {
             "\n## Small contacts\n\nA sphere of radius {:.1} mm and a 90-degree cone tip \
              pressed into the default gel (frictionless, one continuous sequence each) on the \
              coarse grid ({:.1} mm; surface particles {:.2} mm apart) against the same presses \
-             on a {:.1} mm grid (relaxation). `*`: a solve hit the iteration cap.\n\n| shape \
-             | solver | depth (mm) | force (N) | {:.1} mm grid (N) | ratio |\n\
-             |---|---|---|---|---|---|\n",
+             on a {:.1} mm grid (relaxation) and the analytic force (sphere: Hertz on the \
+             bonded layer; cone: Sneddon, half-space). `*`: a solve hit the iteration cap; \
+             `-`: the reference is zero.\n\n| shape | solver | depth (mm) | force (N) | {:.1} \
+             mm grid (N) | ratio | analytic (N) | ratio |\n|---|---|---|---|---|---|---|---|\n",
             SMALL_SPHERE_RADIUS * 1e3,
             SMALL_DX * 1e3,
             0.5 * SMALL_DX * 1e3,
@@ -775,8 +794,17 @@ pub fn markdown(result: &MpmBenchResult) -> String {
 }
 
 /// A small-contact row's values in column order (`csv`: full precision).
-fn small_cells(r: &SmallRow, csv: bool) -> [String; 6] {
+fn small_cells(r: &SmallRow, csv: bool) -> [String; 8] {
     let star = if r.converged || csv { "" } else { "*" };
+    // Forces of exactly zero print without the sign of a -0.0 sum.
+    let force = |f: f64| format!("{:.5}", f + 0.0);
+    let ratio = |q: f64| {
+        if q.is_finite() {
+            format!("{:.3}{star}", q + 0.0)
+        } else {
+            "-".to_string()
+        }
+    };
     [
         r.shape.to_string(),
         r.solver.name().to_string(),
@@ -785,9 +813,11 @@ fn small_cells(r: &SmallRow, csv: bool) -> [String; 6] {
         } else {
             format!("{:.2}", r.depth * 1e3)
         },
-        format!("{:.5}", r.force),
-        format!("{:.5}", r.reference),
-        format!("{:.3}{star}", r.ratio()),
+        force(r.force),
+        force(r.reference),
+        ratio(r.ratio()),
+        force(r.analytic),
+        ratio(r.analytic_ratio()),
     ]
 }
 
@@ -853,7 +883,9 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
         let _ = writeln!(work, "{}", work_cells(r, true).join(","));
     }
     write_file(out, "work.csv", work)?;
-    let mut small = String::from("shape,solver,depth_m,force_n,reference_n,ratio,converged\n");
+    let mut small = String::from(
+        "shape,solver,depth_m,force_n,reference_n,ratio,analytic_n,analytic_ratio,converged\n",
+    );
     for r in &result.small {
         let _ = writeln!(small, "{},{}", small_cells(r, true).join(","), r.converged);
     }
@@ -863,6 +895,34 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    // The small-contact table: one row per shape, solver and depth, the ratios to both
+    // references, a dash where the reference grid gives no force.
+    #[test]
+    fn markdown_lists_the_small_contacts_with_both_ratios() {
+        let row = |depth: f64, force: f64, reference: f64| SmallRow {
+            shape: "cone",
+            solver: Solver::Newton,
+            depth,
+            force,
+            reference,
+            analytic: 0.01,
+            converged: true,
+        };
+        let result = MpmBenchResult {
+            small: vec![row(0.1e-3, 0.02, 0.0), row(0.2e-3, 0.03, 0.015)],
+            ..Default::default()
+        };
+        let md = markdown(&result);
+        assert!(
+            md.contains("| cone | newton | 0.10 | 0.02000 | 0.00000 | - | 0.01000 | 2.000 |"),
+            "{md}"
+        );
+        assert!(
+            md.contains("| cone | newton | 0.20 | 0.03000 | 0.01500 | 2.000 | 0.01000 | 3.000 |"),
+            "{md}"
+        );
+    }
 
     // The report has one Hertz row per spacing with one cell per depth, and marks
     // unconverged presses.
@@ -887,6 +947,7 @@ mod tests {
             ],
             speed: Vec::new(),
             work: Vec::new(),
+            small: Vec::new(),
         };
         let md = markdown(&result);
         let lines: Vec<&str> = md.lines().filter(|l| l.starts_with("| ")).collect();
@@ -917,6 +978,7 @@ mod tests {
             ],
             speed: Vec::new(),
             work: Vec::new(),
+            small: Vec::new(),
         };
         let md = markdown(&result);
         let lines: Vec<&str> = md.lines().filter(|l| l.starts_with("| ")).collect();

@@ -112,6 +112,14 @@ const PAD: usize = 3;
 /// Grid nodes below the bonded face (cells); all of them are fixed.
 const PAD_BOTTOM: usize = 2;
 
+/// Newton's contact points per particle spacing along each axis of the top face.
+pub fn newton_contact_subdivision() -> usize {
+    newton::CONTACT_SUBDIVISION
+}
+
+/// Most points per indenter that [`Gel::unloaded_penetration`] samples.
+pub const MISSED_SAMPLES: usize = 16_384;
+
 /// Geometry of the particle lattice and grid, fixed at construction.
 #[derive(Clone, Copy, Debug)]
 struct Layout {
@@ -459,6 +467,66 @@ impl Gel {
         let cells = self.params.size[2] / self.layout.dx;
         let scale = (cells / CAP_CELLS).max(1.0);
         ((self.options.max_iterations as f64 * scale).round() as usize).max(1)
+    }
+
+    /// Spacing (m) of the surface points that the solver's contact acts on: the top
+    /// particles' for relaxation, the finer contact lattice's for Newton
+    /// ([`newton::CONTACT_SUBDIVISION`] per particle spacing). An indenter that reaches
+    /// into the gel only between them loads it with no force.
+    pub fn contact_spacing(&self) -> f64 {
+        let s = self.layout.spacing[0].max(self.layout.spacing[1]);
+        match self.options.solver {
+            Solver::Newton => s / newton::CONTACT_SUBDIVISION as f64,
+            Solver::Relaxation => s,
+        }
+    }
+
+    /// How deep (m, a lower bound) the indenters reach into the undeformed gel where the
+    /// last solve found no contact force at all: 0 when the gel carries a force or when
+    /// nothing reaches in. The undeformed top face is sampled at a quarter of
+    /// [`Gel::contact_spacing`] (coarser over large footprints, at most
+    /// [`MISSED_SAMPLES`] points per indenter); the signed distance there bounds the
+    /// penetration from below. A contact smaller than the contact points' spacing can
+    /// fall between them; the sensor warns with this.
+    pub fn unloaded_penetration(&self, indenters: &[Placed]) -> f64 {
+        if self.force != Vector3::zeros() {
+            return 0.0;
+        }
+        let [lx, ly, _] = self.params.size;
+        let fine = 0.25 * self.contact_spacing();
+        let mut deepest = 0.0f64;
+        for p in indenters::usable(indenters) {
+            let b = p.aabb();
+            if b.min.z.is_nan() || b.min.z >= 0.0 {
+                continue;
+            }
+            let x0 = b.min.x.max(-0.5 * lx);
+            let x1 = b.max.x.min(0.5 * lx);
+            let y0 = b.min.y.max(-0.5 * ly);
+            let y1 = b.max.y.min(0.5 * ly);
+            if !(x1 >= x0 && y1 >= y0) {
+                continue;
+            }
+            let area = (x1 - x0 + fine) * (y1 - y0 + fine);
+            let pitch = fine.max((area / MISSED_SAMPLES as f64).sqrt());
+            let nx = ((x1 - x0) / pitch).floor() as usize + 1;
+            let ny = ((y1 - y0) / pitch).floor() as usize + 1;
+            let inverse = p.pose.inverse();
+            for j in 0..ny {
+                for i in 0..nx {
+                    let q = Point3::new(
+                        x0 + (i as f64 + 0.5) * (x1 - x0) / nx as f64,
+                        y0 + (j as f64 + 0.5) * (y1 - y0) / ny as f64,
+                        0.0,
+                    );
+                    let d = p.shape.distance(&(inverse * q));
+                    if d.is_finite() {
+                        deepest = deepest.max(-d);
+                    }
+                }
+            }
+        }
+        deepest
     }
 
     /// The parameters the gel was built with.

@@ -10,6 +10,10 @@ use crate::geometry::{PixelGrid, Placed};
 use crate::mpm::{Gel, GelParams, Solver, SolverOptions, Wrench};
 use crate::rom::{Rom, RomOptions};
 
+/// Penetration, as a fraction of the contact points' spacing, above which a gel that
+/// carries no force warns that a contact fell between its contact points.
+const MISSED_FRACTION: f64 = 0.01;
+
 /// A model of the gel's surface.
 pub trait SurfaceModel: Send + std::fmt::Debug {
     /// Whether the gel is undeformed, so that a frame without contact costs nothing.
@@ -208,6 +212,27 @@ impl SurfaceModel for Mpm {
         if report.nonfinite_recovered {
             eval.warnings.push(format!(
                 "tacrom.tactile sensor '{name}': non-finite values in the gel; state recovered"
+            ));
+        }
+        let spacing = gel.contact_spacing();
+        let missed = gel.unloaded_penetration(scene.indenters);
+        if missed > MISSED_FRACTION * spacing {
+            let advice = match self.options.solver {
+                Solver::Relaxation => format!(
+                    "solver=\"newton\" (contact points {:.3} mm apart) or a smaller 'dx'",
+                    spacing * 1e3 / crate::mpm::newton_contact_subdivision() as f64
+                ),
+                Solver::Newton => "a smaller 'dx'".to_string(),
+            };
+            eval.warnings.push(format!(
+                "tacrom.tactile sensor '{name}': an indenter reaches at least {:.3} mm into the \
+                 gel between its contact points ({:.3} mm apart at dx = {:.2} mm, solver \
+                 {}) and the gel carries no force: the contact is smaller than this gel \
+                 resolves; use {advice}",
+                missed * 1e3,
+                spacing * 1e3,
+                self.params.dx * 1e3,
+                self.options.solver.name(),
             ));
         }
         eval.solve = Some(report);

@@ -282,6 +282,11 @@ pub struct ModeResult {
     pub reference: bool,
     /// Errors against the reference (the reference's own are zero).
     pub accuracy: Accuracy,
+    /// The same per depth of the sequences ([`BenchOptions::depths`] order); empty for
+    /// the reference.
+    pub by_depth: Vec<Accuracy>,
+    /// The same per indenter ([`BenchResult::indenters`] order); empty for the reference.
+    pub by_indenter: Vec<Accuracy>,
     /// Median time per evaluation (ms).
     pub median_ms: f64,
     /// 90th-percentile time per evaluation (ms).
@@ -466,6 +471,8 @@ fn row_of(label: &str, threads: usize, t: &Timed) -> ModeResult {
         threads,
         reference: false,
         accuracy: Accuracy::default(),
+        by_depth: Vec::new(),
+        by_indenter: Vec::new(),
         median_ms: metrics::median(&secs) * 1e3,
         p90_ms: metrics::quantile(&secs, 0.9) * 1e3,
         peak_rss: t.peak_rss,
@@ -478,39 +485,80 @@ fn row_of(label: &str, threads: usize, t: &Timed) -> ModeResult {
     }
 }
 
-fn accuracy(frames: &Frames, reference: &Frames, grid: &tacrom::geometry::PixelGrid) -> Accuracy {
-    let (mut acc, mut n) = (Accuracy::default(), 0usize);
-    let (mut fsum, mut fref) = (0.0, 0.0);
-    let (mut psnr_n, mut ssim_n) = (0usize, 0usize);
-    for (a, r) in frames
-        .iter()
-        .flatten()
-        .flatten()
-        .zip(reference.iter().flatten().flatten())
-    {
-        let peak = r.depth.iter().copied().fold(0.0f64, f64::max);
-        acc.mae += metrics::mae(&a.depth, &r.depth);
-        acc.rmse += metrics::rmse(&a.depth, &r.depth);
-        if let Some(p) = metrics::psnr(&a.depth, &r.depth, peak) {
-            acc.psnr += p.min(metrics::PSNR_CAP_DB);
+/// The errors of one press against the reference's.
+#[derive(Clone, Copy, Debug)]
+struct PressError {
+    id: PressId,
+    mae: f64,
+    rmse: f64,
+    psnr: Option<f64>,
+    ssim: Option<f64>,
+    chamfer: f64,
+    /// Norm of the force difference and of the reference's force (N).
+    force: f64,
+    force_ref: f64,
+}
+
+/// Each press's errors against the reference, computed once for every grouping.
+fn press_errors(
+    frames: &Frames,
+    reference: &Frames,
+    grid: &tacrom::geometry::PixelGrid,
+) -> Vec<PressError> {
+    let mut out = Vec::new();
+    for (i, (seqs, ref_seqs)) in frames.iter().zip(reference).enumerate() {
+        for (p, (seq, ref_seq)) in seqs.iter().zip(ref_seqs).enumerate() {
+            for (d, (a, r)) in seq.iter().zip(ref_seq).enumerate() {
+                let peak = r.depth.iter().copied().fold(0.0f64, f64::max);
+                let norm = |v: &[f64; 3]| v.iter().map(|f| f * f).sum::<f64>().sqrt();
+                let diff: [f64; 3] = std::array::from_fn(|k| a.force[k] - r.force[k]);
+                out.push(PressError {
+                    id: PressId {
+                        indenter: i,
+                        position: p,
+                        depth: d,
+                    },
+                    mae: metrics::mae(&a.depth, &r.depth),
+                    rmse: metrics::rmse(&a.depth, &r.depth),
+                    psnr: metrics::psnr(&a.depth, &r.depth, peak)
+                        .map(|v| v.min(metrics::PSNR_CAP_DB)),
+                    ssim: metrics::ssim(&a.depth, &r.depth, grid.width, grid.height, peak),
+                    chamfer: metrics::chamfer_l2(
+                        &metrics::surface_points(grid, &a.depth),
+                        &metrics::surface_points(grid, &r.depth),
+                    ),
+                    force: norm(&diff),
+                    force_ref: norm(&r.force),
+                });
+            }
+        }
+    }
+    out
+}
+
+/// The mean errors over `errors` (PSNR and SSIM over the presses that have one; the
+/// relative force error as the sum of differences over the sum of reference forces).
+fn accuracy<'a>(errors: impl Iterator<Item = &'a PressError>) -> Accuracy {
+    let mut acc = Accuracy::default();
+    let (mut n, mut psnr_n, mut ssim_n) = (0usize, 0usize, 0usize);
+    let mut force_ref = 0.0;
+    for e in errors {
+        acc.mae += e.mae;
+        acc.rmse += e.rmse;
+        acc.chamfer += e.chamfer;
+        if let Some(p) = e.psnr {
+            acc.psnr += p;
             psnr_n += 1;
         }
-        if let Some(s) = metrics::ssim(&a.depth, &r.depth, grid.width, grid.height, peak) {
+        if let Some(s) = e.ssim {
             acc.ssim += s;
             ssim_n += 1;
         }
-        acc.chamfer += metrics::chamfer_l2(
-            &metrics::surface_points(grid, &a.depth),
-            &metrics::surface_points(grid, &r.depth),
-        );
-        let df = (0..3)
-            .map(|k| (a.force[k] - r.force[k]).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        fsum += df;
-        fref += r.force.iter().map(|f| f * f).sum::<f64>().sqrt();
+        acc.force_abs += e.force;
+        force_ref += e.force_ref;
         n += 1;
     }
+    let fsum = acc.force_abs;
     let n = n.max(1) as f64;
     acc.mae /= n;
     acc.rmse /= n;
@@ -526,7 +574,11 @@ fn accuracy(frames: &Frames, reference: &Frames, grid: &tacrom::geometry::PixelG
         f64::NAN
     };
     acc.force_abs = fsum / n;
-    acc.force_rel = if fref > 0.0 { fsum / fref } else { f64::NAN };
+    acc.force_rel = if force_ref > 0.0 {
+        fsum / force_ref
+    } else {
+        f64::NAN
+    };
     acc
 }
 
@@ -719,11 +771,21 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     ref_row.cached = cached;
     rows.insert(0, ref_row);
 
-    // Errors, from each mode's first thread count.
+    // Errors, from each mode's first thread count: over all presses, per depth of the
+    // sequences and per indenter.
     for (label, frames) in &mode_frames {
-        let acc = accuracy(frames, &ref_timed.frames, &grid);
+        let errors = press_errors(frames, &ref_timed.frames, &grid);
+        let acc = accuracy(errors.iter());
+        let by_depth: Vec<Accuracy> = (0..opts.depths.len())
+            .map(|d| accuracy(errors.iter().filter(|e| e.id.depth == d)))
+            .collect();
+        let by_indenter: Vec<Accuracy> = (0..indenters.len())
+            .map(|i| accuracy(errors.iter().filter(|e| e.id.indenter == i)))
+            .collect();
         for row in rows.iter_mut().filter(|r| &r.label == label) {
             row.accuracy = acc;
+            row.by_depth.clone_from(&by_depth);
+            row.by_indenter.clone_from(&by_indenter);
         }
     }
 
@@ -746,4 +808,66 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     result.wall_seconds = wall.elapsed().as_secs_f64();
     result.files = report::write(&result, &figures)?;
     Ok(result)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(depth: f64, force: f64) -> Frame {
+        Frame {
+            depth: vec![depth; 12],
+            force: [0.0, 0.0, force],
+            seconds: 0.0,
+            stages: [f64::NAN; STAGES.len()],
+            iterations: 0,
+            converged: true,
+        }
+    }
+
+    /// Errors grouped per depth and per indenter: each group averages its own presses, the
+    /// whole is the mean over all of them, and the relative force error sums differences
+    /// over reference forces. Two indenters, one position, two depths; the mode is off by
+    /// 1, 2, 3 and 4 um (indenter-major), its forces by 0.1 N on reference forces of 1 and
+    /// 3 N.
+    #[test]
+    fn errors_group_per_depth_and_per_indenter() {
+        let grid = tacrom::geometry::PixelGrid {
+            width: 4,
+            height: 3,
+            fov_x: 0.004,
+            fov_y: 0.003,
+        };
+        let reference: Frames = vec![
+            vec![vec![frame(1e-4, 1.0), frame(2e-4, 3.0)]],
+            vec![vec![frame(1e-4, 1.0), frame(2e-4, 3.0)]],
+        ];
+        let mode: Frames = vec![
+            vec![vec![frame(1e-4 + 1e-6, 1.1), frame(2e-4 + 2e-6, 3.1)]],
+            vec![vec![frame(1e-4 + 3e-6, 1.1), frame(2e-4 + 4e-6, 3.1)]],
+        ];
+        let errors = press_errors(&mode, &reference, &grid);
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        let all = accuracy(errors.iter());
+        assert!(close(all.mae, 2.5e-6), "{}", all.mae);
+        assert!(close(all.force_rel, 0.4 / 8.0), "{}", all.force_rel);
+        let first_depth = accuracy(errors.iter().filter(|e| e.id.depth == 0));
+        assert!(close(first_depth.mae, 2e-6), "{}", first_depth.mae);
+        assert!(
+            close(first_depth.force_rel, 0.1),
+            "{}",
+            first_depth.force_rel
+        );
+        let second_indenter = accuracy(errors.iter().filter(|e| e.id.indenter == 1));
+        assert!(
+            close(second_indenter.mae, 3.5e-6),
+            "{}",
+            second_indenter.mae
+        );
+        assert!(
+            close(second_indenter.force_abs, 0.1),
+            "{}",
+            second_indenter.force_abs
+        );
+    }
 }

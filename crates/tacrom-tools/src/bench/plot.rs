@@ -1,6 +1,6 @@
 //! The report's figures, drawn with `plotters` into an RGB buffer and saved as PNG: error
-//! against run time on log axes, and press panels (reference, each mode, error maps, colour
-//! bars with units).
+//! against run time on log axes, error against press depth per mode, and press panels
+//! (reference, each mode, error maps, colour bars with units).
 //!
 //! Text uses DejaVu Sans, embedded by the `dejavu` crate (Bitstream Vera licence), so the
 //! figures need no system fonts.
@@ -13,7 +13,8 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 
-/// Colours of successive modes in the figures.
+/// Colours of successive modes in the figures (ten, so that the quick profile's modes
+/// each have their own).
 pub const PALETTE: &[RGBColor] = &[
     RGBColor(214, 96, 20),
     RGBColor(30, 110, 190),
@@ -22,6 +23,9 @@ pub const PALETTE: &[RGBColor] = &[
     RGBColor(200, 40, 60),
     RGBColor(110, 110, 20),
     RGBColor(20, 150, 160),
+    RGBColor(230, 160, 0),
+    RGBColor(130, 80, 40),
+    RGBColor(220, 110, 170),
 ];
 
 /// Mid grey, for secondary lines and text.
@@ -358,6 +362,109 @@ impl ErrorTimePlot {
     }
 }
 
+/// One mode's curve in [`DepthPlot`].
+#[derive(Clone, Debug)]
+pub struct DepthSeries {
+    /// The mode, named in the legend.
+    pub label: String,
+    /// `(depth, error)` per depth, in depth order.
+    pub points: Vec<(f64, f64)>,
+    /// Colour of the mode.
+    pub colour: RGBColor,
+    /// Marker of the mode.
+    pub marker: Marker,
+}
+
+/// Error against press depth, one curve per mode: linear depth, log error.
+#[derive(Clone, Debug)]
+pub struct DepthPlot {
+    /// Title, at the top.
+    pub title: String,
+    /// Label of the x axis.
+    pub x_label: String,
+    /// Label of the y axis.
+    pub y_label: String,
+    /// The curves; points with a non-positive or non-finite error are left out.
+    pub series: Vec<DepthSeries>,
+}
+
+impl DepthPlot {
+    /// Draws the plot: the curves on the left, the legend on the right.
+    pub fn render(&self) -> Result<Figure, FigureError> {
+        Figure::draw(1000, 560, |root| {
+            root.fill(&WHITE)?;
+            let (plot, side) = root.split_horizontally(760);
+            let ok = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite() && p.1 > 0.0;
+            let all = || self.series.iter().flat_map(|s| s.points.iter().filter(ok));
+            let (mut x0, mut x1) = (f64::INFINITY, f64::NEG_INFINITY);
+            for p in all() {
+                x0 = x0.min(p.0);
+                x1 = x1.max(p.0);
+            }
+            if !x0.is_finite() {
+                (x0, x1) = (0.0, 1.0);
+            }
+            let pad = 0.05 * (x1 - x0).max(1e-9);
+            let xr = (x0 - pad).max(0.0)..x1 + pad;
+            let yr = range_of(decades(all().map(|p| p.1)));
+            let mut chart = ChartBuilder::on(&plot)
+                .caption(&self.title, text(20))
+                .margin(16)
+                .x_label_area_size(56)
+                .y_label_area_size(76)
+                .build_cartesian_2d(xr, yr.log_scale())?;
+            chart
+                .configure_mesh()
+                .x_desc(&self.x_label)
+                .y_desc(&self.y_label)
+                .label_style(text(15))
+                .axis_desc_style(text(17))
+                .x_label_formatter(&|v| format!("{v:.1}"))
+                .y_label_formatter(&|v| tick_label(*v))
+                .light_line_style(RGBColor(235, 235, 235))
+                .bold_line_style(RGBColor(210, 210, 210))
+                .draw()?;
+            for s in &self.series {
+                let shown: Vec<(f64, f64)> = s.points.iter().filter(ok).copied().collect();
+                chart.draw_series(LineSeries::new(shown.clone(), s.colour.stroke_width(2)))?;
+                chart.draw_series(shown.iter().map(|&(x, y)| {
+                    EmptyElement::at((x, y)) + Polygon::new(s.marker.outline(6), s.colour.filled())
+                }))?;
+            }
+            let line = 26;
+            let mut y = 70;
+            side.draw_text(
+                "modes",
+                &(FONT, 17).into_font().style(FontStyle::Bold).color(&BLACK),
+                (10, y - 24),
+            )?;
+            for s in &self.series {
+                side.draw(&PathElement::new(
+                    [(8, y + 8), (36, y + 8)],
+                    s.colour.stroke_width(2),
+                ))?;
+                side.draw(
+                    &(EmptyElement::at((22, y + 8))
+                        + Polygon::new(s.marker.outline(6), s.colour.filled())),
+                )?;
+                side.draw_text(&s.label, &text(16), (44, y))?;
+                y += line;
+            }
+            side.draw_text(
+                "log error scale",
+                &text(14).color(&GREY),
+                (10, y + line / 2),
+            )?;
+            Ok(())
+        })
+    }
+
+    /// Renders and saves the plot.
+    pub fn save(&self, path: &Path) -> Result<(), FigureError> {
+        self.render()?.save_png(path)
+    }
+}
+
 /// One image of a panel.
 #[derive(Clone, Debug)]
 pub struct PanelImage {
@@ -677,5 +784,26 @@ mod tests {
         };
         let c = panel.render().unwrap();
         assert!(c.height > 0);
+        let depth = DepthPlot {
+            title: "t".into(),
+            x_label: "mm".into(),
+            y_label: "um".into(),
+            series: vec![
+                DepthSeries {
+                    label: "a".into(),
+                    points: vec![(0.2, 1.0), (0.5, f64::NAN), (1.0, 0.0)],
+                    colour: PALETTE[0],
+                    marker: Marker::Circle,
+                },
+                DepthSeries {
+                    label: "b".into(),
+                    points: Vec::new(),
+                    colour: PALETTE[1],
+                    marker: Marker::Square,
+                },
+            ],
+        };
+        let c = depth.render().unwrap();
+        assert!(c.rgb.chunks(3).any(|p| p.iter().all(|&v| v < 60)));
     }
 }

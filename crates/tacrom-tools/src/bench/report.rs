@@ -1,10 +1,13 @@
 //! The benchmark's report: `report.md` (tables a person reads at a glance), `results.csv`
-//! (one row per mode and thread count), `error_vs_time.png` and `panels/*.png`.
+//! (one row per mode and thread count), `groups.csv` (each mode's errors per depth and per
+//! indenter), `error_vs_time.png`, `error_vs_depth.png` and `panels/*.png`.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use super::plot::{ErrorTimePlot, Marker, Panel, PanelImage, PlotPoint, PALETTE};
+use super::plot::{
+    DepthPlot, DepthSeries, ErrorTimePlot, Marker, Panel, PanelImage, PlotPoint, PALETTE,
+};
 use super::{metrics, BenchError, BenchResult, Frames, ModeResult, STAGES};
 use tacrom::geometry::PixelGrid;
 
@@ -116,6 +119,56 @@ pub fn markdown(r: &BenchResult) -> String {
         metrics::SSIM_K1,
         metrics::SSIM_K2
     );
+
+    let modes: Vec<&ModeResult> = r.rows.iter().filter(first).collect();
+    if o.depths.len() > 1 && modes.iter().any(|m| m.by_depth.len() == o.depths.len()) {
+        let _ = writeln!(
+            s,
+            "## Per depth of the sequences: depth MAE um / force error %\n\n\
+             `error_vs_depth.png` draws the MAE.\n"
+        );
+        let _ = writeln!(
+            s,
+            "| mode | {} |",
+            depths
+                .iter()
+                .map(|d| format!("{d} mm"))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+        let _ = writeln!(s, "|---|{}", "---:|".repeat(depths.len()));
+        for m in &modes {
+            let cells: Vec<String> = m
+                .by_depth
+                .iter()
+                .map(|a| format!("{} / {}", num(a.mae * 1e6, 2), num(a.force_rel * 100.0, 1)))
+                .collect();
+            let _ = writeln!(s, "| {} | {} |", m.label, cells.join(" | "));
+        }
+        s.push('\n');
+    }
+    if r.indenters.len() > 1
+        && modes
+            .iter()
+            .any(|m| m.by_indenter.len() == r.indenters.len())
+    {
+        let _ = writeln!(s, "## Per indenter: depth MAE um\n");
+        let labels: Vec<&str> = modes.iter().map(|m| m.label.as_str()).collect();
+        let _ = writeln!(s, "| indenter | {} |", labels.join(" | "));
+        let _ = writeln!(s, "|---|{}", "---:|".repeat(labels.len()));
+        for (i, name) in r.indenters.iter().enumerate() {
+            let cells: Vec<String> = modes
+                .iter()
+                .map(|m| {
+                    m.by_indenter
+                        .get(i)
+                        .map_or("-".to_owned(), |a| num(a.mae * 1e6, 2))
+                })
+                .collect();
+            let _ = writeln!(s, "| {name} | {} |", cells.join(" | "));
+        }
+        s.push('\n');
+    }
 
     let _ = writeln!(s, "## Cost per evaluation\n");
     let _ = writeln!(
@@ -308,6 +361,72 @@ pub fn error_plot(r: &BenchResult) -> ErrorTimePlot {
     }
 }
 
+/// Each mode's errors per depth and per indenter, one row per group: `mode, group
+/// (depth or indenter), value (m or name), mae_um, rmse_um, ssim, force_err_rel`.
+pub fn groups_csv(r: &BenchResult) -> String {
+    let mut s = String::from("mode,group,value,mae_um,rmse_um,ssim,force_err_rel\n");
+    let first = |m: &&ModeResult| !m.reference && m.thread_diff.is_none();
+    for m in r.rows.iter().filter(first) {
+        let depths = r.options.depths.iter().map(|d| format!("{d:e}"));
+        let rows = m
+            .by_depth
+            .iter()
+            .zip(depths)
+            .map(|(a, v)| ("depth", v, a))
+            .chain(
+                m.by_indenter
+                    .iter()
+                    .zip(&r.indenters)
+                    .map(|(a, v)| ("indenter", v.clone(), a)),
+            );
+        for (group, value, a) in rows {
+            let _ = writeln!(
+                s,
+                "{},{group},{value},{:.4},{:.4},{:.5},{:.5}",
+                m.label,
+                a.mae * 1e6,
+                a.rmse * 1e6,
+                a.ssim,
+                a.force_rel
+            );
+        }
+    }
+    s
+}
+
+/// The error-depth plot of a result: each mode's depth MAE per depth (first thread
+/// count), in the colours and markers of the error-time plot.
+pub fn depth_plot(r: &BenchResult) -> DepthPlot {
+    let first = |m: &&ModeResult| !m.reference && m.thread_diff.is_none();
+    let series = r
+        .rows
+        .iter()
+        .filter(first)
+        .enumerate()
+        .map(|(i, m)| DepthSeries {
+            label: m.label.clone(),
+            points: r
+                .options
+                .depths
+                .iter()
+                .zip(&m.by_depth)
+                .map(|(d, a)| (d * 1e3, a.mae * 1e6))
+                .collect(),
+            colour: PALETTE[i % PALETTE.len()],
+            marker: Marker::ALL[i % Marker::ALL.len()],
+        })
+        .collect();
+    DepthPlot {
+        title: format!(
+            "depth MAE per press depth ({} profile, mean over indenters and positions)",
+            r.options.profile
+        ),
+        x_label: "press depth (mm)".to_owned(),
+        y_label: "depth MAE (um)".to_owned(),
+        series,
+    }
+}
+
 /// The presses drawn as panels: the deepest press at the centre position of successive
 /// indenters, then their middle depths.
 fn panel_presses(r: &BenchResult) -> Vec<(usize, usize, usize)> {
@@ -347,6 +466,11 @@ pub fn write(r: &BenchResult, fig: &Figures) -> Result<Vec<PathBuf>, BenchError>
         .save(&plot_path)
         .map_err(png_error(&plot_path))?;
     files.push(plot_path);
+    if r.options.depths.len() > 1 {
+        let path = dir.join("error_vs_depth.png");
+        depth_plot(r).save(&path).map_err(png_error(&path))?;
+        files.push(path);
+    }
 
     for (i, p, d) in panel_presses(r) {
         let reference = &fig.reference[i][p][d];
@@ -388,6 +512,9 @@ pub fn write(r: &BenchResult, fig: &Figures) -> Result<Vec<PathBuf>, BenchError>
     let csv_path = dir.join("results.csv");
     write_text(&csv_path, &csv(r))?;
     files.push(csv_path);
+    let groups_path = dir.join("groups.csv");
+    write_text(&groups_path, &groups_csv(r))?;
+    files.push(groups_path);
     let md_path = dir.join("report.md");
     files.push(md_path.clone());
     let with_files = BenchResult {

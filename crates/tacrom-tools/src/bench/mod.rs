@@ -291,6 +291,9 @@ pub struct ModeResult {
     pub median_ms: f64,
     /// 90th-percentile time per evaluation (ms).
     pub p90_ms: f64,
+    /// Median time of a whole press sequence (one indenter at one position through every
+    /// depth; s): the paper's time per interaction.
+    pub sequence_s: f64,
     /// Peak resident memory during the run (bytes).
     pub peak_rss: Option<u64>,
     /// Resident memory at the start of the run (bytes).
@@ -462,6 +465,12 @@ fn median_stage(frames: &Frames, s: usize) -> f64 {
 fn row_of(label: &str, threads: usize, t: &Timed) -> ModeResult {
     let all: Vec<&Frame> = t.frames.iter().flatten().flatten().collect();
     let secs: Vec<f64> = all.iter().map(|f| f.seconds).collect();
+    let sequences: Vec<f64> = t
+        .frames
+        .iter()
+        .flatten()
+        .map(|seq| seq.iter().map(|f| f.seconds).sum())
+        .collect();
     let mut stages_ms = [f64::NAN; STAGES.len()];
     for (s, v) in stages_ms.iter_mut().enumerate() {
         *v = median_stage(&t.frames, s);
@@ -475,6 +484,7 @@ fn row_of(label: &str, threads: usize, t: &Timed) -> ModeResult {
         by_indenter: Vec::new(),
         median_ms: metrics::median(&secs) * 1e3,
         p90_ms: metrics::quantile(&secs, 0.9) * 1e3,
+        sequence_s: metrics::median(&sequences),
         peak_rss: t.peak_rss,
         base_rss: t.base_rss,
         stages_ms,

@@ -173,9 +173,9 @@ pub fn markdown(r: &BenchResult) -> String {
     let _ = writeln!(s, "## Cost per evaluation\n");
     let _ = writeln!(
         s,
-        "| mode | threads | median ms | p90 ms | speed-up vs 1 thread | peak RSS MiB | RSS at start MiB | not converged | note |"
+        "| mode | threads | median ms | p90 ms | s per sequence | speed-up vs 1 thread | peak RSS MiB | RSS at start MiB | not converged | note |"
     );
-    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---|");
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|");
     for m in &r.rows {
         let note = if m.reference {
             if m.cached == m.evaluations {
@@ -194,11 +194,12 @@ pub fn markdown(r: &BenchResult) -> String {
         };
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {}/{} | {} |",
             m.label,
             m.threads,
             num(m.median_ms, 2),
             num(m.p90_ms, 2),
+            num(m.sequence_s, 2),
             if m.reference {
                 "-".to_owned()
             } else {
@@ -213,7 +214,9 @@ pub fn markdown(r: &BenchResult) -> String {
     }
     let _ = writeln!(
         s,
-        "\nPeak RSS: {}; it includes what the process held at the start (second column).\n",
+        "\ns per sequence: the median time of one indenter pressed at one position through \
+         every depth (the paper's time per interaction).\n\nPeak RSS: {}; it includes what \
+         the process held at the start (second column).\n",
         if r.peak_reset {
             "VmHWM of /proc/self/status, reset before each run through /proc/self/clear_refs"
         } else {
@@ -261,7 +264,7 @@ pub fn csv(r: &BenchResult) -> String {
     for st in STAGES {
         let _ = write!(s, ",{}_ms", st.to_lowercase());
     }
-    s.push('\n');
+    s.push_str(",sequence_s\n");
     for m in &r.rows {
         let a = &m.accuracy;
         let _ = write!(
@@ -293,7 +296,7 @@ pub fn csv(r: &BenchResult) -> String {
         for v in &m.stages_ms {
             let _ = write!(s, ",{}", num(*v, 4));
         }
-        s.push('\n');
+        let _ = writeln!(s, ",{}", num(m.sequence_s, 4));
     }
     s
 }

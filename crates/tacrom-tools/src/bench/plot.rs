@@ -476,7 +476,9 @@ pub struct PanelImage {
 
 /// A press panel: the reference and each mode's depth on the first row (one colour scale),
 /// each mode's signed error (mode minus reference) on the second, under its mode (one
-/// symmetric colour scale), each row with its colour bar.
+/// symmetric colour scale), each row with its colour bar, and on the third the RGB image a
+/// GelSight-type camera would see of each depth (the sensor's default optics,
+/// [`tacrom::render::rgb::Optics`]).
 #[derive(Clone, Debug)]
 pub struct Panel {
     /// Title of the whole panel.
@@ -508,9 +510,34 @@ fn cell_height(width: usize, height: usize) -> u32 {
 fn draw_image(
     area: &DrawingArea<BitMapBackend<'_>, Shift>,
     title: &str,
-    (w, h, fov): (usize, usize, [f64; 2]),
+    geometry: (usize, usize, [f64; 2]),
     values: &[f64],
     colour: &dyn Fn(f64) -> RGBColor,
+) -> Result<(), FigureError> {
+    let at = |k: usize| colour(values.get(k).copied().unwrap_or(f64::NAN));
+    draw_pixels(area, title, geometry, &at)
+}
+
+/// One RGB image (`3 x width x height` values on the 8-bit scale, row-major) in `area`,
+/// with its title and axes in millimetres.
+fn draw_rgb(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    title: &str,
+    geometry: (usize, usize, [f64; 2]),
+    rgb: &[f64],
+) -> Result<(), FigureError> {
+    let byte = |k: usize| rgb.get(k).map_or(0, |v| v.clamp(0.0, 255.0).round() as u8);
+    let at = |k: usize| RGBColor(byte(3 * k), byte(3 * k + 1), byte(3 * k + 2));
+    draw_pixels(area, title, geometry, &at)
+}
+
+/// The pixels of a `w x h` image (row 0 at +y) in `area`, pixel `k` (row-major) in colour
+/// `at(k)`, with a title and axes in millimetres.
+fn draw_pixels(
+    area: &DrawingArea<BitMapBackend<'_>, Shift>,
+    title: &str,
+    (w, h, fov): (usize, usize, [f64; 2]),
+    at: &dyn Fn(usize) -> RGBColor,
 ) -> Result<(), FigureError> {
     let (fx, fy) = (fov[0] * 1e3, fov[1] * 1e3);
     let mut chart = ChartBuilder::on(area)
@@ -531,9 +558,8 @@ fn draw_image(
     let (px, py) = (fx / w.max(1) as f64, fy / h.max(1) as f64);
     chart.draw_series((0..h).flat_map(|r| {
         (0..w).map(move |c| {
-            let v = values.get(r * w + c).copied().unwrap_or(f64::NAN);
             let (x0, y1) = (-fx / 2.0 + c as f64 * px, fy / 2.0 - r as f64 * py);
-            Rectangle::new([(x0, y1 - py), (x0 + px, y1)], colour(v).filled())
+            Rectangle::new([(x0, y1 - py), (x0 + px, y1)], at(r * w + c).filled())
         })
     }))?;
     Ok(())
@@ -577,14 +603,14 @@ impl Panel {
         let cols = 1 + self.modes.len();
         let cell_h = cell_height(w, h);
         let width = cols as u32 * CELL_W + BAR_W;
-        let height = 44 + 2 * cell_h;
+        let height = 44 + 3 * cell_h;
         let geometry = (w, h, self.fov);
         Figure::draw(width, height, |root| {
             root.fill(&WHITE)?;
             let (title, body) = root.split_vertically(44);
             title.draw_text(&self.title, &text(20), (12, 12))?;
             let (grid, bars) = body.split_horizontally(cols as u32 * CELL_W);
-            let cells = grid.split_evenly((2, cols));
+            let cells = grid.split_evenly((3, cols));
 
             // Depth in micrometres, one scale for the row.
             let um = |v: &[f64]| v.iter().map(|d| d * 1e6).collect::<Vec<_>>();
@@ -629,7 +655,25 @@ impl Panel {
                 draw_image(cell, &format!("{} − ref", m.title), geometry, e, &div)?;
             }
 
-            let bar_cells = bars.split_evenly((2, 1));
+            // The RGB images, each shaded from its own depth.
+            let pixels = tacrom::geometry::PixelGrid {
+                width: w,
+                height: h,
+                fov_x: self.fov[0],
+                fov_y: self.fov[1],
+            };
+            let optics = tacrom::render::rgb::Optics::default();
+            let mut rgb = vec![0.0; 3 * w * h];
+            let images = std::iter::once(&self.reference).chain(&self.modes);
+            for (cell, img) in cells[2 * cols..].iter().zip(images) {
+                if img.values.len() != w * h {
+                    continue;
+                }
+                tacrom::render::rgb::render(&optics, &pixels, &img.values, &mut rgb);
+                draw_rgb(cell, &format!("{} (RGB)", img.title), geometry, &rgb)?;
+            }
+
+            let bar_cells = bars.split_evenly((3, 1));
             colour_bar(&bar_cells[0], (0.0, dmax), "depth (µm)", &seq)?;
             colour_bar(&bar_cells[1], (-emax, emax), "error (µm)", &div)?;
             Ok(())
@@ -784,6 +828,12 @@ mod tests {
         };
         let c = panel.render().unwrap();
         assert!(c.height > 0);
+        // The RGB row: the flat reference shows the default optics' grey background.
+        let grey = [120u8, 125, 135];
+        assert!(
+            c.rgb.chunks(3).any(|p| p == grey),
+            "no background-grey pixel in the RGB row"
+        );
         let depth = DepthPlot {
             title: "t".into(),
             x_label: "mm".into(),

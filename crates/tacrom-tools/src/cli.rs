@@ -188,6 +188,14 @@ pub struct BenchArgs {
     /// Write this run's accuracy rows as the baseline FILE.
     #[arg(long, value_name = "FILE")]
     pub write_baseline: Option<PathBuf>,
+    /// Only the indenters whose index in the sorted list is K modulo N (one shard of a
+    /// batch job; see --reference-only).
+    #[arg(long, value_name = "K/N", default_value = "0/1", value_parser = shard)]
+    pub shard: (usize, usize),
+    /// Compute and cache the reference presses only (no modes, no report): run the shards
+    /// of a batch job with it, then the whole benchmark finds every press in the cache.
+    #[arg(long, conflicts_with_all = ["check", "write_baseline", "no_cache"])]
+    pub reference_only: bool,
 }
 
 /// Options of `tacrom render`.

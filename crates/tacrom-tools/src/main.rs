@@ -99,7 +99,26 @@ fn bench(a: BenchArgs) -> Result<(), BenchError> {
         .unwrap_or_else(|| PathBuf::from("out/bench").join(&o.profile));
     o.panels = a.panels.unwrap_or(o.panels);
     o.progress = !a.quiet;
+    o.shard = a.shard;
+    o.reference_only = a.reference_only;
     let r = tacrom_tools::bench::run(&o)?;
+    if o.reference_only {
+        let reference = &r.rows[0];
+        println!(
+            "reference of shard {}/{} ({}): {} presses, {} of them already cached, in {}; \
+             {:.0} s",
+            o.shard.0,
+            o.shard.1,
+            r.indenters.join(", "),
+            reference.evaluations,
+            reference.cached,
+            o.cache
+                .as_deref()
+                .map_or("-".into(), |p| p.display().to_string()),
+            r.wall_seconds
+        );
+        return Ok(());
+    }
     println!("{}", tacrom_tools::bench::report::markdown(&r));
     if let Some(path) = &a.write_baseline {
         tacrom_tools::bench::check::write_baseline(&r, path)?;

@@ -12,6 +12,12 @@ pub fn write<T: npyz::AutoSerialize>(
     shape: &[usize],
     data: &[T],
 ) -> std::io::Result<()> {
+    write_atomic(path, &to_bytes(shape, data)?)
+}
+
+/// The bytes of a C-order `.npy` array of `shape` holding `data` (the shape's product
+/// must be `data.len()`).
+pub fn to_bytes<T: npyz::AutoSerialize>(shape: &[usize], data: &[T]) -> std::io::Result<Vec<u8>> {
     assert_eq!(
         shape.iter().product::<usize>(),
         data.len(),
@@ -26,13 +32,17 @@ pub fn write<T: npyz::AutoSerialize>(
         .begin_nd()?;
     w.extend(data.iter())?;
     w.finish()?;
-    write_atomic(path, bytes.get_ref())
+    Ok(bytes.into_inner())
 }
 
 /// Reads a C-order `.npy` array of `T`: its shape and values.
 pub fn read<T: npyz::Deserialize>(path: &Path) -> Result<(Vec<usize>, Vec<T>), String> {
-    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
-    let file = npyz::NpyFile::new(&bytes[..]).map_err(|e| e.to_string())?;
+    from_bytes(&std::fs::read(path).map_err(|e| e.to_string())?)
+}
+
+/// A C-order `.npy` array of `T` from its bytes: its shape and values.
+pub fn from_bytes<T: npyz::Deserialize>(bytes: &[u8]) -> Result<(Vec<usize>, Vec<T>), String> {
+    let file = npyz::NpyFile::new(bytes).map_err(|e| e.to_string())?;
     if file.order() != npyz::Order::C {
         return Err("not a C-order array".to_owned());
     }

@@ -9,14 +9,19 @@
 //!
 //! # Files
 //!
-//! `<key>.npy` holds the depth image (float64 `[height, width]`, m) and `<key>.json` the
-//! rest ([`CachedPress`]: size, force, timings, solver report); the JSON is written last,
-//! so an entry exists once its JSON does. With numpy: `np.load(f"{key}.npy")`.
+//! `<key>.npy.gz` holds the depth image, gzip-compressed `.npy` of float32 `[height,
+//! width]` in metres (relative precision 6e-8: below 0.1 nm at a 1 mm press; the image
+//! is zero outside the contact, so it compresses well: a 320 x 240 press whose contact
+//! covers 40 % of the image takes 67 kB instead of 614 kB), and `<key>.json` the rest ([`CachedPress`]: size,
+//! force, timings, solver report); the JSON is written last, so an entry exists once its
+//! JSON does. With numpy: `np.load(gzip.open(f"{key}.npy.gz"))`.
 
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use sha2::{Digest as _, Sha256};
+
+use std::io::{Read as _, Write as _};
 
 use crate::npy;
 
@@ -100,7 +105,7 @@ impl Cache {
         &self.dir
     }
 
-    /// The JSON file of entry `key` (its depth image is beside it, `.npy`).
+    /// The JSON file of entry `key` (its depth image is beside it, `.npy.gz`).
     pub fn path(&self, key: &str) -> PathBuf {
         self.dir.join(format!("{key}.json"))
     }
@@ -119,8 +124,8 @@ impl Cache {
         };
         let mut press: CachedPress =
             serde_json::from_str(&text).map_err(|e| malformed(&path, e.to_string()))?;
-        let npy_path = path.with_extension("npy");
-        let (shape, depth) = npy::read::<f64>(&npy_path).map_err(|e| malformed(&npy_path, e))?;
+        let npy_path = path.with_extension("npy.gz");
+        let (shape, depth) = read_depth(&npy_path).map_err(|e| malformed(&npy_path, e))?;
         if shape != [press.height, press.width] {
             return Err(malformed(
                 &npy_path,
@@ -142,11 +147,31 @@ impl Cache {
         };
         std::fs::create_dir_all(&self.dir).map_err(io(&self.dir))?;
         let path = self.path(key);
-        let npy_path = path.with_extension("npy");
-        npy::write(&npy_path, &[press.height, press.width], &press.depth).map_err(io(&npy_path))?;
+        let npy_path = path.with_extension("npy.gz");
+        write_depth(&npy_path, press).map_err(io(&npy_path))?;
         let json = serde_json::to_vec_pretty(press).expect("a cached press serialises");
         npy::write_atomic(&path, &json).map_err(io(&path))
     }
+}
+
+/// Writes the depth image of `press` as a gzip-compressed float32 `.npy`, atomically.
+fn write_depth(path: &Path, press: &CachedPress) -> std::io::Result<()> {
+    let depth: Vec<f32> = press.depth.iter().map(|&d| d as f32).collect();
+    let npy = npy::to_bytes(&[press.height, press.width], &depth)?;
+    let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    gz.write_all(&npy)?;
+    npy::write_atomic(path, &gz.finish()?)
+}
+
+/// Reads a depth image written by [`write_depth`]: its shape and values (m).
+fn read_depth(path: &Path) -> Result<(Vec<usize>, Vec<f64>), String> {
+    let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
+    let mut bytes = Vec::new();
+    flate2::read::GzDecoder::new(file)
+        .read_to_end(&mut bytes)
+        .map_err(|e| e.to_string())?;
+    let (shape, depth) = npy::from_bytes::<f32>(&bytes)?;
+    Ok((shape, depth.into_iter().map(f64::from).collect()))
 }
 
 #[cfg(test)]
@@ -176,6 +201,35 @@ mod tests {
         assert_ne!(a, digest(&(("mesh", "abc"), ("depth", [1.0000001e-4]))));
     }
 
+    /// A 320 x 240 press whose contact covers 40 % of the image is stored in less than a
+    /// fifth of its float64 size (614 kB; measured 67 kB).
+    #[test]
+    fn images_are_stored_compactly() {
+        let dir = std::env::temp_dir().join(format!("tacrom-cache-size-{}", std::process::id()));
+        let cache = Cache::new(&dir);
+        let (w, h) = (320usize, 240usize);
+        let depth = (0..w * h)
+            .map(|k| {
+                let (x, y) = ((k % w) as f64 - 160.0, (k / w) as f64 - 120.0);
+                (1e-3 - (x * x + y * y) * 1e-7).max(0.0)
+            })
+            .collect::<Vec<f64>>();
+        assert!(depth.iter().filter(|d| **d > 0.0).count() > w * h * 2 / 5);
+        let press = CachedPress {
+            width: w,
+            height: h,
+            depth,
+            ..sample()
+        };
+        let key = digest("size");
+        cache.store(&key, &press).unwrap();
+        let bytes = std::fs::metadata(cache.path(&key).with_extension("npy.gz"))
+            .unwrap()
+            .len();
+        assert!(bytes < (8 * w * h / 5) as u64, "{bytes} bytes");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     #[test]
     fn round_trip() {
         let dir = std::env::temp_dir().join(format!("tacrom-cache-test-{}", std::process::id()));
@@ -184,8 +238,12 @@ mod tests {
         assert!(cache.load(&key).unwrap().is_none());
         let p = sample();
         cache.store(&key, &p).unwrap();
-        let q = cache.load(&key).unwrap().unwrap();
-        assert_eq!(q.depth, p.depth);
+        let mut q = cache.load(&key).unwrap().unwrap();
+        // The image is stored in float32: within its relative precision.
+        for (a, b) in q.depth.iter().zip(&p.depth) {
+            assert!((a - b).abs() <= 6e-8 * b.abs(), "{a} against {b}");
+        }
+        q.depth.clone_from(&p.depth);
         assert_eq!(q.force, p.force);
         assert_eq!(q.iterations, 321);
         assert!(q.converged);
@@ -201,7 +259,7 @@ mod tests {
         std::fs::write(&path, b"garbage").unwrap();
         assert!(cache.load(&key).is_err());
         cache.store(&key, &p).unwrap();
-        std::fs::remove_file(path.with_extension("npy")).unwrap();
+        std::fs::remove_file(path.with_extension("npy.gz")).unwrap();
         assert!(cache
             .load(&key)
             .unwrap_err()

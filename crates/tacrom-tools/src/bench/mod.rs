@@ -53,7 +53,7 @@ pub const STAGES: [&str; 7] = [
 
 /// Bump when the meaning of a cached reference press changes without the solver's source
 /// changing (the format, the protocol's poses).
-pub const CACHE_VERSION: &str = "tacrom-bench-cache-2";
+pub const CACHE_VERSION: &str = "tacrom-bench-cache-3";
 
 /// A benchmark failure, with a message for the user.
 #[derive(Debug, thiserror::Error)]
@@ -139,6 +139,11 @@ pub struct BenchOptions {
     pub panels: usize,
     /// Show progress on stderr.
     pub progress: bool,
+    /// This shard and the number of shards `(K, N)`: only the indenters whose index in the
+    /// sorted list is `K` modulo `N` (`(0, 1)`: all).
+    pub shard: (usize, usize),
+    /// Compute and cache the reference only: no mode runs, no report.
+    pub reference_only: bool,
 }
 
 impl BenchOptions {
@@ -167,6 +172,8 @@ impl BenchOptions {
             out: PathBuf::from("out/bench/full"),
             panels: 4,
             progress: true,
+            shard: (0, 1),
+            reference_only: false,
         }
     }
 
@@ -355,8 +362,20 @@ fn load(opts: &BenchOptions) -> Result<Loaded, BenchError> {
     if opts.threads.is_empty() {
         return Err(BenchError::Usage("no thread count given".to_owned()));
     }
-    let indenters = match &opts.indenters {
-        IndenterSource::Given(v) => v.clone(),
+    // The shard: the indenters whose index in the sorted list is K modulo N.
+    let (k, n) = opts.shard;
+    if n == 0 || k >= n {
+        return Err(BenchError::Usage(format!(
+            "shard {k}/{n} is not K/N with K < N"
+        )));
+    }
+    let indenters: Vec<Indenter> = match &opts.indenters {
+        IndenterSource::Given(v) => v
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % n == k)
+            .map(|(_, ind)| ind.clone())
+            .collect(),
         IndenterSource::Folder {
             dir,
             scale,
@@ -380,14 +399,17 @@ fn load(opts: &BenchOptions) -> Result<Loaded, BenchError> {
             if let Some(l) = limit {
                 files.truncate(*l);
             }
+            // Only this shard's meshes are read.
             files
                 .iter()
-                .map(|f| Indenter::from_mesh(f, *scale, *flip))
+                .enumerate()
+                .filter(|(i, _)| i % n == k)
+                .map(|(_, f)| Indenter::from_mesh(f, *scale, *flip))
                 .collect::<Result<_, _>>()?
         }
     };
     if indenters.is_empty() {
-        return Err(BenchError::Usage("no indenter".to_owned()));
+        return Err(BenchError::Usage(format!("no indenter (shard {k}/{n})")));
     }
     Ok(Loaded {
         indenters,
@@ -663,7 +685,13 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
             }
         }
     }
-    let modes_work = opts.modes.len() * opts.threads.len() * n_seq * nd;
+    // A reference-only run (one shard of a batch job, say) runs no mode.
+    let modes: &[ModeSpec] = if opts.reference_only {
+        &[]
+    } else {
+        &opts.modes
+    };
+    let modes_work = modes.len() * opts.threads.len() * n_seq * nd;
     let progress = Progress::new(todo.len() * nd + modes_work, opts.progress);
 
     // The modes first, the reference last: each run's peak memory then includes little
@@ -671,7 +699,7 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     let mut rows = Vec::new();
     let mut unavailable = Vec::new();
     let mut mode_frames: Vec<(String, Frames)> = Vec::new();
-    for mode in &opts.modes {
+    for mode in modes {
         let mut first: Option<Frames> = None;
         for &threads in &opts.threads {
             let config = match mode.config(&base, threads) {
@@ -780,6 +808,19 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     ref_row.reference = true;
     ref_row.cached = cached;
     rows.insert(0, ref_row);
+    if opts.reference_only {
+        progress.finish();
+        return Ok(BenchResult {
+            options: opts.clone(),
+            indenters: indenters.iter().map(|i| i.name.clone()).collect(),
+            positions,
+            rows,
+            unavailable,
+            peak_reset,
+            wall_seconds: wall.elapsed().as_secs_f64(),
+            files: Vec::new(),
+        });
+    }
 
     // Errors, from each mode's first thread count: over all presses, per depth of the
     // sequences and per indenter.
@@ -833,6 +874,58 @@ mod tests {
             iterations: 0,
             converged: true,
         }
+    }
+
+    /// A batch job's shards fill the cache for the whole run: `--reference-only --shard
+    /// K/2` each compute their own indenters' reference presses (every second one of the
+    /// sorted list) and run no mode; the whole benchmark afterwards takes every press from
+    /// the cache. Two meshes, one position, one depth, a 16 x 12 image and a coarse
+    /// reference, so that it runs in seconds.
+    #[test]
+    fn reference_shards_fill_the_cache_for_the_whole_run() {
+        let tmp = std::env::temp_dir().join(format!("tacrom-shards-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&tmp);
+        let mut opts = BenchOptions::quick(tacrom::pattern_dir());
+        if let IndenterSource::Folder { names, limit, .. } = &mut opts.indenters {
+            *names = vec!["hexagon".to_owned(), "moon".to_owned()];
+            *limit = None;
+        }
+        opts.depths = vec![0.2e-3];
+        opts.resolution = [16, 12];
+        opts.reference_dx = 1.4e-3;
+        opts.reference_threads = 1;
+        opts.modes = vec![ModeSpec::parse("rigid").unwrap()];
+        opts.threads = vec![1];
+        opts.cache = Some(tmp.join("cache"));
+        opts.out = tmp.join("report");
+        opts.progress = false;
+        opts.panels = 0;
+        let shard = |k: usize| {
+            let o = BenchOptions {
+                shard: (k, 2),
+                reference_only: true,
+                ..opts.clone()
+            };
+            run(&o).unwrap()
+        };
+        for (k, name) in ["hexagon", "moon"].into_iter().enumerate() {
+            let r = shard(k);
+            assert_eq!(r.indenters, [name]);
+            assert_eq!(r.rows.len(), 1, "no mode runs");
+            assert_eq!((r.rows[0].evaluations, r.rows[0].cached), (1, 0));
+            assert!(r.files.is_empty() && !opts.out.exists(), "no report");
+        }
+        let whole = run(&opts).unwrap();
+        assert_eq!(whole.indenters, ["hexagon", "moon"]);
+        let reference = &whole.rows[0];
+        assert!(reference.reference);
+        assert_eq!((reference.evaluations, reference.cached), (2, 2));
+        assert!(run(&BenchOptions {
+            shard: (2, 2),
+            ..opts.clone()
+        })
+        .is_err());
+        let _ = std::fs::remove_dir_all(&tmp);
     }
 
     /// Errors grouped per depth and per indenter: each group averages its own presses, the

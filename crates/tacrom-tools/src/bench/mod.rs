@@ -920,6 +920,15 @@ mod tests {
         let reference = &whole.rows[0];
         assert!(reference.reference);
         assert_eq!((reference.evaluations, reference.cached), (2, 2));
+        // The report opens with the headline and the per-interaction tables.
+        let md = report::markdown(&whole);
+        let headline = md.split("## Headline").nth(1).expect("a headline table");
+        let rigid = headline
+            .lines()
+            .find(|l| l.starts_with("| rigid |"))
+            .expect("rigid row");
+        assert_eq!(rigid.matches('|').count(), 9, "{rigid}");
+        assert!(md.contains("## Per interaction"), "{md}");
         assert!(run(&BenchOptions {
             shard: (2, 2),
             ..opts.clone()

@@ -44,6 +44,67 @@ fn speedup(rows: &[ModeResult], r: &ModeResult) -> String {
         .map_or("-".to_owned(), |o| num(o.median_ms / r.median_ms, 2))
 }
 
+/// The headline table (each mode: depth MAE, SSIM, force error, median and p90 ms per
+/// evaluation at one and at two threads) and the per-interaction table after the paper's
+/// Table II (time per press sequence, peak memory, Chamfer-L2; one thread).
+fn headline(s: &mut String, r: &BenchResult) {
+    let at = |label: &str, threads: usize| {
+        r.rows
+            .iter()
+            .find(|m| !m.reference && m.label == label && m.threads == threads)
+    };
+    let ms = |m: Option<&ModeResult>| {
+        m.map_or(["-".to_owned(), "-".to_owned()], |m| {
+            [num(m.median_ms, 2), num(m.p90_ms, 2)]
+        })
+    };
+    let first = |m: &&ModeResult| !m.reference && m.thread_diff.is_none();
+    let _ = writeln!(
+        s,
+        "## Headline\n\n| mode | depth MAE um | SSIM | force err % | median ms, 1 thread | \
+         p90 ms, 1 thread | median ms, 2 threads | p90 ms, 2 threads |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    for m in r.rows.iter().filter(first) {
+        let (one, two) = (ms(at(&m.label, 1)), ms(at(&m.label, 2)));
+        let a = &m.accuracy;
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {} |",
+            m.label,
+            num(a.mae * 1e6, 2),
+            num(a.ssim, 4),
+            num(a.force_rel * 100.0, 1),
+            one[0],
+            one[1],
+            two[0],
+            two[1]
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n## Per interaction (after the paper's Table II)\n\nOne indenter pressed at one \
+         position through every depth; the first thread count of each mode; this CPU.\n\n\
+         | mode | s per sequence | peak RSS MiB | Chamfer-L2 um^2 |\n|---|---:|---:|---:|"
+    );
+    let reference = r.rows.iter().filter(|m| m.reference);
+    for m in reference.chain(r.rows.iter().filter(first)) {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} |",
+            m.label,
+            num(m.sequence_s, 2),
+            mib(m.peak_rss),
+            if m.reference {
+                "0 (reference)".to_owned()
+            } else {
+                num(m.accuracy.chamfer * 1e12, 2)
+            }
+        );
+    }
+    s.push('\n');
+}
+
 /// The markdown report.
 pub fn markdown(r: &BenchResult) -> String {
     let o = &r.options;
@@ -83,6 +144,7 @@ pub fn markdown(r: &BenchResult) -> String {
         r.wall_seconds
     );
 
+    headline(&mut s, r);
     let _ = writeln!(s, "## Accuracy against the reference (mean over presses)\n");
     let _ = writeln!(
         s,

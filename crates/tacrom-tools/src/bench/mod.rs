@@ -11,7 +11,7 @@
 //! * [`protocol`]: indenters, positions, modes, one press sequence.
 //! * [`metrics`]: MAE, RMSE, PSNR, SSIM, Chamfer-L2, quantiles.
 //! * [`cache`]: the reference cache.
-//! * [`report`]: markdown and CSV; [`plot`], [`draw`]: the figures.
+//! * [`report`]: markdown and CSV; [`plot`]: the figures.
 //!
 //! **Peak memory** is measured in-process: before each mode's run the kernel's peak
 //! resident set (VmHWM) is reset by writing `5` to `/proc/self/clear_refs`, and VmHWM is
@@ -464,7 +464,7 @@ fn frame_from_cache(c: CachedPress) -> Frame {
     }
 }
 
-/// Frames of one mode run, sequence by sequence ([indenter][position][depth]).
+/// Frames of one mode run, sequence by sequence (`[indenter][position][depth]`).
 pub type Frames = Vec<Vec<Vec<Frame>>>;
 
 struct Timed {

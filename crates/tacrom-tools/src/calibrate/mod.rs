@@ -97,7 +97,7 @@ fn default_background() -> String {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PressList {
-    /// The image of the undeformed gel, relative to the folder [`background.png`].
+    /// The image of the undeformed gel, relative to the folder (`background.png`).
     #[serde(default = "default_background")]
     pub background: String,
     /// The presses.

@@ -99,8 +99,8 @@ use contact::{ActiveContact, SlotContact, StepIndenter};
 use indenters::match_indenters;
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 pub use params::{
-    GelParams, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN, CAP_CELLS,
-    FBAR_POISSON, J_MAX, J_MIN,
+    GelParams, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
+    AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
@@ -471,7 +471,7 @@ impl Gel {
 
     /// Spacing (m) of the surface points that the solver's contact acts on: the top
     /// particles' for relaxation, the finer contact lattice's for Newton
-    /// ([`newton::CONTACT_SUBDIVISION`] per particle spacing). An indenter that reaches
+    /// ([`newton_contact_subdivision`] per particle spacing). An indenter that reaches
     /// into the gel only between them loads it with no force.
     pub fn contact_spacing(&self) -> f64 {
         let s = self.layout.spacing[0].max(self.layout.spacing[1]);
@@ -748,7 +748,7 @@ impl Gel {
 
     /// Indentation of the deformed top surface at each pixel of `grid` (m, positive into
     /// the gel, clamped to `[0, T]`), row-major into `out` (`grid.height * grid.width`
-    /// values; see [`PixelGrid`] for the orientation). See [`surface`] for the method.
+    /// values; see [`PixelGrid`] for the orientation). See `surface.rs` for the method.
     ///
     /// # Panics
     /// If `out` is shorter than `grid.width * grid.height`.

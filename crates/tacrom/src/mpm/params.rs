@@ -35,7 +35,7 @@ pub const ACTIVE_MARGIN: f64 = 1.5;
 ///
 /// Both rates that bound the solve fall as one over the cells through the layer: the
 /// slowest elastic mode (`omega_1`, see `mpm/relax.rs`) and the contact multipliers'
-/// gain ([`contact::multiplier_gain`]). A fixed cap that the coarse grid (2.9 cells) never
+/// gain (`contact::multiplier_gain`). A fixed cap that the coarse grid (2.9 cells) never
 /// reaches then cuts off the fine grid (13 cells) before it converges: measured at
 /// dx = 0.3 mm, a cold press to 0.4 mm took 2216 steps and the next, to 0.5 mm, was
 /// still converging at 3000.
@@ -50,7 +50,7 @@ pub enum Material {
     /// Fixed corotated (Stomakhin et al. 2012); the usual MPM choice for soft solids.
     #[default]
     FixedCorotated,
-    /// Compressible Neo-Hookean, with `det F` guarded (see [`NeoHookeanModel`]).
+    /// Compressible Neo-Hookean, with `det F` guarded (see [`super::NeoHookeanModel`]).
     NeoHookean,
 }
 

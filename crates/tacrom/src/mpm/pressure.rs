@@ -72,7 +72,7 @@ fn spread(c: f64, h: f64, n: usize, start: f64, p: f64, sign: f64, out: &mut Vec
 impl Gel {
     /// Normal contact pressure (Pa, positive where the indenters press the gel) at each
     /// pixel of `grid`, row-major into `out`, from the last solve's contact loads (see
-    /// [`pressure`](self)). Zero without contact.
+    /// `pressure.rs`). Zero without contact.
     ///
     /// # Panics
     /// If `out` is shorter than `grid.width * grid.height`.

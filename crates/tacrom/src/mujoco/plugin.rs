@@ -1,6 +1,6 @@
 //! The plugin callbacks that the C shim (`include/tacrom_shim.c`) forwards to.
 //!
-//! Every entry point goes through [`edge`]: panics are caught, errors become a status code
+//! Every entry point goes through `edge`: panics are caught, errors become a status code
 //! and a message in the shim's buffer, and nothing unwinds into C. Rust never calls
 //! `mju_error`; the shim does, after these functions have returned.
 

@@ -1,7 +1,7 @@
 //! What the networks see: the coarse solution and the indenters' geometry sampled on the
 //! model's surface lattice, and the per-point query features of the decoder.
 //!
-//! Shared by data generation ([`crate::datagen`]) and inference ([`super::Rom`]), so that
+//! Shared by data generation (`tacrom-tools`' `datagen.rs`) and inference ([`super::Rom`]), so that
 //! training and run time compute the inputs with the same code.
 //!
 //! * The **lattice** is a [`PixelGrid`] over the whole top face of the gel with the

@@ -658,7 +658,7 @@ impl Rom {
             .unwrap_or(self.manifest.refinement.enabled)
     }
 
-    /// Runs the encoder on an observation: `z` [latent].
+    /// Runs the encoder on an observation: `z` (`latent` values).
     pub fn encode(&mut self, obs: &Observation) -> Result<Vec<f32>, RomError> {
         let spec = self.manifest.lattice;
         obs.encoder_input(&spec, &mut self.enc_in);
@@ -697,7 +697,7 @@ impl Rom {
         Ok(d.to_vec())
     }
 
-    /// Runs the Jacobian graph: depth [N] and d depth / dz [N x latent].
+    /// Runs the Jacobian graph: depth (`N` values) and d depth / dz (`N x latent`).
     pub fn decode_with_jacobian(
         &mut self,
         z: &[f32],

@@ -11,7 +11,7 @@ use std::time::Instant;
 use nalgebra::Isometry3;
 use tacrom::config::{Config, RawConfig};
 use tacrom::geometry::{PixelGrid, Placed, Sdf, Sphere};
-use tacrom::mpm::{Gel, GelParams, SolverOptions};
+use tacrom::mpm::{Gel, SolverOptions};
 use tacrom::render::markers::Markers;
 use tacrom::render::refraction::{Refraction, Sampling};
 use tacrom::render::DepthRule;
@@ -66,15 +66,7 @@ fn main() {
     // The passes over one solved gel.
     let config =
         Config::from_raw("bench", &RawConfig::default().with("physics", "coarse")).expect("config");
-    let params = GelParams {
-        size: config.size,
-        young: config.young,
-        poisson: config.poisson,
-        density: config.density,
-        friction: config.friction,
-        dx: config.dx.expect("coarse has a grid"),
-        material: config.material,
-    };
+    let params = config.gel_params(config.dx.expect("coarse has a grid"));
     let mut gel = Gel::new(
         params,
         SolverOptions {

@@ -10,7 +10,7 @@ use std::fmt;
 use std::path::Path;
 use std::sync::Arc;
 
-use crate::mpm::{Material, Solver};
+use crate::mpm::{GelParams, Material, Solver};
 use crate::render::calibrated::CalibratedOptics;
 pub use crate::render::refraction::Camera;
 
@@ -352,6 +352,19 @@ pub mod defaults {
 }
 
 impl Config {
+    /// The gel of this configuration on a grid of spacing `dx` (m).
+    pub fn gel_params(&self, dx: f64) -> GelParams {
+        GelParams {
+            size: self.size,
+            young: self.young,
+            poisson: self.poisson,
+            density: self.density,
+            friction: self.friction,
+            dx,
+            material: self.material,
+        }
+    }
+
     /// Validates `raw` for the sensor called `name`.
     pub fn from_raw(name: &str, raw: &RawConfig) -> Result<Config, ConfigError> {
         let p = Parser { name, raw };

@@ -14,7 +14,7 @@ use tacrom::config::{
     Config, RawConfig, ATTR_FRICTION, ATTR_MARKERS, ATTR_OUTPUTS, ATTR_PHYSICS, ATTR_RESOLUTION,
 };
 use tacrom::geometry::{Placed, Sdf, Sphere};
-use tacrom::mpm::{Gel, GelParams, SolverOptions};
+use tacrom::mpm::{Gel, SolverOptions};
 use tacrom::render::markers::Markers;
 use tacrom::sensor::TactileSensor;
 
@@ -210,15 +210,7 @@ fn vertical_press_moves_the_markers_around_it_radially_outward() {
 /// The sensor's coarse gel, built and driven by hand: the same parameters and solver
 /// options as [`config`]'s coarse sensor.
 fn bare_gel(config: &Config, frames: &[Vec<Placed>]) -> Gel {
-    let params = GelParams {
-        size: config.size,
-        young: config.young,
-        poisson: config.poisson,
-        density: config.density,
-        friction: config.friction,
-        dx: config.dx.expect("coarse"),
-        material: config.material,
-    };
+    let params = config.gel_params(config.dx.expect("coarse"));
     let options = SolverOptions {
         threads: config.threads,
         tolerance: config.tolerance,

@@ -808,19 +808,6 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     ref_row.reference = true;
     ref_row.cached = cached;
     rows.insert(0, ref_row);
-    if opts.reference_only {
-        progress.finish();
-        return Ok(BenchResult {
-            options: opts.clone(),
-            indenters: indenters.iter().map(|i| i.name.clone()).collect(),
-            positions,
-            rows,
-            unavailable,
-            peak_reset,
-            wall_seconds: wall.elapsed().as_secs_f64(),
-            files: Vec::new(),
-        });
-    }
 
     // Errors, from each mode's first thread count: over all presses, per depth of the
     // sequences and per indenter.
@@ -851,6 +838,11 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
         wall_seconds: 0.0,
         files: Vec::new(),
     };
+    if opts.reference_only {
+        // No mode ran: nothing to compare or draw.
+        result.wall_seconds = wall.elapsed().as_secs_f64();
+        return Ok(result);
+    }
     let figures = report::Figures {
         grid: &grid,
         reference: &ref_timed.frames,

@@ -220,6 +220,21 @@ pub fn tick_label(v: f64) -> String {
     format!("{v:.decimals$}")
 }
 
+/// Height of a legend line (pixels).
+const LEGEND_LINE: i32 = 26;
+
+/// The legend's bold "modes" heading at the top of `area`; returns the y of its first
+/// entry.
+fn legend_heading(area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result<i32, FigureError> {
+    let y = 70;
+    area.draw_text(
+        "modes",
+        &(FONT, 17).into_font().style(FontStyle::Bold).color(&BLACK),
+        (10, y - 24),
+    )?;
+    Ok(y)
+}
+
 fn range_of((lo, hi): (i32, i32)) -> Range<f64> {
     10f64.powi(lo)..10f64.powi(hi)
 }
@@ -290,13 +305,8 @@ impl ErrorTimePlot {
                 modes.push(p);
             }
         }
-        let line = 26;
-        let mut y = 70;
-        area.draw_text(
-            "modes",
-            &(FONT, 17).into_font().style(FontStyle::Bold).color(&BLACK),
-            (10, y - 24),
-        )?;
+        let line = LEGEND_LINE;
+        let mut y = legend_heading(area)?;
         for m in &modes {
             area.draw(
                 &(EmptyElement::at((22, y + 8))
@@ -431,13 +441,8 @@ impl DepthPlot {
                     EmptyElement::at((x, y)) + Polygon::new(s.marker.outline(6), s.colour.filled())
                 }))?;
             }
-            let line = 26;
-            let mut y = 70;
-            side.draw_text(
-                "modes",
-                &(FONT, 17).into_font().style(FontStyle::Bold).color(&BLACK),
-                (10, y - 24),
-            )?;
+            let line = LEGEND_LINE;
+            let mut y = legend_heading(&side)?;
             for s in &self.series {
                 side.draw(&PathElement::new(
                     [(8, y + 8), (36, y + 8)],

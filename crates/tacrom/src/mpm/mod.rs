@@ -112,11 +112,6 @@ const PAD: usize = 3;
 /// Grid nodes below the bonded face (cells); all of them are fixed.
 const PAD_BOTTOM: usize = 2;
 
-/// Newton's contact points per particle spacing along each axis of the top face.
-pub fn newton_contact_subdivision() -> usize {
-    newton::CONTACT_SUBDIVISION
-}
-
 /// Most points per indenter that [`Gel::unloaded_penetration`] samples.
 pub const MISSED_SAMPLES: usize = 16_384;
 
@@ -469,13 +464,12 @@ impl Gel {
         ((self.options.max_iterations as f64 * scale).round() as usize).max(1)
     }
 
-    /// Spacing (m) of the surface points that the solver's contact acts on: the top
-    /// particles' for relaxation, the finer contact lattice's for Newton
-    /// ([`newton_contact_subdivision`] per particle spacing). An indenter that reaches
-    /// into the gel only between them loads it with no force.
-    pub fn contact_spacing(&self) -> f64 {
+    /// Spacing (m) of the surface points that `solver`'s contact acts on in this gel: the
+    /// top particles' for relaxation, for Newton a lattice four times finer. An indenter
+    /// that reaches into the gel only between them loads it with no force.
+    pub fn contact_spacing(&self, solver: Solver) -> f64 {
         let s = self.layout.spacing[0].max(self.layout.spacing[1]);
-        match self.options.solver {
+        match solver {
             Solver::Newton => s / newton::CONTACT_SUBDIVISION as f64,
             Solver::Relaxation => s,
         }
@@ -484,7 +478,7 @@ impl Gel {
     /// How deep (m, a lower bound) the indenters reach into the undeformed gel where the
     /// last solve found no contact force at all: 0 when the gel carries a force or when
     /// nothing reaches in. The undeformed top face is sampled at a quarter of
-    /// [`Gel::contact_spacing`] (coarser over large footprints, at most
+    /// [`Gel::contact_spacing`] of its solver (coarser over large footprints, at most
     /// [`MISSED_SAMPLES`] points per indenter); the signed distance there bounds the
     /// penetration from below. A contact smaller than the contact points' spacing can
     /// fall between them; the sensor warns with this.
@@ -493,7 +487,7 @@ impl Gel {
             return 0.0;
         }
         let [lx, ly, _] = self.params.size;
-        let fine = 0.25 * self.contact_spacing();
+        let fine = 0.25 * self.contact_spacing(self.options.solver);
         let mut deepest = 0.0f64;
         for p in indenters::usable(indenters) {
             let b = p.aabb();

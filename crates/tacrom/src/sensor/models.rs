@@ -145,15 +145,7 @@ struct Mpm {
 
 impl Mpm {
     fn new(config: &Config, dx: f64) -> Result<Self, SensorError> {
-        let params = GelParams {
-            size: config.size,
-            young: config.young,
-            poisson: config.poisson,
-            density: config.density,
-            friction: config.friction,
-            dx,
-            material: config.material,
-        };
+        let params = config.gel_params(dx);
         let options = SolverOptions {
             threads: config.threads,
             tolerance: config.tolerance,
@@ -218,13 +210,13 @@ impl SurfaceModel for Mpm {
                 "tacrom.tactile sensor '{name}': non-finite values in the gel; state recovered"
             ));
         }
-        let spacing = gel.contact_spacing();
+        let spacing = gel.contact_spacing(self.options.solver);
         let missed = gel.unloaded_penetration(scene.indenters);
         if missed > MISSED_FRACTION * spacing {
             let advice = match self.options.solver {
                 Solver::Relaxation => format!(
                     "solver=\"newton\" (contact points {:.3} mm apart) or a smaller 'dx'",
-                    spacing * 1e3 / crate::mpm::newton_contact_subdivision() as f64
+                    gel.contact_spacing(Solver::Newton) * 1e3
                 ),
                 Solver::Newton => "a smaller 'dx'".to_string(),
             };

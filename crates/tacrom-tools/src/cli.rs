@@ -185,6 +185,10 @@ pub struct BenchArgs {
     /// when a check fails.
     #[arg(long, value_name = "FILE")]
     pub check: Option<PathBuf>,
+    /// Compare each mode's depth MAE over coarse's with the committed full profile FILE
+    /// (within the range of its indenters; see `bench/check.rs`); exit non-zero when not.
+    #[arg(long, value_name = "FILE")]
+    pub check_full: Option<PathBuf>,
     /// Write this run's accuracy rows as the baseline FILE.
     #[arg(long, value_name = "FILE")]
     pub write_baseline: Option<PathBuf>,
@@ -194,7 +198,7 @@ pub struct BenchArgs {
     pub shard: (usize, usize),
     /// Compute and cache the reference presses only (no modes, no report): run the shards
     /// of a batch job with it, then the whole benchmark finds every press in the cache.
-    #[arg(long, conflicts_with_all = ["check", "write_baseline", "no_cache"])]
+    #[arg(long, conflicts_with_all = ["check", "check_full", "write_baseline", "no_cache"])]
     pub reference_only: bool,
 }
 

@@ -124,18 +124,30 @@ fn bench(a: BenchArgs) -> Result<(), BenchError> {
         tacrom_tools::bench::check::write_baseline(&r, path)?;
         eprintln!("baseline written to {}", path.display());
     }
-    if let Some(path) = &a.check {
-        let (lines, ok) = tacrom_tools::bench::check::check(&r, path)?;
+    let mut failed = Vec::new();
+    let checks: [(_, fn(_, _) -> _); 2] = [
+        (&a.check, tacrom_tools::bench::check::check),
+        (
+            &a.check_full,
+            tacrom_tools::bench::check::check_against_full,
+        ),
+    ];
+    for (path, run) in checks {
+        let Some(path) = path else { continue };
+        let (lines, ok) = run(&r, path)?;
         println!("## Check against {}\n", path.display());
         for l in &lines {
             println!("    {l}");
         }
         if !ok {
-            return Err(BenchError::Usage(format!(
-                "the benchmark's accuracy checks against {} failed",
-                path.display()
-            )));
+            failed.push(path.display().to_string());
         }
+    }
+    if !failed.is_empty() {
+        return Err(BenchError::Usage(format!(
+            "the benchmark's accuracy checks against {} failed",
+            failed.join(" and ")
+        )));
     }
     Ok(())
 }

@@ -38,6 +38,11 @@ pub struct BaselineRow {
     pub ssim: f64,
     /// Force error (% of the reference force).
     pub force_err_pct: f64,
+    /// Over the indenters of the run: the median, least and largest of this mode's depth
+    /// MAE over coarse's on the same indenter (written where the run has coarse and more
+    /// than one indenter; the full profile's are what [`check_against_full`] reads).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ratio_to_coarse: Option<[f64; 3]>,
 }
 
 /// A committed baseline.
@@ -69,21 +74,103 @@ fn rows(result: &BenchResult) -> std::collections::BTreeMap<String, BaselineRow>
                     mae_um: r.accuracy.mae * 1e6,
                     ssim: r.accuracy.ssim,
                     force_err_pct: r.accuracy.force_rel * 100.0,
+                    ratio_to_coarse: ratio_spread(result, r),
                 },
             )
         })
         .collect()
 }
 
+/// The median, least and largest per-indenter ratio of `row`'s depth MAE to coarse's.
+fn ratio_spread(result: &BenchResult, row: &super::ModeResult) -> Option<[f64; 3]> {
+    let coarse = result
+        .rows
+        .iter()
+        .find(|m| !m.reference && m.label == "coarse" && m.threads == row.threads)?;
+    let ratios: Vec<f64> = row
+        .by_indenter
+        .iter()
+        .zip(&coarse.by_indenter)
+        .filter(|(_, c)| c.mae > 0.0)
+        .map(|(m, c)| m.mae / c.mae)
+        .collect();
+    (ratios.len() > 1).then(|| {
+        [
+            super::metrics::median(&ratios),
+            ratios.iter().copied().fold(f64::INFINITY, f64::min),
+            ratios.iter().copied().fold(0.0, f64::max),
+        ]
+    })
+}
+
+/// Checks `result` (any profile) against the committed full profile at `path`: for each
+/// mode in both, its depth MAE over coarse's must lie within the range the full profile
+/// measured across its indenters, widened by [`RELATIVE`]. The profiles differ in
+/// resolution, positions and reference, so their absolute errors differ; the ratio to
+/// coarse on the same run is what carries over, and a ratio outside every indenter's of
+/// the full profile means the run no longer measures what the committed report says.
+pub fn check_against_full(
+    result: &BenchResult,
+    path: &Path,
+) -> Result<(Vec<String>, bool), BenchError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| BenchError::Usage(format!("full profile {}: {e}", path.display())))?;
+    let full: Baseline = serde_json::from_str(&text)
+        .map_err(|e| BenchError::Usage(format!("full profile {}: {e}", path.display())))?;
+    if full.profile != "full" {
+        return Err(BenchError::Usage(format!(
+            "{} is of the {} profile, not the full one",
+            path.display(),
+            full.profile
+        )));
+    }
+    Ok(compare_ratios(&full, &rows(result)))
+}
+
+/// The check of [`check_against_full`] on `now` against the full profile's rows.
+pub fn compare_ratios(
+    full: &Baseline,
+    now: &std::collections::BTreeMap<String, BaselineRow>,
+) -> (Vec<String>, bool) {
+    let mut lines = Vec::new();
+    let mut ok = true;
+    let Some(coarse) = now.get("coarse").map(|r| r.mae_um).filter(|c| *c > 0.0) else {
+        return (
+            vec!["FAIL coarse in the run, with a depth error".to_owned()],
+            false,
+        );
+    };
+    let mut compared = 0;
+    for (mode, f) in &full.modes {
+        let (Some(r), Some([median, lo, hi])) = (now.get(mode), f.ratio_to_coarse) else {
+            continue;
+        };
+        if mode == "coarse" {
+            continue;
+        }
+        compared += 1;
+        let ratio = r.mae_um / coarse;
+        let (min, max) = (lo / (1.0 + RELATIVE), hi * (1.0 + RELATIVE));
+        let pass = ratio >= min && ratio <= max;
+        ok &= pass;
+        lines.push(format!(
+            "{} {mode}: depth MAE / coarse's {ratio:.3} within [{min:.3}, {max:.3}] (full \
+             profile: median {median:.3} over its indenters, {lo:.3} to {hi:.3})",
+            if pass { "ok  " } else { "FAIL" }
+        ));
+    }
+    if compared == 0 {
+        ok = false;
+        lines.push("FAIL no mode of the full profile with its ratios in the run".to_owned());
+    }
+    (lines, ok)
+}
+
 /// Writes `result`'s accuracy rows as the baseline at `path`.
 pub fn write_baseline(result: &BenchResult, path: &Path) -> Result<(), BenchError> {
     let baseline = Baseline {
         profile: result.options.profile.clone(),
-        command: format!(
-            "tacrom bench --{} --write-baseline {}",
-            result.options.profile,
-            path.display()
-        ),
+        command: result.command.clone(),
         modes: rows(result),
     };
     let mut text =
@@ -187,7 +274,36 @@ mod tests {
             mae_um,
             ssim: 0.95,
             force_err_pct: 5.0,
+            ratio_to_coarse: None,
         }
+    }
+
+    #[test]
+    fn a_ratio_outside_the_full_profiles_range_fails() {
+        let mut full = baseline();
+        full.profile = "full".into();
+        full.modes.get_mut("rom").unwrap().ratio_to_coarse = Some([0.5, 0.3, 0.7]);
+        full.modes.get_mut("rigid").unwrap().ratio_to_coarse = Some([3.0, 2.0, 5.0]);
+        let now = |rom: f64, rigid: f64| {
+            [("coarse", 4.0), ("rom", rom), ("rigid", rigid)]
+                .into_iter()
+                .map(|(m, e)| (m.to_owned(), row(e)))
+                .collect()
+        };
+        let (lines, ok) = compare_ratios(&full, &now(2.0, 12.0));
+        assert!(ok && lines.len() == 2, "{lines:?}");
+        // rom at 0.8 of coarse: above 0.7 * 1.1.
+        let (lines, ok) = compare_ratios(&full, &now(3.2, 12.0));
+        assert!(
+            !ok && lines.iter().any(|l| l.starts_with("FAIL rom")),
+            "{lines:?}"
+        );
+        // Within the widening: 0.75 passes.
+        assert!(compare_ratios(&full, &now(3.0, 12.0)).1);
+        // rigid at 1.5 of coarse: below 2 / 1.1.
+        assert!(!compare_ratios(&full, &now(2.0, 6.0)).1);
+        // Nothing to compare is a failure, not a pass.
+        assert!(!compare_ratios(&baseline(), &now(2.0, 12.0)).1);
     }
 
     fn baseline() -> Baseline {

@@ -301,6 +301,9 @@ pub struct ModeResult {
     /// Median time of a whole press sequence (one indenter at one position through every
     /// depth; s): the paper's time per interaction.
     pub sequence_s: f64,
+    /// Sum of the evaluations' times (s); for the reference, of every press's solve as
+    /// recorded when it was computed (cached presses included).
+    pub total_s: f64,
     /// Peak resident memory during the run (bytes).
     pub peak_rss: Option<u64>,
     /// Resident memory at the start of the run (bytes).
@@ -334,8 +337,48 @@ pub struct BenchResult {
     pub peak_reset: bool,
     /// Wall time of the whole run (s).
     pub wall_seconds: f64,
+    /// The command line that ran it.
+    pub command: String,
+    /// The machine it ran on ([`machine`]).
+    pub machine: String,
     /// Files written.
     pub files: Vec<PathBuf>,
+}
+
+/// The machine in one line: CPU model, logical cores, operating system.
+pub fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_owned())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_owned());
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let kernel = std::fs::read_to_string("/proc/sys/kernel/osrelease")
+        .map(|k| format!(" {}", k.trim()))
+        .unwrap_or_default();
+    format!(
+        "{cpu}, {cores} logical core(s), {}{kernel}",
+        std::env::consts::OS
+    )
+}
+
+/// This process's command line as a shell would take it (`tacrom` and its arguments).
+pub fn command_line() -> String {
+    let quote = |a: String| {
+        if a.is_empty() || a.contains(|c: char| c.is_whitespace() || "'\"$`\\".contains(c)) {
+            format!("'{}'", a.replace('\'', "'\\''"))
+        } else {
+            a
+        }
+    };
+    std::iter::once("tacrom".to_owned())
+        .chain(std::env::args().skip(1).map(quote))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 struct Loaded {
@@ -507,6 +550,7 @@ fn row_of(label: &str, threads: usize, t: &Timed) -> ModeResult {
         median_ms: metrics::median(&secs) * 1e3,
         p90_ms: metrics::quantile(&secs, 0.9) * 1e3,
         sequence_s: metrics::median(&sequences),
+        total_s: secs.iter().sum(),
         peak_rss: t.peak_rss,
         base_rss: t.base_rss,
         stages_ms,
@@ -836,6 +880,8 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
         unavailable,
         peak_reset,
         wall_seconds: 0.0,
+        command: command_line(),
+        machine: machine(),
         files: Vec::new(),
     };
     if opts.reference_only {

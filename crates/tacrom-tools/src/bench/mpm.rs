@@ -848,7 +848,12 @@ fn write_file(out: &Path, name: &str, text: String) -> Result<(), BenchError> {
 
 fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     std::fs::create_dir_all(out).map_err(|e| io_error(out, e))?;
-    write_file(out, "report.md", markdown(result))?;
+    let header = format!(
+        "# tacrom mpm\n\nCommand: `{}`. Machine: {}.\n\n",
+        super::command_line(),
+        super::machine()
+    );
+    write_file(out, "report.md", header + &markdown(result))?;
     let mut hertz = String::from(
         "solver,dx_m,particles,depth_m,force_n,hertz_n,error,iterations,converged,seconds\n",
     );

@@ -229,6 +229,17 @@ pub fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
 
+/// Hands the heap's free pages back to the operating system (glibc's `malloc_trim`), so
+/// that the resident set at the start of a run holds what the process still uses, not
+/// what earlier runs freed; elsewhere nothing.
+pub fn release_free_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free heap pages to the kernel; it takes no pointer.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// A field of `/proc/self/status` in bytes (`VmHWM`, `VmRSS`).
 pub fn status_bytes(field: &str) -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
@@ -308,6 +319,9 @@ pub struct ModeResult {
     pub peak_rss: Option<u64>,
     /// Resident memory at the start of the run (bytes).
     pub base_rss: Option<u64>,
+    /// The mode's own memory: the peak above the start, less the images the benchmark
+    /// keeps of the run (bytes); `None` where the start is unknown (a cached reference).
+    pub own_rss: Option<u64>,
     /// Median per-stage times (ms), [`STAGES`] order, `NaN` where absent.
     pub stages_ms: [f64; STAGES.len()],
     /// Evaluations whose solver did not converge.
@@ -553,6 +567,10 @@ fn row_of(label: &str, threads: usize, t: &Timed) -> ModeResult {
         total_s: secs.iter().sum(),
         peak_rss: t.peak_rss,
         base_rss: t.base_rss,
+        own_rss: t.peak_rss.zip(t.base_rss).map(|(peak, base)| {
+            let kept: usize = all.iter().map(|f| f.depth.capacity()).sum();
+            peak.saturating_sub(base + (kept * std::mem::size_of::<f64>()) as u64)
+        }),
         stages_ms,
         not_converged: all.iter().filter(|f| !f.converged).count(),
         evaluations: all.len(),
@@ -743,6 +761,13 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     let mut rows = Vec::new();
     let mut unavailable = Vec::new();
     let mut mode_frames: Vec<(String, Frames)> = Vec::new();
+    if !modes.is_empty() {
+        // The indenters are the scene, shared by every mode: a mesh builds its distance
+        // grid on the first query, which would otherwise count as the first mode's memory.
+        for ind in &indenters {
+            let _ = ind.shape.distance(&nalgebra::Point3::origin());
+        }
+    }
     for mode in modes {
         let mut first: Option<Frames> = None;
         for &threads in &opts.threads {
@@ -754,6 +779,7 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
                     break;
                 }
             };
+            release_free_memory();
             let _ = reset_peak_rss();
             let base_rss = status_bytes("VmRSS");
             let mut frames: Frames = Vec::new();
@@ -799,6 +825,7 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
         }
     }
     // The reference.
+    release_free_memory();
     let peak_reset = reset_peak_rss();
     let ref_base = status_bytes("VmRSS");
     for &(i, p) in &todo {

@@ -11,13 +11,26 @@
 pub fn hertz_bonded(e: f64, nu: f64, r: f64, d: f64, h: f64) -> f64 {
     use std::f64::consts::PI;
     let es = e / (1.0 - nu * nu);
-    let a0 = -(1.2876 - 1.4678 * nu + 1.3442 * nu * nu) / (1.0 - nu);
+    let a0 = bonded_a0(nu);
     let b0 = (0.6387 - 1.0277 * nu + 1.5164 * nu * nu) / (1.0 - nu);
     let c = (r * d).sqrt() / h;
     let bracket = 1.0 - 2.0 * a0 / PI * c + 4.0 * a0 * a0 / (PI * PI) * c * c
         - 8.0 / PI.powi(3) * (a0.powi(3) + 4.0 * PI * PI * b0 / 15.0) * c.powi(3)
         + 16.0 * a0 / PI.powi(4) * (a0.powi(3) + 3.0 * PI * PI * b0 / 5.0) * c.powi(4);
     4.0 * es / 3.0 * r.sqrt() * d.powf(1.5) * bracket
+}
+
+/// Dimitriadis et al.'s `alpha_0` of a layer bonded to its base with Poisson's ratio `nu`.
+fn bonded_a0(nu: f64) -> f64 {
+    -(1.2876 - 1.4678 * nu + 1.3442 * nu * nu) / (1.0 - nu)
+}
+
+/// The first-order coefficient `beta` of the bonded layer's stiffening, `1 + beta a / h`
+/// for a contact of radius `a` on a layer of thickness `h` (`beta = -2 alpha_0 / pi`
+/// of Dimitriadis et al. 2002; 1.01 at `nu = 0.43`): to first order the layer takes
+/// `beta / (2 E* h)` off a small contact's half-space compliance `1 / (2 E* a)`.
+pub fn bonded_layer_slope(nu: f64) -> f64 {
+    -2.0 * bonded_a0(nu) / std::f64::consts::PI
 }
 
 /// Force (N) of a frictionless rigid cone of semi-vertical angle `alpha` (rad, axis to

@@ -53,6 +53,7 @@
 //! friction follows the path.
 
 mod energy;
+mod subgrid;
 mod system;
 #[cfg(test)]
 mod tests;
@@ -222,7 +223,8 @@ const CHUNK: usize = 256;
 /// A surface contact point considered in the current substep.
 #[derive(Clone, Copy, Debug)]
 struct ContactPoint {
-    /// Index in the contact lattice.
+    /// Index in the contact lattice; at least the lattice's size for a tip point
+    /// (see `subgrid.rs`), which has no friction.
     index: u32,
     /// Rest position (cells).
     rest: Vector3<f64>,
@@ -230,6 +232,13 @@ struct ContactPoint {
     /// Lagged normal force (internal units) and normal, for friction.
     lag_force: f64,
     lag_normal: Vector3<f64>,
+    /// Factor on the penalty: below 1 where the point's patch is smaller than the grid
+    /// resolves (see `subgrid.rs`).
+    soft: f64,
+    /// The point's share of the top face, in lattice points (1, less for a tip point).
+    weight: f64,
+    /// Whether it is a tip point.
+    tip: bool,
 }
 
 /// One contact point's contact and friction terms (see [`Newton::contact_term`]).
@@ -320,12 +329,23 @@ pub(crate) struct Newton {
     /// Load scale of the previous equilibrium (so that unloading is measured against it).
     last_scale: f64,
     min_scale: f64,
-    /// Energy after each accepted step of the last solve.
-    pub history: Vec<f64>,
+    /// Per minimisation of the last solve (the lagged terms are refreshed between them):
+    /// the energy at its start and after each accepted step.
+    pub history: Vec<Vec<f64>>,
     /// The displacement change over the last substep and the indenters' translations
     /// (cells) in it, for the secant predictor.
     last_change: Vec<f64>,
     last_motion: Vec<Vector3<f64>>,
+    /// Plane-strain modulus `E* = 2 mu / (1 - nu)` (internal units).
+    e_star: f64,
+    /// The gel's thickness (cells) and the first-order stiffening of a bonded layer of its
+    /// Poisson's ratio ([`super::hertz::bonded_layer_slope`]).
+    thickness: f64,
+    layer_slope: f64,
+    /// The grid's resolved contact radius (cells; 0: no sub-grid compliance), and each
+    /// contact lattice point's penalty factor (see `subgrid.rs`).
+    resolved_radius: f64,
+    softness: Vec<f64>,
 }
 
 impl Newton {
@@ -464,6 +484,11 @@ impl Newton {
             history: Vec::new(),
             last_change: Vec::new(),
             last_motion: Vec::new(),
+            e_star: 2.0 * mu / (1.0 - params.poisson as f64),
+            thickness: t / dx,
+            layer_slope: super::hertz::bonded_layer_slope(params.poisson as f64),
+            resolved_radius: 0.0,
+            softness: vec![1.0; lattice[0] * lattice[1]],
         })
     }
 
@@ -484,6 +509,7 @@ impl Newton {
         self.u.fill(0.0);
         self.anchors.clear();
         self.lagged.fill((0.0, Vector3::z()));
+        self.softness.fill(1.0);
         self.loads.clear();
         self.last_scale = 0.0;
         self.last_change.clear();
@@ -819,6 +845,9 @@ impl Newton {
                     stencil: Stencil::at(&rest),
                     lag_force,
                     lag_normal,
+                    soft: self.softness[index as usize],
+                    weight: 1.0,
+                    tip: false,
                 }
             })
             .collect();
@@ -915,9 +944,10 @@ impl Newton {
         };
         if let Some(t) = self.touch(x, indenters) {
             let (e, f, k) = penalty(t.gap);
-            term.energy += self.area * e;
-            term.gradient -= t.slope * (self.area * f);
-            term.stiffness += t.slope * t.slope.transpose() * (self.area * k);
+            let a = self.area * c.weight * c.soft;
+            term.energy += a * e;
+            term.gradient -= t.slope * (a * f);
+            term.stiffness += t.slope * t.slope.transpose() * (a * k);
         }
         if let Some((y, d)) = self.slip(c, x, indenters) {
             let scale = self.friction * c.lag_force;
@@ -1159,6 +1189,7 @@ impl Newton {
         let mut residual = f64::INFINITY;
         // Held nodes keep their displacement in every trial state.
         self.trial.copy_from_slice(&self.u);
+        let mut first = true;
         for _ in 0..MAX_NEWTON {
             let (energy, jmin, jmax) = self.evaluate(indenters)?;
             report.det_f_min = jmin;
@@ -1167,8 +1198,9 @@ impl Newton {
                 .max(self.last_scale)
                 .max(self.min_scale);
             residual = Self::max_node_norm(&self.grad) / scale;
-            if self.history.is_empty() {
-                self.history.push(energy);
+            if first {
+                self.history.push(vec![energy]);
+                first = false;
             }
             if residual <= tolerance {
                 self.last_scale = Self::max_node_norm(&self.load);
@@ -1240,7 +1272,9 @@ impl Newton {
                 if e.is_finite() && e <= energy + 1e-4 * alpha * slope {
                     std::mem::swap(&mut self.u, &mut self.trial);
                     self.trial.copy_from_slice(&self.u);
-                    self.history.push(e);
+                    if let Some(h) = self.history.last_mut() {
+                        h.push(e);
+                    }
                     accepted = true;
                     break;
                 }
@@ -1269,7 +1303,7 @@ impl Newton {
         let mut largest = 0.0f64;
         let contact = std::mem::take(&mut self.contact);
         let mut updated = contact.clone();
-        for c in updated.iter_mut() {
+        for c in updated.iter_mut().filter(|c| !c.tip) {
             let x = c.rest + self.displacement(&c.stencil, &self.u);
             let (force, normal) = match self.touch(&x, indenters) {
                 Some(t) => {
@@ -1285,7 +1319,7 @@ impl Newton {
                             },
                         );
                     }
-                    (self.area * penalty(t.gap).1, t.normal)
+                    (self.area * c.weight * c.soft * penalty(t.gap).1, t.normal)
                 }
                 None => (0.0, c.lag_normal),
             };
@@ -1306,7 +1340,7 @@ impl Newton {
     /// points follow them to the stick radius.
     fn return_mapping(&mut self, indenters: &[StepIndenter]) {
         let contact = std::mem::take(&mut self.contact);
-        for c in &contact {
+        for c in contact.iter().filter(|c| !c.tip) {
             let x = c.rest + self.displacement(&c.stencil, &self.u);
             if self.touch(&x, indenters).is_none() {
                 self.anchors.remove(&c.index);
@@ -1371,17 +1405,25 @@ impl Newton {
             .collect();
         let start = self.u.clone();
         self.predict(&motion, indenters);
+        self.update_patches(indenters);
         let mut residual = self.minimise(indenters, tolerance, report)?;
         if self.restore_culled(indenters) {
+            self.update_patches(indenters);
             residual = self.minimise(indenters, tolerance, report)?;
         }
-        if self.friction > 0.0 {
-            for _ in 0..MAX_OUTER {
-                if self.lag_friction(indenters, starts, &start) <= tolerance {
-                    break;
-                }
-                residual = self.minimise(indenters, tolerance, report)?;
+        // The lagged terms (friction's normal forces, tip points) are refreshed and the
+        // minimisation repeated until they settle.
+        for _ in 0..MAX_OUTER {
+            let tips = self.update_tips(indenters);
+            let friction = if self.friction > 0.0 {
+                self.lag_friction(indenters, starts, &start)
+            } else {
+                0.0
+            };
+            if tips <= tolerance && friction <= tolerance {
+                break;
             }
+            residual = self.minimise(indenters, tolerance, report)?;
         }
         report.residual = report.residual.max(residual);
         report.converged &= residual <= tolerance;
@@ -1392,7 +1434,7 @@ impl Newton {
             for l in self.lagged.iter_mut() {
                 *l = (0.0, Vector3::z());
             }
-            for c in &self.contact {
+            for c in self.contact.iter().filter(|c| !c.tip) {
                 self.lagged[c.index as usize] = (c.lag_force, c.lag_normal);
             }
         }
@@ -1497,7 +1539,10 @@ impl Gel {
     ) {
         if self.newton.is_none() {
             match Newton::new(self) {
-                Ok(n) => self.newton = Some(Box::new(n)),
+                Ok(mut n) => {
+                    n.resolved_radius = n.calibrate_resolved_radius();
+                    self.newton = Some(Box::new(n));
+                }
                 Err(_) => {
                     report.converged = false;
                     report.residual = f64::INFINITY;

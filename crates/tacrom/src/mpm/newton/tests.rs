@@ -37,8 +37,9 @@ fn small_gel(friction: f64, poisson: f64) -> GelParams {
     }
 }
 
-/// Every accepted Newton step lowers the energy (frictionless, so one minimisation), and
-/// the solve stops with the out-of-balance force below the tolerance.
+/// Every accepted Newton step lowers the energy (within each minimisation: between them
+/// the lagged sub-grid compliance may change the energy), and the solve stops with the
+/// out-of-balance force below the tolerance.
 #[test]
 fn energy_decreases_and_the_returned_gradient_is_below_tolerance() {
     let mut g = Gel::new(small_gel(0.0, 0.43), options(1e-6)).unwrap();
@@ -47,9 +48,11 @@ fn energy_decreases_and_the_returned_gradient_is_below_tolerance() {
         let rep = g.solve(&[at(&s, 3e-3, 0.0, d)]);
         assert!(rep.converged && rep.residual <= 1e-6, "{rep:?}");
         let h = &g.newton.as_ref().unwrap().history;
-        assert!(h.len() >= 2, "{h:?}");
-        for w in h.windows(2) {
-            assert!(w[1] <= w[0], "energy rose: {h:?}");
+        assert!(h[0].len() >= 2, "{h:?}");
+        for m in h {
+            for w in m.windows(2) {
+                assert!(w[1] <= w[0], "energy rose: {h:?}");
+            }
         }
     }
 }

@@ -102,30 +102,54 @@ fn hertz_on_a_resolved_layer() {
     assert!(e.abs() < 0.05, "error {e}");
 }
 
-/// A sphere of radius 0.5 mm pressed 0.1 mm into the coarse (1.4 mm) gel meets no surface
-/// particle (0.7 mm apart), yet it loads the gel: force and depth image are not zero.
+/// Contacts smaller than the coarse grid (1.4 mm; surface particles 0.7 mm apart) on the
+/// default gel (30 x 30 x 4 mm), centred: a sphere of radius 0.5 mm pressed 0.1 to 0.4 mm
+/// (contact radius 0.2 to 0.45 mm) gives the bonded-layer Hertz force within 25 % at
+/// every depth (measured -1 to +18 %; without the sub-grid compliance the grid was 1.5 to
+/// 2.8 times too stiff), and its depth image is neither zero nor deeper than the sphere.
+/// The bound holds for this placement on the lattice: moved by part of a lattice spacing
+/// (other gel widths), the patch whose footprint crosses the resolved radius near 0.4 mm
+/// comes out up to 48 % stiff (README, "Small contacts"). A 90-degree cone tip pressed 0.1 mm (contact radius 0.06 mm, between the
+/// contact lattice's points) still loads the gel, and from 0.1 to 0.4 mm its force is
+/// within 35 % of Sneddon's (measured -30 to -7 %; the grid spreads the tip's load).
 #[test]
-fn a_contact_smaller_than_the_particle_spacing_loads_the_gel() {
+fn contacts_smaller_than_the_grid_follow_hertz_and_sneddon() {
+    use crate::mpm::hertz::sneddon_cone;
     let p = GelParams {
-        size: [0.01, 0.01, 0.004],
+        size: [0.03, 0.03, 0.004],
+        friction: 0.0,
         ..Default::default()
     };
-    let s = ball(0.5e-3);
-    for d in [0.1e-3, 0.2e-3] {
-        let mut g = Gel::new(p, options(1e-3)).unwrap();
-        let rep = g.solve(&[at(&s, 0.5e-3, 0.0, d)]);
+    let r = 0.5e-3;
+    let s = ball(r);
+    let mut g = Gel::new(p, options(1e-3)).unwrap();
+    let grid = PixelGrid {
+        width: 48,
+        height: 48,
+        fov_x: 0.012,
+        fov_y: 0.012,
+    };
+    for d in [0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3] {
+        let rep = g.solve(&[at(&s, r, 0.0, d)]);
         assert!(rep.converged, "{rep:?}");
-        assert!(g.force().z > 1e-4, "force {}", g.force());
-        let grid = PixelGrid {
-            width: 40,
-            height: 40,
-            fov_x: 0.01,
-            fov_y: 0.01,
-        };
-        let mut img = vec![0.0; 1600];
+        let e = g.force().z / hertz_bonded(p.young, p.poisson, r, d, p.size[2]) - 1.0;
+        assert!(e.abs() < 0.25, "sphere at {d}: error {e}");
+        let mut img = vec![0.0; grid.width * grid.height];
         g.surface_depth(&grid, &mut img);
         let peak = img.iter().cloned().fold(0.0, f64::max);
         assert!(peak > 0.2 * d && peak <= d * 1.01, "peak {peak} at {d}");
+    }
+    let alpha = std::f64::consts::FRAC_PI_4;
+    let cone: Arc<dyn Sdf> = Arc::new(TriMesh::cone_tip(3e-3, alpha, 64).unwrap());
+    let mut g = Gel::new(p, options(1e-3)).unwrap();
+    for d in [0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3] {
+        let rep = g.solve(&[Placed {
+            shape: cone.clone(),
+            pose: Isometry3::translation(0.0, 0.0, -d),
+        }]);
+        assert!(rep.converged, "{rep:?}");
+        let e = g.force().z / sneddon_cone(p.young, p.poisson, alpha, d) - 1.0;
+        assert!(g.force().z > 0.0 && e.abs() < 0.35, "cone at {d}: error {e}");
     }
 }
 

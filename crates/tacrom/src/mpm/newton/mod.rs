@@ -21,8 +21,10 @@
 //!   particles, each standing for its share `A` of the top face: a penalty
 //!   `k A g^2 / 2` on the signed distance `g < 0` to the nearest indenter
 //!   ([`PENALTY`]; the penetration it leaves is about `p / k`, 1e-3 cells at a pressure of
-//!   `M`). An indenter that reaches between particles still meets surface points, so a
-//!   small contact is never lost;
+//!   `M`). An indenter that reaches between particles still meets surface points, and
+//!   one that reaches between the lattice's points gets a tip point; a patch smaller than
+//!   the grid resolves gets the compliance the grid misses in series with its penalty
+//!   (see `subgrid.rs`);
 //! * Coulomb friction as a lagged dissipation potential (as IPC does, Li et al. 2020):
 //!   each surface point in contact keeps a stick anchor fixed in the indenter's frame; its
 //!   tangential offset `y` from the anchor costs `mu f_n f0(y)`, with `f0` quadratic below
@@ -45,8 +47,8 @@
 //! increase (Armijo). It stops when the largest out-of-balance nodal force is below
 //! [`super::SolverOptions::tolerance`] times the load scale (the largest nodal contact
 //! force, at least a strain of 1e-4 over a cell). With friction the lagged normal forces
-//! start from those of the last substep and are refreshed, and the minimisation repeated,
-//! until their sum changes by less than the tolerance. Each frame starts from the previous
+//! start from those of the last substep and are refreshed (with the tip points), and the
+//! minimisation repeated, until their sum changes by less than the tolerance. Each frame starts from the previous
 //! equilibrium, moved on along the gel's last change when the indenters move on along
 //! their last path (a secant predictor, kept only if it lowers the energy); an indenter
 //! that moves more than [`SUBSTEP_CELLS`] cells is moved in equal substeps, each solved, so

@@ -149,7 +149,10 @@ fn contacts_smaller_than_the_grid_follow_hertz_and_sneddon() {
         }]);
         assert!(rep.converged, "{rep:?}");
         let e = g.force().z / sneddon_cone(p.young, p.poisson, alpha, d) - 1.0;
-        assert!(g.force().z > 0.0 && e.abs() < 0.35, "cone at {d}: error {e}");
+        assert!(
+            g.force().z > 0.0 && e.abs() < 0.35,
+            "cone at {d}: error {e}"
+        );
     }
 }
 

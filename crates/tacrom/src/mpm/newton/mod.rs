@@ -241,6 +241,8 @@ struct ContactPoint {
     weight: f64,
     /// Whether it is a tip point.
     tip: bool,
+    /// Whether its penalty factor is its patch's (see `subgrid.rs`).
+    patched: bool,
 }
 
 /// One contact point's contact and friction terms (see [`Newton::contact_term`]).
@@ -347,6 +349,9 @@ pub(crate) struct Newton {
     /// The grid's resolved contact radius (cells; 0: no sub-grid compliance), and each
     /// contact lattice point's penalty factor (see `subgrid.rs`).
     resolved_radius: f64,
+    /// The grid's compliance under loaded discs of growing radius (cells) below the
+    /// resolved radius (see `subgrid.rs`).
+    grid_compliance: Vec<(f64, f64)>,
     softness: Vec<f64>,
 }
 
@@ -490,6 +495,7 @@ impl Newton {
             thickness: t / dx,
             layer_slope: super::hertz::bonded_layer_slope(params.poisson as f64),
             resolved_radius: 0.0,
+            grid_compliance: Vec::new(),
             softness: vec![1.0; lattice[0] * lattice[1]],
         })
     }
@@ -850,6 +856,7 @@ impl Newton {
                     soft: self.softness[index as usize],
                     weight: 1.0,
                     tip: false,
+                    patched: false,
                 }
             })
             .collect();
@@ -1542,7 +1549,7 @@ impl Gel {
         if self.newton.is_none() {
             match Newton::new(self) {
                 Ok(mut n) => {
-                    n.resolved_radius = n.calibrate_resolved_radius();
+                    n.calibrate_subgrid();
                     self.newton = Some(Box::new(n));
                 }
                 Err(_) => {

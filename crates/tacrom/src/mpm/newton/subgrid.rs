@@ -1,41 +1,46 @@
-//! Contact patches smaller than the grid resolves: a compliance in series with each.
+//! Contacts smaller than the grid resolves: a compliance in series with each patch, and
+//! tip points between the contact lattice's points.
 //!
 //! The gel's surface is the quadratic B-spline field of the grid's nodes, which cannot
-//! bend over much less than a cell. Under a load concentrated on a patch smaller than
-//! that, the grid deflects as a half-space does under a punch of some radius `a_h` (the
-//! grid's *resolved radius*), not of the patch's own radius `a`: it is too stiff by about
-//! `a_h / a` (a 0.5 mm sphere pressed 0.1 mm into the coarse gel carried 2.2 times the
-//! force of a 0.5 mm grid). The incremental stiffness of any frictionless axisymmetric
-//! contact on a half-space is `2 E* a` (Pharr, Oliver and Brotzen 1992), so what the grid
-//! misses is the compliance
+//! bend over much less than a cell: under a load on a patch much smaller than that the
+//! grid deflects about as it does under a point load, and is too stiff (a 0.5 mm sphere
+//! pressed 0.1 mm into the coarse gel carried 2.8 times Hertz's force). What it misses is
+//! measured once per gel ([`Newton::calibrate_subgrid`]): with the rest stiffness
+//! factored, uniform unit loads on the contact lattice points within discs of growing
+//! radius `r` near the gel's centre give the grid's mean deflection per unit load
+//! `C_g(r)`; the layer's is `C(r) = 16 / (3 pi^2 E* r)` (uniform pressure on a
+//! half-space, Johnson 1985) times the bonded layer's first-order stiffening
+//! `1 / (1 + beta r / h)` (Dimitriadis et al. 2002; [`crate::mpm::hertz::bonded_layer_slope`]).
+//! `C_g` levels off at the point load's value below a cell while `C` grows as `1 / r`;
+//! the two meet at the *resolved radius* (0.85 cells on the default coarse gel), beyond
+//! which the grid needs nothing. Grids too large for that solve
+//! ([`MAX_CALIBRATION_UNKNOWNS`]: finer than about 0.5 mm on the default gel) go without.
 //!
-//! ```text
-//! c(a) = (1 / a - 1 / a_h) / (2 E*)        (a < a_h; zero for larger patches)
-//! ```
+//! Each contact patch gets [`SERIES_SHARE`] of `C(a) - C_g(a)` in series with its
+//! penalty, shared among its `n` points (each point's spring `n c`): a patch is the
+//! indenters' rigid footprint on the surface (the contact lattice points that they reach
+//! at the rest height, moved laterally with the gel), points within [`PATCH_REACH`]
+//! resolved radii joined, `a = sqrt(n A / pi)` (footprints of a few points measured on a
+//! finer sampling); touching points next to a footprint take its patch's factor. The
+//! footprint depends on the indenters alone, so the compliance is set once per substep,
+//! without iteration: the points in contact, which grow as a patch softens, made a patch
+//! measured from them swing between too small and too large. Patches the grid resolves
+//! keep their penalty exactly.
 //!
-//! in series with it. Each contact patch (the touching contact lattice points connected
-//! through touching points at most [`PATCH_REACH`] resolved radii apart) of `n` points gets `a = sqrt(n A / pi)` and shares `c(a)`
-//! among its points: each point's penalty `k A` gets the spring `n c(a)` in series, so the
-//! patch's mean penetration into the grid's surface is its force times `c(a)`. The
-//! patches are found after a minimisation and the compliance refreshed, lagged like the
-//! friction, until it stops changing ([`super::Newton::substep`]). A patch the grid
-//! resolves is left exactly as it was.
+//! [`SERIES_SHARE`] is measured, not derived: the full deficit `C - C_g` made the 0.5 mm
+//! sphere and the cone both come out at 0.5 to 0.75 of their analytic forces (the grid's
+//! response to a curved indenter is softer than to the disc load it is calibrated with),
+//! half of it brings both within 20 % (README, "Small contacts"). It was chosen on the
+//! 0.5 mm sphere and holds for the cone, a 2 mm sphere and four placements on the lattice.
 //!
 //! A contact too small to reach any lattice point at all (a sharp tip pressed less than
-//! the lattice's spacing into the gel) is found by sampling the rest surface more finely
+//! the lattice's spacing into the gel) is found by sampling the surface more finely
 //! around the lattice point nearest the indenter ([`TIP_SAMPLES`] per lattice spacing and
 //! axis): where samples penetrate, one *tip point* at the deepest stands for them, with
-//! their share of the top face; it is a patch of its own for the compliance above, so its
-//! force follows the tip's contact size. It exists only while no lattice point touches its
-//! indenter, is refreshed with the patches, and carries no friction.
-//!
-//! `a_h` is measured once per gel ([`super::Newton::calibrate_resolved_radius`]): the
-//! deflection `C` of the rest state's surface under a unit normal load on single contact
-//! lattice points across a cell near the gel's centre (a linear solve with the rest
-//! stiffness), less the bonded layer's first-order stiffening, which any contact on the
-//! layer has and `c` must not add back: `1 / a_h = 2 E* C + beta / h`
-//! ([`crate::mpm::hertz::bonded_layer_slope`]). Grids too large for that solve
-//! ([`MAX_CALIBRATION_UNKNOWNS`]) go without the correction.
+//! their share of the top face, and is a patch of its own (with the lattice points near
+//! it that it presses onto its indenter). It is added when no lattice point touches its
+//! indenter, kept for the rest of the substep (refreshed with the lagged friction), and
+//! carries no friction.
 
 use nalgebra::Vector3;
 
@@ -53,17 +58,26 @@ const TIP_SAMPLES: usize = 8;
 /// grid does not tell apart loads closer than it resolves (the rim of a round contact on
 /// the square lattice touches in separate clusters around the main patch, and the
 /// bumps of a texture finer than a cell load the grid as one contact).
-const PATCH_REACH: f64 = 2.0;
+const PATCH_REACH: f64 = 1.0;
+
+/// Footprints of at most this many lattice points are measured finer.
+const FINE_FOOTPRINT: usize = 4;
+
+/// Share of the missing compliance put in series with a patch.
+const SERIES_SHARE: f64 = 0.5;
 
 /// Cells of the calibration region beyond the layer's thickness on each side of the
 /// loaded column.
 const CALIBRATION_MARGIN: f64 = 3.0;
 
 impl Newton {
-    /// Measures the grid's resolved radius `a_h` (cells; see the module docs), or 0 where
-    /// the grid is too large for the solve or the solve fails. Leaves the solver without a
-    /// region and with zero displacement, as built.
-    pub(super) fn calibrate_resolved_radius(&mut self) -> f64 {
+    /// Measures the grid's compliance under small loaded discs (see the module docs) and
+    /// keeps it up to the resolved radius, where the grid's compliance reaches the
+    /// layer's; nothing where the grid is too large for the solve or the solve fails.
+    /// Leaves the solver without a region and with zero displacement, as built.
+    pub(super) fn calibrate_subgrid(&mut self) {
+        self.grid_compliance.clear();
+        self.resolved_radius = 0.0;
         let half = (self.top + CALIBRATION_MARGIN).ceil() as usize;
         let (cx, cy) = (self.dims[0] / 2, self.dims[1] / 2);
         let bx = [
@@ -73,61 +87,150 @@ impl Newton {
             (cy + half + 1).min(self.dims[1]),
         ];
         let columns = (bx[1] - bx[0]) * (bx[3] - bx[2]);
-        if 3 * columns * self.dims[2] > MAX_CALIBRATION_UNKNOWNS {
-            return 0.0;
-        }
-        let radius = self.point_compliance(bx).map_or(0.0, |c| {
-            // The layer's own stiffening is in `c`, as it is in the compliance of any
-            // contact on it: the grid's half-space radius is taken without it.
-            let inverse = 2.0 * self.e_star * c + self.layer_slope / self.thickness;
-            if c > 0.0 && inverse.is_finite() {
-                1.0 / inverse
-            } else {
-                0.0
+        if 3 * columns * self.dims[2] <= MAX_CALIBRATION_UNKNOWNS && self.factor_rest(bx) {
+            let table = self.disc_compliances(bx);
+            // The first disc the grid resolves ends the table.
+            let mut last = None;
+            for (k, &(r, c)) in table.iter().enumerate() {
+                let missing = self.layer_compliance(r) - c;
+                if !(missing > 0.0) {
+                    if let Some(&(r0, c0)) = k.checked_sub(1).and_then(|j| table.get(j)) {
+                        let m0 = self.layer_compliance(r0) - c0;
+                        let t = m0 / (m0 - missing);
+                        self.resolved_radius = r0 + t * (r - r0);
+                    }
+                    last = Some(k);
+                    break;
+                }
             }
-        });
+            if let Some(k) = last {
+                self.grid_compliance = table[..k].to_vec();
+            } else {
+                // No disc it resolves within the table: no correction at all.
+                self.resolved_radius = 0.0;
+            }
+        }
         // Back to the state of a new solver: no region, no kept system.
         self.system = None;
         self.region = None;
         self.u.fill(0.0);
-        radius
     }
 
-    /// The mean normal deflection (cells per internal force unit) of the rest state's
-    /// surface under a unit normal load on each of the contact lattice points along one
-    /// cell's diagonal at the centre of `bx`, the rest of the gel held.
-    fn point_compliance(&mut self, bx: [usize; 4]) -> Option<f64> {
-        self.set_region(bx).ok()?;
+    /// The mean deflection per unit load (cells per internal force unit) of a uniform
+    /// pressure on a disc of radius `r` (cells) on the layer: `16 / (3 pi^2 E* r)` on a
+    /// half-space (Johnson 1985, 3.4), less the bonded layer's first-order stiffening.
+    fn layer_compliance(&self, r: f64) -> f64 {
+        16.0 / (3.0 * std::f64::consts::PI.powi(2) * self.e_star * r)
+            / (1.0 + self.layer_slope * r / self.thickness)
+    }
+
+    /// The compliance a patch of contact radius `r` (cells) misses on this grid: the
+    /// layer's less the grid's (interpolated in the table; below its smallest disc the
+    /// grid's is that of a point load), zero from the resolved radius on.
+    pub(super) fn missing_compliance(&self, r: f64) -> f64 {
+        let table = &self.grid_compliance;
+        if table.is_empty() || !(r < self.resolved_radius) || !(r > 0.0) {
+            return 0.0;
+        }
+        let grid = match table.iter().position(|&(t, _)| t >= r) {
+            Some(0) => table[0].1,
+            Some(k) => {
+                let ((r0, c0), (r1, c1)) = (table[k - 1], table[k]);
+                c0 + (c1 - c0) * (r - r0) / (r1 - r0)
+            }
+            None => {
+                // Between the last disc and the resolved radius, where the two meet.
+                let (r0, c0) = table[table.len() - 1];
+                let (r1, c1) = (
+                    self.resolved_radius,
+                    self.layer_compliance(self.resolved_radius),
+                );
+                c0 + (c1 - c0) * (r - r0) / (r1 - r0)
+            }
+        };
+        (self.layer_compliance(r) - grid).max(0.0)
+    }
+
+    /// Makes `bx` the region, at rest, and factors its stiffness; whether that worked.
+    fn factor_rest(&mut self, bx: [usize; 4]) -> bool {
+        if self.set_region(bx).is_err() {
+            return false;
+        }
         self.u.fill(0.0);
-        self.evaluate(&[])?;
-        let mut system = self.system.take()?;
+        if self.evaluate(&[]).is_none() {
+            return false;
+        }
+        let Some(mut system) = self.system.take() else {
+            return false;
+        };
         self.fill_matrix(&mut system);
         let factored = system.factor().is_ok();
+        self.system = Some(system);
+        factored
+    }
+
+    /// The grid's compliance (mean deflection under a unit total load, cells per internal
+    /// force unit) for uniform loads on the contact lattice points within discs of
+    /// growing radius around the centre of `bx`, with each disc's area radius
+    /// `sqrt(n A / pi)` (cells). Needs the factored system of `bx` (as left by
+    /// [`Self::factor_rest`]).
+    fn disc_compliances(&mut self, bx: [usize; 4]) -> Vec<(f64, f64)> {
+        let Some(system) = self.system.take() else {
+            return Vec::new();
+        };
         let centre = [0.5 * (bx[0] + bx[1]) as f64, 0.5 * (bx[2] + bx[3]) as f64];
-        let per_cell = (1.0 / self.spacing[0]).round().max(1.0) as usize;
-        let mut total = 0.0;
+        // Lattice points around the centre, nearest first (the lattice's own alignment).
+        let [sx, sy] = self.spacing;
+        let first = [
+            self.first[0] + ((centre[0] - self.first[0]) / sx).floor() * sx,
+            self.first[1] + ((centre[1] - self.first[1]) / sy).floor() * sy,
+        ];
+        let reach = (3.0 / sx.min(sy)).ceil() as i64;
+        let mut points: Vec<(f64, Vector3<f64>)> = Vec::new();
+        for i in -reach..=reach {
+            for j in -reach..=reach {
+                let p = Vector3::new(first[0] + i as f64 * sx, first[1] + j as f64 * sy, self.top);
+                let r = ((p.x - centre[0] - 0.5 * sx).powi(2)
+                    + (p.y - centre[1] - 0.5 * sy).powi(2))
+                .sqrt();
+                points.push((r, p));
+            }
+        }
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut table = Vec::new();
         let mut rhs = vec![0.0; system.n];
-        for k in 0..per_cell {
-            let t = k as f64 / per_cell as f64;
-            let rest = Vector3::new(centre[0] + t, centre[1] + t, self.top);
-            let stencil = Stencil::at(&rest);
+        let mut count = 4;
+        while count <= points.len() && points[count - 1].0 < 2.5 {
+            // Whole rings only.
+            while count < points.len() && points[count].0 - points[count - 1].0 < 1e-9 {
+                count += 1;
+            }
             rhs.fill(0.0);
-            for l in 0..27 {
-                if let Some(d) = self.local_at(&stencil.base, l) {
-                    rhs[3 * d + 2] = -stencil.weight(l);
+            let share = 1.0 / count as f64;
+            let stencils: Vec<Stencil> =
+                points[..count].iter().map(|p| Stencil::at(&p.1)).collect();
+            for st in &stencils {
+                for l in 0..27 {
+                    if let Some(d) = self.local_at(&st.base, l) {
+                        rhs[3 * d + 2] -= share * st.weight(l);
+                    }
                 }
             }
             system.solve(&mut rhs);
             let mut down = 0.0;
-            for l in 0..27 {
-                if let Some(d) = self.local_at(&stencil.base, l) {
-                    down -= stencil.weight(l) * rhs[3 * d + 2];
+            for st in &stencils {
+                for l in 0..27 {
+                    if let Some(d) = self.local_at(&st.base, l) {
+                        down -= share * st.weight(l) * rhs[3 * d + 2];
+                    }
                 }
             }
-            total += down;
+            let radius = (count as f64 * self.area / std::f64::consts::PI).sqrt();
+            table.push((radius, down));
+            count = ((count as f64 * 1.3).ceil() as usize).max(count + 1);
         }
         self.system = Some(system);
-        factored.then_some(total / per_cell as f64)
+        table
     }
 
     /// Replaces the tip points (see the module docs) by those of the current
@@ -160,11 +263,16 @@ impl Newton {
         }
         let mut change = 0.0f64;
         for (m, near) in nearest.iter().enumerate() {
+            // A tip stays for the rest of the substep once there, even where it has
+            // pressed the gel onto a lattice point (which would otherwise let the tip go,
+            // the gel spring back off the point, and the tip come back).
+            let before = old.iter().find(|c| c.index == count + m as u32);
             let tip = match near {
-                Some((_, rest)) if !touched[m] => self.find_tip(rest, &indenters[m]),
+                Some((_, rest)) if !touched[m] || before.is_some() => {
+                    self.find_tip(rest, &indenters[m])
+                }
                 _ => None,
             };
-            let before = old.iter().find(|c| c.index == count + m as u32);
             change = change.max(match (before, &tip) {
                 (None, None) => 0.0,
                 (Some(b), Some(t)) => (t.1 - b.weight).abs() / b.weight,
@@ -172,7 +280,22 @@ impl Newton {
             });
             if let Some((rest, weight)) = tip {
                 let stencil = Stencil::at(&rest);
-                let soft = self.patch_softness(weight);
+                // Lattice points near the tip that it has pressed onto its indenter share
+                // its patch (its samples cover them already).
+                let reach = PATCH_REACH * self.resolved_radius;
+                let shared: Vec<usize> = (0..self.contact.len())
+                    .filter(|&k| {
+                        let c = &self.contact[k];
+                        let x = c.rest + self.displacement(&c.stencil, &self.u);
+                        (c.rest - rest).norm() <= reach && self.distance_to(&x, &indenters[m]) < 0.0
+                    })
+                    .collect();
+                let soft = self.patch_softness(weight, weight + shared.len() as f64);
+                for k in shared {
+                    let c = &mut self.contact[k];
+                    change = change.max((soft - c.soft).abs() / c.soft);
+                    c.soft = soft;
+                }
                 self.contact.push(ContactPoint {
                     index: count + m as u32,
                     rest,
@@ -182,6 +305,7 @@ impl Newton {
                     soft,
                     weight,
                     tip: true,
+                    patched: true,
                 });
             }
         }
@@ -217,6 +341,38 @@ impl Newton {
         }
         let share = (inside as f64 / (TIP_SAMPLES * TIP_SAMPLES) as f64).clamp(0.0, 1.0);
         deepest.map(|(_, at)| (at, share))
+    }
+
+    /// The rigid footprint (in lattice points' shares of the face) over the lattice
+    /// elements around the contact points `members`, sampled [`TIP_SAMPLES`] times finer
+    /// than the lattice along each axis at the rest height, moved laterally with the gel.
+    fn fine_footprint(&self, members: &[usize], indenters: &[StepIndenter]) -> f64 {
+        let mut lo = Vector3::repeat(f64::INFINITY);
+        let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+        for &k in members {
+            let c = &self.contact[k];
+            let d = self.displacement(&c.stencil, &self.u);
+            let x = c.rest + Vector3::new(d.x, d.y, 0.0);
+            lo = lo.inf(&x);
+            hi = hi.sup(&x);
+        }
+        let step = [0, 1].map(|a| self.spacing[a] / TIP_SAMPLES as f64);
+        let counts = [0, 1].map(|a| ((hi[a] - lo[a]) / step[a]).round() as usize + 2 * TIP_SAMPLES);
+        let mut inside = 0usize;
+        for i in 0..=counts[0] {
+            for j in 0..=counts[1] {
+                let x = Vector3::new(
+                    lo.x - self.spacing[0] + i as f64 * step[0],
+                    lo.y - self.spacing[1] + j as f64 * step[1],
+                    lo.z,
+                );
+                if self.clearance(&x, indenters) < 0.0 {
+                    inside += 1;
+                }
+            }
+        }
+        (inside as f64 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
+            .max(1.0 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
     }
 
     /// Signed distance (cells) from the point at `x` (cells) to `indenter`; `+inf` outside
@@ -305,7 +461,16 @@ impl Newton {
                     }
                 }
             }
-            softs.push(self.patch_softness(list.len() as f64));
+            let n = list.len() as f64;
+            // A footprint of a few lattice points is measured finer: one lattice point
+            // stands for the whole of its share however little of it the indenter
+            // covers.
+            let area = if list.len() <= FINE_FOOTPRINT {
+                self.fine_footprint(&list, indenters)
+            } else {
+                n
+            };
+            softs.push(self.patch_softness(area, n));
         }
         // Every point takes its patch's factor, or that of a patch within reach (a point
         // just outside the footprint, where the gel bulges against the indenter).
@@ -315,26 +480,26 @@ impl Newton {
                 continue;
             }
             let soft = if patch[k] != usize::MAX {
-                softs[patch[k]]
+                Some(softs[patch[k]])
             } else {
                 window(c.index)
                     .map(|n| at[cell(n as u32)])
                     .find(|&j| j != usize::MAX && patch[j] != usize::MAX)
-                    .map_or(1.0, |j| softs[patch[j]])
+                    .map(|j| softs[patch[j]])
             };
+            self.contact[k].patched = soft.is_some();
+            let soft = soft.unwrap_or(1.0);
             self.contact[k].soft = soft;
             self.softness[self.contact[k].index as usize] = soft;
         }
     }
 
     /// The penalty factor of the points of a contact patch whose rigid footprint covers
-    /// `n` lattice points' shares of the face.
-    pub(super) fn patch_softness(&self, n: f64) -> f64 {
-        if !(self.resolved_radius > 0.0) {
-            return 1.0;
-        }
+    /// `n` lattice points' shares of the face, shared among points of `share` lattice
+    /// points' shares.
+    pub(super) fn patch_softness(&self, n: f64, share: f64) -> f64 {
         let radius = (n * self.area / std::f64::consts::PI).sqrt();
-        let compliance = (1.0 / radius - 1.0 / self.resolved_radius).max(0.0) / (2.0 * self.e_star);
-        1.0 / (1.0 + PENALTY * self.area * n * compliance)
+        let compliance = SERIES_SHARE * self.missing_compliance(radius);
+        1.0 / (1.0 + PENALTY * self.area * share * compliance)
     }
 }

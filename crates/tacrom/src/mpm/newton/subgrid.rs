@@ -249,13 +249,28 @@ impl Newton {
             }
         }
         let count = (self.lattice[0] * self.lattice[1]) as u32;
+        let had_tip = |m: usize| old.iter().any(|c| c.index == count + m as u32);
+        let positions: Vec<Vector3<f64>> = self
+            .contact
+            .iter()
+            .map(|c| c.rest + self.displacement(&c.stencil, &self.u))
+            .collect();
+        // An indenter that a lattice point touches needs no search (the common case: any
+        // contact the lattice resolves), unless it has a tip already.
+        let touched: Vec<bool> = (0..indenters.len())
+            .map(|m| {
+                positions
+                    .iter()
+                    .any(|x| self.distance_to(x, &indenters[m]) < 0.0)
+            })
+            .collect();
         let mut nearest: Vec<Option<(f64, Vector3<f64>)>> = vec![None; indenters.len()];
-        let mut touched = vec![false; indenters.len()];
-        for c in &self.contact {
-            let x = c.rest + self.displacement(&c.stencil, &self.u);
-            for (m, near) in nearest.iter_mut().enumerate() {
-                let d = self.distance_to(&x, &indenters[m]);
-                touched[m] |= d < 0.0;
+        for (m, near) in nearest.iter_mut().enumerate() {
+            if touched[m] && !had_tip(m) {
+                continue;
+            }
+            for (c, x) in self.contact.iter().zip(&positions) {
+                let d = self.distance_to(x, &indenters[m]);
                 if d.is_finite() && near.map_or(true, |(b, _)| d < b) {
                     *near = Some((d, c.rest));
                 }

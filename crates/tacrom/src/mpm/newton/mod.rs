@@ -346,13 +346,11 @@ pub(crate) struct Newton {
     /// Poisson's ratio ([`super::hertz::bonded_layer_slope`]).
     thickness: f64,
     layer_slope: f64,
-    /// The grid's resolved contact radius (cells; 0: no sub-grid compliance), and each
-    /// contact lattice point's penalty factor (see `subgrid.rs`).
+    /// The grid's resolved contact radius (cells; 0: no sub-grid compliance) and its
+    /// compliance under loaded discs of growing radius (cells) below it (see
+    /// `subgrid.rs`).
     resolved_radius: f64,
-    /// The grid's compliance under loaded discs of growing radius (cells) below the
-    /// resolved radius (see `subgrid.rs`).
     grid_compliance: Vec<(f64, f64)>,
-    softness: Vec<f64>,
 }
 
 impl Newton {
@@ -496,7 +494,6 @@ impl Newton {
             layer_slope: super::hertz::bonded_layer_slope(params.poisson as f64),
             resolved_radius: 0.0,
             grid_compliance: Vec::new(),
-            softness: vec![1.0; lattice[0] * lattice[1]],
         })
     }
 
@@ -517,7 +514,6 @@ impl Newton {
         self.u.fill(0.0);
         self.anchors.clear();
         self.lagged.fill((0.0, Vector3::z()));
-        self.softness.fill(1.0);
         self.loads.clear();
         self.last_scale = 0.0;
         self.last_change.clear();
@@ -853,7 +849,7 @@ impl Newton {
                     stencil: Stencil::at(&rest),
                     lag_force,
                     lag_normal,
-                    soft: self.softness[index as usize],
+                    soft: 1.0,
                     weight: 1.0,
                     tip: false,
                     patched: false,

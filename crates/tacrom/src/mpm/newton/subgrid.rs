@@ -505,7 +505,6 @@ impl Newton {
             self.contact[k].patched = soft.is_some();
             let soft = soft.unwrap_or(1.0);
             self.contact[k].soft = soft;
-            self.softness[self.contact[k].index as usize] = soft;
         }
     }
 

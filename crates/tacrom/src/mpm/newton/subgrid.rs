@@ -125,8 +125,9 @@ impl Newton {
     }
 
     /// The compliance a patch of contact radius `r` (cells) misses on this grid: the
-    /// layer's less the grid's (interpolated in the table; below its smallest disc the
-    /// grid's is that of a point load), zero from the resolved radius on.
+    /// layer's less the grid's (interpolated in the table; below its smallest disc, of
+    /// four lattice points, the grid's is that disc's: it levels off there), zero from the
+    /// resolved radius on.
     pub(super) fn missing_compliance(&self, r: f64) -> f64 {
         let table = &self.grid_compliance;
         if table.is_empty() || !(r < self.resolved_radius) || !(r > 0.0) {
@@ -179,7 +180,8 @@ impl Newton {
             return Vec::new();
         };
         let centre = [0.5 * (bx[0] + bx[1]) as f64, 0.5 * (bx[2] + bx[3]) as f64];
-        // Lattice points around the centre, nearest first (the lattice's own alignment).
+        // Lattice points around a point near the centre, nearest first: the discs are
+        // rings of whole lattice points.
         let [sx, sy] = self.spacing;
         let first = [
             self.first[0] + ((centre[0] - self.first[0]) / sx).floor() * sx,

@@ -10,7 +10,7 @@ use tacrom::config::{
     Config, RawConfig, ATTR_FRICTION, ATTR_OUTPUTS, ATTR_PHYSICS, ATTR_RESOLUTION, ATTR_SOLVER,
 };
 use tacrom::geometry::{Placed, Sphere};
-use tacrom::mpm::{Gel, GelParams, SolverOptions};
+use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 use tacrom::sensor::TactileSensor;
 
 /// A sphere of radius `r` over the origin pressed `d` into the undeformed face.
@@ -68,6 +68,25 @@ fn a_contact_between_the_contact_points_warns() {
     assert!(warnings.is_empty(), "{warnings:?}");
 }
 
+/// With no solver named, the coarse sensor solves a frame whose contact the relaxation
+/// misses by Newton's method (`SolverOptions::newton_fallback`): the 0.5 mm sphere pressed
+/// 0.3 mm gets the force of a sensor that names Newton, and no warning. A contact the
+/// relaxation carries keeps the relaxation's force.
+#[test]
+fn the_default_coarse_sensor_solves_a_missed_contact_by_newton() {
+    let small = sphere(0.5e-3, 0.3e-3);
+    let (force, warnings) = press(None, &small);
+    let (newton, _) = press(Some("newton"), &small);
+    assert!(force > 0.0, "{warnings:?}");
+    assert!(warnings.is_empty(), "{warnings:?}");
+    assert!(
+        (force - newton).abs() <= 1e-9 * newton,
+        "{force} against {newton}"
+    );
+    let big = sphere(5e-3, 0.3e-3);
+    assert_eq!(press(None, &big).0, press(Some("relaxation"), &big).0);
+}
+
 /// A 5 mm sphere pressed 0.3 mm meets the particles: a force and no warning. Pressed
 /// 0.02 mm over the middle of four top particles (0.714 mm apart), it touches none of
 /// them (it would need `s^2 / 4R` = 0.026 mm): no force, but a body this large only grazes
@@ -98,4 +117,46 @@ fn unloaded_penetration_measures_only_missed_contacts() {
     g.solve(&big);
     assert!(g.force().z > 0.0);
     assert_eq!(g.unloaded_penetration(&big), 0.0);
+}
+
+/// The fallback through a sequence: a 0.5 mm sphere pressed 0.1 to 0.4 mm, each frame
+/// missed by the relaxation, gives the forces of a Newton gel pressed the same way (the
+/// fallback's Newton state carries on from frame to frame); a 5 mm sphere 10 mm away is
+/// the relaxation's own frame; the small sphere after it starts Newton afresh, as on a
+/// new gel.
+#[test]
+fn the_fallback_follows_a_press_and_starts_afresh_after_the_relaxation() {
+    let params = GelParams {
+        friction: 0.0,
+        ..Default::default()
+    };
+    let fallback = SolverOptions {
+        newton_fallback: true,
+        ..Default::default()
+    };
+    let newton = SolverOptions {
+        solver: Solver::Newton,
+        ..Default::default()
+    };
+    let mut g = Gel::new(params, fallback).unwrap();
+    let mut n = Gel::new(params, newton).unwrap();
+    for d in [0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3] {
+        let rep = g.solve(&sphere(0.5e-3, d));
+        n.solve(&sphere(0.5e-3, d));
+        assert!(rep.newton_fallback && rep.converged, "{rep:?}");
+        let (a, b) = (g.force().z, n.force().z);
+        assert!(a > 0.0 && (a - b).abs() <= 1e-9 * b, "{d}: {a} against {b}");
+    }
+    let far = [Placed {
+        shape: Arc::new(Sphere::new(5e-3)),
+        pose: Isometry3::translation(10e-3, 0.0, 5e-3 - 0.3e-3),
+    }];
+    let rep = g.solve(&far);
+    assert!(!rep.newton_fallback && g.force().z > 0.0, "{rep:?}");
+    let mut fresh = Gel::new(params, newton).unwrap();
+    let rep = g.solve(&sphere(0.5e-3, 0.2e-3));
+    fresh.solve(&sphere(0.5e-3, 0.2e-3));
+    assert!(rep.newton_fallback, "{rep:?}");
+    let (a, b) = (g.force().z, fresh.force().z);
+    assert!((a - b).abs() <= 1e-9 * b, "{a} against {b}");
 }

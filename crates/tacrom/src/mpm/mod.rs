@@ -100,7 +100,7 @@ use indenters::match_indenters;
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 pub use params::{
     GelParams, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
-    AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN,
+    AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, MISSED_FRACTION,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
@@ -677,6 +677,22 @@ impl Gel {
         report.active_particles = self.ctx.region.particles(self.ctx.column_len);
         self.relax_material(&sweep, &mut report);
         self.finish(current, touching, repaired, &mut report);
+        if self.options.newton_fallback {
+            let spacing = self.contact_spacing(Solver::Relaxation);
+            if touching
+                && self.force == Vector3::zeros()
+                && self.unloaded_penetration(indenters) > MISSED_FRACTION * spacing
+            {
+                // The relaxation left the gel undeformed under a contact it cannot see;
+                // Newton's state carries on from its own last fallback frame, if any.
+                self.solve_newton(&sweep, &matched, &mut report);
+                report.newton_fallback = true;
+                self.resting = false;
+            } else if let Some(n) = self.newton.as_mut() {
+                // The relaxation carries this frame: a later fallback starts afresh.
+                n.reset();
+            }
+        }
         report
     }
 

@@ -115,7 +115,22 @@ pub struct SolverOptions {
     pub active_margin: f64,
     /// The equilibrium solver.
     pub solver: Solver,
+    /// With [`Solver::Relaxation`]: a frame whose contact the relaxation misses (no force
+    /// while an indenter reaches more than [`MISSED_FRACTION`] of the top particles'
+    /// spacing into the gel between them) is solved again by Newton's method, whose
+    /// contact lattice and sub-grid compliance carry it. What the sensor does for a
+    /// coarse gel whose configuration names no solver.
+    pub newton_fallback: bool,
 }
+
+/// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that
+/// carries no force has missed a contact that fell between its contact points (the
+/// sensor warns; [`SolverOptions::newton_fallback`] solves the frame again). A smooth
+/// body of radius `R` can sink `s^2 / 4R` between four points untouched (26 um for a 5 mm
+/// sphere on the coarse gel, where a ball landing on it reached 18 um for a step); 5 % of
+/// `s` (36 um there) stays silent for bodies of radius above 5 `s`, and catches a 0.5 mm
+/// sphere or a cone tip, which sink up to 0.25 mm untouched.
+pub const MISSED_FRACTION: f64 = 0.05;
 
 /// How [`Gel::solve`] finds the equilibrium.
 ///
@@ -177,6 +192,7 @@ impl Default for SolverOptions {
             fbar: true,
             active_margin: ACTIVE_MARGIN,
             solver: Solver::Relaxation,
+            newton_fallback: false,
         }
     }
 }
@@ -228,6 +244,9 @@ pub struct SolveReport {
     /// Newton solver: steps solved by conjugate gradients preconditioned with an earlier
     /// factorisation.
     pub reused: usize,
+    /// Whether the relaxation missed the contact and Newton's method solved the frame
+    /// ([`SolverOptions::newton_fallback`]).
+    pub newton_fallback: bool,
 }
 impl SolveReport {
     /// The report of a solve with `indenters` usable indenters that has not stepped yet.
@@ -245,6 +264,7 @@ impl SolveReport {
             active_particles: 0,
             factorisations: 0,
             reused: 0,
+            newton_fallback: false,
         }
     }
 }

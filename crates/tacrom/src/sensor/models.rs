@@ -7,16 +7,8 @@ use nalgebra::Vector3;
 use super::{Evaluation, Scene, SensorError};
 use crate::config::{material_name, Config, Physics};
 use crate::geometry::{PixelGrid, Placed};
-use crate::mpm::{Gel, GelParams, Solver, SolverOptions, Wrench};
+use crate::mpm::{Gel, GelParams, Solver, SolverOptions, Wrench, MISSED_FRACTION};
 use crate::rom::{Rom, RomOptions};
-
-/// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that
-/// carries no force warns that a contact fell between its contact points. A smooth body of
-/// radius `R` can sink `s^2 / 4R` between four points untouched (26 um for a 5 mm sphere on
-/// the coarse gel, where a ball landing on it reached 18 um for a step); 5 % of `s` (36
-/// um there) stays silent for bodies of radius above 5 `s`, and warns for a 0.5 mm sphere
-/// or a cone tip, which sink up to 0.25 mm untouched.
-const MISSED_FRACTION: f64 = 0.05;
 
 /// A model of the gel's surface.
 pub trait SurfaceModel: Send + std::fmt::Debug {
@@ -152,6 +144,9 @@ impl Mpm {
             // The solver the configuration names, or the gel's own choice; a
             // reduced-order model checks its recipe against this one.
             solver: config.solver.unwrap_or_else(|| Solver::automatic(&params)),
+            // A coarse gel whose configuration names no solver does not lose a contact
+            // smaller than its particles resolve: Newton's method solves such frames.
+            newton_fallback: config.solver.is_none() && config.physics == Physics::Coarse,
             ..SolverOptions::default()
         };
         Gel::validate(&params, &options).map_err(|e| SensorError::Physics {

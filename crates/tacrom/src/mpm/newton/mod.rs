@@ -51,8 +51,15 @@
 //! minimisation repeated, until their sum changes by less than the tolerance. Each frame starts from the previous
 //! equilibrium, moved on along the gel's last change when the indenters move on along
 //! their last path (a secant predictor, kept only if it lowers the energy); an indenter
-//! that moves more than [`SUBSTEP_CELLS`] cells is moved in equal substeps, each solved, so
-//! friction follows the path.
+//! that moves more than [`SUBSTEP_CELLS`] cells, or more than [`SUBSTEP_EXTENT`] of its
+//! smallest extent, is moved in equal substeps, each solved, so friction follows the path
+//! and a small body does not jump past the surface points it meets.
+//!
+//! Contact acts on the top surface only: a body pressed deeper than its own radius can
+//! take surface points around itself (they are pushed out along the nearest distance,
+//! which past its centre points up), so its force drops to zero or below. A 0.3 mm
+//! sphere pressed 0.5 to 0.8 mm into the coarse gel shows it, before the sub-grid
+//! compliance as after; bodies pressed less than their radius are not affected.
 
 mod energy;
 mod subgrid;
@@ -89,6 +96,12 @@ const CULL_CELLS: f64 = 2.0 * SUBSTEP_CELLS;
 
 /// Largest indenter motion (cells) solved in one go.
 pub(crate) const SUBSTEP_CELLS: f64 = 1.0;
+
+/// Largest indenter motion per substep, as a fraction of the indenter's smallest extent.
+const SUBSTEP_EXTENT: f64 = 0.25;
+
+/// Substeps per solve at most.
+const MAX_SUBSTEPS: usize = 64;
 
 /// Newton steps per minimisation at most.
 const MAX_NEWTON: usize = 60;
@@ -346,6 +359,9 @@ pub(crate) struct Newton {
     /// Poisson's ratio ([`super::hertz::bonded_layer_slope`]).
     thickness: f64,
     layer_slope: f64,
+    /// Per indenter of the current substep: the depth (cells) up to which a softened
+    /// contact point's spring acts ([`Self::normal_penalty`]).
+    soft_depth: Vec<f64>,
     /// The grid's resolved contact radius (cells; 0: no sub-grid compliance) and its
     /// compliance under loaded discs of growing radius (cells) below it (see
     /// `subgrid.rs`).
@@ -494,6 +510,7 @@ impl Newton {
             layer_slope: super::hertz::bonded_layer_slope(params.poisson as f64),
             resolved_radius: 0.0,
             grid_compliance: Vec::new(),
+            soft_depth: Vec::new(),
         })
     }
 
@@ -948,8 +965,8 @@ impl Newton {
             stiffness: Matrix3::zeros(),
         };
         if let Some(t) = self.touch(x, indenters) {
-            let (e, f, k) = penalty(t.gap);
-            let a = self.area * c.weight * c.soft;
+            let (e, f, k) = self.normal_penalty(c, &t);
+            let a = self.area * c.weight;
             term.energy += a * e;
             term.gradient -= t.slope * (a * f);
             term.stiffness += t.slope * t.slope.transpose() * (a * k);
@@ -969,6 +986,35 @@ impl Newton {
             }
         }
         term
+    }
+
+    /// The penalty's energy, force and stiffness per unit area of contact point `c` at
+    /// `t`: [`penalty`] times the point's factor, which a patch smaller than the grid
+    /// resolves sets below 1 (see `subgrid.rs`). Its softer spring stands for the surface
+    /// deflection the grid misses, not for a penetration, so it acts only up to
+    /// [`SUBSTEP_EXTENT`] of the indenter's smallest extent; deeper, the full penalty
+    /// holds the point (a small body pressed past its radius would otherwise take the
+    /// surface points past its centre, and the distance push them out through its far
+    /// side).
+    fn normal_penalty(&self, c: &ContactPoint, t: &Touch) -> (f64, f64, f64) {
+        if c.soft >= 1.0 {
+            return penalty(t.gap);
+        }
+        let s = c.soft;
+        let cap = self
+            .soft_depth
+            .get(t.indenter)
+            .copied()
+            .unwrap_or(f64::INFINITY);
+        if t.gap <= cap {
+            let (e, f, k) = penalty(t.gap);
+            (s * e, s * f, s * k)
+        } else {
+            let h = t.gap - cap;
+            let (e, f, _) = penalty(cap);
+            let (eh, fh, k) = penalty(h);
+            (s * (e + f * h) + eh, s * f + fh, k)
+        }
     }
 
     /// The tangential offset from a point at `x` to its anchor (its length and the offset),
@@ -1324,7 +1370,10 @@ impl Newton {
                             },
                         );
                     }
-                    (self.area * c.weight * c.soft * penalty(t.gap).1, t.normal)
+                    (
+                        self.area * c.weight * self.normal_penalty(c, &t).1,
+                        t.normal,
+                    )
                 }
                 None => (0.0, c.lag_normal),
             };
@@ -1410,6 +1459,13 @@ impl Newton {
             .collect();
         let start = self.u.clone();
         self.predict(&motion, indenters);
+        self.soft_depth = indenters
+            .iter()
+            .map(|i| {
+                let b = i.shape.aabb();
+                SUBSTEP_EXTENT * (b.max - b.min).min() / self.dx
+            })
+            .collect();
         self.update_patches(indenters);
         let mut residual = self.minimise(indenters, tolerance, report)?;
         if self.restore_culled(indenters) {
@@ -1561,7 +1617,24 @@ impl Gel {
         newton.remap(matched);
         newton.history.clear();
         let motion = sweep.steps as f64 * self.options.sweep_rate;
-        let substeps = ((motion / SUBSTEP_CELLS).ceil() as usize).clamp(1, 64);
+        // A substep moves an indenter by at most a cell, and by at most a quarter of its
+        // smallest extent: a small body moved by more than its radius in one go would
+        // carry the surface points it met past its centre, where the distance pushes
+        // them out through its far side.
+        let smallest = sweep
+            .indenters
+            .iter()
+            .map(|p| {
+                let b = p.shape.aabb();
+                (b.max - b.min).min() / dx
+            })
+            .fold(f64::INFINITY, f64::min);
+        let step = SUBSTEP_CELLS.min(SUBSTEP_EXTENT * smallest);
+        let substeps = if step > 0.0 {
+            ((motion / step).ceil() as usize).clamp(1, MAX_SUBSTEPS)
+        } else {
+            1
+        };
         let plan = Sweep {
             indenters: sweep.indenters.clone(),
             starts: sweep.starts.clone(),

@@ -57,6 +57,18 @@ fn energy_decreases_and_the_returned_gradient_is_below_tolerance() {
     }
 }
 
+/// Each force of `loose` within `relative` of the same in `tight` (runs with friction
+/// coefficient `friction`).
+fn forces_agree(loose: &[Vector3<f64>], tight: &[Vector3<f64>], relative: f64, friction: f64) {
+    assert_eq!(loose.len(), tight.len());
+    for (a, b) in loose.iter().zip(tight) {
+        assert!(
+            (a - b).norm() <= relative * b.norm(),
+            "friction {friction}: {a} against {b}"
+        );
+    }
+}
+
 /// The force at the default tolerance (1e-3) is within 0.5 % of a tight solve (1e-6),
 /// without and with friction (a press and then a slide).
 #[test]
@@ -73,13 +85,7 @@ fn default_tolerance_agrees_with_a_tight_solve() {
             }
             out
         };
-        let (loose, tight) = (run(1e-3), run(1e-6));
-        for (a, b) in loose.iter().zip(&tight) {
-            assert!(
-                (a - b).norm() <= 5e-3 * b.norm(),
-                "friction {friction}: {a} against {b}"
-            );
-        }
+        forces_agree(&run(1e-3), &run(1e-6), 5e-3, friction);
     }
 }
 
@@ -428,12 +434,6 @@ fn small_contacts_at_the_default_tolerance_agree_with_a_tight_solve() {
             }
             out
         };
-        let (loose, tight) = (run(1e-3), run(1e-6));
-        for (a, b) in loose.iter().zip(&tight) {
-            assert!(
-                (a - b).norm() <= 5e-3 * b.norm(),
-                "friction {friction}: {a} against {b}"
-            );
-        }
+        forces_agree(&run(1e-3), &run(1e-6), 5e-3, friction);
     }
 }

@@ -51,9 +51,9 @@
 //! minimisation repeated, until their sum changes by less than the tolerance. Each frame starts from the previous
 //! equilibrium, moved on along the gel's last change when the indenters move on along
 //! their last path (a secant predictor, kept only if it lowers the energy); an indenter
-//! that moves more than [`SUBSTEP_CELLS`] cells, or more than [`SUBSTEP_EXTENT`] of its
-//! smallest extent, is moved in equal substeps, each solved, so friction follows the path
-//! and a small body does not jump past the surface points it meets.
+//! that moves more than [`SUBSTEP_CELLS`] cells (a body smaller than [`SMALL_BODY_CELLS`]
+//! in every direction: more than [`SOFT_EXTENT`] of its size) is moved in equal substeps,
+//! each solved, so friction follows the path.
 //!
 //! Contact acts on the top surface only: a body pressed deeper than its own radius can
 //! take surface points around itself (they are pushed out along the nearest distance,
@@ -97,11 +97,14 @@ const CULL_CELLS: f64 = 2.0 * SUBSTEP_CELLS;
 /// Largest indenter motion (cells) solved in one go.
 pub(crate) const SUBSTEP_CELLS: f64 = 1.0;
 
-/// Largest indenter motion per substep, as a fraction of the indenter's smallest extent.
-const SUBSTEP_EXTENT: f64 = 0.25;
+/// Depth up to which a softened contact point's spring acts, as a fraction of its
+/// indenter's smallest extent ([`Newton::normal_penalty`]), and the largest motion per
+/// substep of a small body ([`SMALL_BODY_CELLS`]) in the same measure.
+const SOFT_EXTENT: f64 = 0.25;
 
-/// Substeps per solve at most.
-const MAX_SUBSTEPS: usize = 64;
+/// Bodies whose every extent is below this (cells) move in substeps of at most
+/// [`SOFT_EXTENT`] of their smallest extent.
+const SMALL_BODY_CELLS: f64 = 2.0;
 
 /// Newton steps per minimisation at most.
 const MAX_NEWTON: usize = 60;
@@ -992,7 +995,7 @@ impl Newton {
     /// `t`: [`penalty`] times the point's factor, which a patch smaller than the grid
     /// resolves sets below 1 (see `subgrid.rs`). Its softer spring stands for the surface
     /// deflection the grid misses, not for a penetration, so it acts only up to
-    /// [`SUBSTEP_EXTENT`] of the indenter's smallest extent; deeper, the full penalty
+    /// [`SOFT_EXTENT`] of the indenter's smallest extent; deeper, the full penalty
     /// holds the point (a small body pressed past its radius would otherwise take the
     /// surface points past its centre, and the distance push them out through its far
     /// side).
@@ -1463,7 +1466,7 @@ impl Newton {
             .iter()
             .map(|i| {
                 let b = i.shape.aabb();
-                SUBSTEP_EXTENT * (b.max - b.min).min() / self.dx
+                SOFT_EXTENT * (b.max - b.min).min() / self.dx
             })
             .collect();
         self.update_patches(indenters);
@@ -1617,21 +1620,25 @@ impl Gel {
         newton.remap(matched);
         newton.history.clear();
         let motion = sweep.steps as f64 * self.options.sweep_rate;
-        // A substep moves an indenter by at most a cell, and by at most a quarter of its
-        // smallest extent: a small body moved by more than its radius in one go would
-        // carry the surface points it met past its centre, where the distance pushes
-        // them out through its far side.
-        let smallest = sweep
+        // A body smaller than a couple of cells in every direction moves by at most
+        // [`SOFT_EXTENT`] of its size per substep: moved past its radius in one go, it
+        // would carry the surface points it met past its centre, where the distance
+        // pushes them out through its far side.
+        let step = sweep
             .indenters
             .iter()
             .map(|p| {
                 let b = p.shape.aabb();
-                (b.max - b.min).min() / dx
+                let extent = (b.max - b.min) / dx;
+                if extent.max() < SMALL_BODY_CELLS {
+                    SOFT_EXTENT * extent.min()
+                } else {
+                    SUBSTEP_CELLS
+                }
             })
-            .fold(f64::INFINITY, f64::min);
-        let step = SUBSTEP_CELLS.min(SUBSTEP_EXTENT * smallest);
+            .fold(SUBSTEP_CELLS, f64::min);
         let substeps = if step > 0.0 {
-            ((motion / step).ceil() as usize).clamp(1, MAX_SUBSTEPS)
+            ((motion / step).ceil() as usize).clamp(1, 64)
         } else {
             1
         };

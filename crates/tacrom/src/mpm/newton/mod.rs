@@ -257,8 +257,6 @@ struct ContactPoint {
     weight: f64,
     /// Whether it is a tip point.
     tip: bool,
-    /// Whether its penalty factor is its patch's (see `subgrid.rs`).
-    patched: bool,
 }
 
 /// One contact point's contact and friction terms (see [`Newton::contact_term`]).
@@ -872,7 +870,6 @@ impl Newton {
                     soft: 1.0,
                     weight: 1.0,
                     tip: false,
-                    patched: false,
                 }
             })
             .collect();
@@ -1464,10 +1461,7 @@ impl Newton {
         self.predict(&motion, indenters);
         self.soft_depth = indenters
             .iter()
-            .map(|i| {
-                let b = i.shape.aabb();
-                SOFT_EXTENT * (b.max - b.min).min() / self.dx
-            })
+            .map(|i| SOFT_EXTENT * extent_cells(i.shape.as_ref(), self.dx).min())
             .collect();
         self.update_patches(indenters);
         let mut residual = self.minimise(indenters, tolerance, report)?;
@@ -1580,6 +1574,12 @@ fn contains(b: &Aabb, p: &Point3<f64>) -> bool {
 /// The contact penalty's energy per unit area, pressure and stiffness at penetration `g`
 /// (cells).
 #[inline]
+/// The extents of `shape`'s bounding box (cells of `dx`).
+fn extent_cells(shape: &dyn Sdf, dx: f64) -> Vector3<f64> {
+    let b = shape.aabb();
+    (b.max - b.min) / dx
+}
+
 fn penalty(g: f64) -> (f64, f64, f64) {
     (0.5 * PENALTY * g * g, PENALTY * g, PENALTY)
 }
@@ -1628,8 +1628,7 @@ impl Gel {
             .indenters
             .iter()
             .map(|p| {
-                let b = p.shape.aabb();
-                let extent = (b.max - b.min) / dx;
+                let extent = extent_cells(p.shape.as_ref(), dx);
                 if extent.max() < SMALL_BODY_CELLS {
                     SOFT_EXTENT * extent.min()
                 } else {

@@ -252,19 +252,24 @@ impl Newton {
         }
         let count = (self.lattice[0] * self.lattice[1]) as u32;
         let had_tip = |m: usize| old.iter().any(|c| c.index == count + m as u32);
+        // An indenter that a lattice point touches needs no search (the common case: any
+        // contact the lattice resolves), unless it has a tip already.
+        let touched: Vec<bool> = indenters
+            .iter()
+            .map(|ind| {
+                self.contact.iter().any(|c| {
+                    let x = c.rest + self.displacement(&c.stencil, &self.u);
+                    self.distance_to(&x, ind) < 0.0
+                })
+            })
+            .collect();
+        if old.is_empty() && touched.iter().all(|&t| t) {
+            return 0.0;
+        }
         let positions: Vec<Vector3<f64>> = self
             .contact
             .iter()
             .map(|c| c.rest + self.displacement(&c.stencil, &self.u))
-            .collect();
-        // An indenter that a lattice point touches needs no search (the common case: any
-        // contact the lattice resolves), unless it has a tip already.
-        let touched: Vec<bool> = (0..indenters.len())
-            .map(|m| {
-                positions
-                    .iter()
-                    .any(|x| self.distance_to(x, &indenters[m]) < 0.0)
-            })
             .collect();
         let mut nearest: Vec<Option<(f64, Vector3<f64>)>> = vec![None; indenters.len()];
         for (m, near) in nearest.iter_mut().enumerate() {
@@ -300,11 +305,10 @@ impl Newton {
                 // Lattice points near the tip that it has pressed onto its indenter share
                 // its patch (its samples cover them already).
                 let reach = PATCH_REACH * self.resolved_radius;
-                let shared: Vec<usize> = (0..self.contact.len())
+                let shared: Vec<usize> = (0..positions.len())
                     .filter(|&k| {
-                        let c = &self.contact[k];
-                        let x = c.rest + self.displacement(&c.stencil, &self.u);
-                        (c.rest - rest).norm() <= reach && self.distance_to(&x, &indenters[m]) < 0.0
+                        (self.contact[k].rest - rest).norm() <= reach
+                            && self.distance_to(&positions[k], &indenters[m]) < 0.0
                     })
                     .collect();
                 let soft = self.patch_softness(weight, weight + shared.len() as f64);
@@ -322,47 +326,58 @@ impl Newton {
                     soft,
                     weight,
                     tip: true,
-                    patched: true,
                 });
             }
         }
         change
     }
 
+    /// Surface positions [`TIP_SAMPLES`] times finer than the contact lattice along each
+    /// axis, over the box from `lo` to `hi` (cells) grown by a lattice spacing, at `lo`'s
+    /// height; and the face share (in lattice points) that each stands for.
+    fn samples(&self, lo: Vector3<f64>, hi: Vector3<f64>) -> (Vec<Vector3<f64>>, f64) {
+        let step = [0, 1].map(|a| self.spacing[a] / TIP_SAMPLES as f64);
+        let counts = [0, 1].map(|a| ((hi[a] - lo[a]) / step[a]).round() as usize + 2 * TIP_SAMPLES);
+        let mut out = Vec::with_capacity((counts[0] + 1) * (counts[1] + 1));
+        for i in 0..=counts[0] {
+            for j in 0..=counts[1] {
+                out.push(Vector3::new(
+                    lo.x - self.spacing[0] + i as f64 * step[0],
+                    lo.y - self.spacing[1] + j as f64 * step[1],
+                    lo.z,
+                ));
+            }
+        }
+        (out, 1.0 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
+    }
+
     /// The deepest penetrating rest position among the samples of the four lattice
-    /// elements around the lattice point at `rest`, and the samples' penetrating share
-    /// of one lattice point's face (at least one sample's).
+    /// elements around the lattice point at `rest` (each displaced with the gel), and the
+    /// samples' penetrating share of one lattice point's face.
     fn find_tip(
         &self,
         rest: &Vector3<f64>,
         indenter: &StepIndenter,
     ) -> Option<(Vector3<f64>, f64)> {
-        let n = 2 * TIP_SAMPLES;
+        let (samples, share) = self.samples(*rest, *rest);
         let mut deepest: Option<(f64, Vector3<f64>)> = None;
         let mut inside = 0usize;
-        for i in 0..=n {
-            for j in 0..=n {
-                let offset = |k: usize, axis: usize| {
-                    (k as f64 / TIP_SAMPLES as f64 - 1.0) * self.spacing[axis]
-                };
-                let at = rest + Vector3::new(offset(i, 0), offset(j, 1), 0.0);
-                let x = at + self.displacement(&Stencil::at(&at), &self.u);
-                let d = self.distance_to(&x, indenter);
-                if d < 0.0 {
-                    inside += 1;
-                    if deepest.map_or(true, |(b, _)| d < b) {
-                        deepest = Some((d, at));
-                    }
+        for at in samples {
+            let x = at + self.displacement(&Stencil::at(&at), &self.u);
+            let d = self.distance_to(&x, indenter);
+            if d < 0.0 {
+                inside += 1;
+                if deepest.map_or(true, |(b, _)| d < b) {
+                    deepest = Some((d, at));
                 }
             }
         }
-        let share = (inside as f64 / (TIP_SAMPLES * TIP_SAMPLES) as f64).clamp(0.0, 1.0);
-        deepest.map(|(_, at)| (at, share))
+        deepest.map(|(_, at)| (at, (inside as f64 * share).min(1.0)))
     }
 
     /// The rigid footprint (in lattice points' shares of the face) over the lattice
-    /// elements around the contact points `members`, sampled [`TIP_SAMPLES`] times finer
-    /// than the lattice along each axis at the rest height, moved laterally with the gel.
+    /// elements around the contact points `members`, sampled at the rest height, moved
+    /// laterally with the gel (at least one sample's share).
     fn fine_footprint(&self, members: &[usize], indenters: &[StepIndenter]) -> f64 {
         let mut lo = Vector3::repeat(f64::INFINITY);
         let mut hi = Vector3::repeat(f64::NEG_INFINITY);
@@ -373,23 +388,12 @@ impl Newton {
             lo = lo.inf(&x);
             hi = hi.sup(&x);
         }
-        let step = [0, 1].map(|a| self.spacing[a] / TIP_SAMPLES as f64);
-        let counts = [0, 1].map(|a| ((hi[a] - lo[a]) / step[a]).round() as usize + 2 * TIP_SAMPLES);
-        let mut inside = 0usize;
-        for i in 0..=counts[0] {
-            for j in 0..=counts[1] {
-                let x = Vector3::new(
-                    lo.x - self.spacing[0] + i as f64 * step[0],
-                    lo.y - self.spacing[1] + j as f64 * step[1],
-                    lo.z,
-                );
-                if self.clearance(&x, indenters) < 0.0 {
-                    inside += 1;
-                }
-            }
-        }
-        (inside as f64 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
-            .max(1.0 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
+        let (samples, share) = self.samples(lo, hi);
+        let inside = samples
+            .iter()
+            .filter(|x| self.clearance(x, indenters) < 0.0)
+            .count();
+        (inside as f64 * share).max(share)
     }
 
     /// Signed distance (cells) from the point at `x` (cells) to `indenter`; `+inf` outside
@@ -497,15 +501,13 @@ impl Newton {
                 continue;
             }
             let soft = if patch[k] != usize::MAX {
-                Some(softs[patch[k]])
+                softs[patch[k]]
             } else {
                 window(c.index)
                     .map(|n| at[cell(n as u32)])
                     .find(|&j| j != usize::MAX && patch[j] != usize::MAX)
-                    .map(|j| softs[patch[j]])
+                    .map_or(1.0, |j| softs[patch[j]])
             };
-            self.contact[k].patched = soft.is_some();
-            let soft = soft.unwrap_or(1.0);
             self.contact[k].soft = soft;
         }
     }

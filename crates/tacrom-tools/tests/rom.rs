@@ -102,18 +102,16 @@ fn shipped_model_loads_and_outputs_have_the_manifests_shapes() {
         .and_then(|t| t.get("held_out"))
         .is_some());
     // The default gel matches; another gel is refused with a clear message.
-    m.check_gel([0.03, 0.03, 0.004], 1.19e5, 0.43, 0.5).unwrap();
-    let e = m
-        .check_gel([0.03, 0.03, 0.005], 1.19e5, 0.43, 0.5)
-        .unwrap_err();
+    m.check_gel([0.03, 0.03, 0.004], 0.43, 0.5).unwrap();
+    let e = m.check_gel([0.03, 0.03, 0.005], 0.43, 0.5).unwrap_err();
     assert!(
         matches!(e, RomError::Mismatch { .. }) && e.to_string().contains("gel size"),
         "{e}"
     );
-    let e = m
-        .check_gel([0.03, 0.03, 0.004], 2e5, 0.43, 0.5)
-        .unwrap_err();
-    assert!(e.to_string().contains("Young"), "{e}");
+    let e = m.check_gel([0.03, 0.03, 0.004], 0.3, 0.5).unwrap_err();
+    assert!(e.to_string().contains("Poisson"), "{e}");
+    let e = m.check_gel([0.03, 0.03, 0.004], 0.43, 1.0).unwrap_err();
+    assert!(e.to_string().contains("friction"), "{e}");
 }
 
 #[test]

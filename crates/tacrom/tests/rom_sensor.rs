@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use nalgebra::Isometry3;
 use tacrom::config::{
-    Config, RawConfig, ATTR_MATERIAL, ATTR_MODEL, ATTR_PHYSICS, ATTR_RESOLUTION, ATTR_SIZE,
-    ATTR_SOLVER, ATTR_TOLERANCE,
+    Config, RawConfig, ATTR_MATERIAL, ATTR_MODEL, ATTR_OUTPUTS, ATTR_PHYSICS, ATTR_RESOLUTION,
+    ATTR_SIZE, ATTR_SOLVER, ATTR_TOLERANCE, ATTR_YOUNG,
 };
 use tacrom::geometry::{Placed, Sphere};
 use tacrom::sensor::TactileSensor;
@@ -30,6 +30,45 @@ fn rom_is_the_default_physics_and_presses_a_sphere() {
     let peak = out.iter().cloned().fold(0.0, f64::max);
     assert!((peak - 0.5e-3).abs() < 0.05e-3, "peak {peak}");
     assert!(out.iter().all(|d| d.is_finite() && *d >= 0.0));
+}
+
+/// The shipped model serves any Young's modulus: the coarse depth it reads does not depend
+/// on it (the gel's equilibrium under imposed poses is homogeneous in the moduli), so a
+/// gel 20 times softer or stiffer gives the same image bit for bit and the force scaled
+/// by the ratio (to round-off).
+#[test]
+fn rom_serves_any_young_modulus_with_the_force_scaled() {
+    let run = |young: &str| {
+        let raw = RawConfig::default()
+            .with(ATTR_RESOLUTION, "80 60")
+            .with(ATTR_OUTPUTS, "depth force")
+            .with(ATTR_YOUNG, young);
+        let config = Config::from_raw("touch", &raw).unwrap();
+        let mut out = vec![0.0; config.sensordata_len()];
+        let mut sensor = TactileSensor::new(config).unwrap();
+        let ball: Arc<dyn tacrom::geometry::Sdf> = Arc::new(Sphere::new(0.005));
+        for (x, d) in [(0.0, 0.3e-3), (0.5e-3, 0.6e-3)] {
+            let placed = [Placed {
+                shape: ball.clone(),
+                pose: Isometry3::translation(x, 0.0, 0.005 - d),
+            }];
+            let eval = sensor.evaluate(&placed, &mut out);
+            assert!(eval.rom.is_some(), "E = {young}: {:?}", eval.warnings);
+        }
+        out.truncate(80 * 60);
+        (out, sensor.force())
+    };
+    let (image, force) = run("1.19e5");
+    assert!(force.z > 0.01, "{force:?}");
+    for (young, k) in [("5950", 0.05), ("2.38e6", 20.0)] {
+        let (other, f) = run(young);
+        assert_eq!(other, image, "E = {young} Pa: the image differs");
+        assert!(
+            (f / k - force).norm() <= 1e-9 * force.norm(),
+            "E = {young} Pa: force {f:?}, expected {:?}",
+            force * k
+        );
+    }
 }
 
 #[test]

@@ -59,6 +59,14 @@ pub struct MethodRow {
     pub infer_s: f64,
     /// Depth MAE per family (m), in [`EvalResult::families`] order.
     pub per_family: Vec<f64>,
+    /// Mean L-BFGS steps of the latent refinement per press (models only).
+    pub steps: f64,
+    /// Mean over the presses of how far the decoded surface lay inside the indenters, at
+    /// its worst point, before the depth rule raised it (m; models only).
+    pub into_indenter: f64,
+    /// Mean over the presses of how far the decoded surface sank below the deepest
+    /// indenter point before the depth rule capped it (m; models only).
+    pub below_reach: f64,
 }
 
 /// The evaluation's result.
@@ -238,6 +246,9 @@ impl Acc {
         let k = samples.max(1) as f64;
         self.row.mae /= k;
         self.row.rmse /= k;
+        self.row.steps /= k;
+        self.row.into_indenter /= k;
+        self.row.below_reach /= k;
         self.row.ssim = if self.ssim_n > 0 {
             self.row.ssim / self.ssim_n as f64
         } else {
@@ -348,9 +359,13 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
         let mut acc = Acc::new(&label, names.len());
         for (s, &f) in samples.iter().zip(&fam) {
             let t0 = Instant::now();
-            rom.infer(&s.obs)
+            let report = rom
+                .infer(&s.obs)
                 .map_err(|e| BenchError::Config(e.to_string()))?;
             acc.times.push(t0.elapsed().as_secs_f64());
+            acc.row.steps += report.refinement.map_or(0, |r| r.iterations) as f64;
+            acc.row.into_indenter += report.penetration_excess;
+            acc.row.below_reach += report.bound_excess.max(0.0);
             acc.add(score(&spec, rom.lattice_depth(), &s.reference), f);
             bar.advance(1);
         }
@@ -400,9 +415,10 @@ pub fn markdown(r: &EvalResult) -> String {
     );
     let _ = writeln!(
         s,
-        "| method | MAE um | RMSE um | SSIM | MAE / coarse | inference ms |"
+        "| method | MAE um | RMSE um | SSIM | MAE / coarse | inference ms | refinement steps | \
+         into the indenter um | below the deepest point um |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
     let coarse = r
         .rows
         .iter()
@@ -411,13 +427,23 @@ pub fn markdown(r: &EvalResult) -> String {
     for m in &r.rows {
         let _ = writeln!(
             s,
-            "| {} | {:.2} | {:.2} | {:.4} | {:.2} | {:.1} |",
+            "| {} | {:.2} | {:.2} | {:.4} | {:.2} | {:.1} | {} |",
             m.label,
             m.mae * 1e6,
             m.rmse * 1e6,
             m.ssim,
             m.mae / coarse,
-            m.infer_s * 1e3
+            m.infer_s * 1e3,
+            if m.infer_s > 0.0 {
+                format!(
+                    "{:.1} | {:.2} | {:.2}",
+                    m.steps,
+                    m.into_indenter * 1e6,
+                    m.below_reach * 1e6
+                )
+            } else {
+                "- | - | -".to_owned()
+            }
         );
     }
     let _ = write!(s, "\nMAE um per family:\n\n| family | samples |");

@@ -913,3 +913,51 @@ fn the_relaxation_predictor_remembers_the_whole_change_and_not_the_noise() {
     assert!(rep.converged, "{rep:?}");
     assert!(g.last_change.is_empty() && g.last_motion.is_empty());
 }
+
+// Quasi-static equilibrium under imposed indenter poses is homogeneous of degree one in the
+// elastic moduli (the contact penalty and the tolerances are scaled by them): the
+// displacement field cannot depend on Young's modulus, and every force scales with it.
+#[test]
+fn depth_does_not_depend_on_young_modulus_and_force_scales_with_it() {
+    let grid = PixelGrid {
+        width: 64,
+        height: 48,
+        fov_x: 0.024,
+        fov_y: 0.018,
+    };
+    let run = |young: f64| {
+        let mut g = gel(
+            GelParams {
+                young,
+                ..Default::default()
+            },
+            SolverOptions::default(),
+        );
+        for (x, d) in [(0.0, 0.3e-3), (0.2e-3, 0.5e-3)] {
+            assert!(g.solve(&[press(x, 0.0, d)]).converged);
+        }
+        (depth_image(&g, &grid), g.force())
+    };
+    let (d0, f0) = run(1.19e5);
+    for k in [0.1, 10.0] {
+        let (d1, f1) = run(1.19e5 * k);
+        let peak = d0.iter().fold(0.0f64, |m, v| m.max(*v));
+        let worst = d0
+            .iter()
+            .zip(&d1)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        println!(
+            "E x {k}: depth differs by {:.3e} of the peak; force ratio {:?}",
+            worst / peak,
+            f1 / k - f0
+        );
+        assert!(
+            worst <= 1e-6 * peak,
+            "E x {k}: depth differs by {worst:e} m"
+        );
+        assert!(
+            (f1 / k - f0).norm() <= 1e-6 * f0.norm(),
+            "E x {k}: {f1:?} vs {f0:?}"
+        );
+    }
+}

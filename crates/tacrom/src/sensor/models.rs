@@ -397,7 +397,7 @@ fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
     )
     .map_err(in_dir)?;
     let m = rom.manifest();
-    m.check_gel(config.size, config.young, config.poisson, config.friction)
+    m.check_gel(config.size, config.poisson, config.friction)
         .map_err(in_dir)?;
     m.check_recipe(
         dx,

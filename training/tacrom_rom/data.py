@@ -27,6 +27,21 @@ class Spec:
     patch: int = 5
     patch_step: int = 2
     depth_scale: float = 1000.0
+    # {"poisson": [lo, hi], "friction": [lo, hi]} for a model conditioned on the gel's
+    # material (two inputs appended to the encoder input and to every query); None otherwise.
+    conditioning: dict | None = None
+
+    @property
+    def material_inputs(self):
+        return 2 if self.conditioning else 0
+
+    def material(self, poisson, friction):
+        """The two material inputs (Conditioning::inputs in src/rom/features.rs): each value
+        mapped linearly from its range onto [-1, 1] (0 for a range of one value)."""
+        out = []
+        for (lo, hi), v in ((self.conditioning["poisson"], poisson), (self.conditioning["friction"], friction)):
+            out.append((2.0 * v - lo - hi) / (hi - lo) if hi > lo else 0.0)
+        return out
 
     @property
     def pitch(self):
@@ -43,11 +58,11 @@ class Spec:
     @property
     def encoder_len(self):
         r, c = self.encoder_dims()
-        return 2 * r * c
+        return 2 * r * c + self.material_inputs
 
     @property
     def query_len(self):
-        return 2 + 2 * self.patch * self.patch
+        return 2 + 2 * self.patch * self.patch + self.material_inputs
 
     @property
     def coarse_index(self):
@@ -58,12 +73,23 @@ class Spec:
                     patch=self.patch, patch_step=self.patch_step, depth_scale=self.depth_scale)
 
 
+def conditioning_of(ds):
+    """The material ranges of a data set that draws Poisson's ratio or friction per sample
+    (gen-data --poisson LO,HI / --friction LO,HI), else None."""
+    if "poisson_range" not in ds and "friction_range" not in ds:
+        return None
+    return {"poisson": list(ds.get("poisson_range") or [ds["poisson"]] * 2),
+            "friction": list(ds.get("friction_range") or [ds["friction"]] * 2)}
+
+
 def load_dir(path, drop_unconverged=True):
-    """(spec, dataset meta, arrays [S, 3, ny, nx] in model units, list of sample metas)."""
+    """(spec, dataset meta, arrays [S, C, ny, nx] in model units, list of sample metas).
+    C is 3 (coarse, penetration, reference), and 5 for a data set with per-sample materials:
+    two constant channels of material inputs (Spec.material) follow."""
     with open(os.path.join(path, "dataset.json")) as f:
         ds = json.load(f)
     ny, nx = ds["lattice"]
-    spec = Spec(size=tuple(ds["size"]), nx=nx, ny=ny)
+    spec = Spec(size=tuple(ds["size"]), nx=nx, ny=ny, conditioning=conditioning_of(ds))
     arrays, metas = [], []
     for npy in sorted(glob.glob(os.path.join(path, "sample-*.npy"))):
         js = npy[:-4] + ".json"
@@ -76,6 +102,9 @@ def load_dir(path, drop_unconverged=True):
         a = np.load(npy).astype(np.float32) * spec.depth_scale
         if not np.isfinite(a).all():
             continue
+        if spec.conditioning:
+            m = spec.material(meta.get("poisson", ds["poisson"]), meta.get("friction", ds["friction"]))
+            a = np.concatenate([a, np.broadcast_to(np.array(m, np.float32)[:, None, None], (2,) + a.shape[1:])])
         arrays.append(a)
         metas.append(meta)
     if not arrays:
@@ -112,7 +141,7 @@ def overlay_references(path, spec, ds, arrays, metas):
         if not m["reference"]["converged"]:
             continue
         b = np.load(stem + ".npy").astype(np.float32) * spec.depth_scale
-        if b.shape != a.shape or not np.isfinite(b).all():
+        if b.shape != a[:3].shape or not np.isfinite(b).all():
             continue
         diff = float(np.abs(b[0] - a[0]).max())
         if diff > 1e-6:
@@ -125,10 +154,14 @@ def overlay_references(path, spec, ds, arrays, metas):
 
 
 def encoder_input(spec: Spec, lattice: torch.Tensor) -> torch.Tensor:
-    """lattice [B, >=2, ny, nx] (coarse, pen, ...) -> [B, encoder_len]."""
+    """lattice [B, >=2, ny, nx] (coarse, pen, reference, then the material channels of a
+    conditioned spec) -> [B, encoder_len]."""
     s, o = spec.encoder_stride, spec.encoder_offset
     sub = lattice[:, :2, o::s, o::s]
-    return sub.reshape(sub.shape[0], -1)
+    flat = sub.reshape(sub.shape[0], -1)
+    if spec.material_inputs:
+        flat = torch.cat([flat, lattice[:, 3 : 3 + spec.material_inputs, 0, 0]], dim=1)
+    return flat
 
 
 def positions(spec: Spec):
@@ -143,30 +176,37 @@ def positions(spec: Spec):
 class QueryBuilder:
     """Decoder query features at lattice points, batched."""
 
-    def __init__(self, spec: Spec):
+    def __init__(self, spec: Spec, device="cpu"):
         self.spec = spec
         h = spec.patch // 2
         self.R = h * spec.patch_step
-        off = torch.arange(-h, h + 1) * spec.patch_step
+        off = torch.arange(-h, h + 1, device=device) * spec.patch_step
         self.dr = off[:, None].expand(-1, spec.patch).reshape(-1)
         self.dc = off[None, :].expand(spec.patch, -1).reshape(-1)
         X, Y = positions(spec)
-        self.X = torch.from_numpy(X)
-        self.Y = torch.from_numpy(Y)
+        self.X = torch.from_numpy(X).to(device)
+        self.Y = torch.from_numpy(Y).to(device)
 
     def pad(self, lattice):
-        """[B, C, ny, nx] -> zero padded by the window radius."""
-        return torch.nn.functional.pad(lattice[:, :2], (self.R, self.R, self.R, self.R))
+        """[B, C, ny, nx] -> coarse, penetration (and the material channels of a conditioned
+        spec), zero padded by the window radius."""
+        keep = [0, 1] + list(range(3, 3 + self.spec.material_inputs))
+        return torch.nn.functional.pad(lattice[:, keep], (self.R, self.R, self.R, self.R))
 
     def __call__(self, padded, b, rows, cols):
-        """padded [B, 2, ny+2R, nx+2R]; b, rows, cols: index tensors of one shape S -> [S..., F]."""
+        """padded from pad(); b, rows, cols: index tensors of one shape S -> [S..., F]."""
         r = rows[..., None] + self.R + self.dr
         c = cols[..., None] + self.R + self.dc
         bb = b[..., None].expand_as(r)
         coarse = padded[bb, 0, r, c]
         pen = padded[bb, 1, r, c]
         pos = torch.stack([self.X[rows, cols], self.Y[rows, cols]], dim=-1)
-        return torch.cat([pos, coarse, pen], dim=-1)
+        parts = [pos, coarse, pen]
+        if self.spec.material_inputs:
+            # Constant channels: their value at the first lattice point.
+            parts.append(torch.stack([padded[b, 2 + k, self.R, self.R]
+                                      for k in range(self.spec.material_inputs)], dim=-1))
+        return torch.cat(parts, dim=-1)
 
 
 def region_mask(lattice: np.ndarray, grow: int, eps_mm: float = 1e-3) -> np.ndarray:

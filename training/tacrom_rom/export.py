@@ -109,6 +109,7 @@ def export_model(model, spec, dataset, out, training=None, data=None, validation
                          "outputs": {"depth": [-1, 1], "jacobian": [-1, r]}},
         },
         "refinement": dict(REFINEMENT, enabled=bool(refinement)),
+        **({"conditioning": spec.conditioning} if spec.conditioning else {}),
         "training": training or {},
         "data": data or {},
         "validation": validation or {},

@@ -59,11 +59,12 @@ def split(metas, held_out):
 
 
 class Batcher:
-    def __init__(self, spec, arrays, rng):
+    def __init__(self, spec, arrays, rng, device="cpu"):
         self.spec = spec
-        self.arrays = torch.from_numpy(arrays)
+        self.device = torch.device(device)
+        self.arrays = torch.from_numpy(arrays).to(self.device)
         self.rng = rng
-        self.qb = D.QueryBuilder(spec)
+        self.qb = D.QueryBuilder(spec, self.device)
         self.region = D.region_mask(arrays, REGION_GROW, REGION_EPS_MM)
         self.region_idx = [np.flatnonzero(r) for r in self.region]
         s, o = spec.encoder_stride, spec.encoder_offset
@@ -86,7 +87,10 @@ class Batcher:
             flat = np.concatenate([a, b])
             rows.append(flat // nx)
             cols.append(flat % nx)
-        return torch.from_numpy(np.stack(rows)), torch.from_numpy(np.stack(cols))
+        return self.to_device(rows), self.to_device(cols)
+
+    def to_device(self, parts):
+        return torch.from_numpy(np.stack(parts)).to(self.device)
 
     def draw_enc(self, idx, n_points):
         rows, cols = [], []
@@ -98,16 +102,16 @@ class Batcher:
             flat = e[self.rng.integers(0, len(e), n_points)]
             rows.append(flat // nx)
             cols.append(flat % nx)
-        return torch.from_numpy(np.stack(rows)), torch.from_numpy(np.stack(cols))
+        return self.to_device(rows), self.to_device(cols)
 
 
 def losses(model, batcher, idx, n_points, multiscale, rng):
     spec = batcher.spec
-    lat = batcher.arrays[idx]  # [B, 3, ny, nx]
+    lat = batcher.arrays[torch.from_numpy(np.asarray(idx)).to(batcher.device)]  # [B, C, ny, nx]
     B = lat.shape[0]
     z = model.encoder(D.encoder_input(spec, lat))
     padded = batcher.qb.pad(lat)
-    bidx = torch.arange(B)[:, None]
+    bidx = torch.arange(B, device=batcher.device)[:, None]
     rows, cols = batcher.draw(idx, n_points)
     bb = bidx.expand_as(rows)
     q = batcher.qb(padded, bb, rows, cols)
@@ -118,7 +122,7 @@ def losses(model, batcher, idx, n_points, multiscale, rng):
     total = loss_rec
     if multiscale:
         k = int(rng.choice([1, 2, 4]))
-        along_x = torch.from_numpy(rng.random(rows.shape) < 0.5)
+        along_x = torch.from_numpy(rng.random(tuple(rows.shape)) < 0.5).to(batcher.device)
         r2 = torch.where(along_x, rows, (rows + k).clamp(max=spec.ny - 1))
         c2 = torch.where(along_x, (cols + k).clamp(max=spec.nx - 1), cols)
         q2 = batcher.qb(padded, bb, r2, c2)
@@ -229,6 +233,8 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-augment", action="store_true", help="no mirror / quarter-turn augmentation")
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--device", default="cpu", help="torch device of the training loop (cpu, cuda); "
+                   "the model is evaluated and exported on the CPU")
     p.add_argument("--max-seconds", type=float, default=None, help="stop training after this wall time")
     p.add_argument("--validation-per-family", type=int, default=2,
                    help="held-out pairs of each held-out family copied into the model for tests")
@@ -261,7 +267,8 @@ def main(argv=None):
     else:
         train_arrays, n_aug = augment(arrays)
     tr_aug = (tr[:, None] * n_aug + np.arange(n_aug)[None, :]).reshape(-1)
-    batcher = Batcher(spec, train_arrays, rng)
+    model.to(a.device)
+    batcher = Batcher(spec, train_arrays, rng, a.device)
     t0 = time.time()
     step = 0
     for step in range(1, a.steps + 1):
@@ -276,6 +283,7 @@ def main(argv=None):
         if a.max_seconds and time.time() - t0 > a.max_seconds:
             break
     seconds = time.time() - t0
+    model.cpu()
     model.eval()
     val = metrics(model, spec, arrays, metas, va)
     train_m = metrics(model, spec, arrays, metas, tr[: min(len(tr), 64)])
@@ -286,6 +294,7 @@ def main(argv=None):
         "steps": step,
         "seconds": round(seconds, 1),
         "threads": a.threads,
+        "device": a.device,
         "batch": a.batch,
         "points_per_press": a.points,
         "augmentation": "none" if a.no_augment else "8 lattice symmetries",
@@ -317,10 +326,10 @@ def main(argv=None):
     picks = []
     for family in sorted({metas[i]["family"] for i in va}):
         members = sorted((i for i in va if metas[i]["family"] == family),
-                         key=lambda i: metas[i]["reference_dx"] or 1.0)
+                         key=lambda i: metas[i].get("reference_dx") or 1.0)
         picks += members[: a.validation_per_family]
     for k, i in enumerate(picks):
-        np.save(os.path.join(vdir, f"pair-{k}.npy"), (arrays[i] / spec.depth_scale).astype(np.float32))
+        np.save(os.path.join(vdir, f"pair-{k}.npy"), (arrays[i][:3] / spec.depth_scale).astype(np.float32))
         with open(os.path.join(vdir, f"pair-{k}.json"), "w") as f:
             json.dump(metas[i], f)
     print(f"wrote {a.out} in {seconds:.0f}s of training", flush=True)

@@ -56,14 +56,32 @@ def _non_square_model(path):
     return path
 
 
-@pytest.fixture(scope="module", params=["shipped", "non-square"])
+def _conditioned_model(path):
+    """The shipped manifest of a model conditioned on the gel's material (two more encoder
+    inputs and query features); the presses are solved on its default gel, which lies
+    inside the ranges."""
+    m = json.load(open(os.path.join(SHIPPED, "manifest.json")))
+    m["conditioning"] = {"poisson": [0.3, 0.48], "friction": [0.0, 1.0]}
+    spec = D.Spec(size=tuple(m["gel"]["size"]), nx=m["lattice"]["nx"], ny=m["lattice"]["ny"],
+                  conditioning=m["conditioning"])
+    m["encoder_input"], m["query_features"] = spec.encoder_len, spec.query_len
+    m["files"]["encoder"]["inputs"]["observation"] = [1, spec.encoder_len]
+    for key in ("decoder", "jacobian"):
+        m["files"][key]["inputs"]["query"] = [-1, spec.query_len]
+    os.makedirs(path)
+    json.dump(m, open(os.path.join(path, "manifest.json"), "w"), indent=1)
+    return path
+
+
+@pytest.fixture(scope="module", params=["shipped", "non-square", "conditioned"])
 def rust(request, tmp_path_factory):
     """The run-time side: features.json, the samples as training loads them, and per press
     the arrays the Rust code computed."""
     if not os.path.isfile(TACROM):
         pytest.fail(f"{TACROM} is missing: `cargo build --release` (make test-train builds it)")
     root = tmp_path_factory.mktemp(f"rom-features-{request.param}")
-    model = SHIPPED if request.param == "shipped" else _non_square_model(str(root / "model"))
+    model = {"shipped": lambda p: SHIPPED, "non-square": _non_square_model,
+             "conditioned": _conditioned_model}[request.param](str(root / "model"))
     out = root / "features"
     r = subprocess.run([TACROM, "rom-features", "--out", str(out), "--model", model],
                        capture_output=True, text=True)
@@ -110,7 +128,7 @@ def test_the_lattice_and_region_settings_are_the_training_ones(rust):
     assert spec.to_json() == meta["lattice"]
     assert (spec.encoder_len, spec.query_len) == (meta["encoder_len"], meta["query_len"])
     assert meta["region"] == {"eps_mm": T.REGION_EPS_MM, "grow": T.REGION_GROW}
-    assert arrays.shape == (len(presses), 3, spec.ny, spec.nx)
+    assert arrays.shape == (len(presses), 3 + spec.material_inputs, spec.ny, spec.nx)
     for p, a in zip(meta["presses"], arrays):
         # Real presses: contact, a deformed coarse gel, a region, the zero padding used.
         assert p["max_penetration"] > 3e-4 and p["max_coarse"] > 3e-4
@@ -153,6 +171,8 @@ def test_features_of_the_exact_observation_are_bit_identical(rust):
     observation, the training code computes the run time's float32 features exactly."""
     meta, spec, arrays, presses = rust
     exact = np.stack([p["observation"] for p in presses]) * spec.depth_scale
+    # The reference channel (unused by the features) and the material channels as stored.
+    exact = np.concatenate([exact, arrays[:, 2:].astype(np.float64)], axis=1)
     enc, q = _training_features(spec, exact)
     for k, p in enumerate(presses):
         np.testing.assert_array_equal(enc[k].astype(np.float32), p["encoder"])

@@ -45,7 +45,7 @@ def tiny_model(tmp_path_factory):
     out = root / "model"
     write_synthetic(str(data))
     train_main(["--data", str(data), "--out", str(out), "--steps", "3", "--batch", "4",
-                "--points", "16", "--latent", "16", "--validation-samples", "2"])
+                "--points", "16", "--latent", "16", "--validation-per-family", "2"])
     return out
 
 
@@ -162,7 +162,7 @@ def test_finer_references_replace_the_base_ones_where_present(tmp_path):
         np.testing.assert_array_equal(arrays[k, :2], before[k, :2])
     out = tmp_path / "model"
     train_main(["--data", str(base), "--reference", str(finer), "--out", str(out), "--steps", "2",
-                "--batch", "4", "--points", "16", "--latent", "16", "--validation-samples", "1"])
+                "--batch", "4", "--points", "16", "--latent", "16", "--validation-per-family", "1"])
     m = json.load(open(out / "manifest.json"))
     assert m["reference_dx"] == 3e-4
     refs = m["data"]["references"]

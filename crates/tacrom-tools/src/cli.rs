@@ -370,6 +370,14 @@ pub struct GenDataArgs {
     /// Print each sample's press (index, family, depth, slide) without solving anything.
     #[arg(long)]
     pub list: bool,
+    /// The gel's Poisson's ratio (both solves), or a range `LO,HI` to draw each sample's
+    /// from [the sensor's default, 0.43].
+    #[arg(long, value_name = "NU[,NU]", value_delimiter = ',', num_args = 1..=2)]
+    pub poisson: Vec<f64>,
+    /// The gel's Coulomb friction coefficient (both solves), or a range `LO,HI` to draw
+    /// each sample's from [the sensor's default, 0.5].
+    #[arg(long, value_name = "MU[,MU]", value_delimiter = ',', num_args = 1..=2)]
+    pub friction: Vec<f64>,
 }
 
 /// Options of `tacrom eval-rom`: depth MAE, RMSE, SSIM over the 24 x 18 mm field of view

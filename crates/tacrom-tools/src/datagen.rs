@@ -52,6 +52,9 @@ pub const HELD_OUT: &[&str] = &[
     "mesh:wave1",
 ];
 
+/// Salt of the random stream that draws a sample's material.
+const MATERIAL_STREAM: u64 = 0x6d61_7465_7269_616c;
+
 /// Settings of a data set.
 #[derive(Clone, Debug)]
 pub struct GenConfig {
@@ -84,9 +87,29 @@ pub struct GenConfig {
     pub held_out_only: bool,
     /// Only these sample indices (empty: all); the presses are those of the full set.
     pub indices: Vec<usize>,
+    /// Draw each sample's Poisson's ratio uniformly from this range (the same presses as
+    /// with a fixed material; [`GenConfig::gel`]'s otherwise).
+    pub poisson_range: Option<[f64; 2]>,
+    /// Draw each sample's friction coefficient uniformly from this range.
+    pub friction_range: Option<[f64; 2]>,
 }
 
 impl GenConfig {
+    /// Sample `index`'s gel: [`GenConfig::gel`], with Poisson's ratio and friction drawn
+    /// from their ranges where given, from a stream of their own (so that the presses are
+    /// those of a data set with a fixed material).
+    pub fn sample_gel(&self, index: usize) -> GelParams {
+        let mut rng = Rng::new(self.seed ^ MATERIAL_STREAM, index as u64);
+        let mut gel = self.gel;
+        if let Some([a, b]) = self.poisson_range {
+            gel.poisson = rng.uniform(a, b);
+        }
+        if let Some([a, b]) = self.friction_range {
+            gel.friction = rng.uniform(a, b);
+        }
+        gel
+    }
+
     /// The sample indices of this shard, in order.
     fn shard_indices(&self) -> Vec<usize> {
         let (k, n) = self.shard;
@@ -114,6 +137,8 @@ impl Default for GenConfig {
             fine_max_iterations: 6000,
             held_out_only: false,
             indices: Vec::new(),
+            poisson_range: None,
+            friction_range: None,
         }
     }
 }
@@ -720,6 +745,12 @@ pub struct Dataset {
     /// written before it was recorded.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub recipe: Option<tacrom::rom::Recipe>,
+    /// The range each sample's Poisson's ratio is drawn from (absent: `poisson` for all).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poisson_range: Option<[f64; 2]>,
+    /// The range each sample's friction coefficient is drawn from (absent: `friction`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction_range: Option<[f64; 2]>,
 }
 
 /// A solver's report on one press, in a sample's JSON.
@@ -763,14 +794,20 @@ pub struct SampleMeta {
     pub coarse: SolveMeta,
     /// The reference solve.
     pub reference: SolveMeta,
+    /// This sample's Poisson's ratio, where the data set draws it per sample.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poisson: Option<f64>,
+    /// This sample's friction coefficient, where the data set draws it per sample.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub friction: Option<f64>,
 }
 
-/// The reference gel's and the coarse gel's parameters.
-fn gel_params(config: &GenConfig, dx: f64) -> GelParams {
+/// Sample `index`'s gel parameters at grid spacing `dx`.
+fn gel_params(config: &GenConfig, index: usize, dx: f64) -> GelParams {
     GelParams {
         dx,
         material: Material::FixedCorotated,
-        ..config.gel
+        ..config.sample_gel(index)
     }
 }
 
@@ -792,11 +829,15 @@ pub fn list(config: &GenConfig) -> Result<Vec<String>, String> {
             continue;
         }
         let slide = p.params.slide.map_or(0.0, |s| s[0].hypot(s[1]));
+        let gel = config.sample_gel(index);
         lines.push(format!(
-            "{index} {} held_out={held_out} depth_mm={:.3} slide_mm={:.3}",
+            "{index} {} held_out={held_out} depth_mm={:.3} slide_mm={:.3} poisson={:.4} \
+             friction={:.4}",
             p.family,
             p.params.depth * 1e3,
-            slide * 1e3
+            slide * 1e3,
+            gel.poisson,
+            gel.friction
         ));
     }
     Ok(lines)
@@ -841,6 +882,8 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             tolerance: SolverOptions::default().tolerance,
             max_tolerance: tacrom::rom::MAX_TOLERANCE,
         }),
+        poisson_range: config.poisson_range,
+        friction_range: config.friction_range,
     };
     let ds_path = config.out.join("dataset.json");
     match std::fs::read_to_string(&ds_path) {
@@ -864,14 +907,16 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         threads: config.threads,
         ..SolverOptions::default()
     };
-    let mut coarse =
-        Gel::new(gel_params(config, config.coarse_dx), options).map_err(|e| e.to_string())?;
     let fine_options = SolverOptions {
         max_iterations: config.fine_max_iterations,
         ..options
     };
-    let mut fine =
-        Gel::new(gel_params(config, config.fine_dx), fine_options).map_err(|e| e.to_string())?;
+    let new_gel = |index: usize, dx: f64, options: SolverOptions| {
+        Gel::new(gel_params(config, index, dx), options).map_err(|e| e.to_string())
+    };
+    let first = config.shard_indices().first().copied().unwrap_or(0);
+    let mut coarse = new_gel(first, config.coarse_dx, options)?;
+    let mut fine = new_gel(first, config.fine_dx, fine_options)?;
     let (k, n) = config.shard;
     let (mut done, mut skipped) = (0usize, 0usize);
     let (mut t_coarse, mut t_fine) = (0.0, 0.0);
@@ -899,6 +944,10 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             continue;
         }
         bar.message(format!("sample {index}: {}", press.family));
+        if *coarse.params() != gel_params(config, index, config.coarse_dx) {
+            coarse = new_gel(index, config.coarse_dx, options)?;
+            fine = new_gel(index, config.fine_dx, fine_options)?;
+        }
         let last = press.poses.len() - 1;
         let placed = [press.placed(last)];
         let (rc, sc) = solve_press(&mut coarse, &press);
@@ -916,6 +965,8 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             params: press.params,
             coarse: SolveMeta::new(&rc, sc),
             reference: SolveMeta::new(&rf, sf),
+            poisson: config.poisson_range.map(|_| coarse.params().poisson),
+            friction: config.friction_range.map(|_| coarse.params().friction),
         };
         let mut text = serde_json::to_string_pretty(&meta).map_err(|e| e.to_string())?;
         text.push('\n');

@@ -274,6 +274,17 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
     Ok(())
 }
 
+/// A `LO,HI` range of two values (`None` for a single value or none).
+fn range(v: &[f64]) -> Result<Option<[f64; 2]>, BenchError> {
+    match *v {
+        [lo, hi] if lo < hi => Ok(Some([lo, hi])),
+        [lo, hi] => Err(BenchError::Usage(format!(
+            "gen-data: a range LO,HI needs LO < HI, got {lo},{hi}"
+        ))),
+        _ => Ok(None),
+    }
+}
+
 fn gen_data(a: GenDataArgs) -> Result<(), BenchError> {
     use tacrom_tools::datagen::{generate, GenConfig};
     let defaults = GenConfig::default();
@@ -291,8 +302,25 @@ fn gen_data(a: GenDataArgs) -> Result<(), BenchError> {
         fine_max_iterations: a.fine_max_iterations,
         held_out_only: a.held_out_only,
         indices: a.indices,
-        gel: defaults.gel,
+        gel: tacrom::mpm::GelParams {
+            poisson: a.poisson.first().copied().unwrap_or(defaults.gel.poisson),
+            friction: a.friction.first().copied().unwrap_or(defaults.gel.friction),
+            ..defaults.gel
+        },
+        poisson_range: range(&a.poisson)?,
+        friction_range: range(&a.friction)?,
     };
+    let [p0, p1] = config.poisson_range.unwrap_or([config.gel.poisson; 2]);
+    let [f0, f1] = config.friction_range.unwrap_or([config.gel.friction; 2]);
+    for (poisson, friction) in [(p0, f0), (p1, f1)] {
+        let gel = tacrom::mpm::GelParams {
+            poisson,
+            friction,
+            ..config.gel
+        };
+        tacrom::mpm::Gel::validate(&gel, &Default::default())
+            .map_err(|e| BenchError::Usage(format!("gen-data: {e}")))?;
+    }
     if a.list {
         for line in tacrom_tools::datagen::list(&config).map_err(BenchError::Usage)? {
             println!("{line}");

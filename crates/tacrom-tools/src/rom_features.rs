@@ -209,7 +209,7 @@ pub fn write(config: &FeaturesConfig) -> Result<String, String> {
     let mut gel = Gel::new(params, options).map_err(|e| e.to_string())?;
     std::fs::create_dir_all(&config.out).map_err(|e| format!("{}: {e}", config.out.display()))?;
     // What `data.load_dir` reads of a gen-data `dataset.json`, and what it is.
-    let dataset = serde_json::json!({
+    let mut dataset = serde_json::json!({
         "format": "tacrom-rom-pairs-1",
         "channels": ["coarse", "penetration", "coarse (no reference solved)"],
         "units": "m",
@@ -223,6 +223,10 @@ pub fn write(config: &FeaturesConfig) -> Result<String, String> {
         "lattice": [spec.ny, spec.nx],
         "written_by": "tacrom rom-features",
     });
+    if let Some(c) = &manifest.conditioning {
+        dataset["poisson_range"] = serde_json::json!(c.poisson);
+        dataset["friction_range"] = serde_json::json!(c.friction);
+    }
     write_json(&config.out.join("dataset.json"), &dataset)?;
     let (eps, grow) = manifest.region;
     let mut meta = FeaturesMeta {
@@ -246,6 +250,9 @@ pub fn write(config: &FeaturesConfig) -> Result<String, String> {
         let report = gel.solve(&placed);
         let seconds = t0.elapsed().as_secs_f64();
         obs.update(&gel, &placed, &spec, &mut zmin);
+        if let Some(c) = &manifest.conditioning {
+            obs.material = c.inputs(params.poisson, params.friction).to_vec();
+        }
         obs.encoder_input(&spec, &mut enc);
         query.clear();
         for row in 0..ny {

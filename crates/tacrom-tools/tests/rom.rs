@@ -74,6 +74,7 @@ fn shipped_model_loads_and_outputs_have_the_manifests_shapes() {
         coarse: vec![0.0; spec.points()],
         pen: vec![0.0; spec.points()],
         rule: DepthRule::new(spec.size[2], &[]),
+        material: Vec::new(),
     };
     let z = rom.encode(&obs).unwrap();
     assert_eq!(z.len(), m.latent);
@@ -251,6 +252,7 @@ fn rom_is_closer_to_the_reference_than_coarse_on_held_out_families() {
             coarse: data[..n].iter().map(|&v| v as f64).collect(),
             rule: DepthRule::from_penetration(spec.size[2], &pen),
             pen,
+            material: Vec::new(),
         };
         let reference = &data[2 * n..];
         let report = rom.infer(&obs).unwrap();

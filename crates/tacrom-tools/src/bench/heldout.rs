@@ -92,6 +92,8 @@ struct Sample {
     obs: Observation,
     reference: Vec<f64>,
     solve_s: [f64; 2],
+    /// Poisson's ratio and friction of the sample's gel.
+    material: [f64; 2],
 }
 
 fn bad(path: &Path, what: impl std::fmt::Display) -> BenchError {
@@ -110,6 +112,11 @@ struct SampleInfo {
     held_out: bool,
     coarse: Timing,
     reference: Timing,
+    /// The sample's own material, where the data set draws it per sample.
+    #[serde(default)]
+    poisson: Option<f64>,
+    #[serde(default)]
+    friction: Option<f64>,
 }
 
 /// The wall time of a solve.
@@ -175,8 +182,13 @@ fn load_samples(
                     coarse: chan(0),
                     rule: tacrom::render::DepthRule::from_penetration(spec.size[2], &pen),
                     pen,
+                    material: Vec::new(),
                 }
             },
+            material: [
+                meta.poisson.unwrap_or(dataset.poisson),
+                meta.friction.unwrap_or(dataset.friction),
+            ],
             reference: chan(2),
             solve_s: [meta.coarse.seconds, meta.reference.seconds],
         });
@@ -357,7 +369,8 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             return Err(bad(dir, "its lattice differs from the first model's"));
         }
         let mut acc = Acc::new(&label, names.len());
-        for (s, &f) in samples.iter().zip(&fam) {
+        for (s, &f) in samples.iter_mut().zip(&fam) {
+            rom.set_material(&mut s.obs, s.material[0], s.material[1]);
             let t0 = Instant::now();
             let report = rom
                 .infer(&s.obs)

@@ -17,6 +17,10 @@
 //!   centred on the point with `patch_step` lattice steps between samples (zero outside
 //!   the gel), in model units; see [`query_features`] for the exact order and
 //!   [`coarse_centre_feature`] for the coarse depth at the point itself.
+//! * **Material** (models conditioned on the gel, manifest `conditioning`): the gel's
+//!   Poisson's ratio and friction coefficient, each mapped linearly from the model's range
+//!   onto `[-1, 1]` ([`Conditioning::inputs`]), appended to the encoder input and to every
+//!   query.
 //! * **Deformable region**: the lattice points the decoder is evaluated at ([`region`]).
 //!
 //! `training/tacrom_rom/data.py` computes the same on the training data; the parity test
@@ -45,6 +49,38 @@ pub struct LatticeSpec {
     pub patch_step: usize,
     /// Depth scale: model units per metre (1000: millimetres).
     pub depth_scale: f64,
+    /// Material inputs appended to the encoder input and to each query (0, or 2 for a
+    /// model conditioned on the gel's material).
+    #[serde(skip)]
+    pub material_inputs: usize,
+}
+
+/// The gel materials a conditioned model serves (manifest `conditioning`): closed ranges
+/// of Poisson's ratio and friction.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Conditioning {
+    /// Poisson's ratio, `[lo, hi]`.
+    pub poisson: [f64; 2],
+    /// Coulomb friction coefficient, `[lo, hi]`.
+    pub friction: [f64; 2],
+}
+
+impl Conditioning {
+    /// Number of material inputs.
+    pub const INPUTS: usize = 2;
+
+    /// The network's material inputs for a gel: each value mapped linearly from its range
+    /// onto `[-1, 1]` (0 for a range of one value).
+    pub fn inputs(&self, poisson: f64, friction: f64) -> [f64; 2] {
+        let map = |[lo, hi]: [f64; 2], v: f64| {
+            if hi > lo {
+                (2.0 * v - lo - hi) / (hi - lo)
+            } else {
+                0.0
+            }
+        };
+        [map(self.poisson, poisson), map(self.friction, friction)]
+    }
 }
 
 impl LatticeSpec {
@@ -61,6 +97,7 @@ impl LatticeSpec {
             patch: 5,
             patch_step: 2,
             depth_scale: 1000.0,
+            material_inputs: 0,
         }
     }
 
@@ -89,15 +126,15 @@ impl LatticeSpec {
         ]
     }
 
-    /// Length of the encoder's input vector (two channels).
+    /// Length of the encoder's input vector (two channels, then the material inputs).
     pub fn encoder_len(&self) -> usize {
         let [r, c] = self.encoder_dims();
-        2 * r * c
+        2 * r * c + self.material_inputs
     }
 
     /// Number of decoder query features.
     pub fn query_len(&self) -> usize {
-        2 + 2 * self.patch * self.patch
+        2 + 2 * self.patch * self.patch + self.material_inputs
     }
 }
 
@@ -115,6 +152,9 @@ pub struct Observation {
     pub pen: Vec<f64>,
     /// The bounds of the contact problem the indenters pose.
     pub rule: DepthRule,
+    /// The material inputs of a conditioned model ([`Conditioning::inputs`]; empty for
+    /// others).
+    pub material: Vec<f64>,
 }
 
 impl Default for Observation {
@@ -123,6 +163,7 @@ impl Default for Observation {
             coarse: Vec::new(),
             pen: Vec::new(),
             rule: DepthRule::new(0.0, &[]),
+            material: Vec::new(),
         }
     }
 }
@@ -183,6 +224,15 @@ impl Observation {
                 }
             }
         }
+        self.push_material(spec, out);
+    }
+
+    /// Appends the `spec.material_inputs` material inputs (zeros where the observation
+    /// holds fewer).
+    fn push_material(&self, spec: &LatticeSpec, out: &mut Vec<f32>) {
+        out.extend(
+            (0..spec.material_inputs).map(|k| self.material.get(k).copied().unwrap_or(0.0) as f32),
+        );
     }
 }
 
@@ -216,6 +266,7 @@ pub fn query_features(
             }
         }
     }
+    obs.push_material(spec, out);
 }
 
 /// The deformable region of `obs` (row-major into `out`, cleared first): the lattice points

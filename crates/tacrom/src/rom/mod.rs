@@ -79,7 +79,7 @@ use ort::value::TensorRef;
 
 use crate::geometry::{PixelGrid, Placed};
 use crate::mpm::Gel;
-use features::{query_features, LatticeSpec, Observation};
+use features::{query_features, Conditioning, LatticeSpec, Observation};
 use lbfgs::{LbfgsOptions, LbfgsReport};
 use runtime::{load_graph, Graph};
 
@@ -191,6 +191,8 @@ pub struct Manifest {
     pub files: [(PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>); 3],
     /// The coarse solve the model was trained on and accepts.
     pub recipe: Recipe,
+    /// The gel materials a conditioned model serves (`None`: the gel's only).
+    pub conditioning: Option<Conditioning>,
     /// The whole document (training, data, validation records).
     pub json: serde_json::Value,
 }
@@ -218,6 +220,9 @@ mod document {
         /// The coarse solve the training data came from (absent in older manifests).
         #[serde(default)]
         pub recipe: Option<super::Recipe>,
+        /// The materials a conditioned model serves (absent: the gel's only).
+        #[serde(default)]
+        pub conditioning: Option<super::Conditioning>,
     }
 
     #[derive(Deserialize)]
@@ -349,7 +354,22 @@ impl Manifest {
             patch: count("lattice.patch", l.patch)?,
             patch_step: count("lattice.patch_step", l.patch_step)?,
             depth_scale: positive("lattice.depth_scale", l.depth_scale)?,
+            material_inputs: if doc.conditioning.is_some() {
+                Conditioning::INPUTS
+            } else {
+                0
+            },
         };
+        if let Some(c) = &doc.conditioning {
+            for (what, [lo, hi]) in [("poisson", c.poisson), ("friction", c.friction)] {
+                if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+                    return Err(bad(format!(
+                        "'conditioning.{what}' must be a range [lo, hi] with lo <= hi, got \
+                         [{lo}, {hi}]"
+                    )));
+                }
+            }
+        }
         if lattice.patch % 2 == 0 {
             return Err(bad("'lattice.patch' must be odd".into()));
         }
@@ -448,6 +468,7 @@ impl Manifest {
             region,
             refinement,
             recipe,
+            conditioning: doc.conditioning,
             files,
             json,
         })
@@ -518,19 +539,33 @@ impl Manifest {
                 format!("{size:?} m"),
             ));
         }
-        if !close(poisson, g.poisson) {
-            return Err(mismatch(
-                "Poisson's ratio",
-                format!("{}", g.poisson),
-                format!("{poisson}"),
-            ));
-        }
-        if !close(friction, g.friction) {
-            return Err(mismatch(
-                "friction",
-                format!("{}", g.friction),
-                format!("{friction}"),
-            ));
+        match &self.conditioning {
+            Some(c) => {
+                for (what, [lo, hi], v) in [
+                    ("Poisson's ratio", c.poisson, poisson),
+                    ("friction", c.friction, friction),
+                ] {
+                    if !(v >= lo - 1e-9 && v <= hi + 1e-9) {
+                        return Err(mismatch(what, format!("in [{lo}, {hi}]"), format!("{v}")));
+                    }
+                }
+            }
+            None => {
+                if !close(poisson, g.poisson) {
+                    return Err(mismatch(
+                        "Poisson's ratio",
+                        format!("{}", g.poisson),
+                        format!("{poisson}"),
+                    ));
+                }
+                if !close(friction, g.friction) {
+                    return Err(mismatch(
+                        "friction",
+                        format!("{}", g.friction),
+                        format!("{friction}"),
+                    ));
+                }
+            }
         }
         Ok(())
     }
@@ -662,6 +697,15 @@ impl Rom {
     /// The manifest.
     pub fn manifest(&self) -> &Manifest {
         &self.manifest
+    }
+
+    /// Sets the material inputs of `obs` for a gel of Poisson's ratio `poisson` and
+    /// friction `friction` (none for a model that is not conditioned on the material).
+    pub fn set_material(&self, obs: &mut Observation, poisson: f64, friction: f64) {
+        obs.material.clear();
+        if let Some(c) = &self.manifest.conditioning {
+            obs.material.extend(c.inputs(poisson, friction));
+        }
     }
 
     /// The latent state of the last inference.
@@ -986,6 +1030,7 @@ impl Rom {
         let mut obs = std::mem::take(&mut self.obs);
         let spec = self.manifest.lattice;
         obs.update(gel, indenters, &spec, &mut self.zmin);
+        self.set_material(&mut obs, gel.params().poisson, gel.params().friction);
         let observe_s = t0.elapsed().as_secs_f64();
         let result = self.infer(&obs);
         self.obs = obs;

@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-fine train eval-rom test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-fine gen-data-material train train-material eval-rom eval-rom-material test-train clean
 
 all: build
 
@@ -134,6 +134,32 @@ gen-data-fine: build
 	  target/release/tacrom gen-data --out $(ROM_FINE_DATA) --samples $(ROM_FINE_SAMPLES) --seed 1 \
 	    --fine-dx 0.3 --fine-max-iterations 3000 $(ROM_FINE_FLAGS) --shard $$k/$(ROM_SHARDS) & \
 	done; wait
+
+# Presses of other gel materials: Poisson's ratio and friction drawn per press from ROM_POISSON
+# and ROM_FRICTION (0.7 mm reference). The evidence for the shipped model's manifest `materials`
+# (`make eval-rom-material`) and, merged with ROM_DATA, the training set of a model conditioned
+# on the material (`make train-material`; trained, measured and not shipped: see the README).
+ROM_MAT_DATA ?= data/rom-mat
+ROM_MAT_SAMPLES ?= 400
+ROM_POISSON ?= 0.3,0.48
+ROM_FRICTION ?= 0,1
+gen-data-material: build
+	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
+	  target/release/tacrom gen-data --out $(ROM_MAT_DATA) --samples $(ROM_MAT_SAMPLES) --seed 1 \
+	    --fine-dx 0.7 --fine-max-iterations 1000 --poisson $(ROM_POISSON) --friction $(ROM_FRICTION) \
+	    --shard $$k/$(ROM_SHARDS) & \
+	done; wait
+
+eval-rom-material: build
+	target/release/tacrom eval-rom --data $(ROM_MAT_DATA) --out out/bench/eval-rom-material
+
+ROM_DEVICE ?= cpu
+train-material: train-env
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge data/rom-mat-merged $(ROM_MAT_DATA) $(ROM_DATA)
+	for s in 0 1 2; do \
+	  PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data data/rom-mat-merged --steps $(ROM_STEPS) \
+	    --seed $$s --device $(ROM_DEVICE) --out out/models/rom-material-s$$s; \
+	done
 
 # rigid, coarse, rom and its ablations against both references on the held-out families.
 eval-rom: build

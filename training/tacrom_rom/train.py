@@ -285,6 +285,8 @@ def main(argv=None):
     seconds = time.time() - t0
     model.cpu()
     model.eval()
+    os.makedirs(a.out, exist_ok=True)
+    torch.save(model.state_dict(), os.path.join(a.out, "weights.pt"))
     val = metrics(model, spec, arrays, metas, va)
     train_m = metrics(model, spec, arrays, metas, tr[: min(len(tr), 64)])
     print("validation", json.dumps(val, indent=1), flush=True)

@@ -109,10 +109,23 @@ fn shipped_model_loads_and_outputs_have_the_manifests_shapes() {
         matches!(e, RomError::Mismatch { .. }) && e.to_string().contains("gel size"),
         "{e}"
     );
-    let e = m.check_gel([0.03, 0.03, 0.004], 0.3, 0.5).unwrap_err();
-    assert!(e.to_string().contains("Poisson"), "{e}");
-    let e = m.check_gel([0.03, 0.03, 0.004], 0.43, 1.0).unwrap_err();
-    assert!(e.to_string().contains("friction"), "{e}");
+    // Within the materials it was validated on (manifest `materials`), and outside.
+    let ranges = m
+        .materials
+        .expect("the shipped model's validated materials");
+    for (nu, mu) in [
+        (ranges.poisson[0], ranges.friction[0]),
+        (ranges.poisson[1], ranges.friction[1]),
+    ] {
+        m.check_gel([0.03, 0.03, 0.004], nu, mu).unwrap();
+    }
+    let e = m.check_gel([0.03, 0.03, 0.004], 0.49, 0.5).unwrap_err();
+    assert!(
+        e.to_string().contains("Poisson's ratio in [0.3, 0.48]"),
+        "{e}"
+    );
+    let e = m.check_gel([0.03, 0.03, 0.004], 0.43, 1.5).unwrap_err();
+    assert!(e.to_string().contains("friction in [0, 1]"), "{e}");
 }
 
 #[test]

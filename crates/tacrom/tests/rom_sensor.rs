@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use nalgebra::Isometry3;
 use tacrom::config::{
-    Config, RawConfig, ATTR_MATERIAL, ATTR_MODEL, ATTR_OUTPUTS, ATTR_PHYSICS, ATTR_RESOLUTION,
-    ATTR_SIZE, ATTR_SOLVER, ATTR_TOLERANCE, ATTR_YOUNG,
+    Config, RawConfig, ATTR_FRICTION, ATTR_MATERIAL, ATTR_MODEL, ATTR_OUTPUTS, ATTR_PHYSICS,
+    ATTR_POISSON, ATTR_RESOLUTION, ATTR_SIZE, ATTR_SOLVER, ATTR_TOLERANCE, ATTR_YOUNG,
 };
 use tacrom::geometry::{Placed, Sphere};
 use tacrom::sensor::TactileSensor;
@@ -69,6 +69,48 @@ fn rom_serves_any_young_modulus_with_the_force_scaled() {
             force * k
         );
     }
+}
+
+/// The shipped model serves the gel materials it was validated on (manifest `materials`:
+/// Poisson's ratio 0.3 to 0.48, friction 0 to 1; `make gen-data-material`): a gel at
+/// either corner of those ranges presses a sphere with the image on the indenter, and one
+/// just outside is refused at load, naming the sensor, the attribute and both values.
+#[test]
+fn rom_serves_the_materials_it_was_validated_on_and_refuses_others() {
+    for (poisson, friction) in [("0.3", "0"), ("0.48", "1")] {
+        let raw = RawConfig::default()
+            .with(ATTR_RESOLUTION, "80 60")
+            .with(ATTR_POISSON, poisson)
+            .with(ATTR_FRICTION, friction);
+        let mut sensor = TactileSensor::new(Config::from_raw("touch", &raw).unwrap()).unwrap();
+        let placed = [Placed {
+            shape: Arc::new(Sphere::new(0.005)),
+            pose: Isometry3::translation(0.0, 0.0, 0.005 - 0.5e-3),
+        }];
+        let mut out = vec![0.0; 80 * 60];
+        let eval = sensor.evaluate(&placed, &mut out);
+        assert!(
+            eval.rom.is_some(),
+            "{poisson}, {friction}: {:?}",
+            eval.warnings
+        );
+        let peak = out.iter().cloned().fold(0.0, f64::max);
+        assert!(
+            (peak - 0.5e-3).abs() < 0.05e-3,
+            "{poisson}, {friction}: peak {peak}"
+        );
+    }
+    let raw = RawConfig::default()
+        .with(ATTR_PHYSICS, "rom")
+        .with(ATTR_POISSON, "0.49");
+    let e = load_error(raw);
+    assert!(
+        e.contains("'touch'")
+            && e.contains("'model'")
+            && e.contains("Poisson's ratio in [0.3, 0.48]")
+            && e.contains("Poisson's ratio 0.49"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -296,9 +296,7 @@ fn invariance(physics: &str, tolerance: impl Fn(usize, f64) -> (f64, f64)) {
     } else {
         "depth force"
     };
-    // rom's shipped model is trained for the default friction (0.5) and refuses others.
-    let friction = if physics == "rom" { "0.5" } else { "1.0" };
-    let cfg = sensor_config(physics, outputs, &[("friction", friction)]);
+    let cfg = sensor_config(physics, outputs, &[("friction", "1.0")]);
     let origin = load_xml(&scene(&cfg, "", 0.0, TILTED_BOX)).expect("origin scene");
     let moved = load_xml(&scene(&cfg, MOVED_FRAME, 0.0, TILTED_BOX)).expect("moved scene");
     let (mut d0, mut d1) = (origin.make_data(), moved.make_data());

@@ -365,7 +365,12 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
     for (label, dir, refine) in runs {
         bar.message(label.clone());
         let mut rom = load(dir, refine)?;
-        if rom.manifest().lattice != spec {
+        // The same lattice; the material inputs may differ (a conditioned model has them).
+        let lattice = LatticeSpec {
+            material_inputs: spec.material_inputs,
+            ..rom.manifest().lattice
+        };
+        if lattice != spec {
             return Err(bad(dir, "its lattice differs from the first model's"));
         }
         let mut acc = Acc::new(&label, names.len());

@@ -193,6 +193,9 @@ pub struct Manifest {
     pub recipe: Recipe,
     /// The gel materials a conditioned model serves (`None`: the gel's only).
     pub conditioning: Option<Conditioning>,
+    /// The gel materials a model without material inputs was validated on and serves
+    /// (manifest `materials`, with the evaluation that measured it; `None`: the gel's only).
+    pub materials: Option<Conditioning>,
     /// The whole document (training, data, validation records).
     pub json: serde_json::Value,
 }
@@ -223,6 +226,9 @@ mod document {
         /// The materials a conditioned model serves (absent: the gel's only).
         #[serde(default)]
         pub conditioning: Option<super::Conditioning>,
+        /// The materials a model without material inputs was validated on.
+        #[serde(default)]
+        pub materials: Option<super::Conditioning>,
     }
 
     #[derive(Deserialize)]
@@ -360,12 +366,15 @@ impl Manifest {
                 0
             },
         };
-        if let Some(c) = &doc.conditioning {
+        for (key, ranges) in [
+            ("conditioning", &doc.conditioning),
+            ("materials", &doc.materials),
+        ] {
+            let Some(c) = ranges else { continue };
             for (what, [lo, hi]) in [("poisson", c.poisson), ("friction", c.friction)] {
                 if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
                     return Err(bad(format!(
-                        "'conditioning.{what}' must be a range [lo, hi] with lo <= hi, got \
-                         [{lo}, {hi}]"
+                        "'{key}.{what}' must be a range [lo, hi] with lo <= hi, got [{lo}, {hi}]"
                     )));
                 }
             }
@@ -469,6 +478,11 @@ impl Manifest {
             refinement,
             recipe,
             conditioning: doc.conditioning,
+            materials: if doc.conditioning.is_some() {
+                None
+            } else {
+                doc.materials
+            },
             files,
             json,
         })
@@ -518,7 +532,9 @@ impl Manifest {
     }
 
     /// Checks that a sensor's gel is one the model serves (relative tolerance 1e-6): the
-    /// size, Poisson's ratio and friction it was trained for, and any Young's modulus. The
+    /// size it was trained for; Poisson's ratio and friction within the ranges of a
+    /// conditioned model or those a model was validated on (manifest `conditioning`,
+    /// `materials`), else the ones it was trained for; any Young's modulus. The
     /// gel's equilibrium under imposed indenter poses is homogeneous of degree one in the
     /// elastic moduli (the contact penalty and the solver's tolerances scale with them),
     /// so the coarse depth the decoder reads does not depend on Young's modulus (bit for
@@ -539,7 +555,7 @@ impl Manifest {
                 format!("{size:?} m"),
             ));
         }
-        match &self.conditioning {
+        match self.conditioning.as_ref().or(self.materials.as_ref()) {
             Some(c) => {
                 for (what, [lo, hi], v) in [
                     ("Poisson's ratio", c.poisson, poisson),

@@ -1,0 +1,66 @@
+"""Merge paired data sets of the same gel size, lattice and solvers into one directory, for
+training a model conditioned on the gel's material on presses of several materials.
+
+    python -m tacrom_rom.merge OUT RANGED [FIXED ...]
+
+RANGED is a data set that draws each sample's Poisson's ratio and friction from ranges
+(`tacrom gen-data --poisson LO,HI --friction LO,HI`); its dataset.json becomes OUT's. Each
+FIXED data set (one material, such as `make gen-data`'s) adds its samples with indices
+offset by 100000 * k and its material written into each sample's JSON; its material must
+lie inside RANGED's ranges. Files are copied; OUT is created if needed.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+
+KEYS = ("size", "lattice", "coarse_dx", "fine_dx", "pitch", "seed", "material", "young", "recipe")
+
+
+def samples(path):
+    for f in sorted(os.listdir(path)):
+        if f.startswith("sample-") and f.endswith(".json") and os.path.exists(os.path.join(path, f[:-5] + ".npy")):
+            yield int(f[7:13]), os.path.join(path, f[:-5])
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) < 2:
+        raise SystemExit(__doc__)
+    out, ranged, fixed = argv[0], argv[1], argv[2:]
+    ds = json.load(open(os.path.join(ranged, "dataset.json")))
+    if "poisson_range" not in ds and "friction_range" not in ds:
+        raise SystemExit(f"{ranged}: its dataset.json has no material ranges")
+    os.makedirs(out, exist_ok=True)
+    shutil.copy(os.path.join(ranged, "dataset.json"), os.path.join(out, "dataset.json"))
+    n = 0
+    for k, path in enumerate([ranged] + fixed):
+        other = json.load(open(os.path.join(path, "dataset.json")))
+        for key in KEYS:
+            if other.get(key) != ds.get(key):
+                raise SystemExit(f"{path}: dataset.json {key} = {other.get(key)!r}, {ranged} has {ds.get(key)!r}")
+        material = None
+        if k > 0:
+            material = {"poisson": other["poisson"], "friction": other["friction"]}
+            for name, v in material.items():
+                lo, hi = ds.get(f"{name}_range") or [ds[name]] * 2
+                if not lo <= v <= hi:
+                    raise SystemExit(f"{path}: {name} {v} lies outside {ranged}'s range [{lo}, {hi}]")
+        for i, stem in samples(path):
+            j = i + 100000 * k
+            meta = json.load(open(stem + ".json"))
+            meta["index"] = j
+            if material:
+                meta.update(material)
+            target = os.path.join(out, f"sample-{j:06d}")
+            shutil.copy(stem + ".npy", target + ".npy")
+            with open(target + ".json", "w") as f:
+                json.dump(meta, f)
+            n += 1
+    print(f"{n} samples in {out}")
+
+
+if __name__ == "__main__":
+    main()

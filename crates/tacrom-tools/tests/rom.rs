@@ -459,6 +459,81 @@ fn gen_data_writes_numpy_pairs_and_resumes() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// A data set of gel materials drawn per sample: each sample's Poisson's ratio and
+/// friction lie in their ranges, are recorded in its JSON and in the gel it was solved on
+/// (the same press on a gel of the fixed default material gives another coarse depth), the
+/// presses are those of the fixed-material set, and `dataset.json` records the ranges.
+#[test]
+fn gen_data_draws_each_samples_material_from_its_ranges() {
+    let out = scratch("gendata-material");
+    let base = GenConfig {
+        out: out.clone(),
+        samples: 3,
+        coarse_dx: 2e-3,
+        fine_dx: 2e-3,
+        pitch: 1e-3,
+        families: vec!["sphere".into()],
+        ..GenConfig::default()
+    };
+    let config = GenConfig {
+        poisson_range: Some([0.3, 0.48]),
+        friction_range: Some([0.0, 1.0]),
+        ..base.clone()
+    };
+    datagen::generate(&config, |_| {}).unwrap();
+    let dataset: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(dataset["poisson_range"], serde_json::json!([0.3, 0.48]));
+    assert_eq!(dataset["friction_range"], serde_json::json!([0.0, 1.0]));
+    let fixed_out = scratch("gendata-material-fixed");
+    datagen::generate(
+        &GenConfig {
+            out: fixed_out.clone(),
+            ..base
+        },
+        |_| {},
+    )
+    .unwrap();
+    let mut materials = Vec::new();
+    for i in 0..3 {
+        let name = format!("sample-{i:06}");
+        let meta: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join(format!("{name}.json"))).unwrap(),
+        )
+        .unwrap();
+        let fixed: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(fixed_out.join(format!("{name}.json"))).unwrap(),
+        )
+        .unwrap();
+        let (nu, mu) = (
+            meta["poisson"].as_f64().unwrap(),
+            meta["friction"].as_f64().unwrap(),
+        );
+        assert!(
+            (0.3..=0.48).contains(&nu) && (0.0..=1.0).contains(&mu),
+            "{nu} {mu}"
+        );
+        // (serde_json parses floats to within one unit in the last place.)
+        assert!((config.sample_gel(i).poisson - nu).abs() < 1e-15, "{nu}");
+        assert!((config.sample_gel(i).friction - mu).abs() < 1e-15, "{mu}");
+        assert!(fixed.get("poisson").is_none(), "{fixed}");
+        // The same press (shape and poses), another gel: another coarse depth.
+        for key in ["family", "radius", "x", "y", "depth", "slide"] {
+            assert_eq!(meta[key], fixed[key], "{name}: {key}");
+        }
+        let (_, a) = read_npy(&out.join(format!("{name}.npy")));
+        let (_, b) = read_npy(&fixed_out.join(format!("{name}.npy")));
+        let n = a.len() / 3;
+        if a[n..2 * n].iter().any(|&p| p > 0.0) {
+            assert_ne!(a[..n], b[..n], "{name}: the material changed nothing");
+        }
+        materials.push((nu, mu));
+    }
+    assert!(materials.windows(2).all(|w| w[0] != w[1]), "{materials:?}");
+    let _ = std::fs::remove_dir_all(&out);
+    let _ = std::fs::remove_dir_all(&fixed_out);
+}
+
 #[test]
 fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
     let out = scratch("heldout");

@@ -224,3 +224,27 @@ def test_rigid_refuses_shear_and_markers(press_xml):
             mujoco.MjModel.from_xml_string(with_config(press_xml, **{**DEFAULT, "outputs": outputs}))
         msg = str(err.value)
         assert "'touch'" in msg and "'outputs'" in msg and f"'{name}'" in msg and "physics" in msg
+
+
+def test_rom_serves_other_gel_materials_and_refuses_others(press_xml):
+    """The shipped reduced-order model through MuJoCo: a gel ten times stiffer gives the same
+    image and ten times the force (its coarse depth does not depend on Young's modulus);
+    Poisson's ratio and friction inside the ranges it was validated on (0.3 to 0.48, 0 to 1)
+    load and press; Poisson 0.49 is refused at load, naming the sensor and both values."""
+    rom = dict(physics="rom", outputs="depth force", resolution="64 48")
+    runs = {}
+    for name, extra in {"default": {}, "stiff": {"young": "1.19e6"},
+                        "other": {"poisson": "0.32", "friction": "0.1"}}.items():
+        model = mujoco.MjModel.from_xml_string(with_config(press_xml, **rom, **extra))
+        out = evaluate(model, mujoco.MjData(model), 0.4e-3)
+        runs[name] = (out["depth"], out["force"])
+        assert np.all(np.isfinite(out["depth"])) and abs(out["depth"].max() - 0.4e-3) < 0.04e-3
+        assert out["force"][2] > 0.0
+    np.testing.assert_array_equal(runs["stiff"][0], runs["default"][0])
+    np.testing.assert_allclose(runs["stiff"][1], 10.0 * runs["default"][1], rtol=1e-9, atol=1e-12)
+    # A softer-in-volume gel (Poisson 0.32) carries less force at the same press.
+    assert runs["other"][1][2] < runs["default"][1][2]
+    with pytest.raises(ValueError) as err:
+        mujoco.MjModel.from_xml_string(with_config(press_xml, **rom, poisson="0.49"))
+    msg = str(err.value)
+    assert "'touch'" in msg and "Poisson's ratio in [0.3, 0.48]" in msg and "0.49" in msg

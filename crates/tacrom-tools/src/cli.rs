@@ -329,7 +329,8 @@ pub struct GenDataArgs {
     /// Total samples of the data set (all shards).
     #[arg(long, value_name = "N", default_value_t = 100)]
     pub samples: usize,
-    /// This shard and the number of shards: does the samples with index % N == K.
+    /// This shard and the number of shards: does every N-th of the selected samples (all,
+    /// or those of --indices and --held-out-only) from the K-th on.
     #[arg(long, value_name = "K/N", default_value = "0/1", value_parser = shard)]
     pub shard: (usize, usize),
     /// Seed of the data set.

@@ -15,7 +15,9 @@
 //! spacings, lattice, seed, held-out families; not the sample count, so that a larger
 //! `--samples` extends a data set). Sample `i` is drawn from its own random
 //! stream seeded by `(seed, i)`, so a run is reproducible whatever the sharding: shard
-//! `k/N` does the samples with `i % N == k`, skipping those already on disk (resumable).
+//! `k/N` does every `N`-th of the selected samples from the `k`-th on (all, or those of
+//! `--indices` and `--held-out-only`, so that shards get equal counts), skipping those
+//! already on disk (resumable).
 //! `numpy.load` reads every file; `training/dataset.py` loads a directory.
 //!
 //! Families: `sphere`, `cylinder` (end-on or lying), `box`, `edge` (a box on one edge),
@@ -110,13 +112,26 @@ impl GenConfig {
         gel
     }
 
-    /// The sample indices of this shard, in order.
-    fn shard_indices(&self) -> Vec<usize> {
+    /// The sample indices of this shard, in order: every `N`-th of the selected samples
+    /// (all of them, or those of [`GenConfig::indices`] and, with
+    /// [`GenConfig::held_out_only`], of held-out families) from the `K`-th on, so that
+    /// shards get equal counts whatever the selection.
+    fn shard_indices(&self, meshes: &mut MeshLibrary) -> Result<Vec<usize>, String> {
+        let mut picked = Vec::new();
+        for i in 0..self.samples {
+            if !self.indices.is_empty() && !self.indices.contains(&i) {
+                continue;
+            }
+            if self.held_out_only {
+                let p = draw_press(self.seed, i as u64, meshes, &self.families, self.gel.size)?;
+                if !HELD_OUT.contains(&p.family.as_str()) {
+                    continue;
+                }
+            }
+            picked.push(i);
+        }
         let (k, n) = self.shard;
-        (k..self.samples)
-            .step_by(n)
-            .filter(|i| self.indices.is_empty() || self.indices.contains(i))
-            .collect()
+        Ok(picked.into_iter().skip(k).step_by(n.max(1)).collect())
     }
 }
 
@@ -816,7 +831,7 @@ fn gel_params(config: &GenConfig, index: usize, dx: f64) -> GelParams {
 pub fn list(config: &GenConfig) -> Result<Vec<String>, String> {
     let mut meshes = MeshLibrary::new(&config.patterns);
     let mut lines = Vec::new();
-    for index in config.shard_indices() {
+    for index in config.shard_indices(&mut meshes)? {
         let p = draw_press(
             config.seed,
             index as u64,
@@ -914,7 +929,8 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
     let new_gel = |index: usize, dx: f64, options: SolverOptions| {
         Gel::new(gel_params(config, index, dx), options).map_err(|e| e.to_string())
     };
-    let first = config.shard_indices().first().copied().unwrap_or(0);
+    let indices = config.shard_indices(&mut meshes)?;
+    let first = indices.first().copied().unwrap_or(0);
     let mut coarse = new_gel(first, config.coarse_dx, options)?;
     let mut fine = new_gel(first, config.fine_dx, fine_options)?;
     let (k, n) = config.shard;
@@ -922,7 +938,6 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
     let (mut t_coarse, mut t_fine) = (0.0, 0.0);
     let mut obs = Observation::default();
     let mut zmin = Vec::new();
-    let indices = config.shard_indices();
     let bar = Progress::new(indices.len(), true);
     for index in indices {
         bar.advance(1);

@@ -534,6 +534,40 @@ fn gen_data_draws_each_samples_material_from_its_ranges() {
     let _ = std::fs::remove_dir_all(&fixed_out);
 }
 
+/// Shards of a selection (held-out presses only) get equal counts, and together they are
+/// the selection, each press once: a many-core machine or a batch array keeps every worker
+/// busy (by index modulo N, 56 held-out presses of 300 fell 0 to 8 per shard of 16).
+#[test]
+fn shards_of_a_selection_are_balanced_and_cover_it() {
+    let families: Vec<String> = vec!["sphere".into(), "ridges".into(), "box".into()];
+    let config = |shard: (usize, usize)| GenConfig {
+        samples: 60,
+        shard,
+        families: families.clone(),
+        held_out_only: true,
+        ..GenConfig::default()
+    };
+    let all = datagen::list(&config((0, 1))).unwrap();
+    assert!(
+        all.len() > 8 && all.len() < 60,
+        "{} held-out presses",
+        all.len()
+    );
+    let mut union = Vec::new();
+    let mut counts = Vec::new();
+    for k in 0..7 {
+        let lines = datagen::list(&config((k, 7))).unwrap();
+        counts.push(lines.len());
+        union.extend(lines);
+    }
+    let (lo, hi) = (counts.iter().min().unwrap(), counts.iter().max().unwrap());
+    assert!(hi - lo <= 1, "{counts:?}");
+    union.sort();
+    let mut all = all;
+    all.sort();
+    assert_eq!(union, all);
+}
+
 #[test]
 fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
     let out = scratch("heldout");

@@ -779,6 +779,10 @@ pub struct SolveMeta {
     pub residual: Option<f64>,
     /// Wall time of the whole press (s).
     pub seconds: f64,
+    /// Total force of the gel on the indenter at the last pose (N, sensor frame; absent
+    /// in data sets written before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force: Option<[f64; 3]>,
 }
 
 impl SolveMeta {
@@ -789,6 +793,7 @@ impl SolveMeta {
             converged: r.converged,
             residual: r.residual.is_finite().then_some(r.residual),
             seconds,
+            force: None,
         }
     }
 }
@@ -978,8 +983,14 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             family: press.family.clone(),
             held_out,
             params: press.params,
-            coarse: SolveMeta::new(&rc, sc),
-            reference: SolveMeta::new(&rf, sf),
+            coarse: SolveMeta {
+                force: Some(coarse.force().into()),
+                ..SolveMeta::new(&rc, sc)
+            },
+            reference: SolveMeta {
+                force: Some(fine.force().into()),
+                ..SolveMeta::new(&rf, sf)
+            },
             poisson: config.poisson_range.map(|_| coarse.params().poisson),
             friction: config.friction_range.map(|_| coarse.params().friction),
         };

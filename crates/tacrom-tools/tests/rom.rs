@@ -439,6 +439,12 @@ fn gen_data_writes_numpy_pairs_and_resumes() {
     assert!(data.iter().any(|&v| v > 1e-5), "the press left no mark");
     let meta = std::fs::read_to_string(out.join("sample-000001.json")).unwrap();
     assert!(meta.contains("\"family\": \"sphere\""), "{meta}");
+    // Both solves' forces are recorded: a sphere pressed into the gel pushes it down.
+    let meta: serde_json::Value = serde_json::from_str(&meta).unwrap();
+    for solve in ["coarse", "reference"] {
+        let fz = meta[solve]["force"][2].as_f64().unwrap();
+        assert!(fz > 0.0 && fz.is_finite(), "{solve}: {meta}");
+    }
     // Resumable: nothing left to do.
     let summary = datagen::generate(&config, |_| {}).unwrap();
     assert!(

@@ -67,6 +67,10 @@ pub struct MethodRow {
     /// Mean over the presses of how far the decoded surface sank below the deepest
     /// indenter point before the depth rule capped it (m; models only).
     pub below_reach: f64,
+    /// Median relative error, against the reference's, of the coarse normal force scaled
+    /// by the ratio of the decoded surface's displaced volume to the coarse one's (models
+    /// only, where the samples record forces; a diagnostic, not what the sensor reports).
+    pub volume_force_error: Option<f64>,
 }
 
 /// The evaluation's result.
@@ -84,6 +88,11 @@ pub struct EvalResult {
     pub reference_dx: Vec<f64>,
     /// Every sample was evaluated, not only held-out ones.
     pub all: bool,
+    /// The coarse solve's normal force against the reference's (which `rom` takes as it
+    /// is), over the samples whose JSON records both and whose reference force exceeds
+    /// 1 mN: count, median and 90th percentile of the relative error, and the median
+    /// signed error.
+    pub force_error: Option<(usize, f64, f64, f64)>,
 }
 
 struct Sample {
@@ -92,6 +101,8 @@ struct Sample {
     obs: Observation,
     reference: Vec<f64>,
     solve_s: [f64; 2],
+    /// Normal force of the coarse and of the reference solve (N), where recorded.
+    force: Option<[f64; 2]>,
     /// Poisson's ratio and friction of the sample's gel.
     material: [f64; 2],
 }
@@ -119,10 +130,12 @@ struct SampleInfo {
     friction: Option<f64>,
 }
 
-/// The wall time of a solve.
+/// The wall time of a solve and its force, where recorded.
 #[derive(Deserialize)]
 struct Timing {
     seconds: f64,
+    #[serde(default)]
+    force: Option<[f64; 3]>,
 }
 
 /// The samples of `dir` (held-out ones unless `all`), and the data set's reference spacing.
@@ -191,6 +204,11 @@ fn load_samples(
             ],
             reference: chan(2),
             solve_s: [meta.coarse.seconds, meta.reference.seconds],
+            force: meta
+                .coarse
+                .force
+                .zip(meta.reference.force)
+                .map(|(c, r)| [c[2], r[2]]),
         });
     }
     Ok((out, dataset.fine_dx))
@@ -374,6 +392,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             return Err(bad(dir, "its lattice differs from the first model's"));
         }
         let mut acc = Acc::new(&label, names.len());
+        let mut volume_errors = Vec::new();
         for (s, &f) in samples.iter_mut().zip(&fam) {
             rom.set_material(&mut s.obs, s.material[0], s.material[1]);
             let t0 = Instant::now();
@@ -384,10 +403,20 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             acc.row.steps += report.refinement.map_or(0, |r| r.iterations) as f64;
             acc.row.into_indenter += report.penetration_excess;
             acc.row.below_reach += report.bound_excess.max(0.0);
+            if let Some([fc, fr]) = s.force.filter(|f| f[1] > 1e-3) {
+                let v_rom: f64 = rom.lattice_depth().iter().sum();
+                let v_coarse: f64 = s.obs.coarse.iter().sum();
+                if v_coarse > 0.0 {
+                    volume_errors.push((fc * v_rom / v_coarse / fr - 1.0).abs());
+                }
+            }
             acc.add(score(&spec, rom.lattice_depth(), &s.reference), f);
             bar.advance(1);
         }
-        result.rows.push(acc.finish(samples.len(), &counts));
+        let mut row = acc.finish(samples.len(), &counts);
+        row.volume_force_error =
+            (!volume_errors.is_empty()).then(|| metrics::median(&volume_errors));
+        result.rows.push(row);
     }
     bar.finish();
     let median_of = |k: usize| {
@@ -399,6 +428,21 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
         metrics::median(&v)
     };
     result.solve_s = [median_of(0), median_of(1)];
+    let mut errors: Vec<f64> = samples
+        .iter()
+        .filter_map(|s| s.force)
+        .filter(|f| f[1] > 1e-3)
+        .map(|f| f[0] / f[1] - 1.0)
+        .collect();
+    if !errors.is_empty() {
+        let median_signed = metrics::median(&errors);
+        for e in &mut errors {
+            *e = e.abs();
+        }
+        errors.sort_by(f64::total_cmp);
+        let p90 = errors[((errors.len() as f64 * 0.9).ceil() as usize).clamp(1, errors.len()) - 1];
+        result.force_error = Some((errors.len(), metrics::median(&errors), p90, median_signed));
+    }
     result.samples = samples.len();
     result.all = options.all;
     result.families = names.into_iter().zip(counts).collect();
@@ -463,6 +507,26 @@ pub fn markdown(r: &EvalResult) -> String {
                 "- | - | -".to_owned()
             }
         );
+    }
+    if let Some((n, median, p90, signed)) = r.force_error {
+        let _ = writeln!(
+            s,
+            "\nNormal force of the coarse solve (which rom reports) against the reference's, \
+             over the {n} presses with more than 1 mN: median error {:.1} %, 90th percentile \
+             {:.1} %, median signed error {:+.1} %.",
+            median * 100.0,
+            p90 * 100.0,
+            signed * 100.0
+        );
+        for m in r.rows.iter().filter(|m| m.volume_force_error.is_some()) {
+            let _ = writeln!(
+                s,
+                "- {}: the coarse force scaled by the decoded surface's displaced volume over \
+                 the coarse one's (a diagnostic): median error {:.1} %",
+                m.label,
+                m.volume_force_error.unwrap_or(f64::NAN) * 100.0
+            );
+        }
     }
     let _ = write!(s, "\nMAE um per family:\n\n| family | samples |");
     for m in &r.rows {

@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-fine gen-data-material train train-material eval-rom eval-rom-material test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-fine gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -160,6 +160,12 @@ train-material: train-env
 	  PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data data/rom-mat-merged --steps $(ROM_STEPS) \
 	    --seed $$s --device $(ROM_DEVICE) --out out/models/rom-material-s$$s; \
 	done
+
+# The shipped model's force factor (manifest `force`) from the forces of ROM_DATA's training
+# presses (`tacrom gen-data` records them; the shipped factor came from data/rom-v2-force,
+# ROM_DATA's presses written with forces: `make gen-data ROM_DATA=data/rom-v2-force`).
+force-factor: venv
+	PYTHONPATH=training $(PY) -m tacrom_rom.force_factor $(ROM_DATA) models/rom-default
 
 # rigid, coarse, rom and its ablations against both references on the held-out families.
 eval-rom: build

@@ -83,6 +83,10 @@ use features::{query_features, Conditioning, LatticeSpec, Observation};
 use lbfgs::{LbfgsOptions, LbfgsReport};
 use runtime::{load_graph, Graph};
 
+/// Range of the decoded-over-coarse displaced volume within which [`Rom::force_factor`]
+/// uses it: the decoder corrects the coarse surface, it does not replace it.
+pub const VOLUME_RATIO: [f64; 2] = [0.25, 4.0];
+
 /// Format tag of the manifests this build reads.
 pub const FORMAT: &str = "tacrom-rom-1";
 /// Name of the shipped model's directory under `models/`.
@@ -196,6 +200,9 @@ pub struct Manifest {
     /// The gel materials a model without material inputs was validated on and serves
     /// (manifest `materials`, with the evaluation that measured it; `None`: the gel's only).
     pub materials: Option<Conditioning>,
+    /// The factor of the force from the decoded surface's displaced volume (manifest
+    /// `force.volume_factor`; `None`: `rom` reports the coarse gel's force).
+    pub force_volume_factor: Option<f64>,
     /// The whole document (training, data, validation records).
     pub json: serde_json::Value,
 }
@@ -229,6 +236,14 @@ mod document {
         /// The materials a model without material inputs was validated on.
         #[serde(default)]
         pub materials: Option<super::Conditioning>,
+        /// The force from the decoded surface's displaced volume.
+        #[serde(default)]
+        pub force: Option<Force>,
+    }
+
+    #[derive(Deserialize)]
+    pub(super) struct Force {
+        pub volume_factor: f64,
     }
 
     #[derive(Deserialize)]
@@ -483,6 +498,16 @@ impl Manifest {
             } else {
                 doc.materials
             },
+            force_volume_factor: match doc.force {
+                Some(f) if (0.5..=2.0).contains(&f.volume_factor) => Some(f.volume_factor),
+                Some(f) => {
+                    return Err(bad(format!(
+                        "'force.volume_factor' is {}, expected a factor in [0.5, 2]",
+                        f.volume_factor
+                    )))
+                }
+                None => None,
+            },
             files,
             json,
         })
@@ -732,6 +757,37 @@ impl Rom {
     /// The depth on the lattice of the last inference (m, row-major `ny x nx`).
     pub fn lattice_depth(&self) -> &[f64] {
         &self.lattice_depth
+    }
+
+    /// The observation of the last [`Rom::evaluate`]: the coarse depth and the rigid
+    /// penetration on the lattice.
+    pub fn observation(&self) -> &Observation {
+        &self.obs
+    }
+
+    /// The factor of the coarse gel's normal force for the last evaluation: the decoded
+    /// surface's displaced volume over the coarse one's (on the lattice, over the whole
+    /// face) times the manifest's `force.volume_factor`; 1 for a model without one, or
+    /// where the ratio falls outside [`VOLUME_RATIO`] (a surface it does not describe).
+    ///
+    /// On a bonded layer the total normal force is close to proportional to the surface's
+    /// displaced volume, with a constant of the gel and its grid that barely depends on
+    /// the indenter (1.65 to 1.79 in units of `M / h` over spheres, a punch and a bar on
+    /// the coarse grid); the manifest's factor, measured on the training presses, takes
+    /// out the coarse grid's own constant.
+    pub fn force_factor(&self) -> f64 {
+        let Some(k) = self.manifest.force_volume_factor else {
+            return 1.0;
+        };
+        let decoded: f64 = self.lattice_depth.iter().sum();
+        let coarse: f64 = self.obs.coarse.iter().sum();
+        let ratio = decoded / coarse;
+        if coarse > 0.0 && ratio.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&ratio)
+        {
+            ratio * k
+        } else {
+            1.0
+        }
     }
 
     fn refine_enabled(&self) -> bool {

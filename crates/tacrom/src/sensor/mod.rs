@@ -133,6 +133,8 @@ impl TactileSensor {
             .outputs
             .iter()
             .fold(Needs::NONE, |n, o| n | o.spec().needs);
+        // `rom` scales its force and pressure by the decoded surface: it decodes for them.
+        needs.depth |= model.force_needs_depth() && (needs.force || needs.pressure);
         let pixels = config.pixels();
         // Through a pinhole every image is resampled where the rays meet the surface, so
         // the depth image is computed for any of them.

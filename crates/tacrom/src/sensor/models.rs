@@ -62,6 +62,12 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
     /// (sensor frame x, y) after the last solve; zero for a model without a gel.
     fn displacement(&self, rest: [f64; 2]) -> [f64; 2];
 
+    /// Whether the force and pressure come from the depth solve (`rom`: scaled by the
+    /// decoded surface), so that a sensor computes the depth when it reports either.
+    fn force_needs_depth(&self) -> bool {
+        false
+    }
+
     /// Back to the undeformed gel.
     fn reset(&mut self);
 
@@ -85,6 +91,7 @@ pub fn build(config: &Config) -> Result<Box<dyn SurfaceModel>, SensorError> {
             Ok(Box::new(Reduced {
                 mpm,
                 rom: Box::new(rom),
+                force_factor: 1.0,
             }))
         }
     }
@@ -298,11 +305,16 @@ impl SurfaceModel for Mpm {
 }
 
 /// The coarse MPM gel and the reduced-order model restoring its fine detail
-/// (`physics="rom"`); where inference fails, the coarse surface with a warning.
+/// (`physics="rom"`); where inference fails, the coarse surface with a warning. The normal
+/// force and the pressure are the coarse gel's times [`Rom::force_factor`] (the decoded
+/// surface's displaced volume over the coarse one's, for a model whose manifest has a
+/// `force` factor); friction and the coupling's wrenches stay the coarse gel's.
 #[derive(Debug)]
 struct Reduced {
     mpm: Mpm,
     rom: Box<Rom>,
+    /// [`Rom::force_factor`] of the last evaluation (1 when the decoder did not run).
+    force_factor: f64,
 }
 
 impl SurfaceModel for Reduced {
@@ -318,6 +330,7 @@ impl SurfaceModel for Reduced {
         if let (Some(gel), false) = (self.mpm.gel(), scene.indenters.is_empty()) {
             match self.rom.evaluate(gel, scene.indenters, scene.grid, out) {
                 Ok(report) => {
+                    self.force_factor = self.rom.force_factor();
                     eval.bound_excess = report.bound_excess;
                     eval.rom = Some(report);
                     return;
@@ -329,11 +342,18 @@ impl SurfaceModel for Reduced {
                 )),
             }
         }
+        self.force_factor = 1.0;
         self.mpm.depth(scene, out, eval);
     }
 
     fn force(&self) -> Vector3<f64> {
-        self.mpm.force()
+        let mut f = self.mpm.force();
+        f.z *= self.force_factor;
+        f
+    }
+
+    fn force_needs_depth(&self) -> bool {
+        self.rom.manifest().force_volume_factor.is_some()
     }
 
     /// The coarse gel's, as the force.
@@ -344,6 +364,7 @@ impl SurfaceModel for Reduced {
     /// The coarse gel's pressure (the decoder restores depth only).
     fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
         self.mpm.pressure(grid, out);
+        out.iter_mut().for_each(|p| *p *= self.force_factor);
     }
 
     /// The decoder restores depth only: shear comes from the coarse gel.
@@ -358,6 +379,7 @@ impl SurfaceModel for Reduced {
 
     fn reset(&mut self) {
         self.mpm.reset();
+        self.force_factor = 1.0;
     }
 
     fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError> {
@@ -368,6 +390,7 @@ impl SurfaceModel for Reduced {
         Ok(Box::new(Reduced {
             mpm: self.mpm.clone(),
             rom: Box::new(rom),
+            force_factor: self.force_factor,
         }))
     }
 }

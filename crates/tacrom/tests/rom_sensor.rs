@@ -169,6 +169,29 @@ fn rom_force_follows_the_decoded_surface_closer_to_hertz_than_coarse() {
     }
 }
 
+/// The gel pushes back with the force rom reports: its wrenches' normal force sums to the
+/// `force` output.
+#[test]
+fn rom_wrenches_carry_the_reported_force() {
+    let raw = RawConfig::default()
+        .with(ATTR_OUTPUTS, "depth force")
+        .with(ATTR_RESOLUTION, "32 24");
+    let config = Config::from_raw("touch", &raw).unwrap();
+    let mut out = vec![0.0; config.sensordata_len()];
+    let mut sensor = TactileSensor::new(config).unwrap();
+    let placed = [Placed {
+        shape: Arc::new(Sphere::new(0.002)),
+        pose: Isometry3::translation(1e-3, 0.0, 0.002 - 0.3e-3),
+    }];
+    sensor.evaluate(&placed, &mut out);
+    let f = sensor.force();
+    let w: f64 = sensor.wrenches(&placed).iter().map(|w| w.force.z).sum();
+    assert!(
+        f.z > 0.0 && (w - f.z).abs() <= 1e-9 * f.z,
+        "wrenches {w}, force {f:?}"
+    );
+}
+
 #[test]
 fn a_gel_other_than_the_models_is_refused() {
     let raw = RawConfig::default()

@@ -308,7 +308,8 @@ impl SurfaceModel for Mpm {
 /// (`physics="rom"`); where inference fails, the coarse surface with a warning. The normal
 /// force and the pressure are the coarse gel's times [`Rom::force_factor`] (the decoded
 /// surface's displaced volume over the coarse one's, for a model whose manifest has a
-/// `force` factor); friction and the coupling's wrenches stay the coarse gel's.
+/// `force` factor), and the coupling's wrenches with them; friction stays the coarse
+/// gel's.
 #[derive(Debug)]
 struct Reduced {
     mpm: Mpm,
@@ -356,12 +357,21 @@ impl SurfaceModel for Reduced {
         self.rom.manifest().force_volume_factor.is_some()
     }
 
-    /// The coarse gel's, as the force.
+    /// The coarse gel's, with the normal force scaled as [`SurfaceModel::force`] (and the
+    /// torque about the horizontal axes with it: the contact lies within a millimetre of
+    /// the face, so the normal force makes those), so that the gel pushes back with the
+    /// force the sensor reports.
     fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
-        self.mpm.wrenches(indenters)
+        let mut w = self.mpm.wrenches(indenters);
+        for w in &mut w {
+            w.force.z *= self.force_factor;
+            w.torque.x *= self.force_factor;
+            w.torque.y *= self.force_factor;
+        }
+        w
     }
 
-    /// The coarse gel's pressure (the decoder restores depth only).
+    /// The coarse gel's pressure, scaled as the normal force.
     fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
         self.mpm.pressure(grid, out);
         out.iter_mut().for_each(|p| *p *= self.force_factor);

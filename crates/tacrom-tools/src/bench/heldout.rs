@@ -67,11 +67,11 @@ pub struct MethodRow {
     /// Mean over the presses of how far the decoded surface sank below the deepest
     /// indenter point before the depth rule capped it (m; models only).
     pub below_reach: f64,
-    /// Median relative error, against the reference's, of the coarse normal force scaled
-    /// by the ratio of the decoded surface's displaced volume to the coarse one's and by
-    /// the manifest's `force.volume_factor` (1 where it has none): what `rom` reports for
-    /// a model with the factor (models only, where the samples record forces).
-    pub volume_force_error: Option<[f64; 2]>,
+    /// Median and 90th percentile of the relative error, against the reference's, of the
+    /// normal force the model reports ([`tacrom::rom::Rom::force_factor_on`]: the coarse
+    /// force scaled by the decoded surface for a model with a `force` factor, the coarse
+    /// force itself otherwise; models only, where the samples record forces).
+    pub reported_force_error: Option<[f64; 2]>,
 }
 
 /// The evaluation's result.
@@ -393,7 +393,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             return Err(bad(dir, "its lattice differs from the first model's"));
         }
         let mut acc = Acc::new(&label, names.len());
-        let mut volume_errors = Vec::new();
+        let mut force_errors = Vec::new();
         for (s, &f) in samples.iter_mut().zip(&fam) {
             rom.set_material(&mut s.obs, s.material[0], s.material[1]);
             let t0 = Instant::now();
@@ -405,22 +405,18 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             acc.row.into_indenter += report.penetration_excess;
             acc.row.below_reach += report.bound_excess.max(0.0);
             if let Some([fc, fr]) = s.force.filter(|f| f[1] > 1e-3) {
-                let v_rom: f64 = rom.lattice_depth().iter().sum();
-                let v_coarse: f64 = s.obs.coarse.iter().sum();
-                let k = rom.manifest().force_volume_factor.unwrap_or(1.0);
-                if v_coarse > 0.0 {
-                    volume_errors.push((fc * k * v_rom / v_coarse / fr - 1.0).abs());
-                }
+                let reported = fc * rom.force_factor_on(&s.obs.coarse);
+                force_errors.push((reported / fr - 1.0).abs());
             }
             acc.add(score(&spec, rom.lattice_depth(), &s.reference), f);
             bar.advance(1);
         }
         let mut row = acc.finish(samples.len(), &counts);
-        row.volume_force_error = (!volume_errors.is_empty()).then(|| {
-            volume_errors.sort_by(f64::total_cmp);
-            let n = volume_errors.len();
-            let p90 = volume_errors[((n as f64 * 0.9).ceil() as usize).clamp(1, n) - 1];
-            [metrics::median(&volume_errors), p90]
+        row.reported_force_error = (!force_errors.is_empty()).then(|| {
+            force_errors.sort_by(f64::total_cmp);
+            let n = force_errors.len();
+            let p90 = force_errors[((n as f64 * 0.9).ceil() as usize).clamp(1, n) - 1];
+            [metrics::median(&force_errors), p90]
         });
         result.rows.push(row);
     }
@@ -524,15 +520,14 @@ pub fn markdown(r: &EvalResult) -> String {
             p90 * 100.0,
             signed * 100.0
         );
-        for m in r.rows.iter().filter(|m| m.volume_force_error.is_some()) {
+        for m in r.rows.iter().filter(|m| m.reported_force_error.is_some()) {
             let _ = writeln!(
                 s,
-                "- {}: the coarse force times the decoded surface's displaced volume over the \
-                 coarse one's and the manifest's volume factor (1 where it has none): median \
-                 error {:.1} %, 90th percentile {:.1} %",
+                "- {}: the normal force the model reports: median error {:.1} %, 90th percentile \
+                 {:.1} %",
                 m.label,
-                m.volume_force_error.map_or(f64::NAN, |e| e[0]) * 100.0,
-                m.volume_force_error.map_or(f64::NAN, |e| e[1]) * 100.0
+                m.reported_force_error.map_or(f64::NAN, |e| e[0]) * 100.0,
+                m.reported_force_error.map_or(f64::NAN, |e| e[1]) * 100.0
             );
         }
     }

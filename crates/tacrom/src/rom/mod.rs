@@ -759,15 +759,10 @@ impl Rom {
         &self.lattice_depth
     }
 
-    /// The observation of the last [`Rom::evaluate`]: the coarse depth and the rigid
-    /// penetration on the lattice.
-    pub fn observation(&self) -> &Observation {
-        &self.obs
-    }
-
-    /// The factor of the coarse gel's normal force for the last evaluation: the decoded
-    /// surface's displaced volume over the coarse one's (on the lattice, over the whole
-    /// face) times the manifest's `force.volume_factor`; 1 for a model without one, or
+    /// The factor of the coarse gel's normal force for the last inference, on the
+    /// observation whose coarse depth is `coarse` (the last [`Rom::evaluate`]'s for
+    /// [`Rom::force_factor`]): the decoded surface's displaced volume over the coarse
+    /// one's (on the lattice, over the whole face) times the manifest's `force.volume_factor`; 1 for a model without one, or
     /// where the ratio falls outside [`VOLUME_RATIO`] (a surface it does not describe).
     ///
     /// On a bonded layer the total normal force is close to proportional to the surface's
@@ -775,12 +770,12 @@ impl Rom {
     /// the indenter (1.65 to 1.79 in units of `M / h` over spheres, a punch and a bar on
     /// the coarse grid); the manifest's factor, measured on the training presses, takes
     /// out the coarse grid's own constant.
-    pub fn force_factor(&self) -> f64 {
+    pub fn force_factor_on(&self, coarse: &[f64]) -> f64 {
         let Some(k) = self.manifest.force_volume_factor else {
             return 1.0;
         };
         let decoded: f64 = self.lattice_depth.iter().sum();
-        let coarse: f64 = self.obs.coarse.iter().sum();
+        let coarse: f64 = coarse.iter().sum();
         let ratio = decoded / coarse;
         if coarse > 0.0 && ratio.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&ratio)
         {
@@ -788,6 +783,11 @@ impl Rom {
         } else {
             1.0
         }
+    }
+
+    /// [`Rom::force_factor_on`] the last [`Rom::evaluate`]'s observation.
+    pub fn force_factor(&self) -> f64 {
+        self.force_factor_on(&self.obs.coarse)
     }
 
     fn refine_enabled(&self) -> bool {

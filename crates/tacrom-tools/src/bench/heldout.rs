@@ -40,7 +40,7 @@ pub struct EvalOptions {
     /// whose held-out presses `data` recomputes at a finer spacing): its reference gets a
     /// row of its own, to measure that reference against this one.
     pub compare: Option<PathBuf>,
-    /// Where report.md and results.csv go.
+    /// Where report.md, results.csv and forces.csv go.
     pub out: PathBuf,
 }
 
@@ -72,6 +72,26 @@ pub struct MethodRow {
     /// force scaled by the decoded surface for a model with a `force` factor, the coarse
     /// force itself otherwise; models only, where the samples record forces).
     pub reported_force_error: Option<[f64; 2]>,
+    /// Per press with both forces recorded: the press's file, the reference and the
+    /// reported normal force (N), and the coarse, decoded and reference displaced volumes
+    /// of the lattice (sum of depths, m).
+    pub forces: Vec<ForceRow>,
+}
+
+/// One press of [`MethodRow::forces`].
+#[derive(Clone, Debug, Default)]
+pub struct ForceRow {
+    /// The sample's array file.
+    pub file: String,
+    /// The sample's indenter family.
+    pub family: String,
+    /// The reference solve's normal force (N).
+    pub reference: f64,
+    /// The normal force the model reports (N).
+    pub reported: f64,
+    /// Displaced volumes of the lattice, coarse, decoded and reference (sum of the
+    /// depths, m).
+    pub volumes: [f64; 3],
 }
 
 /// The evaluation's result.
@@ -312,7 +332,9 @@ fn label_of(dir: &Path) -> String {
     }
 }
 
-/// Runs the evaluation and writes report.md and results.csv into `options.out`.
+/// Runs the evaluation and writes report.md, results.csv and forces.csv (per press with
+/// both forces recorded: reference and reported force, displaced volumes) into
+/// `options.out`.
 pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
     let Some(first) = options.models.first() else {
         return Err(BenchError::Usage("eval-rom: no model given".to_owned()));
@@ -394,6 +416,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
         }
         let mut acc = Acc::new(&label, names.len());
         let mut force_errors = Vec::new();
+        let mut forces = Vec::new();
         for (s, &f) in samples.iter_mut().zip(&fam) {
             rom.set_material(&mut s.obs, s.material[0], s.material[1]);
             let t0 = Instant::now();
@@ -407,11 +430,23 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             if let Some([fc, fr]) = s.force.filter(|f| f[1] > 1e-3) {
                 let reported = fc * rom.force_factor_on(&s.obs.coarse);
                 force_errors.push((reported / fr - 1.0).abs());
+                forces.push(ForceRow {
+                    file: s.file.to_string_lossy().into_owned(),
+                    family: s.family.clone(),
+                    reference: fr,
+                    reported,
+                    volumes: [
+                        s.obs.coarse.iter().sum(),
+                        rom.lattice_depth().iter().sum(),
+                        s.reference.iter().sum(),
+                    ],
+                });
             }
             acc.add(score(&spec, rom.lattice_depth(), &s.reference), f);
             bar.advance(1);
         }
         let mut row = acc.finish(samples.len(), &counts);
+        row.forces = forces;
         row.reported_force_error = (!force_errors.is_empty()).then(|| {
             force_errors.sort_by(f64::total_cmp);
             let n = force_errors.len();
@@ -568,5 +603,26 @@ fn write(options: &EvalOptions, r: &EvalResult) -> Result<(), BenchError> {
         );
     }
     let path = out.join("results.csv");
+    std::fs::write(&path, csv).map_err(|e| fail(&path, e))?;
+    let mut csv = String::from(
+        "method,sample,family,force_reference_n,force_reported_n,volume_coarse_m,volume_decoded_m,volume_reference_m\n",
+    );
+    for m in &r.rows {
+        for f in &m.forces {
+            let _ = writeln!(
+                csv,
+                "{},{},{},{:e},{:e},{:e},{:e},{:e}",
+                m.label,
+                f.file,
+                f.family,
+                f.reference,
+                f.reported,
+                f.volumes[0],
+                f.volumes[1],
+                f.volumes[2]
+            );
+        }
+    }
+    let path = out.join("forces.csv");
     std::fs::write(&path, csv).map_err(|e| fail(&path, e))
 }

@@ -1,0 +1,74 @@
+//! A 5 mm sphere pressed into the default gel in steps, frame by frame, for measuring a
+//! press's cost and how its answer depends on the solver's settings:
+//!
+//! `cargo run --release --example fine_press -- [key=value ...]`
+//!
+//! Keys (defaults): `dx` (0.3e-3 m), `depths` ("0.1,0.2,0.3" mm, pressed in order, each
+//! solve warm-started from the last), `threads` (1), `friction` (0.5), `tolerance` (1e-3),
+//! `solver` (relaxation), `cfl` (0.5), `damping` (1). Prints each step's time, iterations,
+//! convergence and normal force.
+
+use nalgebra::Isometry3;
+use std::sync::Arc;
+use std::time::Instant;
+use tacrom::geometry::*;
+use tacrom::mpm::*;
+
+fn main() {
+    let mut params = GelParams {
+        dx: 0.3e-3,
+        ..Default::default()
+    };
+    let mut options = SolverOptions::default();
+    let mut depths = vec![0.1e-3, 0.2e-3, 0.3e-3];
+    for arg in std::env::args().skip(1) {
+        let (key, value) = arg
+            .split_once('=')
+            .unwrap_or_else(|| panic!("expected key=value, got '{arg}'"));
+        let number = || -> f64 {
+            value
+                .parse()
+                .unwrap_or_else(|_| panic!("{key}: not a number: '{value}'"))
+        };
+        match key {
+            "dx" => params.dx = number(),
+            "friction" => params.friction = number(),
+            "threads" => options.threads = number() as usize,
+            "tolerance" => options.tolerance = number(),
+            "cfl" => options.cfl = number(),
+            "damping" => options.damping = number(),
+            "solver" => {
+                options.solver =
+                    Solver::named(value).unwrap_or_else(|| panic!("unknown solver '{value}'"))
+            }
+            "depths" => {
+                depths = value
+                    .split(',')
+                    .map(|d| d.parse::<f64>().expect("depths in mm") * 1e-3)
+                    .collect()
+            }
+            _ => panic!("unknown key '{key}'"),
+        }
+    }
+    let mut g = Gel::new(params, options).unwrap();
+    let ball: Arc<dyn Sdf> = Arc::new(Sphere::new(5e-3));
+    let total = Instant::now();
+    for d in depths {
+        let t0 = Instant::now();
+        let r = g.solve(&[Placed {
+            shape: ball.clone(),
+            pose: Isometry3::translation(0.0, 0.0, 5e-3 - d),
+        }]);
+        println!(
+            "depth {:.2} mm: {:.2} s, {} iterations, converged {}, residual {:.2e}, active {}, force {:.5} N",
+            d * 1e3,
+            t0.elapsed().as_secs_f64(),
+            r.iterations,
+            r.converged,
+            r.residual,
+            r.active_particles,
+            g.force()[2]
+        );
+    }
+    println!("total {:.1} s", total.elapsed().as_secs_f64());
+}

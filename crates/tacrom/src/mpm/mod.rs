@@ -64,6 +64,9 @@
 //! * `indenters.rs`: matching indenters between solves, their start poses and sweep;
 //! * `region.rs`: the active region a solve moves;
 //! * `relax.rs`: dynamic relaxation, the convergence test, one step (the default solver);
+//! * `total.rs`: the same relaxation on nodal displacements with fixed quadrature points
+//!   ([`Solver::Total`], experimental: total-Lagrangian, so its equilibrium does not
+//!   depend on the path);
 //! * `newton/`: the equilibrium as an energy minimum by Newton's method
 //!   ([`Solver::Newton`]; total-Lagrangian nodal displacements, sparse Cholesky, contact
 //!   on a surface lattice finer than the particles, lagged friction);
@@ -84,6 +87,7 @@ mod pressure;
 mod region;
 mod relax;
 mod surface;
+mod total;
 mod transfer;
 
 #[cfg(test)]
@@ -384,6 +388,8 @@ pub struct Gel {
     newton: Option<Box<newton::Newton>>,
     /// The last solve's contact loads, for [`Gel::contact_pressure`].
     loads: Vec<pressure::ContactLoad>,
+    /// The total-Lagrangian relaxation's nodal state ([`Solver::Total`]).
+    total: Option<Box<total::Total>>,
 }
 
 impl std::fmt::Debug for Gel {
@@ -453,6 +459,7 @@ impl Gel {
             last_motion: Vec::new(),
             newton: None,
             loads: Vec::new(),
+            total: None,
         })
     }
 
@@ -471,7 +478,7 @@ impl Gel {
         let s = self.layout.spacing[0].max(self.layout.spacing[1]);
         match solver {
             Solver::Newton => s / newton::CONTACT_SUBDIVISION as f64,
-            Solver::Relaxation => s,
+            Solver::Relaxation | Solver::Total => s,
         }
     }
 
@@ -563,6 +570,7 @@ impl Gel {
         if let Some(n) = self.newton.as_mut() {
             n.reset();
         }
+        self.total = None;
     }
 
     /// Number of particles.
@@ -675,7 +683,11 @@ impl Gel {
             Region::whole(self.layout.lattice, self.layout.dims)
         };
         report.active_particles = self.ctx.region.particles(self.ctx.column_len);
-        self.relax_material(&sweep, &mut report);
+        if self.options.solver == Solver::Total {
+            self.relax_total_material(&sweep, &mut report);
+        } else {
+            self.relax_material(&sweep, &mut report);
+        }
         self.finish(current, touching, repaired, &mut report);
         if self.options.newton_fallback {
             let spacing = self.contact_spacing(Solver::Relaxation);

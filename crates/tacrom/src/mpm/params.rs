@@ -143,11 +143,15 @@ pub enum Solver {
     /// Newton's method on the total potential energy of the nodal displacements
     /// (`mpm/newton/`).
     Newton,
+    /// Experimental: dynamic relaxation of the nodal displacements with fixed quadrature
+    /// points (total-Lagrangian, `mpm/total.rs`), whose equilibrium does not depend on
+    /// the path.
+    Total,
 }
 
 impl Solver {
     /// Every solver.
-    pub const ALL: [Solver; 2] = [Solver::Relaxation, Solver::Newton];
+    pub const ALL: [Solver; 3] = [Solver::Relaxation, Solver::Newton, Solver::Total];
 
     /// The name recorded in a reduced-order model's recipe and used by the `solver`
     /// attribute.
@@ -155,6 +159,7 @@ impl Solver {
         match self {
             Solver::Relaxation => "relaxation",
             Solver::Newton => "newton",
+            Solver::Total => "total",
         }
     }
 

@@ -40,15 +40,15 @@ use super::{Gel, Material, Snapshot, SolveReport};
 const PREDICT_ABOVE: f64 = 10.0;
 
 /// What the convergence test reads after a step.
-struct StepOutcome {
+pub(super) struct StepOutcome {
     /// Largest out-of-balance force over the force scale.
-    residual: f64,
+    pub residual: f64,
     /// Whether a non-finite value appeared.
-    nonfinite: bool,
+    pub nonfinite: bool,
     /// Smallest `det F` over the active particles.
-    det_min: f64,
+    pub det_min: f64,
     /// Largest `det F` over the active particles.
-    det_max: f64,
+    pub det_max: f64,
 }
 
 impl Gel {
@@ -238,7 +238,7 @@ impl Gel {
     /// relative residual, the force on the indenters ([`Gel::force`]), the step's largest
     /// reaction, and the particles' state (non-finite values, `det F` range, whether any
     /// left its bin).
-    fn measure(&mut self, f: [f64; 3]) -> StepOutcome {
+    pub(super) fn measure(&mut self, f: [f64; 3]) -> StepOutcome {
         let layout = &self.layout;
         let mut residual = 0.0f32;
         let mut reaction = (1e-4 * self.mu).max(self.last_reaction);
@@ -282,7 +282,7 @@ impl Gel {
 
     /// Restores the state at the start of the solve, or the undeformed gel if that state is
     /// itself not finite; zero velocities either way.
-    fn recover(&mut self) {
+    pub(super) fn recover(&mut self) {
         let good = self.snapshot.iter().all(Snapshot::is_finite);
         if good {
             for (p, s) in self.particles.iter_mut().zip(&self.snapshot) {

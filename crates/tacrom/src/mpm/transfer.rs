@@ -584,7 +584,7 @@ pub(crate) struct ChunkStats {
 
 impl ChunkStats {
     /// Nothing seen (an inactive row).
-    const EMPTY: ChunkStats = ChunkStats {
+    pub const EMPTY: ChunkStats = ChunkStats {
         det_min: f32::INFINITY,
         det_max: f32::NEG_INFINITY,
         nonfinite: false,

@@ -1,0 +1,358 @@
+//! Total-Lagrangian dynamic relaxation ([`Solver::Total`], experimental).
+//!
+//! The relaxation of `relax.rs` is updated-Lagrangian: each particle advances its own `F`
+//! by the grid's velocity gradient, so a converged state's `F` keeps a memory of the path
+//! the explicit steps took, and its equilibrium depends on that path (README, "What the
+//! relaxation's answer depends on"). Here the unknowns are the grid nodes' displacements
+//! `u_i` from the undeformed gel, and every particle is a fixed quadrature point at its
+//! rest position `X_p`:
+//!
+//! * `F_p = I + 4 sum_i w_ip u_i (X_i - X_p)^T` (cells; the MLS gradient of the weights,
+//!   as the updated-Lagrangian step uses), `x_p = X_p + sum_i w_ip u_i`;
+//! * nodal force `f_i = -4 sum_p V_p P_p (X_i - X_p) w_ip` with the first Piola stress
+//!   `P = tau F^-T`, exactly `-dE/du_i` of the elastic energy `sum_p V_p psi(F_p)`;
+//! * the contacts as in `contact.rs`, on the top particles' surface points, their nodal
+//!   forces through the rest stencils;
+//! * damped explicit steps on the nodes, `v <- (v + f / m) / (1 + c)`, `u <- u + v`, with
+//!   the lumped mass, the mass scaling and the damping of the relaxation.
+//!
+//! Its equilibrium is the minimum of one energy (for frictionless contact), whatever the
+//! path. The weights never change, so there is no binning and no stencil update; the
+//! nodal forces are summed node layer by node layer in a fixed order (the same bits for
+//! any thread count). F-bar is not implemented.
+//!
+//! [`Solver::Total`]: super::Solver::Total
+
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+use super::contact::{self, ContactInput};
+use super::indenters::Sweep;
+use super::material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use super::transfer::{ChunkStats, LayerStats, Node, Stencil};
+use super::{Gel, Material, Snapshot, SolveReport, J_MAX, J_MIN};
+
+/// Contact multiplier gain times the layer's thickness in cells (see
+/// [`multiplier_gain`]).
+const GAIN_CELLS: f32 = 0.36;
+
+/// The contact multipliers' gain `k_i / k` on a layer `cells` thick: at most half the
+/// updated-Lagrangian relaxation's, and falling as `1 / cells` from 2.9 cells on. The
+/// multiplier loop is less damped here (no APIC transfer smooths the nodal velocities):
+/// the relaxation's gain made a 0.3 mm press on the coarse grid oscillate with a period of
+/// about 200 steps and growing amplitude, half of it a press at dx = 0.7 mm; measured
+/// stable: 0.125 at 2.9 cells (1.4 mm), 0.063 at 5.7 (0.7 mm), 0.05 at 8 (0.5 mm).
+fn multiplier_gain(cells: f64) -> f32 {
+    (GAIN_CELLS / cells as f32).min(0.5 * contact::multiplier_gain(cells))
+}
+
+/// The nodal state of the total-Lagrangian relaxation.
+#[derive(Clone)]
+pub(super) struct Total {
+    /// Displacement of each grid node from the undeformed gel (cells).
+    u: Vec<Vector3<f32>>,
+    /// Velocity of each grid node (cells per step).
+    v: Vec<Vector3<f32>>,
+    /// Lumped mass of each grid node.
+    mass: Vec<f32>,
+    /// Each particle's stencil at its rest position.
+    rest: Vec<Stencil>,
+    /// Each particle's rest position (cells).
+    rest_x: Vec<Vector3<f32>>,
+    /// `u` at the start of the solve, for a recovery.
+    saved: Vec<Vector3<f32>>,
+    /// Base node along x of each particle lattice row's stencils.
+    row_base: Vec<usize>,
+    /// Scratch: `-4 V P` of each active particle.
+    stress: Vec<Matrix3<f32>>,
+}
+
+impl Total {
+    /// The undeformed gel's nodal state.
+    fn new(gel: &Gel) -> Total {
+        let [_, nyp, nzp] = gel.layout.lattice;
+        let rest_x: Vec<Vector3<f32>> = (0..gel.particles.len())
+            .map(|i| {
+                gel.layout
+                    .rest_position(&gel.params.size, i / (nyp * nzp), i / nzp % nyp, i % nzp)
+            })
+            .collect();
+        let rest: Vec<Stencil> = rest_x.iter().map(Stencil::of).collect();
+        let [_, ny, nz] = gel.layout.dims;
+        let nodes = gel.grid.len();
+        let mut mass = vec![0.0f32; nodes];
+        for s in &rest {
+            let (bx, _, wx) = s.axis(0);
+            let (by, _, wy) = s.axis(1);
+            let (bz, _, wz) = s.axis(2);
+            for (i, a) in wx.iter().enumerate() {
+                for (j, b) in wy.iter().enumerate() {
+                    for (k, c) in wz.iter().enumerate() {
+                        mass[((bx + i) * ny + by + j) * nz + bz + k] += gel.ctx.pmass * a * b * c;
+                    }
+                }
+            }
+        }
+        let row_len = nyp * nzp;
+        let row_base = (0..gel.layout.lattice[0])
+            .map(|px| rest[px * row_len].base[0] as usize)
+            .collect();
+        Total {
+            row_base,
+            stress: Vec::new(),
+            u: vec![Vector3::zeros(); nodes],
+            v: vec![Vector3::zeros(); nodes],
+            mass,
+            rest,
+            rest_x,
+            saved: Vec::new(),
+        }
+    }
+}
+
+impl Gel {
+    /// The total-Lagrangian relaxation of `sweep` with the gel's constitutive model.
+    pub(super) fn relax_total_material(&mut self, sweep: &Sweep, report: &mut SolveReport) {
+        let (mu, lambda) = (self.mu, self.lambda);
+        match self.params.material {
+            Material::FixedCorotated => {
+                self.relax_total(&FixedCorotatedModel { mu, lambda }, sweep, report)
+            }
+            Material::NeoHookean => {
+                self.relax_total(&NeoHookeanModel { mu, lambda }, sweep, report)
+            }
+        }
+    }
+
+    fn relax_total<M: ConstitutiveModel>(
+        &mut self,
+        model: &M,
+        sweep: &Sweep,
+        report: &mut SolveReport,
+    ) {
+        if report.restarted || self.total.is_none() {
+            self.total = Some(Box::new(Total::new(self)));
+        }
+        for (s, p) in self.snapshot.iter_mut().zip(&self.particles) {
+            *s = Snapshot::of(p);
+        }
+        let total = self.total.as_mut().expect("built above");
+        total.saved.clone_from(&total.u);
+        total.v.iter_mut().for_each(|v| *v = Vector3::zeros());
+        self.last_change.clear();
+        self.last_motion.clear();
+        let tol = self.options.tolerance;
+        for it in 0..self.iteration_cap() {
+            sweep.place(it, self.layout.dx, &mut self.step_ind);
+            let f = self.total_step(model);
+            let out = self.measure(f);
+            report.iterations = it + 1;
+            if out.nonfinite {
+                let total = self.total.as_mut().expect("built above");
+                total.u.clone_from(&total.saved);
+                self.recover();
+                report.nonfinite_recovered = true;
+                report.converged = false;
+                report.residual = f64::INFINITY;
+                break;
+            }
+            report.residual = out.residual;
+            report.det_f_min = out.det_min;
+            report.det_f_max = out.det_max;
+            report.converged = it + 1 >= sweep.steps && out.residual <= tol;
+            if report.converged {
+                break;
+            }
+        }
+    }
+
+    /// One step: the particles' `F` and position from the nodal displacements, the
+    /// contacts, the nodal forces, the nodes' update. Returns the total contact force on
+    /// the gel (internal units).
+    fn total_step<M: ConstitutiveModel>(&mut self, model: &M) -> [f64; 3] {
+        let Gel {
+            pool,
+            layout,
+            ctx,
+            particles,
+            top,
+            half_top,
+            contacts,
+            active,
+            grid,
+            layer_stats,
+            chunk_stats,
+            step_ind,
+            params,
+            total,
+            ..
+        } = self;
+        let total = total.as_mut().expect("built by relax_total");
+        let (layout, ctx) = (&*layout, &*ctx);
+        pool.install(|| {
+            let [nx, ny, nz] = ctx.dims;
+            let [ix0, ix1, iy0, iy1] = ctx.region.lattice;
+            let (a, b) = (iy0 * ctx.column_len, iy1 * ctx.column_len);
+            let (u, rest, rest_x) = (&total.u, &total.rest, &total.rest_x);
+            // Gather: F and x of every active particle.
+            particles
+                .par_chunks_mut(ctx.row_len)
+                .enumerate()
+                .map(|(ix, row)| {
+                    let mut st = ChunkStats::EMPTY;
+                    if !(ix0..ix1).contains(&ix) {
+                        return st;
+                    }
+                    let first = ix * ctx.row_len;
+                    for (k, p) in row[a..b].iter_mut().enumerate() {
+                        let i = first + a + k;
+                        let s = &rest[i];
+                        let (bx, fx, wx) = s.axis(0);
+                        let (by, fy, wy) = s.axis(1);
+                        let (bz, fz, wz) = s.axis(2);
+                        let mut up = Vector3::zeros();
+                        let mut c = Matrix3::zeros();
+                        for (ii, wa) in wx.iter().enumerate() {
+                            for (jj, wb) in wy.iter().enumerate() {
+                                for (kk, wc) in wz.iter().enumerate() {
+                                    let w = wa * wb * wc;
+                                    let ui = u[((bx + ii) * ny + by + jj) * nz + bz + kk];
+                                    let d = Vector3::new(
+                                        ii as f32 - fx,
+                                        jj as f32 - fy,
+                                        kk as f32 - fz,
+                                    );
+                                    up += ui * w;
+                                    c += ui * (d * (4.0 * w)).transpose();
+                                }
+                            }
+                        }
+                        p.x = rest_x[i] + up;
+                        p.f = Matrix3::identity() + c;
+                        if M::USES_ROTATION {
+                            extract_rotation(&p.f, &mut p.q, ctx.rot_iters.max(1));
+                        }
+                        let j = p.f.determinant();
+                        if !p.is_finite() {
+                            st.nonfinite = true;
+                            continue;
+                        }
+                        st.det_min = st.det_min.min(j);
+                        st.det_max = st.det_max.max(j);
+                    }
+                    st
+                })
+                .collect_into_vec(chunk_stats);
+            // Contacts on the top particles' surface points.
+            let input = ContactInput {
+                layout,
+                half_top: *half_top,
+                particles,
+                top,
+                indenters: step_ind,
+                friction: params.friction as f32,
+                gain: multiplier_gain(params.size[2] / layout.dx),
+                region: &ctx.region,
+            };
+            contact::update_contacts(&input, contacts, active);
+            grid.iter_mut().for_each(|n| *n = Node::ZERO);
+            let f = contact::scatter_contacts(ctx, rest, active, grid);
+            // First Piola stresses (times -4 V) of the active particles.
+            let nzp = ctx.column_len;
+            let nyp = ctx.row_len / nzp;
+            let rows = ix1 - ix0;
+            total.stress.resize(rows * (b - a), Matrix3::zeros());
+            total
+                .stress
+                .par_chunks_mut(b - a)
+                .zip(particles[ix0 * ctx.row_len..ix1 * ctx.row_len].par_chunks(ctx.row_len))
+                .for_each(|(out, row)| {
+                    for (o, p) in out.iter_mut().zip(&row[a..b]) {
+                        let j = p.f.determinant().clamp(J_MIN as f32, J_MAX as f32);
+                        let r = if M::USES_ROTATION {
+                            *p.q.to_rotation_matrix().matrix()
+                        } else {
+                            Matrix3::identity()
+                        };
+                        let tau = model.kirchhoff(&p.f, j, &r);
+                        *o = match p.f.try_inverse() {
+                            Some(finv) => tau * finv.transpose() * (-4.0 * ctx.pvol),
+                            None => Matrix3::zeros(),
+                        };
+                    }
+                });
+            // Elastic nodal forces, node layer by node layer: each layer sums the particle
+            // rows whose stencils reach it, rows and particles in index order (the same
+            // sums for any thread count).
+            let (rest, stress, row_base) = (&total.rest, &total.stress, &total.row_base);
+            grid.par_chunks_mut(ny * nz)
+                .enumerate()
+                .for_each(|(layer, g)| {
+                    for px in ix0..ix1 {
+                        let bx = row_base[px];
+                        if layer < bx || layer > bx + 2 {
+                            continue;
+                        }
+                        let ii = layer - bx;
+                        for iy in iy0..iy1 {
+                            for iz in 0..nzp {
+                                let i = (px * nyp + iy) * nzp + iz;
+                                let piola = &stress[(px - ix0) * (b - a) + (iy - iy0) * nzp + iz];
+                                let s = &rest[i];
+                                let (_, fx, wx) = s.axis(0);
+                                let (by, fy, wy) = s.axis(1);
+                                let (bz, fz, wz) = s.axis(2);
+                                let wa = wx[ii];
+                                for (jj, wb) in wy.iter().enumerate() {
+                                    for (kk, wc) in wz.iter().enumerate() {
+                                        let w = wa * wb * wc;
+                                        let d = Vector3::new(
+                                            ii as f32 - fx,
+                                            jj as f32 - fy,
+                                            kk as f32 - fz,
+                                        );
+                                        g[(by + jj) * nz + bz + kk].add_f(piola * d * w);
+                                    }
+                                }
+                            }
+                        }
+                    }
+                });
+            // Nodes: damped explicit step on the free ones.
+            let c = ctx.damping;
+            let [fx0, fx1] = ctx.region.free_x;
+            let [fy0, fy1] = ctx.region.free_y;
+            let mass = &total.mass;
+            let nyz = ny * nz;
+            grid.par_chunks(nyz)
+                .zip(total.u.par_chunks_mut(nyz))
+                .zip(total.v.par_chunks_mut(nyz))
+                .zip(mass.par_chunks(nyz))
+                .enumerate()
+                .map(|(ix, (((g, u), v), m))| {
+                    let mut st = LayerStats::default();
+                    let wall_x = ix == 0 || ix + 1 == nx || ix < fx0 || ix >= fx1;
+                    for (k, n) in g.iter().enumerate() {
+                        let (iy, iz) = (k / nz, k % nz);
+                        if m[k] <= 0.0 {
+                            continue;
+                        }
+                        let force = Vector3::new(n.a[Node::F], n.a[Node::F + 1], n.a[Node::F + 2]);
+                        let wall = wall_x || iy == 0 || iy + 1 == ny || iy < fy0 || iy >= fy1;
+                        if iz <= ctx.iz_bottom || wall || iz + 1 == nz {
+                            st.reaction = st.reaction.max(force.norm());
+                            v[k] = Vector3::zeros();
+                            continue;
+                        }
+                        let vs = v[k] + force / m[k];
+                        st.residual = st.residual.max(force.norm() + c * m[k] * vs.norm());
+                        v[k] = vs / (1.0 + c);
+                        u[k] += v[k];
+                    }
+                    st
+                })
+                .collect_into_vec(layer_stats);
+            f
+        })
+    }
+}

@@ -40,15 +40,15 @@ use super::{Gel, Material, Snapshot, SolveReport};
 const PREDICT_ABOVE: f64 = 10.0;
 
 /// What the convergence test reads after a step.
-pub(super) struct StepOutcome {
+struct StepOutcome {
     /// Largest out-of-balance force over the force scale.
-    pub residual: f64,
+    residual: f64,
     /// Whether a non-finite value appeared.
-    pub nonfinite: bool,
+    nonfinite: bool,
     /// Smallest `det F` over the active particles.
-    pub det_min: f64,
+    det_min: f64,
     /// Largest `det F` over the active particles.
-    pub det_max: f64,
+    det_max: f64,
 }
 
 impl Gel {
@@ -70,13 +70,30 @@ impl Gel {
     /// [`Gel::recover`]) or [`Gel::iteration_cap`] steps.
     fn relax<M: ConstitutiveModel>(&mut self, model: &M, sweep: &Sweep, report: &mut SolveReport) {
         let motion = self.warm_start(sweep);
+        self.iterate(sweep, report, |g| g.step(model), |_| {});
+        self.remember_change(motion, report);
+    }
+
+    /// The explicit steps of a relaxation (`step`: one step, returning the contact force
+    /// on the gel) with the indenters moving as `sweep` says, until the residual is below
+    /// the tolerance after the sweep, a non-finite value appears (`restore` and
+    /// [`Gel::recover`] then bring back the state at the start) or
+    /// [`Gel::iteration_cap`] steps.
+    pub(super) fn iterate(
+        &mut self,
+        sweep: &Sweep,
+        report: &mut SolveReport,
+        mut step: impl FnMut(&mut Gel) -> [f64; 3],
+        mut restore: impl FnMut(&mut Gel),
+    ) {
         let tol = self.options.tolerance;
         for it in 0..self.iteration_cap() {
             sweep.place(it, self.layout.dx, &mut self.step_ind);
-            let f = self.step(model);
+            let f = step(self);
             let out = self.measure(f);
             report.iterations = it + 1;
             if out.nonfinite {
+                restore(self);
                 self.recover();
                 report.nonfinite_recovered = true;
                 report.converged = false;
@@ -91,7 +108,6 @@ impl Gel {
                 break;
             }
         }
-        self.remember_change(motion, report);
     }
 
     /// The secant predictor (as the Newton solver's): when the indenters move on along
@@ -238,7 +254,7 @@ impl Gel {
     /// relative residual, the force on the indenters ([`Gel::force`]), the step's largest
     /// reaction, and the particles' state (non-finite values, `det F` range, whether any
     /// left its bin).
-    pub(super) fn measure(&mut self, f: [f64; 3]) -> StepOutcome {
+    fn measure(&mut self, f: [f64; 3]) -> StepOutcome {
         let layout = &self.layout;
         let mut residual = 0.0f32;
         let mut reaction = (1e-4 * self.mu).max(self.last_reaction);
@@ -282,7 +298,7 @@ impl Gel {
 
     /// Restores the state at the start of the solve, or the undeformed gel if that state is
     /// itself not finite; zero velocities either way.
-    pub(super) fn recover(&mut self) {
+    fn recover(&mut self) {
         let good = self.snapshot.iter().all(Snapshot::is_finite);
         if good {
             for (p, s) in self.particles.iter_mut().zip(&self.snapshot) {

@@ -141,29 +141,16 @@ impl Gel {
         total.v.iter_mut().for_each(|v| *v = Vector3::zeros());
         self.last_change.clear();
         self.last_motion.clear();
-        let tol = self.options.tolerance;
-        for it in 0..self.iteration_cap() {
-            sweep.place(it, self.layout.dx, &mut self.step_ind);
-            let f = self.total_step(model);
-            let out = self.measure(f);
-            report.iterations = it + 1;
-            if out.nonfinite {
-                let total = self.total.as_mut().expect("built above");
-                total.u.clone_from(&total.saved);
-                self.recover();
-                report.nonfinite_recovered = true;
-                report.converged = false;
-                report.residual = f64::INFINITY;
-                break;
-            }
-            report.residual = out.residual;
-            report.det_f_min = out.det_min;
-            report.det_f_max = out.det_max;
-            report.converged = it + 1 >= sweep.steps && out.residual <= tol;
-            if report.converged {
-                break;
-            }
-        }
+        self.iterate(
+            sweep,
+            report,
+            |g| g.total_step(model),
+            |g| {
+                if let Some(t) = g.total.as_mut() {
+                    t.u.clone_from(&t.saved);
+                }
+            },
+        );
     }
 
     /// One step: the particles' `F` and position from the nodal displacements, the

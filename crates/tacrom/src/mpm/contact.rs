@@ -89,6 +89,9 @@ pub(crate) struct SlotContact {
     pub indenter: u32,
     /// Stick anchor in that indenter's frame (m).
     pub anchor: Point3<f64>,
+    /// Low-pass filtered gap (cells) the multiplier integrates, where
+    /// [`ContactInput::filter`] is below 1.
+    pub gbar: f32,
 }
 
 impl SlotContact {
@@ -97,6 +100,7 @@ impl SlotContact {
         owner: u32::MAX,
         indenter: u32::MAX,
         anchor: Point3::new(0.0, 0.0, 0.0),
+        gbar: 0.0,
     };
 }
 
@@ -123,6 +127,8 @@ pub(crate) struct ContactInput<'a> {
     pub friction: f32,
     /// Multiplier gain `k_i / k` ([`multiplier_gain`]).
     pub gain: f32,
+    /// Weight of the new gap in the filtered gap the multiplier integrates (1: none).
+    pub filter: f32,
     /// The solve's active region: slots outside it keep their state and get no force.
     pub region: &'a Region,
 }
@@ -184,7 +190,13 @@ fn slot_contact(
     }
     // Augmented Lagrangian normal force and multiplier update.
     let fn_ = (c.lambda - k * g).max(0.0);
-    c.lambda = (c.lambda - ki * g).max(0.0);
+    let ga = if input.filter < 1.0 {
+        c.gbar += input.filter * (g - c.gbar);
+        c.gbar
+    } else {
+        g
+    };
+    c.lambda = (c.lambda - ki * ga).max(0.0);
     c.owner = i as u32;
     if fn_ <= 0.0 {
         c.indenter = u32::MAX;

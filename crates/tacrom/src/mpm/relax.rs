@@ -229,6 +229,7 @@ impl Gel {
                 indenters: step_ind,
                 friction: params.friction as f32,
                 gain: contact::multiplier_gain(params.size[2] / layout.dx),
+                filter: 1.0,
                 region: &ctx.region,
             };
             contact::update_contacts(&input, contacts, active);

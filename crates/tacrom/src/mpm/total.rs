@@ -32,6 +32,10 @@ use super::material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, 
 use super::transfer::{ChunkStats, LayerStats, Node, Stencil};
 use super::{Gel, Material, Snapshot, SolveReport, J_MAX, J_MIN};
 
+/// A solve's change must exceed this many times the tolerance times the deformation for
+/// the next solve to extrapolate it (as the relaxation's `PREDICT_ABOVE`).
+const PREDICT_ABOVE: f64 = 10.0;
+
 /// Weight of each step's gap in the low-pass filtered gap the contact multipliers
 /// integrate (`ContactInput::filter`). The multiplier loop is less damped here than in the
 /// updated-Lagrangian relaxation (no APIC transfer smooths the nodal velocities): with the
@@ -62,6 +66,10 @@ pub(super) struct Total {
     row_base: Vec<usize>,
     /// Scratch: `-4 V P` of each active particle.
     stress: Vec<Matrix3<f32>>,
+    /// The change of `u` over the last converged solve and the indenters' translations
+    /// (m) in it, for the next solve's prediction (empty when there is none).
+    last_du: Vec<Vector3<f32>>,
+    last_motion: Vec<Vector3<f64>>,
 }
 
 impl Total {
@@ -97,6 +105,8 @@ impl Total {
         Total {
             row_base,
             stress: Vec::new(),
+            last_du: Vec::new(),
+            last_motion: Vec::new(),
             u: vec![Vector3::zeros(); nodes],
             v: vec![Vector3::zeros(); nodes],
             mass,
@@ -133,9 +143,29 @@ impl Gel {
         for (s, p) in self.snapshot.iter_mut().zip(&self.particles) {
             *s = Snapshot::of(p);
         }
+        let motion: Vec<Vector3<f64>> = sweep
+            .indenters
+            .iter()
+            .zip(&sweep.starts)
+            .map(|(p, s)| p.pose.translation.vector - s.translation.vector)
+            .collect();
+        let (region, bottom) = (self.ctx.region, self.ctx.iz_bottom);
+        let [_, ny, nz] = self.layout.dims;
         let total = self.total.as_mut().expect("built above");
         total.saved.clone_from(&total.u);
         total.v.iter_mut().for_each(|v| *v = Vector3::zeros());
+        // The secant predictor (as the relaxation's, on the nodal displacements).
+        if let Some(s) = super::secant_scale(&motion, &total.last_motion) {
+            let s = s as f32;
+            for ix in region.free_x[0]..region.free_x[1] {
+                for iy in region.free_y[0]..region.free_y[1] {
+                    let first = (ix * ny + iy) * nz;
+                    for k in first + bottom + 1..first + nz {
+                        total.u[k] += total.last_du[k] * s;
+                    }
+                }
+            }
+        }
         self.last_change.clear();
         self.last_motion.clear();
         self.iterate(
@@ -148,6 +178,27 @@ impl Gel {
                 }
             },
         );
+        // Keep this solve's change for the next one's prediction, unless it is within a
+        // few tolerances of the deformation (mostly the solve's own error).
+        let tol = self.options.tolerance;
+        let total = self.total.as_mut().expect("built above");
+        total.last_motion.clear();
+        total.last_du.clear();
+        if report.converged && !report.nonfinite_recovered {
+            let moved = total
+                .u
+                .iter()
+                .zip(&total.saved)
+                .map(|(a, b)| (a - b).norm())
+                .fold(0.0f32, f32::max) as f64;
+            let deformed = total.u.iter().map(|u| u.norm()).fold(0.0f32, f32::max) as f64;
+            if moved > PREDICT_ABOVE * tol * deformed {
+                total
+                    .last_du
+                    .extend(total.u.iter().zip(&total.saved).map(|(a, b)| a - b));
+                total.last_motion = motion;
+            }
+        }
     }
 
     /// One step: the particles' `F` and position from the nodal displacements, the

@@ -12,7 +12,9 @@
 //! * nodal force `f_i = -4 sum_p V_p P_p (X_i - X_p) w_ip` with the first Piola stress
 //!   `P = tau F^-T`, exactly `-dE/du_i` of the elastic energy `sum_p V_p psi(F_p)`;
 //! * the contacts as in `contact.rs`, on the top particles' surface points, their nodal
-//!   forces through the rest stencils;
+//!   forces through the rest stencils, the multipliers integrating a low-pass filtered
+//!   gap ([`GAP_FILTER`]);
+//! * the secant predictor on the nodal displacements;
 //! * damped explicit steps on the nodes, `v <- (v + f / m) / (1 + c)`, `u <- u + v`, with
 //!   the lumped mass, the mass scaling and the damping of the relaxation.
 //!

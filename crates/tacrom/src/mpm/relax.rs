@@ -193,11 +193,10 @@ impl Gel {
         motion
     }
 
-    /// One MLS-MPM step: the contact forces of the top particles, then the four parts
-    /// (see [`transfer`]): clear the grid and particle-to-grid (binning the particles
-    /// first when they changed bins), the contact forces onto the grid, grid update,
-    /// grid-to-particle. Returns the total contact force on the gel (internal units).
-    fn step<M: ConstitutiveModel>(&mut self, model: &M) -> [f64; 3] {
+    /// This step's contact forces on the top particles' surface points (their
+    /// multipliers and stick anchors updated), the multipliers integrating the gap
+    /// low-pass filtered with weight `filter` (1: the gap itself).
+    pub(super) fn update_contacts(&mut self, filter: f32) {
         let Gel {
             pool,
             layout,
@@ -207,19 +206,10 @@ impl Gel {
             half_top,
             contacts,
             active,
-            grid,
-            order,
-            offsets,
-            cursor,
-            stencils,
-            binned,
-            layer_stats,
-            chunk_stats,
             step_ind,
             params,
             ..
         } = self;
-        let (layout, ctx) = (&*layout, &*ctx);
         pool.install(|| {
             let input = ContactInput {
                 layout,
@@ -229,10 +219,36 @@ impl Gel {
                 indenters: step_ind,
                 friction: params.friction as f32,
                 gain: contact::multiplier_gain(params.size[2] / layout.dx),
-                filter: 1.0,
+                filter,
                 region: &ctx.region,
             };
             contact::update_contacts(&input, contacts, active);
+        });
+    }
+
+    /// One MLS-MPM step: the contact forces of the top particles, then the four parts
+    /// (see [`transfer`]): clear the grid and particle-to-grid (binning the particles
+    /// first when they changed bins), the contact forces onto the grid, grid update,
+    /// grid-to-particle. Returns the total contact force on the gel (internal units).
+    fn step<M: ConstitutiveModel>(&mut self, model: &M) -> [f64; 3] {
+        self.update_contacts(1.0);
+        let Gel {
+            pool,
+            ctx,
+            particles,
+            active,
+            grid,
+            order,
+            offsets,
+            cursor,
+            stencils,
+            binned,
+            layer_stats,
+            chunk_stats,
+            ..
+        } = self;
+        let ctx = &*ctx;
+        pool.install(|| {
             if !*binned {
                 transfer::bin_particles(ctx, stencils, order, offsets, cursor);
                 *binned = true;

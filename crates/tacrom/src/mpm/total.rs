@@ -28,7 +28,7 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
-use super::contact::{self, ContactInput};
+use super::contact;
 use super::indenters::Sweep;
 use super::material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 use super::transfer::{ChunkStats, LayerStats, Node, Stencil};
@@ -206,28 +206,22 @@ impl Gel {
     /// One step: the particles' `F` and position from the nodal displacements, the
     /// contacts, the nodal forces, the nodes' update. Returns the total contact force on
     /// the gel (internal units).
-    fn total_step<M: ConstitutiveModel>(&mut self, model: &M) -> [f64; 3] {
+    /// The first part of a total-Lagrangian step: `F` and the position of every active
+    /// particle from the nodal displacements (and the rotation of `F`, when the model
+    /// uses it), with their `det F` range into the chunk statistics.
+    fn gather_total<M: ConstitutiveModel>(&mut self) {
         let Gel {
             pool,
-            layout,
             ctx,
             particles,
-            top,
-            half_top,
-            contacts,
-            active,
-            grid,
-            layer_stats,
             chunk_stats,
-            step_ind,
-            params,
             total,
             ..
         } = self;
-        let total = total.as_mut().expect("built by relax_total");
-        let (layout, ctx) = (&*layout, &*ctx);
+        let total = total.as_ref().expect("built by relax_total");
+        let ctx = &*ctx;
         pool.install(|| {
-            let [nx, ny, nz] = ctx.dims;
+            let [_, ny, nz] = ctx.dims;
             let [ix0, ix1, iy0, iy1] = ctx.region.lattice;
             let (a, b) = (iy0 * ctx.column_len, iy1 * ctx.column_len);
             let (u, rest, rest_x) = (&total.u, &total.rest, &total.rest_x);
@@ -280,19 +274,29 @@ impl Gel {
                     st
                 })
                 .collect_into_vec(chunk_stats);
-            // Contacts on the top particles' surface points.
-            let input = ContactInput {
-                layout,
-                half_top: *half_top,
-                particles,
-                top,
-                indenters: step_ind,
-                friction: params.friction as f32,
-                gain: contact::multiplier_gain(params.size[2] / layout.dx),
-                filter: GAP_FILTER,
-                region: &ctx.region,
-            };
-            contact::update_contacts(&input, contacts, active);
+        });
+    }
+
+    fn total_step<M: ConstitutiveModel>(&mut self, model: &M) -> [f64; 3] {
+        self.gather_total::<M>();
+        self.update_contacts(GAP_FILTER);
+        let Gel {
+            pool,
+            ctx,
+            particles,
+            active,
+            grid,
+            layer_stats,
+            total,
+            ..
+        } = self;
+        let total = total.as_mut().expect("built by relax_total");
+        let ctx = &*ctx;
+        pool.install(|| {
+            let [nx, ny, nz] = ctx.dims;
+            let [ix0, ix1, iy0, iy1] = ctx.region.lattice;
+            let (a, b) = (iy0 * ctx.column_len, iy1 * ctx.column_len);
+            let rest = &total.rest;
             grid.iter_mut().for_each(|n| *n = Node::ZERO);
             let f = contact::scatter_contacts(ctx, rest, active, grid);
             // First Piola stresses (times -4 V) of the active particles.

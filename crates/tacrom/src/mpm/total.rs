@@ -30,8 +30,8 @@ use rayon::prelude::*;
 
 use super::contact;
 use super::indenters::Sweep;
-use super::material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-use super::transfer::{ChunkStats, LayerStats, Node, Stencil};
+use super::material::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use super::transfer::{self, ChunkStats, LayerStats, Node, Stencil};
 use super::{Gel, Material, Snapshot, SolveReport, J_MAX, J_MIN};
 
 /// A solve's change must exceed this many times the tolerance times the deformation for
@@ -241,28 +241,27 @@ impl Gel {
                         let (bx, fx, wx) = s.axis(0);
                         let (by, fy, wy) = s.axis(1);
                         let (bz, fz, wz) = s.axis(2);
+                        // `sum w u` and `4 sum w u d^T`, summed along z first.
                         let mut up = Vector3::zeros();
-                        let mut c = Matrix3::zeros();
+                        let mut cols = [Vector3::zeros(); 3];
                         for (ii, wa) in wx.iter().enumerate() {
                             for (jj, wb) in wy.iter().enumerate() {
+                                let row = ((bx + ii) * ny + by + jj) * nz + bz;
+                                let (mut za, mut zb) = (Vector3::zeros(), Vector3::zeros());
                                 for (kk, wc) in wz.iter().enumerate() {
-                                    let w = wa * wb * wc;
-                                    let ui = u[((bx + ii) * ny + by + jj) * nz + bz + kk];
-                                    let d = Vector3::new(
-                                        ii as f32 - fx,
-                                        jj as f32 - fy,
-                                        kk as f32 - fz,
-                                    );
-                                    up += ui * w;
-                                    c += ui * (d * (4.0 * w)).transpose();
+                                    let ui = u[row + kk];
+                                    za += ui * *wc;
+                                    zb += ui * (*wc * (kk as f32 - fz));
                                 }
+                                let w = wa * wb;
+                                up += za * w;
+                                cols[0] += za * (w * (ii as f32 - fx));
+                                cols[1] += za * (w * (jj as f32 - fy));
+                                cols[2] += zb * w;
                             }
                         }
                         p.x = rest_x[i] + up;
-                        p.f = Matrix3::identity() + c;
-                        if M::USES_ROTATION {
-                            extract_rotation(&p.f, &mut p.q, ctx.rot_iters.max(1));
-                        }
+                        p.f = Matrix3::identity() + Matrix3::from_columns(&cols) * 4.0;
                         let j = p.f.determinant();
                         if !p.is_finite() {
                             st.nonfinite = true;
@@ -270,6 +269,9 @@ impl Gel {
                         }
                         st.det_min = st.det_min.min(j);
                         st.det_max = st.det_max.max(j);
+                    }
+                    if M::USES_ROTATION {
+                        transfer::extract_rotations(&mut row[a..b], ctx.rot_iters.max(1));
                     }
                     st
                 })
@@ -344,16 +346,17 @@ impl Gel {
                                 let (_, fx, wx) = s.axis(0);
                                 let (by, fy, wy) = s.axis(1);
                                 let (bz, fz, wz) = s.axis(2);
+                                // `P d w` with `d = (ii - fx, jj - fy, kk - fz)`, summed
+                                // axis by axis.
                                 let wa = wx[ii];
+                                let c0 = piola.column(0) * (wa * (ii as f32 - fx));
+                                let (c1, c2) = (piola.column(1) * wa, piola.column(2) * wa);
                                 for (jj, wb) in wy.iter().enumerate() {
+                                    let q = (c0 + c1 * (jj as f32 - fy)) * *wb;
+                                    let r = c2 * *wb;
+                                    let row = (by + jj) * nz + bz;
                                     for (kk, wc) in wz.iter().enumerate() {
-                                        let w = wa * wb * wc;
-                                        let d = Vector3::new(
-                                            ii as f32 - fx,
-                                            jj as f32 - fy,
-                                            kk as f32 - fz,
-                                        );
-                                        g[(by + jj) * nz + bz + kk].add_f(piola * d * w);
+                                        g[row + kk].add_f((q + r * (kk as f32 - fz)) * *wc);
                                     }
                                 }
                             }

@@ -793,30 +793,35 @@ fn gather_chunk(
         st.det_max = st.det_max.max(j);
     }
     if rot_iters > 0 {
-        // The rotations, eight particles at a time (a finite `F` gives a finite rotation,
-        // a non-finite one leaves it as it was, so the checks above stand).
-        for group in chunk.chunks_mut(ROT_LANES) {
-            let mut a = [[0.0f32; ROT_LANES]; 9];
-            let mut q = [[0.0f32; ROT_LANES]; 4];
-            q[3] = [1.0; ROT_LANES];
-            for (l, p) in group.iter().enumerate() {
-                for (k, v) in p.f.as_slice().iter().enumerate() {
-                    a[k][l] = *v;
-                }
-                for (k, v) in p.q.as_ref().coords.iter().enumerate() {
-                    q[k][l] = *v;
-                }
-            }
-            extract_rotation_lanes(&a, &mut q, rot_iters);
-            for (l, p) in group.iter_mut().enumerate() {
-                p.q = UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(
-                    q[3][l], q[0][l], q[1][l], q[2][l],
-                ));
-            }
-        }
+        extract_rotations(chunk, rot_iters);
     }
     st
 }
 
 /// Particles per group of the vectorised rotation extraction.
 const ROT_LANES: usize = 8;
+
+/// The rotation of each particle's `F` (warm-started from its own, `iterations` steps),
+/// eight particles at a time (a finite `F` gives a finite rotation, a non-finite one
+/// leaves it as it was).
+pub(crate) fn extract_rotations(chunk: &mut [Particle], rot_iters: usize) {
+    for group in chunk.chunks_mut(ROT_LANES) {
+        let mut a = [[0.0f32; ROT_LANES]; 9];
+        let mut q = [[0.0f32; ROT_LANES]; 4];
+        q[3] = [1.0; ROT_LANES];
+        for (l, p) in group.iter().enumerate() {
+            for (k, v) in p.f.as_slice().iter().enumerate() {
+                a[k][l] = *v;
+            }
+            for (k, v) in p.q.as_ref().coords.iter().enumerate() {
+                q[k][l] = *v;
+            }
+        }
+        extract_rotation_lanes(&a, &mut q, rot_iters);
+        for (l, p) in group.iter_mut().enumerate() {
+            p.q = UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(
+                q[3][l], q[0][l], q[1][l], q[2][l],
+            ));
+        }
+    }
+}

@@ -683,11 +683,7 @@ impl Gel {
             Region::whole(self.layout.lattice, self.layout.dims)
         };
         report.active_particles = self.ctx.region.particles(self.ctx.column_len);
-        if self.options.solver == Solver::Total {
-            self.relax_total_material(&sweep, &mut report);
-        } else {
-            self.relax_material(&sweep, &mut report);
-        }
+        self.relax_material(&sweep, &mut report);
         self.finish(current, touching, repaired, &mut report);
         if self.options.newton_fallback {
             let spacing = self.contact_spacing(Solver::Relaxation);

@@ -32,7 +32,7 @@ use super::contact::{self, ContactInput, SlotContact};
 use super::indenters::Sweep;
 use super::material::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 use super::transfer::{self, P2gInput, Particle};
-use super::{Gel, Material, Snapshot, SolveReport};
+use super::{Gel, Material, Snapshot, SolveReport, Solver};
 
 /// A solve's change (largest particle displacement) must exceed this many times the
 /// tolerance times the gel's deformation (largest surface displacement, from the solve
@@ -53,14 +53,28 @@ struct StepOutcome {
 
 impl Gel {
     /// Relaxes the gel to equilibrium with the sweep of `sweep`, with the constitutive
-    /// model of the gel's [`Material`], chosen here once.
+    /// model of the gel's [`Material`], chosen here once, by the updated-Lagrangian
+    /// relaxation or, for [`Solver::Total`], the total-Lagrangian one (`total.rs`).
     pub(super) fn relax_material(&mut self, sweep: &Sweep, report: &mut SolveReport) {
         let (mu, lambda) = (self.mu, self.lambda);
         match self.params.material {
             Material::FixedCorotated => {
-                self.relax(&FixedCorotatedModel { mu, lambda }, sweep, report)
+                self.relax_with(&FixedCorotatedModel { mu, lambda }, sweep, report)
             }
-            Material::NeoHookean => self.relax(&NeoHookeanModel { mu, lambda }, sweep, report),
+            Material::NeoHookean => self.relax_with(&NeoHookeanModel { mu, lambda }, sweep, report),
+        }
+    }
+
+    fn relax_with<M: ConstitutiveModel>(
+        &mut self,
+        model: &M,
+        sweep: &Sweep,
+        report: &mut SolveReport,
+    ) {
+        if self.options.solver == Solver::Total {
+            self.relax_total(model, sweep, report)
+        } else {
+            self.relax(model, sweep, report)
         }
     }
 

@@ -30,9 +30,9 @@ use rayon::prelude::*;
 
 use super::contact;
 use super::indenters::Sweep;
-use super::material::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use super::material::ConstitutiveModel;
 use super::transfer::{self, ChunkStats, LayerStats, Node, Stencil};
-use super::{Gel, Material, Snapshot, SolveReport, J_MAX, J_MIN};
+use super::{Gel, Snapshot, SolveReport, J_MAX, J_MIN};
 
 /// A solve's change must exceed this many times the tolerance times the deformation for
 /// the next solve to extrapolate it (as the relaxation's `PREDICT_ABOVE`).
@@ -120,20 +120,8 @@ impl Total {
 }
 
 impl Gel {
-    /// The total-Lagrangian relaxation of `sweep` with the gel's constitutive model.
-    pub(super) fn relax_total_material(&mut self, sweep: &Sweep, report: &mut SolveReport) {
-        let (mu, lambda) = (self.mu, self.lambda);
-        match self.params.material {
-            Material::FixedCorotated => {
-                self.relax_total(&FixedCorotatedModel { mu, lambda }, sweep, report)
-            }
-            Material::NeoHookean => {
-                self.relax_total(&NeoHookeanModel { mu, lambda }, sweep, report)
-            }
-        }
-    }
-
-    fn relax_total<M: ConstitutiveModel>(
+    /// The total-Lagrangian relaxation of `sweep` with the constitutive model `model`.
+    pub(super) fn relax_total<M: ConstitutiveModel>(
         &mut self,
         model: &M,
         sweep: &Sweep,

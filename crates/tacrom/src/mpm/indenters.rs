@@ -24,7 +24,7 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::contact::{self, SlotContact, StepIndenter};
 use super::Gel;
@@ -106,6 +106,16 @@ pub(super) struct Sweep<'a> {
 }
 
 impl Sweep<'_> {
+    /// Each indenter's translation over the sweep (m), what the secant predictors compare
+    /// with the last solve's.
+    pub fn motion(&self) -> Vec<Vector3<f64>> {
+        self.indenters
+            .iter()
+            .zip(&self.starts)
+            .map(|(p, s)| p.pose.translation.vector - s.translation.vector)
+            .collect()
+    }
+
     /// Writes into `out` the indenters of step `it` (from 0): their poses at the end of
     /// the step and their bounds over it, inflated by the contact band and a cell (`dx`).
     pub fn place(&self, it: usize, dx: f64, out: &mut Vec<StepIndenter>) {

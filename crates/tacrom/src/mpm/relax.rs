@@ -130,12 +130,7 @@ impl Gel {
     /// relaxation starts near the new equilibrium rather than at the old one. Returns the
     /// indenters' translations in this solve (m). The stencils are the caller's to update.
     fn predict(&mut self, sweep: &Sweep) -> Vec<Vector3<f64>> {
-        let motion: Vec<Vector3<f64>> = sweep
-            .indenters
-            .iter()
-            .zip(&sweep.starts)
-            .map(|(p, s)| p.pose.translation.vector - s.translation.vector)
-            .collect();
+        let motion = sweep.motion();
         if self.last_change.len() != self.particles.len() {
             return motion;
         }

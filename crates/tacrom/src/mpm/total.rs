@@ -133,12 +133,7 @@ impl Gel {
         for (s, p) in self.snapshot.iter_mut().zip(&self.particles) {
             *s = Snapshot::of(p);
         }
-        let motion: Vec<Vector3<f64>> = sweep
-            .indenters
-            .iter()
-            .zip(&sweep.starts)
-            .map(|(p, s)| p.pose.translation.vector - s.translation.vector)
-            .collect();
+        let motion = sweep.motion();
         let (region, bottom) = (self.ctx.region, self.ctx.iz_bottom);
         let [_, ny, nz] = self.layout.dims;
         let total = self.total.as_mut().expect("built above");

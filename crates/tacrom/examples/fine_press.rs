@@ -5,7 +5,8 @@
 //!
 //! Keys (defaults): `dx` (0.3e-3 m), `depths` ("0.1,0.2,0.3" mm, pressed in order, each
 //! solve warm-started from the last), `threads` (1), `friction` (0.5), `tolerance` (1e-3),
-//! `solver` (relaxation), `cfl` (0.5), `damping` (1). Prints each step's time, iterations,
+//! `solver` (relaxation), `cfl` (0.5), `damping` (1), `linear` (auto; Newton's linear solves:
+//! auto, factor or multigrid). Prints each step's time, iterations,
 //! convergence and normal force.
 
 use nalgebra::Isometry3;
@@ -37,6 +38,14 @@ fn main() {
             "tolerance" => options.tolerance = number(),
             "cfl" => options.cfl = number(),
             "damping" => options.damping = number(),
+            "linear" => {
+                options.linear = match value {
+                    "auto" => Linear::Automatic,
+                    "factor" => Linear::Factor,
+                    "multigrid" => Linear::Multigrid,
+                    _ => panic!("linear: auto, factor or multigrid, got '{value}'"),
+                }
+            }
             "solver" => {
                 options.solver =
                     Solver::named(value).unwrap_or_else(|| panic!("unknown solver '{value}'"))
@@ -60,10 +69,12 @@ fn main() {
             pose: Isometry3::translation(0.0, 0.0, 5e-3 - d),
         }]);
         println!(
-            "depth {:.2} mm: {:.2} s, {} iterations, converged {}, residual {:.2e}, active {}, force {:.5} N",
+            "depth {:.2} mm: {:.2} s, {} iterations ({} factorisations or two-grid builds, {} CG), converged {}, residual {:.2e}, active {}, force {:.5} N",
             d * 1e3,
             t0.elapsed().as_secs_f64(),
             r.iterations,
+            r.factorisations,
+            r.cg_iterations,
             r.converged,
             r.residual,
             r.active_particles,

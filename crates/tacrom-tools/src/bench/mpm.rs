@@ -237,6 +237,8 @@ pub struct WorkRow {
     pub factorisations: usize,
     /// See `factorisations`.
     pub reused: usize,
+    /// Conjugate gradient iterations summed over the frames (Newton).
+    pub cg_iterations: usize,
     /// Median solve time per frame (ms).
     pub median_ms: f64,
     /// Frames that hit the iteration cap.
@@ -558,12 +560,13 @@ pub fn work_run(
     let mut g = Gel::new(params, options)
         .map_err(|e| BenchError::Usage(format!("E {young:e} Pa, Poisson {poisson}: {e}")))?;
     let (mut times, mut iters) = (Vec::new(), Vec::new());
-    let (mut factorisations, mut reused, mut unconverged) = (0, 0, 0);
+    let (mut factorisations, mut reused, mut cg_iterations, mut unconverged) = (0, 0, 0, 0);
     for (seconds, rep) in moving_press(&mut g, frames) {
         times.push(seconds);
         iters.push(rep.iterations);
         factorisations += rep.factorisations;
         reused += rep.reused;
+        cg_iterations += rep.cg_iterations;
         unconverged += usize::from(!rep.converged);
     }
     times.sort_by(f64::total_cmp);
@@ -577,6 +580,7 @@ pub fn work_run(
         max_iterations: *iters.last().unwrap_or(&0),
         factorisations,
         reused,
+        cg_iterations,
         median_ms: quantile(&times, 0.5) * 1e3,
         unconverged,
     })
@@ -761,10 +765,12 @@ pub fn markdown(result: &MpmBenchResult) -> String {
             "\n## Work per frame against the material\n\nThe moving press above on the coarse \
              grid (1.4 mm), one thread, tolerance 3e-3, friction 0.5; Young's modulus varied \
              at Poisson 0.43, Poisson's ratio at E = 1.19e5 Pa. Iterations: explicit steps \
-             (relaxation) or Newton steps (newton); factorisations and conjugate-gradient \
-             steps summed over the frames.\n\n| solver | E (Pa) | Poisson | frames | \
-             iterations (median) | iterations (max) | factorisations | CG steps | median ms \
-             | unconverged |\n|---|---|---|---|---|---|---|---|---|---|\n",
+             (relaxation) or Newton steps (newton); factorisations (or two-grid builds), \
+             Newton steps solved by conjugate gradients with an earlier one, and \
+             conjugate-gradient iterations summed over the frames.\n\n| solver | E (Pa) | \
+             Poisson | frames | iterations (median) | iterations (max) | factorisations | \
+             CG steps | CG iterations | median ms | unconverged \
+             |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &result.work {
             let _ = writeln!(s, "| {} |", work_cells(r, false).join(" | "));
@@ -822,7 +828,7 @@ fn small_cells(r: &SmallRow, csv: bool) -> [String; 8] {
 }
 
 /// A work row's values in column order (`csv`: full precision).
-fn work_cells(r: &WorkRow, csv: bool) -> [String; 10] {
+fn work_cells(r: &WorkRow, csv: bool) -> [String; 11] {
     [
         r.solver.name().to_string(),
         format!("{:.2e}", r.young),
@@ -832,6 +838,7 @@ fn work_cells(r: &WorkRow, csv: bool) -> [String; 10] {
         r.max_iterations.to_string(),
         r.factorisations.to_string(),
         r.reused.to_string(),
+        r.cg_iterations.to_string(),
         if csv {
             format!("{:.3}", r.median_ms)
         } else {
@@ -882,7 +889,7 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     }
     write_file(out, "speed.csv", speed)?;
     let mut work = String::from(
-        "solver,young_pa,poisson,frames,median_iterations,max_iterations,factorisations,cg_steps,median_ms,unconverged\n",
+        "solver,young_pa,poisson,frames,median_iterations,max_iterations,factorisations,cg_steps,cg_iterations,median_ms,unconverged\n",
     );
     for r in &result.work {
         let _ = writeln!(work, "{}", work_cells(r, true).join(","));

@@ -103,8 +103,9 @@ use contact::{ActiveContact, SlotContact, StepIndenter};
 use indenters::match_indenters;
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 pub use params::{
-    GelParams, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
+    GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
     AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, MISSED_FRACTION,
+    MULTIGRID_UNKNOWNS,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 

@@ -121,7 +121,27 @@ pub struct SolverOptions {
     /// contact lattice and sub-grid compliance carry it. What the sensor does for a
     /// coarse gel whose configuration names no solver.
     pub newton_fallback: bool,
+    /// How Newton's method solves its linear systems.
+    pub linear: Linear,
 }
+
+/// How Newton's method ([`Solver::Newton`]) solves the linear system of a step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Linear {
+    /// A sparse factorisation up to [`MULTIGRID_UNKNOWNS`] unknowns in the solved region,
+    /// the two-grid preconditioner beyond.
+    #[default]
+    Automatic,
+    /// A sparse Cholesky factorisation, kept as the preconditioner of conjugate gradients
+    /// on later steps.
+    Factor,
+    /// Conjugate gradients preconditioned by a two-grid cycle (`mpm/newton/multigrid.rs`).
+    Multigrid,
+}
+
+/// Unknowns of a Newton region above which [`Linear::Automatic`] preconditions with the
+/// two-grid cycle instead of factoring.
+pub const MULTIGRID_UNKNOWNS: usize = 60_000;
 
 /// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that
 /// carries no force has missed a contact that fell between its contact points (the
@@ -198,6 +218,7 @@ impl Default for SolverOptions {
             active_margin: ACTIVE_MARGIN,
             solver: Solver::Relaxation,
             newton_fallback: false,
+            linear: Linear::Automatic,
         }
     }
 }
@@ -249,6 +270,8 @@ pub struct SolveReport {
     /// Newton solver: steps solved by conjugate gradients preconditioned with an earlier
     /// factorisation.
     pub reused: usize,
+    /// Newton solver: conjugate gradient iterations, over all its steps.
+    pub cg_iterations: usize,
     /// Whether the relaxation missed the contact and Newton's method solved the frame
     /// ([`SolverOptions::newton_fallback`]).
     pub newton_fallback: bool,
@@ -269,6 +292,7 @@ impl SolveReport {
             active_particles: 0,
             factorisations: 0,
             reused: 0,
+            cg_iterations: 0,
             newton_fallback: false,
         }
     }

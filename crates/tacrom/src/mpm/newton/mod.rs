@@ -62,6 +62,7 @@
 //! compliance as after; bodies pressed less than their radius are not affected.
 
 mod energy;
+mod multigrid;
 mod subgrid;
 mod system;
 #[cfg(test)]
@@ -74,11 +75,15 @@ use rayon::prelude::*;
 
 use super::contact::StepIndenter;
 use super::indenters::Sweep;
-use super::{Gel, Layout, Material, SolveReport, FBAR_POISSON, J_MAX, J_MIN, PAD_BOTTOM};
+use super::{
+    Gel, Layout, Linear, Material, SolveReport, FBAR_POISSON, J_MAX, J_MIN, MULTIGRID_UNKNOWNS,
+    PAD_BOTTOM,
+};
 use crate::geometry::{Aabb, Sdf};
 use energy::{Density, Kind};
+use multigrid::TwoGrid;
 use std::sync::Arc;
-use system::System;
+use system::{conjugate_gradients, System};
 
 /// Surface contact points per particle spacing along each axis.
 pub(crate) const CONTACT_SUBDIVISION: usize = 4;
@@ -135,6 +140,11 @@ const FOOTPRINT_CELLS: f64 = 1.5;
 
 /// Line search halvings at most.
 const MAX_HALVINGS: usize = 30;
+
+/// Conjugate gradient iterations with an earlier two-grid preconditioner before it is
+/// rebuilt from the current Hessian, and with a fresh one at most.
+const MULTIGRID_REUSE_ITERATIONS: usize = 30;
+const MULTIGRID_ITERATIONS: usize = 200;
 
 /// Quadratic B-spline weights and derivatives along each axis at a point (cells).
 #[derive(Clone, Copy, Debug)]
@@ -229,6 +239,8 @@ impl Default for PointState {
 /// evaluation for the Hessian's products and its assembly.
 #[derive(Clone, Copy, Debug)]
 struct ContactStiffness {
+    /// The base node of the contact point's stencil.
+    base: [i32; 3],
     dofs: [usize; 27],
     w: [f64; 27],
     h: Matrix3<f64>,
@@ -316,6 +328,12 @@ pub(crate) struct Newton {
     /// The stiffness system of the current region, and those of recent regions.
     system: Option<System>,
     systems: Vec<([usize; 4], System)>,
+    /// How the linear systems are solved, and with [`Linear::Multigrid`] the two-grid
+    /// preconditioner of the current region and of recent ones.
+    linear: Linear,
+    two_grid: Option<TwoGrid>,
+    two_grids: Vec<([usize; 4], TwoGrid)>,
+
     /// Active margin (cells) around the contact, see [`super::SolverOptions::active_margin`].
     margin: f64,
     /// Nodal displacements (cells), 3 per free node.
@@ -480,6 +498,10 @@ impl Newton {
             contact_stiffness: Vec::new(),
             system: None,
             systems: Vec::new(),
+            linear: gel.options.linear,
+            two_grid: None,
+            two_grids: Vec::new(),
+
             margin,
             u: vec![0.0; n],
             grad: Vec::new(),
@@ -546,6 +568,13 @@ impl Newton {
             .chain(self.systems.iter_mut().map(|(_, s)| s))
         {
             s.factored = false;
+        }
+        for t in self
+            .two_grid
+            .iter_mut()
+            .chain(self.two_grids.iter_mut().map(|(_, t)| t))
+        {
+            t.built = false;
         }
     }
 
@@ -698,7 +727,7 @@ impl Newton {
     /// quadrature points and its stiffness system (built, or kept from a recent solve
     /// over the same box).
     fn set_region(&mut self, bx: [usize; 4]) -> Result<(), String> {
-        if self.region == Some(bx) && self.system.is_some() {
+        if self.region == Some(bx) && (self.system.is_some() || self.two_grid.is_some()) {
             return Ok(());
         }
         let [x0, x1, y0, y1] = bx;
@@ -726,16 +755,29 @@ impl Newton {
                 reaches(b[0], x0, x1) && reaches(b[1], y0, y1)
             })
             .collect();
-        if let Some(old) = self.system.take() {
-            if let Some(r) = self.region {
+        if let Some(r) = self.region {
+            if let Some(old) = self.system.take() {
                 self.systems.insert(0, (r, old));
                 self.systems.truncate(KEPT_SYSTEMS);
             }
+            if let Some(old) = self.two_grid.take() {
+                self.two_grids.insert(0, (r, old));
+                self.two_grids.truncate(KEPT_SYSTEMS);
+            }
         }
-        self.system = match self.systems.iter().position(|(r, _)| *r == bx) {
-            Some(i) => Some(self.systems.remove(i).1),
-            None => Some(System::new(self.dims, &grid_nodes, &grid_dof)?),
+        let multigrid = match self.linear {
+            Linear::Automatic => 3 * self.region_nodes.len() > MULTIGRID_UNKNOWNS,
+            Linear::Factor => false,
+            Linear::Multigrid => true,
         };
+        self.system = None;
+        self.two_grid = None;
+        if !multigrid {
+            self.system = match self.systems.iter().position(|(r, _)| *r == bx) {
+                Some(i) => Some(self.systems.remove(i).1),
+                None => Some(System::new(self.dims, &grid_nodes, &grid_dof)?),
+            };
+        }
         self.region = Some(bx);
         let (mut free, mut local) = (Vec::new(), Vec::new());
         for &i in &self.region_points {
@@ -759,6 +801,12 @@ impl Newton {
         for v in [&mut self.grad, &mut self.load, &mut self.direction] {
             v.clear();
             v.resize(n, 0.0);
+        }
+        if multigrid {
+            self.two_grid = match self.two_grids.iter().position(|(r, _)| *r == bx) {
+                Some(i) => Some(self.two_grids.remove(i).1),
+                None => Some(TwoGrid::new(self)?),
+            };
         }
         Ok(())
     }
@@ -1100,6 +1148,7 @@ impl Newton {
             energy += term.energy;
             if term.gradient != Vector3::zeros() {
                 let mut stiff = ContactStiffness {
+                    base: c.stencil.base,
                     dofs: [usize::MAX; 27],
                     w: [0.0; 27],
                     h: term.stiffness,
@@ -1184,7 +1233,6 @@ impl Newton {
             .zip(&self.region_points)
             .zip(&self.point_local)
         {
-            let stencil = &self.points[i as usize].stencil;
             let dofs: [usize; 27] = local.map(|d| {
                 if d == u32::MAX {
                     usize::MAX
@@ -1192,30 +1240,9 @@ impl Newton {
                     d as usize
                 }
             });
-            let grads: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
-            // T_l[a][3 c + d] = sum_b g_l[b] H[3 a + b][3 c + d].
-            let mut tl = [[[0.0f64; 9]; 3]; 27];
-            for l in 0..27 {
-                if dofs[l] == usize::MAX {
-                    continue;
-                }
-                let g = grads[l];
-                for a in 0..3 {
-                    for e in 0..9 {
-                        tl[l][a][e] = g[0] * state.tangent[3 * a][e]
-                            + g[1] * state.tangent[3 * a + 1][e]
-                            + g[2] * state.tangent[3 * a + 2][e];
-                    }
-                }
-            }
-            add_pairs(system, &dofs, |l1, l2| {
-                let g2 = &grads[l2];
-                Matrix3::from_fn(|a, c| {
-                    tl[l1][a][3 * c] * g2[0]
-                        + tl[l1][a][3 * c + 1] * g2[1]
-                        + tl[l1][a][3 * c + 2] * g2[2]
-                })
-            });
+            let stencil = &self.points[i as usize].stencil;
+            let grads = std::array::from_fn(|l| stencil.gradient(l));
+            add_point(system, &dofs, &grads, &state.tangent);
         }
         for k in &self.contact_stiffness {
             add_pairs(system, &k.dofs, |l1, l2| k.h * (k.w[l1] * k.w[l2]));
@@ -1260,33 +1287,75 @@ impl Newton {
             report.iterations += 1;
             let mut work = std::mem::take(&mut self.work);
             let mut direction = std::mem::take(&mut self.direction);
-            let mut system = self.system.take().expect("region set");
             let [rhs, scratch @ ..] = &mut work;
             rhs.clear();
             rhs.extend(self.grad.iter().map(|g| -g));
-            let reused = system.factored
-                && system.solve_preconditioned(
-                    rhs,
-                    &mut direction,
-                    FORCING,
-                    REUSE_ITERATIONS,
-                    scratch,
-                    |x, y| self.hessian_product(x, y),
-                );
             let mut failed = false;
-            if reused {
-                report.reused += 1;
-            } else {
-                report.factorisations += 1;
-                self.fill_matrix(&mut system);
-                if system.factor().is_err() {
-                    failed = true;
-                } else {
-                    direction.copy_from_slice(rhs);
-                    system.solve(&mut direction);
+            if let Some(mut grid) = self.two_grid.take() {
+                let (mut solved, mut steps) = (false, 0);
+                if grid.built {
+                    (solved, steps) = conjugate_gradients(
+                        rhs,
+                        &mut direction,
+                        FORCING,
+                        MULTIGRID_REUSE_ITERATIONS,
+                        scratch,
+                        |x, y| self.hessian_product(x, y),
+                        |r, z| grid.apply(r, z),
+                    );
                 }
+                report.cg_iterations += steps;
+                if solved {
+                    report.reused += 1;
+                } else {
+                    report.factorisations += 1;
+                    if grid.build(self).is_err() {
+                        failed = true;
+                    } else {
+                        // The last iterate is a descent direction even short of the
+                        // forcing tolerance.
+                        let (_, steps) = conjugate_gradients(
+                            rhs,
+                            &mut direction,
+                            FORCING,
+                            MULTIGRID_ITERATIONS,
+                            scratch,
+                            |x, y| self.hessian_product(x, y),
+                            |r, z| grid.apply(r, z),
+                        );
+                        report.cg_iterations += steps;
+                    }
+                }
+                self.two_grid = Some(grid);
+            } else {
+                let mut system = self.system.take().expect("region set");
+                let (reused, steps) = if system.factored {
+                    system.solve_preconditioned(
+                        rhs,
+                        &mut direction,
+                        FORCING,
+                        REUSE_ITERATIONS,
+                        scratch,
+                        |x, y| self.hessian_product(x, y),
+                    )
+                } else {
+                    (false, 0)
+                };
+                report.cg_iterations += steps;
+                if reused {
+                    report.reused += 1;
+                } else {
+                    report.factorisations += 1;
+                    self.fill_matrix(&mut system);
+                    if system.factor().is_err() {
+                        failed = true;
+                    } else {
+                        direction.copy_from_slice(rhs);
+                        system.solve(&mut direction);
+                    }
+                }
+                self.system = Some(system);
             }
-            self.system = Some(system);
             self.work = work;
             self.direction = direction;
             if failed {
@@ -1546,6 +1615,38 @@ fn deformation(stencil: &Stencil, dofs: &[u32; 27], u: &[f64]) -> Matrix3<f64> {
 
 /// Adds `block(l1, l2)` for every pair of a stencil's free local nodes (`dofs[l]`: free
 /// index or `usize::MAX`), lower triangle only (`dofs[l2] <= dofs[l1]`).
+/// Adds the Hessian of a quadrature point with volume-weighted `tangent` to `system`:
+/// `grads` the gradients of its 3 x 3 x 3 nodes' shape functions, `dofs` their unknowns
+/// (`usize::MAX`: none).
+fn add_point(
+    system: &mut System,
+    dofs: &[usize; 27],
+    grads: &[Vector3<f64>; 27],
+    tangent: &[[f64; 9]; 9],
+) {
+    // T_l[a][3 c + d] = sum_b g_l[b] H[3 a + b][3 c + d].
+    let mut tl = [[[0.0f64; 9]; 3]; 27];
+    for l in 0..27 {
+        if dofs[l] == usize::MAX {
+            continue;
+        }
+        let g = grads[l];
+        for a in 0..3 {
+            for e in 0..9 {
+                tl[l][a][e] = g[0] * tangent[3 * a][e]
+                    + g[1] * tangent[3 * a + 1][e]
+                    + g[2] * tangent[3 * a + 2][e];
+            }
+        }
+    }
+    add_pairs(system, dofs, |l1, l2| {
+        let g2 = &grads[l2];
+        Matrix3::from_fn(|a, c| {
+            tl[l1][a][3 * c] * g2[0] + tl[l1][a][3 * c + 1] * g2[1] + tl[l1][a][3 * c + 2] * g2[2]
+        })
+    });
+}
+
 fn add_pairs(
     system: &mut System,
     dofs: &[usize; 27],

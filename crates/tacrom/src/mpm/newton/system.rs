@@ -257,44 +257,12 @@ impl System {
         rtol: f64,
         max_iter: usize,
         work: &mut [Vec<f64>; 3],
-        mut multiply: impl FnMut(&[f64], &mut [f64]),
-    ) -> bool {
-        let n = self.n;
-        let [r, z, q] = work;
-        r.resize(n, 0.0);
-        z.resize(n, 0.0);
-        q.resize(n, 0.0);
-        x.fill(0.0);
-        r.copy_from_slice(b);
-        let target = rtol * dot(b, b).sqrt();
-        z.copy_from_slice(r);
-        self.solve(z);
-        let mut p = z.clone();
-        let mut rz = dot(r, z);
-        for _ in 0..max_iter {
-            multiply(&p, q);
-            let pq = dot(&p, q);
-            if !(pq > 0.0) {
-                return false;
-            }
-            let alpha = rz / pq;
-            for i in 0..n {
-                x[i] += alpha * p[i];
-                r[i] -= alpha * q[i];
-            }
-            if dot(r, r).sqrt() <= target {
-                return true;
-            }
+        multiply: impl FnMut(&[f64], &mut [f64]),
+    ) -> (bool, usize) {
+        conjugate_gradients(b, x, rtol, max_iter, work, multiply, |r, z| {
             z.copy_from_slice(r);
             self.solve(z);
-            let rz_new = dot(r, z);
-            let beta = rz_new / rz;
-            rz = rz_new;
-            for i in 0..n {
-                p[i] = z[i] + beta * p[i];
-            }
-        }
-        false
+        })
     }
 
     /// Solves `K x = b` in place with the last factorisation.
@@ -310,6 +278,57 @@ impl System {
     }
 }
 
-fn dot(a: &[f64], b: &[f64]) -> f64 {
+/// Solves `K x = b`, `K` given by its product `multiply(x, y)` (`y = K x`), by conjugate
+/// gradients preconditioned with `precondition(r, z)` (`z = M^-1 r`, `M` symmetric
+/// positive definite), from `x = 0` to a residual of `rtol |b|` in at most `max_iter`
+/// iterations. `x` gets the last iterate (a descent direction of the quadratic model even
+/// when it did not converge); returns whether it converged and the iterations taken.
+/// `work` holds three vectors of scratch.
+pub(crate) fn conjugate_gradients(
+    b: &[f64],
+    x: &mut [f64],
+    rtol: f64,
+    max_iter: usize,
+    work: &mut [Vec<f64>; 3],
+    mut multiply: impl FnMut(&[f64], &mut [f64]),
+    mut precondition: impl FnMut(&[f64], &mut [f64]),
+) -> (bool, usize) {
+    let n = b.len();
+    let [r, z, q] = work;
+    r.resize(n, 0.0);
+    z.resize(n, 0.0);
+    q.resize(n, 0.0);
+    x.fill(0.0);
+    r.copy_from_slice(b);
+    let target = rtol * dot(b, b).sqrt();
+    precondition(r, z);
+    let mut p = z.clone();
+    let mut rz = dot(r, z);
+    for k in 0..max_iter {
+        multiply(&p, q);
+        let pq = dot(&p, q);
+        if !(pq > 0.0) {
+            return (false, k);
+        }
+        let alpha = rz / pq;
+        for i in 0..n {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * q[i];
+        }
+        if dot(r, r).sqrt() <= target {
+            return (true, k + 1);
+        }
+        precondition(r, z);
+        let rz_new = dot(r, z);
+        let beta = rz_new / rz;
+        rz = rz_new;
+        for i in 0..n {
+            p[i] = z[i] + beta * p[i];
+        }
+    }
+    (false, max_iter)
+}
+
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }

@@ -89,6 +89,35 @@ fn default_tolerance_agrees_with_a_tight_solve() {
     }
 }
 
+/// The two-grid preconditioner finds the equilibrium the factorisation finds: at a tight
+/// tolerance the forces of a press and a slide agree within 1e-4, with and without
+/// friction, and its conjugate gradients ran.
+#[test]
+fn the_two_grid_path_agrees_with_the_factorisation() {
+    let s = ball(3e-3);
+    for friction in [0.0, 0.5] {
+        let run = |linear: Linear| {
+            let o = SolverOptions {
+                linear,
+                ..options(1e-6)
+            };
+            let mut g = Gel::new(small_gel(friction, 0.43), o).unwrap();
+            let mut out = Vec::new();
+            let mut cg = 0;
+            for (x, d) in [(0.0, 0.3e-3), (0.0, 0.5e-3), (0.5e-3, 0.5e-3)] {
+                let rep = g.solve(&[at(&s, 3e-3, x, d)]);
+                assert!(rep.converged, "{linear:?}: {rep:?}");
+                cg += rep.cg_iterations;
+                out.push(g.force());
+            }
+            (out, cg)
+        };
+        let (two_grid, cg) = run(Linear::Multigrid);
+        assert!(cg > 0);
+        forces_agree(&two_grid, &run(Linear::Factor).0, 1e-4, friction);
+    }
+}
+
 /// A frictionless hyperelastic equilibrium is unique, so Newton's answer does not depend
 /// on how the indenter got there: pressed straight to 0.3 mm, in steps, or back up from
 /// 0.8 mm, the force agrees within 0.2 % and the surface within 0.5 % of its deepest

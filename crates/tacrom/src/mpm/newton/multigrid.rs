@@ -1,0 +1,548 @@
+//! A two-grid preconditioner for Newton's linear systems on grids too fine to factor.
+//!
+//! The coarse level is the grid of twice the spacing, placed so that its quadratic
+//! B-splines are exact combinations of the fine ones: coarse node `J` sits at fine
+//! coordinate `2 J - 1/2`, its knots on fine knots, and
+//! `N_J = (N_{2J-2} + 3 N_{2J-1} + 3 N_{2J} + N_{2J+1}) / 4` along each axis (the
+//! two-scale relation of the quadratic B-spline). The prolongation `P` is that relation:
+//! a coarse displacement field is the same field on the fine grid, except at fine nodes
+//! that are fixed (the bonded base) or held (outside the solved region), which get
+//! nothing. The coarse operator is the Galerkin product `P^T H P`, assembled point by
+//! point: each fine quadrature point's shape-function gradients, mapped through `P`, reach
+//! 3 x 3 x 3 coarse nodes, so the coarse matrix has the fine one's pattern and costs an
+//! assembly of the fine one's size; contact stiffnesses are mapped the same way. The
+//! coarse correction is then the Hessian-orthogonal projection onto the coarse fields.
+//! The coarse matrix is factored (faer; an eighth of the fine unknowns).
+//!
+//! The fine level is smoothed by symmetric Gauss-Seidel by nodes (3 x 3 blocks) on the
+//! Hessian assembled at the same evaluation (every node's blocks with its neighbours
+//! within two nodes). One application is a symmetric V-cycle from zero (a forward and a
+//! backward sweep, the coarse correction, the same two sweeps), so conjugate gradients
+//! stay valid with it; Newton keeps it over later steps, as it keeps a factorisation,
+//! until it no longer converges within [`super::MULTIGRID_REUSE_ITERATIONS`].
+//!
+//! What was measured (README, "Newton's linear solves"): damped Jacobi and Chebyshev
+//! smoothing on the block diagonal left most of the error (the highest frequencies of
+//! quadratic B-splines, and the nodes whose spline barely reaches into the gel, have
+//! small eigenvalues); Gauss-Seidel does better, but the cycle still needs 10 to 20
+//! iterations per Newton step at a forcing of 1e-2, and at dx = 0.7 mm the coarse
+//! correction does not pay for itself.
+
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+use super::system::{offset_slot, NotPositiveDefinite, System};
+use super::{add_pairs, add_point, Newton, Stencil, CHUNK};
+
+/// Neighbour offsets of a node (within two nodes along each axis), and the node's own.
+const SLOTS: usize = 125;
+const CENTRE: usize = 62;
+
+/// Fine points per parallel batch of the coarse gradients and diagonal blocks.
+const BATCH: usize = 1 << 14;
+
+/// Along one axis: the two coarse nodes (shifted, see [`TwoGrid`]) that fine node `i`
+/// takes part in and its weight in each.
+#[inline(always)]
+fn axis_parents(i: usize) -> [(usize, f64); 2] {
+    let m = i / 2;
+    if i % 2 == 0 {
+        [(m, 0.75), (m + 1, 0.25)]
+    } else {
+        [(m, 0.25), (m + 1, 0.75)]
+    }
+}
+
+/// The coarse level of one region and the fine smoother.
+#[derive(Clone)]
+pub(super) struct TwoGrid {
+    /// Coarse grid: nodes per axis (node `J` at fine coordinate `2 J - 1/2`) and the
+    /// coarse unknown of each node (`u32::MAX`: none).
+    cdims: [usize; 3],
+    cdof: Vec<u32>,
+    /// Per fine region node: its range in `p_coarse` and `p_weight` (the coarse unknowns
+    /// it takes part in and its weights).
+    p_start: Vec<u32>,
+    p_coarse: Vec<u32>,
+    p_weight: Vec<f64>,
+    coarse: System,
+    /// The fine Hessian assembled for the smoother: per region node, its neighbours at
+    /// each of the 125 offsets within two nodes (region index, `u32::MAX`: none) and the
+    /// 3 x 3 blocks there; the inverse of each node's diagonal block.
+    neighbours: Vec<u32>,
+    blocks: Vec<Matrix3<f64>>,
+    dinv: Vec<Matrix3<f64>>,
+    /// Whether the coarse factorisation and the smoother are set.
+    pub built: bool,
+    product: Vec<f64>,
+    coarse_rhs: Vec<f64>,
+}
+
+/// A fine point's (or contact point's) stencil mapped to the coarse grid: the coarse
+/// base node and, per local fine node, its per-axis local coarse nodes and weights.
+struct CoarseMap {
+    base: [i32; 3],
+}
+
+impl CoarseMap {
+    fn new(fine: &[i32; 3]) -> CoarseMap {
+        CoarseMap {
+            base: fine.map(|b| b.div_euclid(2)),
+        }
+    }
+
+    /// Calls `f(coarse local index, weight)` for each coarse node fine local node `l`
+    /// (of a stencil at `fine`) takes part in.
+    #[inline(always)]
+    fn each(&self, fine: &[i32; 3], l: usize, mut f: impl FnMut(usize, f64)) {
+        let o = Stencil::local(l);
+        let parents: [[(usize, f64); 2]; 3] =
+            std::array::from_fn(|k| axis_parents((fine[k] + o[k]) as usize));
+        for (jx, wx) in parents[0] {
+            for (jy, wy) in parents[1] {
+                for (jz, wz) in parents[2] {
+                    let a = [
+                        jx as i32 - self.base[0],
+                        jy as i32 - self.base[1],
+                        jz as i32 - self.base[2],
+                    ];
+                    f(((a[0] * 3 + a[1]) * 3 + a[2]) as usize, wx * wy * wz);
+                }
+            }
+        }
+    }
+}
+
+impl TwoGrid {
+    /// The coarse level of the current region of `newton`.
+    pub fn new(newton: &Newton) -> Result<TwoGrid, String> {
+        let dims = newton.dims;
+        let cdims = dims.map(|d| d / 2 + 2);
+        let cindex = |c: [usize; 3]| (c[0] * cdims[1] + c[1]) * cdims[2] + c[2];
+        let parents = |node: usize, f: &mut dyn FnMut(usize, f64)| {
+            let c = [
+                node / (dims[1] * dims[2]),
+                node / dims[2] % dims[1],
+                node % dims[2],
+            ];
+            let p: [[(usize, f64); 2]; 3] = std::array::from_fn(|k| axis_parents(c[k]));
+            for (jx, wx) in p[0] {
+                for (jy, wy) in p[1] {
+                    for (jz, wz) in p[2] {
+                        f(cindex([jx, jy, jz]), wx * wy * wz);
+                    }
+                }
+            }
+        };
+        let mut used = vec![false; cdims.iter().product()];
+        for &g in &newton.region_nodes {
+            parents(newton.free_nodes[g as usize] as usize, &mut |c, _| {
+                used[c] = true
+            });
+        }
+        let mut cdof = vec![u32::MAX; used.len()];
+        let mut cnodes = Vec::new();
+        for (c, &u) in used.iter().enumerate() {
+            if u {
+                cdof[c] = cnodes.len() as u32;
+                cnodes.push(c as u32);
+            }
+        }
+        let (mut p_start, mut p_coarse, mut p_weight) = (vec![0u32], Vec::new(), Vec::new());
+        for &g in &newton.region_nodes {
+            parents(newton.free_nodes[g as usize] as usize, &mut |c, w| {
+                p_coarse.push(cdof[c]);
+                p_weight.push(w);
+            });
+            p_start.push(p_coarse.len() as u32);
+        }
+        let coarse = System::new(cdims, &cnodes, &cdof)?;
+        let n = 3 * newton.region_nodes.len();
+        let mut neighbours = vec![u32::MAX; SLOTS * newton.region_nodes.len()];
+        for (k, &g) in newton.region_nodes.iter().enumerate() {
+            let node = newton.free_nodes[g as usize] as usize;
+            let c = [
+                (node / (dims[1] * dims[2])) as i32,
+                (node / dims[2] % dims[1]) as i32,
+                (node % dims[2]) as i32,
+            ];
+            for slot in 0..SLOTS {
+                let o = [
+                    slot as i32 / 25 - 2,
+                    slot as i32 / 5 % 5 - 2,
+                    slot as i32 % 5 - 2,
+                ];
+                let p = [c[0] + o[0], c[1] + o[1], c[2] + o[2]];
+                if p.iter().zip(&dims).any(|(&v, &d)| v < 0 || v >= d as i32) {
+                    continue;
+                }
+                let d =
+                    newton.dof[(p[0] as usize * dims[1] + p[1] as usize) * dims[2] + p[2] as usize];
+                if d != u32::MAX {
+                    neighbours[SLOTS * k + slot] = newton.local[d as usize];
+                }
+            }
+        }
+        Ok(TwoGrid {
+            cdims,
+            cdof,
+            p_start,
+            p_coarse,
+            p_weight,
+            blocks: vec![Matrix3::zeros(); neighbours.len()],
+            dinv: vec![Matrix3::zeros(); newton.region_nodes.len()],
+            neighbours,
+            built: false,
+            product: vec![0.0; n],
+            coarse_rhs: vec![0.0; coarse.n],
+            coarse,
+        })
+    }
+
+    /// The coarse unknowns of the coarse nodes around `map`'s base (`usize::MAX`: none).
+    fn coarse_dofs(&self, map: &CoarseMap) -> [usize; 27] {
+        std::array::from_fn(|a| {
+            let o = Stencil::local(a);
+            let p = [map.base[0] + o[0], map.base[1] + o[1], map.base[2] + o[2]];
+            if p.iter()
+                .zip(&self.cdims)
+                .any(|(&v, &d)| v < 0 || v >= d as i32)
+            {
+                return usize::MAX;
+            }
+            let d = self.cdof
+                [(p[0] as usize * self.cdims[1] + p[1] as usize) * self.cdims[2] + p[2] as usize];
+            if d == u32::MAX {
+                usize::MAX
+            } else {
+                d as usize
+            }
+        })
+    }
+
+    /// Sets the coarse operator and the smoother from `newton`'s last evaluation.
+    pub fn build(&mut self, newton: &Newton) -> Result<(), NotPositiveDefinite> {
+        self.built = false;
+        self.coarse.clear();
+        let mut blocks = std::mem::take(&mut self.blocks);
+        blocks.fill(Matrix3::zeros());
+        let count = newton.states.len();
+        for start in (0..count).step_by(BATCH) {
+            let end = (start + BATCH).min(count);
+            // Per point: its gradients mapped to the coarse grid.
+            let mapped: Vec<[Vector3<f64>; 27]> = (start..end)
+                .into_par_iter()
+                .with_min_len(CHUNK)
+                .map(|r| {
+                    let stencil = &newton.points[newton.region_points[r] as usize].stencil;
+                    let map = CoarseMap::new(&stencil.base);
+                    let mut coarse = [Vector3::zeros(); 27];
+                    for (l, &d) in newton.point_local[r].iter().enumerate() {
+                        if d != u32::MAX {
+                            let g = stencil.gradient(l);
+                            map.each(&stencil.base, l, |a, w| coarse[a] += g * w);
+                        }
+                    }
+                    coarse
+                })
+                .collect();
+            for (r, grads) in (start..end).zip(&mapped) {
+                let stencil = &newton.points[newton.region_points[r] as usize].stencil;
+                let tangent = &newton.states[r].tangent;
+                let dofs = self.coarse_dofs(&CoarseMap::new(&stencil.base));
+                add_point(&mut self.coarse, &dofs, grads, tangent);
+                let fine: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
+                let local = &newton.point_local[r];
+                add_fine(&mut blocks, local, |l1, l2| {
+                    let (g1, g2) = (&fine[l1], &fine[l2]);
+                    Matrix3::from_fn(|a, c| {
+                        let mut v = 0.0;
+                        for b in 0..3 {
+                            for e in 0..3 {
+                                v += g1[b] * tangent[3 * a + b][3 * c + e] * g2[e];
+                            }
+                        }
+                        v
+                    })
+                });
+            }
+        }
+        for k in &newton.contact_stiffness {
+            let base = k.base;
+            let map = CoarseMap::new(&base);
+            let mut w = [0.0; 27];
+            for (l, (&d, &wl)) in k.dofs.iter().zip(&k.w).enumerate() {
+                if d != usize::MAX {
+                    map.each(&base, l, |a, s| w[a] += wl * s);
+                }
+            }
+            let dofs = self.coarse_dofs(&map);
+            add_pairs(&mut self.coarse, &dofs, |a, b| k.h * (w[a] * w[b]));
+            let local = k
+                .dofs
+                .map(|d| if d == usize::MAX { u32::MAX } else { d as u32 });
+            add_fine(&mut blocks, &local, |l1, l2| k.h * (k.w[l1] * k.w[l2]));
+        }
+        self.coarse.factor()?;
+        for (inv, row) in self.dinv.iter_mut().zip(blocks.chunks_exact(SLOTS)) {
+            *inv = row[CENTRE].try_inverse().unwrap_or_else(Matrix3::zeros);
+        }
+        self.blocks = blocks;
+        self.built = true;
+        Ok(())
+    }
+
+    /// `y = K x` with the assembled blocks.
+    fn multiply(&self, x: &[f64], y: &mut [f64]) {
+        for (k, (row, nb)) in self
+            .blocks
+            .chunks_exact(SLOTS)
+            .zip(self.neighbours.chunks_exact(SLOTS))
+            .enumerate()
+        {
+            let mut v = Vector3::zeros();
+            for (m, &j) in row.iter().zip(nb) {
+                if j != u32::MAX {
+                    let j = 3 * j as usize;
+                    v += m * Vector3::new(x[j], x[j + 1], x[j + 2]);
+                }
+            }
+            y[3 * k..3 * k + 3].copy_from_slice(v.as_slice());
+        }
+    }
+
+    /// One Gauss-Seidel sweep by nodes on `K z = r`, forward or backward.
+    fn sweep(&self, r: &[f64], z: &mut [f64], forward: bool) {
+        let n = self.dinv.len();
+        for i in 0..n {
+            let k = if forward { i } else { n - 1 - i };
+            let row = &self.blocks[SLOTS * k..SLOTS * (k + 1)];
+            let nb = &self.neighbours[SLOTS * k..SLOTS * (k + 1)];
+            let mut v = Vector3::new(r[3 * k], r[3 * k + 1], r[3 * k + 2]);
+            for (slot, (m, &j)) in row.iter().zip(nb).enumerate() {
+                if j != u32::MAX && slot != CENTRE {
+                    let j = 3 * j as usize;
+                    v -= m * Vector3::new(z[j], z[j + 1], z[j + 2]);
+                }
+            }
+            let v = self.dinv[k] * v;
+            z[3 * k..3 * k + 3].copy_from_slice(v.as_slice());
+        }
+    }
+
+    /// `z = M^-1 r`: one symmetric V-cycle from zero (a symmetric Gauss-Seidel sweep,
+    /// the coarse correction, the same sweep), with the Hessian assembled at the last
+    /// [`Self::build`].
+    pub fn apply(&mut self, r: &[f64], z: &mut [f64]) {
+        z.fill(0.0);
+        self.sweep(r, z, true);
+        self.sweep(r, z, false);
+        let mut kz = std::mem::take(&mut self.product);
+        self.multiply(z, &mut kz);
+        // Coarse correction: restrict the residual, solve, prolong.
+        self.coarse_rhs.fill(0.0);
+        for (k, (r, kz)) in r.chunks_exact(3).zip(kz.chunks_exact(3)).enumerate() {
+            let (a, b) = (self.p_start[k] as usize, self.p_start[k + 1] as usize);
+            for (&c, &w) in self.p_coarse[a..b].iter().zip(&self.p_weight[a..b]) {
+                let c = 3 * c as usize;
+                for e in 0..3 {
+                    self.coarse_rhs[c + e] += w * (r[e] - kz[e]);
+                }
+            }
+        }
+        self.product = kz;
+        self.coarse.solve(&mut self.coarse_rhs);
+        for (k, z) in z.chunks_exact_mut(3).enumerate() {
+            let (a, b) = (self.p_start[k] as usize, self.p_start[k + 1] as usize);
+            for (&c, &w) in self.p_coarse[a..b].iter().zip(&self.p_weight[a..b]) {
+                let c = 3 * c as usize;
+                for e in 0..3 {
+                    z[e] += w * self.coarse_rhs[c + e];
+                }
+            }
+        }
+        self.sweep(r, z, true);
+        self.sweep(r, z, false);
+    }
+}
+
+/// Adds the pairs of a point's stencil nodes (region indices `local`, `u32::MAX`: none)
+/// to the assembled fine blocks: `block(l1, l2)` their 3 x 3 Hessian block.
+fn add_fine(
+    blocks: &mut [Matrix3<f64>],
+    local: &[u32; 27],
+    block: impl Fn(usize, usize) -> Matrix3<f64>,
+) {
+    for l1 in 0..27 {
+        if local[l1] == u32::MAX {
+            continue;
+        }
+        let o1 = Stencil::local(l1);
+        for l2 in 0..27 {
+            if local[l2] == u32::MAX {
+                continue;
+            }
+            let o2 = Stencil::local(l2);
+            let slot = offset_slot([o2[0] - o1[0], o2[1] - o1[1], o2[2] - o1[2]]);
+            blocks[SLOTS * local[l1] as usize + slot] += block(l1, l2);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::super::{Gel, GelParams, Linear, Placed, Solver, SolverOptions};
+    use super::super::system::{conjugate_gradients, dot};
+    use super::*;
+    use crate::geometry::{Sdf, Sphere};
+    use nalgebra::Isometry3;
+    use std::sync::Arc;
+
+    /// A deterministic scatter of values in `[-0.5, 0.5)`.
+    fn scatter(n: usize, seed: f64) -> Vec<f64> {
+        (0..n)
+            .map(|i| ((i as f64 + seed) * 0.754_877_666_2).fract() - 0.5)
+            .collect()
+    }
+
+    /// The two-scale relation: a coarse B-spline field equals, everywhere, the fine
+    /// B-spline field of its prolongation (so `P` loses nothing and the Galerkin coarse
+    /// operator is the Hessian on the coarse fields).
+    #[test]
+    fn coarse_splines_are_combinations_of_fine_ones() {
+        let coarse = scatter(16, 0.3);
+        for k in 0..200 {
+            let x = 3.0 + 20.0 * k as f64 / 200.0 + 0.0137;
+            let c = Stencil::at(&Vector3::repeat((x + 0.5) / 2.0));
+            let from_coarse: f64 = (0..3)
+                .map(|a| c.w[0][a] * coarse[(c.base[0] + a as i32) as usize])
+                .sum();
+            let f = Stencil::at(&Vector3::repeat(x));
+            let from_fine: f64 = (0..3)
+                .map(|l| {
+                    let i = (f.base[0] + l as i32) as usize;
+                    let v: f64 = axis_parents(i).iter().map(|&(j, w)| w * coarse[j]).sum();
+                    f.w[0][l] * v
+                })
+                .sum();
+            assert!(
+                (from_coarse - from_fine).abs() < 1e-12,
+                "x {x}: {from_coarse} against {from_fine}"
+            );
+        }
+    }
+
+    /// A gel pressed by a sphere, evaluated, with its two-grid preconditioner built.
+    fn pressed(dx: f64) -> (Newton, TwoGrid) {
+        let params = GelParams {
+            size: [0.012, 0.012, 0.003],
+            dx,
+            ..Default::default()
+        };
+        let options = SolverOptions {
+            solver: Solver::Newton,
+            linear: Linear::Multigrid,
+            ..Default::default()
+        };
+        let mut gel = Gel::new(params, options).unwrap();
+        let ball: Arc<dyn Sdf> = Arc::new(Sphere { radius: 3e-3 });
+        gel.solve(&[Placed {
+            shape: ball,
+            pose: Isometry3::translation(0.0, 0.0, 3e-3 - 0.3e-3),
+        }]);
+        // The solver keeps the tangents and contact stiffnesses of its last evaluation.
+        let mut n = *gel.newton.take().unwrap();
+        let mut grid = n.two_grid.take().unwrap();
+        grid.build(&n).unwrap();
+        (n, grid)
+    }
+
+    /// The coarse matrix is `P^T H P`: the energy of any coarse field equals that of its
+    /// prolongation (elastic points and contact, held and fixed nodes included).
+    #[test]
+    fn the_coarse_operator_is_the_galerkin_product() {
+        let (n, grid) = pressed(1e-3);
+        let nc = grid.coarse.n;
+        let nf = grid.product.len();
+        for seed in [0.1, 0.7, 2.3] {
+            let u = scatter(nc, seed);
+            let mut pu = vec![0.0; nf];
+            for (k, z) in pu.chunks_exact_mut(3).enumerate() {
+                let (a, b) = (grid.p_start[k] as usize, grid.p_start[k + 1] as usize);
+                for (&c, &w) in grid.p_coarse[a..b].iter().zip(&grid.p_weight[a..b]) {
+                    for e in 0..3 {
+                        z[e] += w * u[3 * c as usize + e];
+                    }
+                }
+            }
+            let mut hpu = vec![0.0; nf];
+            n.hessian_product(&pu, &mut hpu);
+            let mut au = vec![0.0; nc];
+            grid.coarse.multiply(&u, &mut au);
+            let (fine, coarse) = (dot(&pu, &hpu), dot(&u, &au));
+            assert!(
+                (fine - coarse).abs() <= 1e-10 * fine.abs(),
+                "{fine} against {coarse}"
+            );
+        }
+    }
+
+    /// The smoother's assembled blocks are the Hessian: their product equals the
+    /// matrix-free one.
+    #[test]
+    fn the_assembled_blocks_are_the_hessian() {
+        let (n, grid) = pressed(1e-3);
+        let nf = grid.product.len();
+        let x = scatter(nf, 0.9);
+        let (mut kx, mut hx) = (vec![0.0; nf], vec![0.0; nf]);
+        grid.multiply(&x, &mut kx);
+        n.hessian_product(&x, &mut hx);
+        let difference: f64 = kx.iter().zip(&hx).map(|(k, h)| (k - h) * (k - h)).sum();
+        assert!(
+            difference.sqrt() <= 1e-12 * dot(&hx, &hx).sqrt(),
+            "{difference}"
+        );
+    }
+
+    /// Conjugate gradients preconditioned with the two-grid cycle need at most a third of
+    /// the iterations they need with the Hessian's block diagonal (measured: 68 against
+    /// 326; the cycle's Gauss-Seidel sweeps alone: 106), for a right-hand side whose
+    /// solution is of order one at every node.
+    #[test]
+    fn the_two_grid_cycle_cuts_the_iterations() {
+        let (n, mut grid) = pressed(0.5e-3);
+        let nf = grid.product.len();
+        let mut b = vec![0.0; nf];
+        n.hessian_product(&scatter(nf, 0.4), &mut b);
+        let mut x = vec![0.0; nf];
+        let mut work: [Vec<f64>; 3] = Default::default();
+        let mut solve = |precondition: &mut dyn FnMut(&[f64], &mut [f64])| {
+            let (ok, iterations) = conjugate_gradients(
+                &b,
+                &mut x,
+                1e-6,
+                5000,
+                &mut work,
+                |x, y| n.hessian_product(x, y),
+                precondition,
+            );
+            assert!(ok);
+            iterations
+        };
+        let two_grid = solve(&mut |r, z| grid.apply(r, z));
+        let diagonal = solve(&mut |r, z| {
+            for ((inv, r), z) in grid
+                .dinv
+                .iter()
+                .zip(r.chunks_exact(3))
+                .zip(z.chunks_exact_mut(3))
+            {
+                z.copy_from_slice((inv * Vector3::new(r[0], r[1], r[2])).as_slice());
+            }
+        });
+        assert!(
+            3 * two_grid <= diagonal,
+            "two-grid {two_grid}, block diagonal {diagonal}"
+        );
+    }
+}

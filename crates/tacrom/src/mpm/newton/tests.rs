@@ -91,17 +91,18 @@ fn default_tolerance_agrees_with_a_tight_solve() {
 
 /// The two-grid preconditioner finds the equilibrium the factorisation finds: at a tight
 /// tolerance the forces of a press and a slide agree within 1e-4, with and without
-/// friction, and its conjugate gradients ran.
+/// friction and near incompressibility (Poisson 0.49: selective volume integration), and
+/// its conjugate gradients ran.
 #[test]
 fn the_two_grid_path_agrees_with_the_factorisation() {
     let s = ball(3e-3);
-    for friction in [0.0, 0.5] {
+    for (friction, poisson) in [(0.0, 0.43), (0.5, 0.43), (0.5, 0.49)] {
         let run = |linear: Linear| {
             let o = SolverOptions {
                 linear,
                 ..options(1e-6)
             };
-            let mut g = Gel::new(small_gel(friction, 0.43), o).unwrap();
+            let mut g = Gel::new(small_gel(friction, poisson), o).unwrap();
             let mut out = Vec::new();
             let mut cg = 0;
             for (x, d) in [(0.0, 0.3e-3), (0.0, 0.5e-3), (0.5e-3, 0.5e-3)] {
@@ -222,24 +223,27 @@ fn near_incompressible_press_converges_without_locking() {
     assert!(ratio > 1.0 && ratio < 3.0, "ratio {ratio}");
 }
 
-/// The result does not depend on the gel's thread count.
+/// The result does not depend on the gel's thread count, with either linear solve.
 #[test]
 fn threads_give_identical_results() {
     let s = ball(3e-3);
-    let run = |threads: usize| {
-        let mut g = Gel::new(
-            small_gel(0.5, 0.43),
-            SolverOptions {
-                threads,
-                ..options(1e-3)
-            },
-        )
-        .unwrap();
-        g.solve(&[at(&s, 3e-3, 0.0, 0.3e-3)]);
-        g.solve(&[at(&s, 3e-3, 0.4e-3, 0.3e-3)]);
-        g.force()
-    };
-    assert_eq!(run(1), run(2));
+    for linear in [Linear::Factor, Linear::Multigrid] {
+        let run = |threads: usize| {
+            let mut g = Gel::new(
+                small_gel(0.5, 0.43),
+                SolverOptions {
+                    threads,
+                    linear,
+                    ..options(1e-3)
+                },
+            )
+            .unwrap();
+            g.solve(&[at(&s, 3e-3, 0.0, 0.3e-3)]);
+            g.solve(&[at(&s, 3e-3, 0.4e-3, 0.3e-3)]);
+            g.force()
+        };
+        assert_eq!(run(1), run(2), "{linear:?}");
+    }
 }
 
 /// The active region (the contact footprint grown by the default margin of 1.5

@@ -41,7 +41,10 @@
 //! region). A factorisation is kept: later steps solve by conjugate gradients
 //! preconditioned with it, the Hessian's products taken point by point from the tangents
 //! of the evaluation (no assembly), and the matrix is assembled and factored afresh only
-//! when that does not converge within [`REUSE_ITERATIONS`]. The points are evaluated in
+//! when that does not converge within [`REUSE_ITERATIONS`]. Regions of more than
+//! [`MULTIGRID_UNKNOWNS`] unknowns are not factored: each step is solved by conjugate
+//! gradients preconditioned with a two-grid cycle built for it (`multigrid.rs`; see
+//! [`super::Linear`]). The points are evaluated in
 //! parallel and their forces added in a fixed order, so threads do not change the result.
 //! Then a backtracking line search that accepts a step only if the energy does not
 //! increase (Armijo). It stops when the largest out-of-balance nodal force is below

@@ -334,7 +334,6 @@ pub(crate) struct Newton {
     linear: Linear,
     two_grid: Option<TwoGrid>,
     two_grids: Vec<([usize; 4], TwoGrid)>,
-
     /// Active margin (cells) around the contact, see [`super::SolverOptions::active_margin`].
     margin: f64,
     /// Nodal displacements (cells), 3 per free node.
@@ -467,14 +466,7 @@ impl Newton {
                 }
             }
         }
-        let mut dof = vec![u32::MAX; used.len()];
-        let mut nodes = Vec::new();
-        for (node, &u) in used.iter().enumerate() {
-            if u {
-                dof[node] = nodes.len() as u32;
-                nodes.push(node as u32);
-            }
-        }
+        let (dof, nodes) = number(&used);
         let n = 3 * nodes.len();
         let [lx, ly, t] = params.size;
         let margin = gel.options.active_margin * t / layout.dx;
@@ -502,7 +494,6 @@ impl Newton {
             linear: gel.options.linear,
             two_grid: None,
             two_grids: Vec::new(),
-
             margin,
             u: vec![0.0; n],
             grad: Vec::new(),
@@ -569,13 +560,6 @@ impl Newton {
             .chain(self.systems.iter_mut().map(|(_, s)| s))
         {
             s.factored = false;
-        }
-        for t in self
-            .two_grid
-            .iter_mut()
-            .chain(self.two_grids.iter_mut().map(|(_, t)| t))
-        {
-            t.built = false;
         }
     }
 
@@ -771,8 +755,6 @@ impl Newton {
             Linear::Factor => false,
             Linear::Multigrid => true,
         };
-        self.system = None;
-        self.two_grid = None;
         if !multigrid {
             self.system = match self.systems.iter().position(|(r, _)| *r == bx) {
                 Some(i) => Some(self.systems.remove(i).1),
@@ -1600,8 +1582,20 @@ fn deformation(stencil: &Stencil, dofs: &[u32; 27], u: &[f64]) -> Matrix3<f64> {
     f
 }
 
-/// Adds `block(l1, l2)` for every pair of a stencil's free local nodes (`dofs[l]`: free
-/// index or `usize::MAX`), lower triangle only (`dofs[l2] <= dofs[l1]`).
+/// The indices `used` marks, numbered in order: each one's number (`u32::MAX` where not
+/// used) and the used indices.
+fn number(used: &[bool]) -> (Vec<u32>, Vec<u32>) {
+    let mut number = vec![u32::MAX; used.len()];
+    let mut used_indices = Vec::new();
+    for (i, &u) in used.iter().enumerate() {
+        if u {
+            number[i] = used_indices.len() as u32;
+            used_indices.push(i as u32);
+        }
+    }
+    (number, used_indices)
+}
+
 /// `T_l[a][3 c + d] = sum_b g_l[b] H[3 a + b][3 c + d]` for the stencil nodes `l` that
 /// are `used` (`H` a point's tangent, `g_l` its nodes' shape-function gradients): the
 /// Hessian block of nodes `l1` and `l2` is then `T_l1[a][3 c + d] g_l2[d]`.
@@ -1645,6 +1639,8 @@ fn add_point(
     });
 }
 
+/// Adds `block(l1, l2)` for every pair of a stencil's free local nodes (`dofs[l]`: free
+/// index or `usize::MAX`), lower triangle only (`dofs[l2] <= dofs[l1]`).
 fn add_pairs(
     system: &mut System,
     dofs: &[usize; 27],

@@ -32,7 +32,7 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::system::{offset_slot, NotPositiveDefinite, System};
-use super::{add_pairs, add_point, contract, Newton, Stencil, CHUNK};
+use super::{add_pairs, add_point, contract, number, Newton, Stencil, CHUNK};
 
 /// Neighbour offsets of a node (within two nodes along each axis).
 const SLOTS: usize = 125;
@@ -40,7 +40,7 @@ const SLOTS: usize = 125;
 /// Unknowns of a smoother patch (2 x 2 x 2 nodes).
 const PATCH: usize = 24;
 
-/// Fine points per parallel batch of the coarse gradients and diagonal blocks.
+/// Fine points per parallel batch of their gradients, fine and mapped to the coarse grid.
 const BATCH: usize = 1 << 14;
 
 /// Along one axis: the two coarse nodes (shifted, see [`TwoGrid`]) that fine node `i`
@@ -53,6 +53,16 @@ fn axis_parents(i: usize) -> [(usize, f64); 2] {
     } else {
         [(m, 0.25), (m + 1, 0.75)]
     }
+}
+
+/// Grid coordinates of node `node` of a grid with `dims` nodes per axis.
+#[inline(always)]
+fn coords(node: usize, dims: [usize; 3]) -> [usize; 3] {
+    [
+        node / (dims[1] * dims[2]),
+        node / dims[2] % dims[1],
+        node % dims[2],
+    ]
 }
 
 /// The coarse level of one region and the fine smoother.
@@ -79,14 +89,12 @@ pub(super) struct TwoGrid {
     patch_of: Vec<(u32, u8)>,
     patch_nodes: Vec<[u32; 8]>,
     patch_inv: Vec<f64>,
-    /// Whether the coarse factorisation and the smoother are set.
-    pub built: bool,
     product: Vec<f64>,
     coarse_rhs: Vec<f64>,
 }
 
-/// A fine point's (or contact point's) stencil mapped to the coarse grid: the coarse
-/// base node and, per local fine node, its per-axis local coarse nodes and weights.
+/// A fine point's (or contact point's) stencil mapped to the coarse grid: the base of the
+/// 3 x 3 x 3 coarse nodes its fine nodes take part in.
 struct CoarseMap {
     base: [i32; 3],
 }
@@ -127,11 +135,7 @@ impl TwoGrid {
         let cdims = dims.map(|d| d / 2 + 2);
         let cindex = |c: [usize; 3]| (c[0] * cdims[1] + c[1]) * cdims[2] + c[2];
         let parents = |node: usize, f: &mut dyn FnMut(usize, f64)| {
-            let c = [
-                node / (dims[1] * dims[2]),
-                node / dims[2] % dims[1],
-                node % dims[2],
-            ];
+            let c = coords(node, dims);
             let p: [[(usize, f64); 2]; 3] = std::array::from_fn(|k| axis_parents(c[k]));
             for (jx, wx) in p[0] {
                 for (jy, wy) in p[1] {
@@ -147,14 +151,7 @@ impl TwoGrid {
                 used[c] = true
             });
         }
-        let mut cdof = vec![u32::MAX; used.len()];
-        let mut cnodes = Vec::new();
-        for (c, &u) in used.iter().enumerate() {
-            if u {
-                cdof[c] = cnodes.len() as u32;
-                cnodes.push(c as u32);
-            }
-        }
+        let (cdof, cnodes) = number(&used);
         let (mut p_start, mut p_coarse, mut p_weight) = (vec![0u32], Vec::new(), Vec::new());
         for &g in &newton.region_nodes {
             parents(newton.free_nodes[g as usize] as usize, &mut |c, w| {
@@ -167,12 +164,7 @@ impl TwoGrid {
         let n = 3 * newton.region_nodes.len();
         let mut neighbours = vec![u32::MAX; SLOTS * newton.region_nodes.len()];
         for (k, &g) in newton.region_nodes.iter().enumerate() {
-            let node = newton.free_nodes[g as usize] as usize;
-            let c = [
-                (node / (dims[1] * dims[2])) as i32,
-                (node / dims[2] % dims[1]) as i32,
-                (node % dims[2]) as i32,
-            ];
+            let c = coords(newton.free_nodes[g as usize] as usize, dims).map(|v| v as i32);
             for slot in 0..SLOTS {
                 let o = [
                     slot as i32 / 25 - 2,
@@ -193,12 +185,7 @@ impl TwoGrid {
         let mut index = std::collections::BTreeMap::new();
         let (mut patch_of, mut patch_nodes) = (Vec::new(), Vec::<[u32; 8]>::new());
         for (k, &g) in newton.region_nodes.iter().enumerate() {
-            let node = newton.free_nodes[g as usize] as usize;
-            let c = [
-                node / (dims[1] * dims[2]),
-                node / dims[2] % dims[1],
-                node % dims[2],
-            ];
+            let c = coords(newton.free_nodes[g as usize] as usize, dims);
             let b = *index
                 .entry([c[0] / 2, c[1] / 2, c[2] / 2])
                 .or_insert_with(|| {
@@ -220,7 +207,6 @@ impl TwoGrid {
             p_weight,
             blocks: vec![Matrix3::zeros(); neighbours.len()],
             neighbours,
-            built: false,
             product: vec![0.0; n],
             coarse_rhs: vec![0.0; coarse.n],
             coarse,
@@ -250,38 +236,36 @@ impl TwoGrid {
 
     /// Sets the coarse operator and the smoother from `newton`'s last evaluation.
     pub fn build(&mut self, newton: &Newton) -> Result<(), NotPositiveDefinite> {
-        self.built = false;
         self.coarse.clear();
         let mut blocks = std::mem::take(&mut self.blocks);
         blocks.fill(Matrix3::zeros());
         let count = newton.states.len();
         for start in (0..count).step_by(BATCH) {
             let end = (start + BATCH).min(count);
-            // Per point: its gradients mapped to the coarse grid.
-            let mapped: Vec<[Vector3<f64>; 27]> = (start..end)
+            // Per point: its gradients, and mapped to the coarse grid.
+            let mapped: Vec<([Vector3<f64>; 27], [Vector3<f64>; 27])> = (start..end)
                 .into_par_iter()
                 .with_min_len(CHUNK)
                 .map(|r| {
                     let stencil = &newton.points[newton.region_points[r] as usize].stencil;
                     let map = CoarseMap::new(&stencil.base);
+                    let fine: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
                     let mut coarse = [Vector3::zeros(); 27];
                     for (l, &d) in newton.point_local[r].iter().enumerate() {
                         if d != u32::MAX {
-                            let g = stencil.gradient(l);
-                            map.each(&stencil.base, l, |a, w| coarse[a] += g * w);
+                            map.each(&stencil.base, l, |a, w| coarse[a] += fine[l] * w);
                         }
                     }
-                    coarse
+                    (fine, coarse)
                 })
                 .collect();
-            for (r, grads) in (start..end).zip(&mapped) {
+            for (r, (fine, grads)) in (start..end).zip(&mapped) {
                 let stencil = &newton.points[newton.region_points[r] as usize].stencil;
                 let tangent = &newton.states[r].tangent;
                 let dofs = self.coarse_dofs(&CoarseMap::new(&stencil.base));
                 add_point(&mut self.coarse, &dofs, grads, tangent);
-                let fine: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
                 let local = &newton.point_local[r];
-                let tl = contract(&fine, tangent, |l| local[l] != u32::MAX);
+                let tl = contract(fine, tangent, |l| local[l] != u32::MAX);
                 add_fine(&mut blocks, local, |l1, l2| {
                     let g2 = &fine[l2];
                     Matrix3::from_fn(|a, c| {
@@ -344,7 +328,6 @@ impl TwoGrid {
             }
         }
         self.blocks = blocks;
-        self.built = true;
         Ok(())
     }
 

@@ -104,8 +104,8 @@ use indenters::match_indenters;
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 pub use params::{
     GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
-    AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, MISSED_FRACTION,
-    MULTIGRID_UNKNOWNS,
+    AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, LINEAR_UNKNOWNS,
+    MISSED_FRACTION, MULTIGRID_UNKNOWNS,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
@@ -391,6 +391,8 @@ pub struct Gel {
     loads: Vec<pressure::ContactLoad>,
     /// The total-Lagrangian relaxation's nodal state ([`Solver::Total`]).
     total: Option<Box<total::Total>>,
+    /// The linear solver's factorisation and surface compliance ([`Solver::Linear`]).
+    linear: Option<Box<newton::linear::Compliance>>,
 }
 
 impl std::fmt::Debug for Gel {
@@ -461,6 +463,7 @@ impl Gel {
             newton: None,
             loads: Vec::new(),
             total: None,
+            linear: None,
         })
     }
 
@@ -479,7 +482,7 @@ impl Gel {
         let s = self.layout.spacing[0].max(self.layout.spacing[1]);
         match solver {
             Solver::Newton => s / newton::CONTACT_SUBDIVISION as f64,
-            Solver::Relaxation | Solver::Total => s,
+            Solver::Relaxation | Solver::Total | Solver::Linear => s,
         }
     }
 
@@ -666,6 +669,12 @@ impl Gel {
             return report;
         }
         let sweep = self.plan_sweep(used, &matched);
+        if self.options.solver == Solver::Linear {
+            self.solve_linear(&sweep, &mut report);
+            self.prev = current;
+            self.resting = !touching && self.surface_box.is_none();
+            return report;
+        }
         if self.options.solver == Solver::Newton {
             self.solve_newton(&sweep, &matched, &mut report);
             self.prev = if report.nonfinite_recovered {

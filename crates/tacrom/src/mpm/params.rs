@@ -143,6 +143,9 @@ pub enum Linear {
 /// two-grid cycle instead of factoring.
 pub const MULTIGRID_UNKNOWNS: usize = 60_000;
 
+/// Most unknowns (three per grid node, an upper bound) [`Solver::Linear`] factors.
+pub const LINEAR_UNKNOWNS: usize = MULTIGRID_UNKNOWNS;
+
 /// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that
 /// carries no force has missed a contact that fell between its contact points (the
 /// sensor warns; [`SolverOptions::newton_fallback`] solves the frame again). A smooth
@@ -167,11 +170,20 @@ pub enum Solver {
     /// points (total-Lagrangian, `mpm/total.rs`), whose equilibrium does not depend on
     /// the path.
     Total,
+    /// Linear elasticity about the undeformed gel with frictionless contact, solved
+    /// exactly on a surface compliance computed once per contact slot
+    /// (`mpm/newton/linear.rs`): a frame costs no pass over the particles.
+    Linear,
 }
 
 impl Solver {
     /// Every solver.
-    pub const ALL: [Solver; 3] = [Solver::Relaxation, Solver::Newton, Solver::Total];
+    pub const ALL: [Solver; 4] = [
+        Solver::Relaxation,
+        Solver::Newton,
+        Solver::Total,
+        Solver::Linear,
+    ];
 
     /// The name recorded in a reduced-order model's recipe and used by the `solver`
     /// attribute.
@@ -180,6 +192,7 @@ impl Solver {
             Solver::Relaxation => "relaxation",
             Solver::Newton => "newton",
             Solver::Total => "total",
+            Solver::Linear => "linear",
         }
     }
 
@@ -272,6 +285,9 @@ pub struct SolveReport {
     pub reused: usize,
     /// Newton solver: conjugate gradient iterations, over all its steps.
     pub cg_iterations: usize,
+    /// Linear solver: columns of the surface compliance computed (one solve with the
+    /// factorisation each).
+    pub columns: usize,
     /// Whether the relaxation missed the contact and Newton's method solved the frame
     /// ([`SolverOptions::newton_fallback`]).
     pub newton_fallback: bool,
@@ -293,6 +309,7 @@ impl SolveReport {
             factorisations: 0,
             reused: 0,
             cg_iterations: 0,
+            columns: 0,
             newton_fallback: false,
         }
     }
@@ -330,6 +347,19 @@ impl Gel {
             params.dx,
             count <= MAX_PARTICLES as f64,
             "gives too many particles",
+        )?;
+        let unknowns: f64 = 3.0
+            * params
+                .size
+                .iter()
+                .map(|&l| (l / params.dx).round().max(1.0) + 3.0)
+                .product::<f64>();
+        check(
+            "dx",
+            params.dx,
+            options.solver != Solver::Linear || unknowns <= LINEAR_UNKNOWNS as f64,
+            "is too small for solver=\"linear\": its grid has more unknowns than the 60,000 \
+             it factors",
         )
     }
 }

@@ -216,7 +216,7 @@ impl SurfaceModel for Mpm {
         let missed = gel.unloaded_penetration(scene.indenters);
         if missed > MISSED_FRACTION * spacing {
             let advice = match self.options.solver {
-                Solver::Relaxation | Solver::Total => format!(
+                Solver::Relaxation | Solver::Total | Solver::Linear => format!(
                     "solver=\"newton\" (contact points {:.3} mm apart) or a smaller 'dx'",
                     gel.contact_spacing(Solver::Newton) * 1e3
                 ),

@@ -65,6 +65,7 @@
 //! compliance as after; bodies pressed less than their radius are not affected.
 
 mod energy;
+pub(super) mod linear;
 mod multigrid;
 mod subgrid;
 mod system;

@@ -143,8 +143,10 @@ pub enum Linear {
 /// two-grid cycle instead of factoring.
 pub const MULTIGRID_UNKNOWNS: usize = 60_000;
 
-/// Most unknowns (three per grid node, an upper bound) [`Solver::Linear`] factors.
-pub const LINEAR_UNKNOWNS: usize = MULTIGRID_UNKNOWNS;
+/// Most unknowns (three per grid node, an upper bound) [`Solver::Linear`] factors: the
+/// default gel at 1.0 mm (22,869), not at 0.7 mm (57,132), where the quick benchmark's
+/// larger contacts took 645 MB of compliance columns and 6 s for a frame's first solve.
+pub const LINEAR_UNKNOWNS: usize = 30_000;
 
 /// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that
 /// carries no force has missed a contact that fell between its contact points (the
@@ -358,7 +360,7 @@ impl Gel {
             "dx",
             params.dx,
             options.solver != Solver::Linear || unknowns <= LINEAR_UNKNOWNS as f64,
-            "is too small for solver=\"linear\": its grid has more unknowns than the 60,000 \
+            "is too small for solver=\"linear\": its grid has more unknowns than the 30,000 \
              it factors",
         )
     }

@@ -56,9 +56,13 @@ use super::super::{
 use super::system::System;
 use super::{contains, Newton, Stencil, PENALTY};
 
-/// Smallest `|n_z|` a slot's constraint is linearised with: where an indenter's side is
-/// steeper, vertical sinking frees the slot only slowly, and the next pass corrects it.
-const MIN_SLOPE: f64 = 0.3;
+/// Steps at most of a march along the vertical ([`Compliance::vertical_gap`]), the
+/// smallest step (cells) down through an indenter, the bisections of the way out, and the
+/// distance (cells) at which a march up has met the surface.
+const MARCH_STEPS: usize = 200;
+const MIN_MARCH: f64 = 0.02;
+const BISECTIONS: usize = 30;
+const GAP_EPS: f64 = 1e-6;
 
 /// Linearisations at most per solve.
 const MAX_PASSES: usize = 12;
@@ -87,8 +91,9 @@ pub(crate) struct Compliance {
     /// Per slot: the unknowns (first of three; `u32::MAX`: fixed) and weights of its stencil.
     stencils: Vec<([u32; 27], [f64; 27])>,
     /// The surface's response (3 per slot, cells per internal force unit) to a unit
-    /// downward force at each slot computed so far.
-    columns: HashMap<u32, Box<[f64]>>,
+    /// downward force at each slot computed so far, in single precision (7 digits, for a
+    /// contact solved to the tolerance's 3).
+    columns: HashMap<u32, Box<[f32]>>,
     /// Slots that carried a force in the last solve (where the next one starts).
     last_active: Vec<u32>,
 }
@@ -194,7 +199,7 @@ impl Compliance {
                 }
             }
             self.system.solve_columns(&mut b);
-            let columns: Vec<Box<[f64]>> = b
+            let columns: Vec<Box<[f32]>> = b
                 .par_chunks_exact(n)
                 .map(|x| {
                     let mut r = Vec::with_capacity(3 * self.stencils.len());
@@ -207,7 +212,7 @@ impl Compliance {
                                 }
                             }
                         }
-                        r.extend_from_slice(&u);
+                        r.extend(u.map(|v| v as f32));
                     }
                     r.into_boxed_slice()
                 })
@@ -218,36 +223,75 @@ impl Compliance {
         }
     }
 
-    /// Displacement (cells) of slot `p` under the forces `forces` at `slots`.
-    fn displacement(&self, p: usize, slots: &[u32], forces: &[f64]) -> Vector3<f64> {
+    /// The columns of `slots` (computed).
+    fn columns_of(&self, slots: &[u32]) -> Vec<&[f32]> {
+        slots.iter().map(|q| &self.columns[q][..]).collect()
+    }
+
+    /// Displacement (cells) of slot `p` under the forces `forces` at the slots whose
+    /// columns are `columns`.
+    fn displacement(p: usize, columns: &[&[f32]], forces: &[f64]) -> Vector3<f64> {
         let mut u = Vector3::zeros();
-        for (q, f) in slots.iter().zip(forces) {
-            let c = &self.columns[q][3 * p..3 * p + 3];
-            u += Vector3::new(c[0], c[1], c[2]) * *f;
+        for (c, f) in columns.iter().zip(forces) {
+            let c = &c[3 * p..3 * p + 3];
+            u += Vector3::new(c[0], c[1], c[2]).cast::<f64>() * *f;
         }
         u
     }
 
     /// The smallest signed distance (cells) from the point at `x` (cells) to an indenter
-    /// whose bounds hold it, with that indenter's outward normal there.
-    fn nearest(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> Option<(f64, Vector3<f64>)> {
+    /// whose bounds hold it; `+inf` if none does.
+    fn clearance(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> f64 {
         let p = nalgebra::Point3::from(self.origin + x * self.dx);
-        let mut best: Option<(f64, Vector3<f64>)> = None;
-        for ind in indenters.iter().filter(|ind| contains(&ind.bounds, &p)) {
-            let (dist, slope) = ind
-                .shape
-                .distance_and_slope(&ind.now.inverse_transform_point(&p));
-            let dist = dist / self.dx;
-            let slope = ind.now.rotation * slope;
-            let length = slope.norm();
-            if !(dist.is_finite() && length > 1e-12 && length.is_finite()) {
-                continue;
+        indenters
+            .iter()
+            .filter(|ind| contains(&ind.bounds, &p))
+            .map(|ind| ind.shape.distance(&ind.now.inverse_transform_point(&p)) / self.dx)
+            .filter(|d| !d.is_nan())
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// The vertical distance (cells) from the point at `x` (cells) up to the indenters'
+    /// lower surface: positive where it lies below them, negative inside them (how far
+    /// down it must move to leave them); `None` where nothing lies above it. Marched by
+    /// the signed distance, which never overshoots an exact distance's surface, and the
+    /// way out from inside bisected.
+    fn vertical_gap(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> Option<f64> {
+        let at = |t: f64| self.clearance(&(x + Vector3::z() * t), indenters);
+        let mut phi = at(0.0);
+        if phi < 0.0 {
+            let (mut inside, mut t) = (0.0, 0.0);
+            for _ in 0..MARCH_STEPS {
+                t += (-phi).max(MIN_MARCH);
+                phi = at(-t);
+                if phi >= 0.0 {
+                    let mut outside = t;
+                    for _ in 0..BISECTIONS {
+                        let mid = 0.5 * (inside + outside);
+                        if at(-mid) < 0.0 {
+                            inside = mid;
+                        } else {
+                            outside = mid;
+                        }
+                    }
+                    return Some(-0.5 * (inside + outside));
+                }
+                inside = t;
             }
-            if best.map_or(true, |(d, _)| dist < d) {
-                best = Some((dist, slope / length));
-            }
+            return Some(-t);
         }
-        best
+        let mut t = 0.0;
+        for _ in 0..MARCH_STEPS {
+            if !phi.is_finite() {
+                return None;
+            }
+            if phi <= GAP_EPS {
+                return Some(t);
+            }
+            t += phi;
+            phi = at(t);
+        }
+        phi.is_finite().then_some(t)
     }
 
     /// The frictionless contact of the gel's surface with `indenters`, to a penetration of
@@ -269,21 +313,42 @@ impl Compliance {
         }
         let mut forces = vec![0.0; near.len()];
         let mut u: Vec<Vector3<f64>> = vec![Vector3::zeros(); near.len()];
-        let (mut passes, mut pivots) = (0, 0);
+        let (mut passes, mut iterations) = (0, 0);
         let mut penetration = 0.0;
         let mut converged = false;
         let mut delta = vec![f64::NEG_INFINITY; near.len()];
         for pass in 0..MAX_PASSES {
             passes = pass + 1;
-            // Linearise each slot's constraint about the current surface.
-            for (i, &p) in near.iter().enumerate() {
-                let x = self.rest[p as usize] + u[i];
-                delta[i] = match self.nearest(&x, indenters) {
-                    Some((phi, n)) => -u[i].z - phi / (-n.z).max(MIN_SLOPE),
-                    None => f64::NEG_INFINITY,
+            // Each slot's constraint about the current surface: the sinking that brings it
+            // to the indenters' lower surface above (or below) it. Inside an indenter
+            // first; outside, only within the candidates' reach of it (the gap is at
+            // least the distance).
+            let points: Vec<Vector3<f64>> = near
+                .iter()
+                .zip(&u)
+                .map(|(&p, v)| self.rest[p as usize] + v)
+                .collect();
+            let clear: Vec<f64> = points
+                .iter()
+                .map(|x| self.clearance(x, indenters))
+                .collect();
+            for i in 0..near.len() {
+                delta[i] = if clear[i] < 0.0 {
+                    self.vertical_gap(&points[i], indenters)
+                        .map_or(f64::NEG_INFINITY, |h| -u[i].z - h)
+                } else {
+                    f64::NEG_INFINITY
                 };
             }
             let deepest = delta.iter().copied().fold(0.0, f64::max);
+            let reach = CANDIDATE_FRACTION * deepest;
+            for i in 0..near.len() {
+                if clear[i] >= 0.0 && clear[i] < reach {
+                    delta[i] = self
+                        .vertical_gap(&points[i], indenters)
+                        .map_or(f64::NEG_INFINITY, |h| -u[i].z - h);
+                }
+            }
             if deepest <= 0.0 && forces.iter().all(|&f| f == 0.0) {
                 converged = true;
                 penetration = 0.0;
@@ -301,16 +366,23 @@ impl Compliance {
             let solved = {
                 let near = &near;
                 let this = &mut *self;
-                complementarity(&d, &mut cand_free, &mut pivots, |rows, cols| {
+                complementarity(&d, &mut cand_free, &mut iterations, |rows, cols| {
                     this.ensure(cols.iter().map(|&j| near[cand[j]]), &likely);
+                    let columns: Vec<&[f32]> = cols
+                        .iter()
+                        .map(|&j| &this.columns[&near[cand[j]]][..])
+                        .collect();
+                    let at: Vec<usize> = rows
+                        .iter()
+                        .map(|&i| 3 * near[cand[i]] as usize + 2)
+                        .collect();
                     DMatrix::from_fn(rows.len(), cols.len(), |a, b| {
-                        let column = &this.columns[&near[cand[cols[b]]]];
                         let soft = if rows[a] == cols[b] {
                             this.softness
                         } else {
                             0.0
                         };
-                        soft - column[3 * near[cand[rows[a]]] as usize + 2]
+                        soft - columns[b][at[a]] as f64
                     })
                 })
             };
@@ -329,8 +401,9 @@ impl Compliance {
                 .filter(|(_, &f)| f > 0.0)
                 .map(|(&p, &f)| (p, f))
                 .unzip();
+            let columns = self.columns_of(&slots);
             for (i, &p) in near.iter().enumerate() {
-                u[i] = self.displacement(p as usize, &slots, &loads);
+                u[i] = Self::displacement(p as usize, &columns, &loads);
             }
             let sinking = u.iter().map(|v| -v.z).fold(0.0, f64::max);
             // The penetration beyond what the contact's own compliance allows.
@@ -339,8 +412,11 @@ impl Compliance {
                 .zip(&u)
                 .zip(&forces)
                 .filter_map(|((&p, v), &f)| {
-                    let (phi, n) = self.nearest(&(self.rest[p as usize] + v), indenters)?;
-                    Some(-phi - self.softness * f * (-n.z).max(MIN_SLOPE))
+                    let x = self.rest[p as usize] + v;
+                    if self.clearance(&x, indenters) >= 0.0 {
+                        return None;
+                    }
+                    Some(-self.vertical_gap(&x, indenters)? - self.softness * f)
                 })
                 .fold(0.0, f64::max);
             if penetration <= tolerance * sinking.max(1e-6) {
@@ -354,9 +430,10 @@ impl Compliance {
             .filter(|(_, &f)| f > 0.0)
             .map(|(&p, &f)| (p, f))
             .unzip();
+        let columns = self.columns_of(&slots);
         let surface = (0..self.rest.len())
             .into_par_iter()
-            .map(|p| self.displacement(p, &slots, &forces))
+            .map(|p| Self::displacement(p, &columns, &forces))
             .collect();
         self.last_active = slots.clone();
         Contact {
@@ -370,83 +447,150 @@ impl Compliance {
     }
 }
 
-/// Block principal pivots at most, per unknown.
-const PIVOTS_PER_UNKNOWN: usize = 10;
+/// Projected Newton iterations at most.
+const MAX_NEWTON: usize = 60;
 
-/// Solves the linear complementarity problem `f >= 0, w = C f - d >= 0, f . w = 0` for a
-/// symmetric positive definite `C` (its blocks given by `block(rows, cols)`) by block
-/// principal pivoting from the free set `free` (updated to the answer's), counting the
-/// pivots in `pivots`. `None` if a block of `C` is not positive definite or the pivots run
-/// out.
+/// Line search halvings at most per iteration.
+const MAX_HALVINGS: usize = 40;
+
+/// Solves the linear complementarity problem `f >= 0, w = H f - d >= 0, f . w = 0` for a
+/// symmetric positive definite `H` (its blocks given by `block(rows, cols)`): the minimum
+/// of `f^T H f / 2 - d^T f` over `f >= 0`, by Bertsekas' projected Newton method (1982):
+/// the unknowns at (or within a shrinking margin of) zero whose gradient pushes them down
+/// are held, a Newton step is taken on the rest, and a projected Armijo search keeps the
+/// energy decreasing, so it cannot cycle; once the held set is the answer's, one step
+/// solves it exactly. Starts from the Newton step on the free set `free` (updated to the
+/// answer's) and counts the iterations in `iterations`. Blocks are asked for only with
+/// columns that carry a force or may take one. `None` if a block is not positive
+/// definite or the iterations run out.
 fn complementarity(
     d: &[f64],
     free: &mut [bool],
-    pivots: &mut usize,
+    iterations: &mut usize,
     mut block: impl FnMut(&[usize], &[usize]) -> DMatrix<f64>,
 ) -> Option<Vec<f64>> {
     let m = d.len();
-    let scale = d
-        .iter()
-        .fold(0.0f64, |a, &v| a.max(v.abs()))
-        .max(f64::MIN_POSITIVE);
-    let (mut best, mut budget) = (m + 1, 3);
-    for _ in 0..PIVOTS_PER_UNKNOWN * m + 10 {
-        let f_set: Vec<usize> = (0..m).filter(|&i| free[i]).collect();
-        let g_set: Vec<usize> = (0..m).filter(|&i| !free[i]).collect();
-        let mut f = vec![0.0; m];
-        if !f_set.is_empty() {
-            let cff = block(&f_set, &f_set);
-            let rhs = DVector::from_iterator(f_set.len(), f_set.iter().map(|&i| d[i]));
-            let sol = cff.cholesky()?.solve(&rhs);
-            for (&i, &v) in f_set.iter().zip(sol.iter()) {
-                f[i] = v;
+    let all: Vec<usize> = (0..m).collect();
+    let scale = d.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
+    if scale == 0.0 {
+        free.fill(false);
+        return Some(vec![0.0; m]);
+    }
+    // The gradient `H f - d` (from the columns where `f > 0`) and the energy.
+    let gradient = |f: &[f64], block: &mut dyn FnMut(&[usize], &[usize]) -> DMatrix<f64>| {
+        let support: Vec<usize> = (0..m).filter(|&i| f[i] > 0.0).collect();
+        let mut g: Vec<f64> = d.iter().map(|v| -v).collect();
+        if !support.is_empty() {
+            let h = block(&all, &support);
+            for (c, &j) in support.iter().enumerate() {
+                for (i, g) in g.iter_mut().enumerate() {
+                    *g += h[(i, c)] * f[j];
+                }
             }
         }
-        let w_g: Vec<f64> = if f_set.is_empty() || g_set.is_empty() {
-            g_set.iter().map(|&i| -d[i]).collect()
-        } else {
-            let cgf = block(&g_set, &f_set);
-            let ff = DVector::from_iterator(f_set.len(), f_set.iter().map(|&i| f[i]));
-            let w = cgf * ff;
-            g_set
-                .iter()
-                .zip(w.iter())
-                .map(|(&i, &w)| w - d[i])
-                .collect()
-        };
-        let fmax = f.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
-        let mut bad: Vec<usize> = f_set
-            .iter()
-            .copied()
-            .filter(|&i| f[i] < -1e-12 * fmax)
-            .collect();
-        bad.extend(
-            g_set
-                .iter()
-                .zip(&w_g)
-                .filter(|(_, &w)| w < -1e-12 * scale)
-                .map(|(&i, _)| i),
-        );
-        if bad.is_empty() {
-            for v in &mut f {
-                *v = v.max(0.0);
-            }
-            return Some(f);
-        }
-        *pivots += 1;
-        if bad.len() < best {
-            (best, budget) = (bad.len(), 3);
-        } else if budget > 0 {
-            budget -= 1;
-        } else {
-            // Murty's rule: flip the largest infeasible index alone.
-            bad = vec![*bad.iter().max().expect("not empty")];
-        }
-        for i in bad {
-            free[i] = !free[i];
+        g
+    };
+    let energy = |f: &[f64], g: &[f64]| -> f64 {
+        f.iter()
+            .zip(g)
+            .zip(d)
+            .map(|((f, g), d)| 0.5 * f * (g - d))
+            .sum()
+    };
+    let mut f = vec![0.0; m];
+    let start: Vec<usize> = (0..m).filter(|&i| free[i]).collect();
+    if !start.is_empty() {
+        let h = block(&start, &start);
+        let b = DVector::from_iterator(start.len(), start.iter().map(|&i| d[i]));
+        let x = h.cholesky()?.solve(&b);
+        for (&i, &v) in start.iter().zip(x.iter()) {
+            f[i] = v.max(0.0);
         }
     }
-    None
+    let mut g = gradient(&f, &mut block);
+    let mut e = energy(&f, &g);
+    for _ in 0..MAX_NEWTON {
+        // Optimality: the projected gradient vanishes.
+        let projected = (0..m)
+            .map(|i| {
+                if f[i] > 0.0 {
+                    g[i].abs()
+                } else {
+                    (-g[i]).max(0.0)
+                }
+            })
+            .fold(0.0, f64::max);
+        if projected <= 1e-12 * scale {
+            break;
+        }
+        *iterations += 1;
+        let margin = (0..m)
+            .map(|i| (f[i] - (f[i] - g[i]).max(0.0)).abs())
+            .fold(0.0, f64::max)
+            .min(1e-3 * scale);
+        let held: Vec<bool> = (0..m).map(|i| f[i] <= margin && g[i] > 0.0).collect();
+        let set: Vec<usize> = (0..m).filter(|&i| !held[i]).collect();
+        let mut step = vec![0.0; m];
+        if !set.is_empty() {
+            let h = block(&set, &set);
+            let b = DVector::from_iterator(set.len(), set.iter().map(|&i| -g[i]));
+            let x = h.cholesky()?.solve(&b);
+            for (&i, &v) in set.iter().zip(x.iter()) {
+                step[i] = v;
+            }
+        }
+        // Held unknowns that carry a force go down their gradient, scaled by the
+        // diagonal (1 where they carry none: they stay at zero).
+        let held_moving: Vec<usize> = (0..m).filter(|&i| held[i] && f[i] > 0.0).collect();
+        if !held_moving.is_empty() {
+            let h = block(&held_moving, &held_moving);
+            for (k, &i) in held_moving.iter().enumerate() {
+                step[i] = -g[i] / h[(k, k)];
+            }
+        }
+        let mut alpha = 1.0;
+        let mut accepted = false;
+        for _ in 0..MAX_HALVINGS {
+            let trial: Vec<f64> = (0..m).map(|i| (f[i] + alpha * step[i]).max(0.0)).collect();
+            let decrease: f64 = (0..m)
+                .map(|i| {
+                    if held[i] {
+                        g[i] * (f[i] - trial[i])
+                    } else {
+                        -alpha * g[i] * step[i]
+                    }
+                })
+                .sum();
+            let gt = gradient(&trial, &mut block);
+            let et = energy(&trial, &gt);
+            if et <= e - 1e-4 * decrease {
+                (f, g, e) = (trial, gt, et);
+                accepted = true;
+                break;
+            }
+            alpha *= 0.5;
+        }
+        if !accepted {
+            // No decrease left to find: round-off bounds the energy.
+            break;
+        }
+    }
+    let projected = (0..m)
+        .map(|i| {
+            if f[i] > 0.0 {
+                g[i].abs()
+            } else {
+                (-g[i]).max(0.0)
+            }
+        })
+        .fold(0.0, f64::max);
+    if projected > 1e-9 * scale {
+        return None;
+    }
+    for (fr, &v) in free.iter_mut().zip(&f) {
+        *fr = v > 0.0;
+    }
+    Some(f)
 }
 
 impl Gel {

@@ -63,8 +63,8 @@ fn complementarity_solves_positive_definite_problems() {
         let c = &a * a.transpose() + DMatrix::identity(m, m) * 0.05;
         let d: Vec<f64> = (0..m).map(|_| noise.next()).collect();
         let mut free: Vec<bool> = (0..m).map(|_| noise.next() > 0.0).collect();
-        let mut pivots = 0;
-        let f = complementarity(&d, &mut free, &mut pivots, |rows, cols| {
+        let mut iterations = 0;
+        let f = complementarity(&d, &mut free, &mut iterations, |rows, cols| {
             DMatrix::from_fn(rows.len(), cols.len(), |i, j| c[(rows[i], cols[j])])
         })
         .expect("a positive definite problem has a solution");
@@ -105,13 +105,14 @@ fn the_compliance_is_reciprocal() {
     let n = c.rest.len() as u32;
     let slots: Vec<u32> = (0..n).step_by(7).collect();
     c.ensure(slots.iter().copied(), &[]);
-    let sink = |c: &Compliance, p: u32, q: u32| -c.columns[&q][3 * p as usize + 2];
+    let sink = |c: &Compliance, p: u32, q: u32| -c.columns[&q][3 * p as usize + 2] as f64;
     let peak = slots.iter().map(|&q| sink(&c, q, q)).fold(0.0, f64::max);
     for &p in &slots {
         assert!(sink(&c, p, p) > 0.0, "slot {p} rises under its own load");
         for &q in &slots {
             let (a, b) = (sink(&c, p, q), sink(&c, q, p));
-            assert!((a - b).abs() <= 1e-9 * peak, "{p} {q}: {a} against {b}");
+            // Kept in single precision: equal to its rounding.
+            assert!((a - b).abs() <= 1e-6 * peak, "{p} {q}: {a} against {b}");
         }
     }
 }

@@ -90,22 +90,32 @@ fn main() {
     let _ = Vector3::<f64>::zeros();
 
     println!(
-        "{:<8} {:<8} {:>8} {:>12} {:>12}",
-        "physics", "indenter", "threads", "median ms", "p90 ms"
+        "{:<14} {:<8} {:>8} {:>12} {:>12}",
+        "mode", "indenter", "threads", "median ms", "p90 ms"
     );
+    // (label, physics, solver, frames).
     let mut modes = vec![
-        ("rigid", if quick { 20 } else { 200 }),
-        ("coarse", if quick { 5 } else { 20 }),
-        ("rom", if quick { 5 } else { 20 }),
+        ("rigid", "rigid", None, if quick { 20 } else { 200 }),
+        ("coarse", "coarse", None, if quick { 5 } else { 20 }),
+        (
+            "coarse-linear",
+            "coarse",
+            Some("linear"),
+            if quick { 5 } else { 20 },
+        ),
+        ("rom", "rom", None, if quick { 5 } else { 20 }),
     ];
     if with_fine {
-        modes.push(("fine", 3));
+        modes.push(("fine", "fine", None, 3));
     }
-    for (physics, frames) in modes {
+    for (label, physics, solver, frames) in modes {
         for threads in [1usize, 2] {
-            let raw = RawConfig::default()
+            let mut raw = RawConfig::default()
                 .with("physics", physics)
                 .with("threads", &threads.to_string());
+            if let Some(solver) = solver {
+                raw = raw.with("solver", solver);
+            }
             let config = Config::from_raw("bench", &raw).expect("config");
             for (name, shape, lowest) in [
                 ("sphere", sphere.clone(), -0.005),
@@ -113,7 +123,7 @@ fn main() {
             ] {
                 let s = press(&config, shape, lowest, frames);
                 println!(
-                    "{physics:<8} {name:<8} {threads:>8} {:>12.3} {:>12.3}",
+                    "{label:<14} {name:<8} {threads:>8} {:>12.3} {:>12.3}",
                     s.median_ms, s.p90_ms
                 );
             }

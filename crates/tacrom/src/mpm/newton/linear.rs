@@ -70,28 +70,40 @@ const MAX_PASSES: usize = 12;
 /// Columns computed per batch of solves (bounds the scratch to `n` times this).
 const COLUMN_BATCH: usize = 64;
 
-/// Columns a batch is filled up to with those likely needed next.
-const COLUMN_PREFETCH: usize = 16;
+/// Node columns a batch is filled up to with those likely needed next.
+const COLUMN_PREFETCH: usize = 64;
 
 /// Slots that may touch: those whose required sinking exceeds minus this fraction of the
 /// deepest required sinking (the surface around a contact can rise towards an indenter).
 const CANDIDATE_FRACTION: f64 = 0.5;
 
 /// The linear solver's state for one gel.
+///
+/// Every top slot lies at the same height, so its stencil is the product of its in-plane
+/// weights over a 3 x 3 block of node columns and the same three vertical weights: a
+/// slot's load is a combination of nine *column loads* (a unit downward force spread over
+/// one node column by the vertical weights), and its displacement the same combination of
+/// the columns' mean displacements. The compliance is kept per node column: the response
+/// of every column to a column load, about a third as many solves as slots and shared by
+/// neighbouring slots.
 #[derive(Clone)]
 pub(crate) struct Compliance {
     system: System,
-    dx: f64,
-    origin: Vector3<f64>,
     /// Penetration (cells) per internal force unit a slot's contact allows: Newton's
     /// penalty over the slot's share of the top face.
     softness: f64,
+    dx: f64,
+    origin: Vector3<f64>,
     /// Rest position (cells) of each top slot.
     rest: Vec<Vector3<f64>>,
-    /// Per slot: the unknowns (first of three; `u32::MAX`: fixed) and weights of its stencil.
-    stencils: Vec<([u32; 27], [f64; 27])>,
-    /// The surface's response (3 per slot, cells per internal force unit) to a unit
-    /// downward force at each slot computed so far, in single precision (7 digits, for a
+    /// Per slot: its nine node columns (`ix * ny + iy`) and in-plane weights.
+    slots: Vec<[(u32, f64); 9]>,
+    /// Per node column, per level of the slots' vertical stencil: the first unknown of
+    /// the node (`u32::MAX`: fixed), and the three vertical weights.
+    levels: Vec<[u32; 3]>,
+    weights: [f64; 3],
+    /// The response (3 per node column, cells per internal force unit) of every node
+    /// column to each column load computed so far, in single precision (7 digits, for a
     /// contact solved to the tolerance's 3).
     columns: HashMap<u32, Box<[f32]>>,
     /// Slots that carried a force in the last solve (where the next one starts).
@@ -134,18 +146,38 @@ impl Compliance {
             .factor()
             .map_err(|_| "the stiffness at rest is not positive definite".to_owned())?;
         let rest: Vec<Vector3<f64>> = gel.top_ref.iter().map(|r| r.cast::<f64>()).collect();
-        let stencils = rest
+        let [_, ny, nz] = newton.dims;
+        let first = Stencil::at(rest.first().ok_or("the gel has no top slots")?);
+        let slots = rest
             .iter()
             .map(|x| {
                 let s = Stencil::at(x);
-                let mut dofs = [u32::MAX; 27];
-                let mut w = [0.0; 27];
-                for l in 0..27 {
-                    if let Some(d) = newton.dof_at(&s.base, l) {
-                        (dofs[l], w[l]) = (d as u32, s.weight(l));
+                std::array::from_fn(|l| {
+                    let (i, j) = (l / 3, l % 3);
+                    let (ix, iy) = (s.base[0] + i as i32, s.base[1] + j as i32);
+                    (
+                        (ix as usize * ny + iy as usize) as u32,
+                        s.w[0][i] * s.w[1][j],
+                    )
+                })
+            })
+            .collect();
+        if rest
+            .iter()
+            .any(|x| Stencil::at(x).base[2] != first.base[2] || x.z != rest[0].z)
+        {
+            return Err("the top slots do not lie at one height".into());
+        }
+        let levels = (0..newton.dims[0] * ny)
+            .map(|c| {
+                std::array::from_fn(|k| {
+                    let iz = first.base[2] as usize + k;
+                    if iz < nz {
+                        newton.dof[c * nz + iz]
+                    } else {
+                        u32::MAX
                     }
-                }
-                (dofs, w)
+                })
             })
             .collect();
         let area = gel.layout.spacing[0] * gel.layout.spacing[1] / (newton.dx * newton.dx);
@@ -155,44 +187,48 @@ impl Compliance {
             dx: newton.dx,
             origin: newton.origin,
             rest,
-            stencils,
+            slots,
+            levels,
+            weights: first.w[2],
             columns: HashMap::new(),
             last_active: Vec::new(),
         })
     }
 
-    /// Columns computed so far.
+    /// Node columns whose response has been computed.
     pub fn columns(&self) -> usize {
         self.columns.len()
     }
 
-    /// Computes the columns of `slots` not computed yet and, where some are missing, those
-    /// of the first of `likely` too, up to [`COLUMN_PREFETCH`] in all: a batch of solves
-    /// costs little more than one, since each reads the whole factor.
+    /// Computes the responses to the node columns of `slots` not computed yet and, where
+    /// some are missing, to those of `likely` too, up to [`COLUMN_PREFETCH`] in all: a
+    /// batch of solves costs little more than one, since each reads the whole factor.
     fn ensure(&mut self, slots: impl IntoIterator<Item = u32>, likely: &[u32]) {
         let mut missing: Vec<u32> = slots
             .into_iter()
-            .filter(|q| !self.columns.contains_key(q))
+            .flat_map(|p| self.slots[p as usize].map(|(c, _)| c))
+            .filter(|c| !self.columns.contains_key(c))
             .collect();
         missing.sort_unstable();
         missing.dedup();
         if missing.is_empty() {
             return;
         }
-        for &q in likely {
-            if missing.len() >= COLUMN_PREFETCH {
-                break;
-            }
-            if !self.columns.contains_key(&q) && !missing.contains(&q) {
-                missing.push(q);
+        for &p in likely {
+            for (c, _) in self.slots[p as usize] {
+                if missing.len() < COLUMN_PREFETCH
+                    && !self.columns.contains_key(&c)
+                    && !missing.contains(&c)
+                {
+                    missing.push(c);
+                }
             }
         }
         let n = self.system.n;
         for batch in missing.chunks(COLUMN_BATCH) {
             let mut b = vec![0.0; n * batch.len()];
-            for (rhs, &q) in b.chunks_exact_mut(n).zip(batch) {
-                let (dofs, w) = &self.stencils[q as usize];
-                for (&d, &w) in dofs.iter().zip(w) {
+            for (rhs, &c) in b.chunks_exact_mut(n).zip(batch) {
+                for (&d, &w) in self.levels[c as usize].iter().zip(&self.weights) {
                     if d != u32::MAX {
                         rhs[3 * d as usize + 2] -= w;
                     }
@@ -202,10 +238,10 @@ impl Compliance {
             let columns: Vec<Box<[f32]>> = b
                 .par_chunks_exact(n)
                 .map(|x| {
-                    let mut r = Vec::with_capacity(3 * self.stencils.len());
-                    for (dofs, w) in &self.stencils {
+                    let mut r = Vec::with_capacity(3 * self.levels.len());
+                    for level in &self.levels {
                         let mut u = [0.0; 3];
-                        for (&d, &w) in dofs.iter().zip(w) {
+                        for (&d, &w) in level.iter().zip(&self.weights) {
                             if d != u32::MAX {
                                 for (k, u) in u.iter_mut().enumerate() {
                                     *u += w * x[3 * d as usize + k];
@@ -217,26 +253,63 @@ impl Compliance {
                     r.into_boxed_slice()
                 })
                 .collect();
-            for (&q, c) in batch.iter().zip(columns) {
-                self.columns.insert(q, c);
+            for (&c, r) in batch.iter().zip(columns) {
+                self.columns.insert(c, r);
             }
         }
     }
 
-    /// The columns of `slots` (computed).
-    fn columns_of(&self, slots: &[u32]) -> Vec<&[f32]> {
-        slots.iter().map(|q| &self.columns[q][..]).collect()
+    /// The column loads of downward forces `forces` at `slots`.
+    fn column_loads(&self, slots: &[u32], forces: &[f64]) -> Vec<(u32, f64)> {
+        let mut loads: Vec<(u32, f64)> = slots
+            .iter()
+            .zip(forces)
+            .flat_map(|(&p, &f)| self.slots[p as usize].map(|(c, w)| (c, w * f)))
+            .collect();
+        loads.sort_by_key(|&(c, _)| c);
+        loads.dedup_by(|b, a| {
+            if a.0 == b.0 {
+                a.1 += b.1;
+                true
+            } else {
+                false
+            }
+        });
+        loads
     }
 
-    /// Displacement (cells) of slot `p` under the forces `forces` at the slots whose
-    /// columns are `columns`.
-    fn displacement(p: usize, columns: &[&[f32]], forces: &[f64]) -> Vector3<f64> {
-        let mut u = Vector3::zeros();
-        for (c, f) in columns.iter().zip(forces) {
-            let c = &c[3 * p..3 * p + 3];
-            u += Vector3::new(c[0], c[1], c[2]).cast::<f64>() * *f;
+    /// The mean displacement (cells) of every node column under column loads `loads`
+    /// (computed), 3 per column.
+    fn column_displacements(&self, loads: &[(u32, f64)]) -> Vec<f64> {
+        let mut u = vec![0.0; 3 * self.levels.len()];
+        for &(c, f) in loads {
+            for (u, &r) in u.iter_mut().zip(self.columns[&c].iter()) {
+                *u += f * r as f64;
+            }
         }
         u
+    }
+
+    /// Displacement (cells) of slot `p` from the columns' mean displacements `columns`.
+    fn slot_displacement(&self, p: usize, columns: &[f64]) -> Vector3<f64> {
+        let mut u = Vector3::zeros();
+        for (c, w) in self.slots[p] {
+            let c = 3 * c as usize;
+            u += Vector3::new(columns[c], columns[c + 1], columns[c + 2]) * w;
+        }
+        u
+    }
+
+    /// The sinking (cells) of the node columns under a unit downward force at slot `q`
+    /// (its columns computed).
+    fn slot_sinking(&self, q: u32) -> Vec<f64> {
+        let mut s = vec![0.0; self.levels.len()];
+        for (c, w) in self.slots[q as usize] {
+            for (s, r) in s.iter_mut().zip(self.columns[&c].chunks_exact(3)) {
+                *s -= w * r[2] as f64;
+            }
+        }
+        s
     }
 
     /// The smallest signed distance (cells) from the point at `x` (cells) to an indenter
@@ -366,23 +439,30 @@ impl Compliance {
             let solved = {
                 let near = &near;
                 let this = &mut *self;
+                // Each free slot's sinking at every candidate, built once per pass.
+                let mut sinkings: HashMap<usize, Vec<f64>> = HashMap::new();
                 complementarity(&d, &mut cand_free, &mut iterations, |rows, cols| {
                     this.ensure(cols.iter().map(|&j| near[cand[j]]), &likely);
-                    let columns: Vec<&[f32]> = cols
-                        .iter()
-                        .map(|&j| &this.columns[&near[cand[j]]][..])
-                        .collect();
-                    let at: Vec<usize> = rows
-                        .iter()
-                        .map(|&i| 3 * near[cand[i]] as usize + 2)
-                        .collect();
+                    for &j in cols {
+                        sinkings.entry(j).or_insert_with(|| {
+                            let s = this.slot_sinking(near[cand[j]]);
+                            cand.iter()
+                                .map(|&i| {
+                                    this.slots[near[i] as usize]
+                                        .iter()
+                                        .map(|&(c, w)| w * s[c as usize])
+                                        .sum()
+                                })
+                                .collect()
+                        });
+                    }
                     DMatrix::from_fn(rows.len(), cols.len(), |a, b| {
                         let soft = if rows[a] == cols[b] {
                             this.softness
                         } else {
                             0.0
                         };
-                        soft - columns[b][at[a]] as f64
+                        soft + sinkings[&cols[b]][rows[a]]
                     })
                 })
             };
@@ -401,9 +481,9 @@ impl Compliance {
                 .filter(|(_, &f)| f > 0.0)
                 .map(|(&p, &f)| (p, f))
                 .unzip();
-            let columns = self.columns_of(&slots);
+            let columns = self.column_displacements(&self.column_loads(&slots, &loads));
             for (i, &p) in near.iter().enumerate() {
-                u[i] = Self::displacement(p as usize, &columns, &loads);
+                u[i] = self.slot_displacement(p as usize, &columns);
             }
             let sinking = u.iter().map(|v| -v.z).fold(0.0, f64::max);
             // The penetration beyond what the contact's own compliance allows.
@@ -430,10 +510,9 @@ impl Compliance {
             .filter(|(_, &f)| f > 0.0)
             .map(|(&p, &f)| (p, f))
             .unzip();
-        let columns = self.columns_of(&slots);
+        let columns = self.column_displacements(&self.column_loads(&slots, &forces));
         let surface = (0..self.rest.len())
-            .into_par_iter()
-            .map(|p| Self::displacement(p, &columns, &forces))
+            .map(|p| self.slot_displacement(p, &columns))
             .collect();
         self.last_active = slots.clone();
         Contact {

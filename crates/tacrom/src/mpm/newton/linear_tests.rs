@@ -105,7 +105,13 @@ fn the_compliance_is_reciprocal() {
     let n = c.rest.len() as u32;
     let slots: Vec<u32> = (0..n).step_by(7).collect();
     c.ensure(slots.iter().copied(), &[]);
-    let sink = |c: &Compliance, p: u32, q: u32| -c.columns[&q][3 * p as usize + 2] as f64;
+    let sink = |c: &Compliance, p: u32, q: u32| {
+        let s = c.slot_sinking(q);
+        c.slots[p as usize]
+            .iter()
+            .map(|&(col, w)| w * s[col as usize])
+            .sum::<f64>()
+    };
     let peak = slots.iter().map(|&q| sink(&c, q, q)).fold(0.0, f64::max);
     for &p in &slots {
         assert!(sink(&c, p, p) > 0.0, "slot {p} rises under its own load");

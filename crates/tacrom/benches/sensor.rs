@@ -1,5 +1,6 @@
 //! Sensor evaluation benchmarks: median and 90th-percentile time of one 320 x 240
-//! evaluation in a continuous moving press, per physics mode and indenter.
+//! evaluation in a continuous moving press, per physics mode and indenter, and the median
+//! of its gel stage (solve and surface) alone.
 //!
 //! `cargo bench --bench sensor` (add `-- --quick` for fewer frames, `-- --fine` to add the
 //! fine mode, a few frames only: it takes seconds to minutes per frame).
@@ -24,14 +25,20 @@ fn pattern(name: &str) -> std::path::PathBuf {
 struct Stats {
     median_ms: f64,
     p90_ms: f64,
+    /// Median of the gel stage alone (solve and surface).
+    physics_ms: f64,
 }
 
-fn stats(mut t: Vec<f64>) -> Stats {
+fn quantile(t: &mut [f64], q: f64) -> f64 {
     t.sort_by(f64::total_cmp);
-    let at = |q: f64| t[((t.len() - 1) as f64 * q).round() as usize] * 1e3;
+    t[((t.len() - 1) as f64 * q).round() as usize] * 1e3
+}
+
+fn stats(mut t: Vec<f64>, mut physics: Vec<f64>) -> Stats {
     Stats {
-        median_ms: at(0.5),
-        p90_ms: at(0.9),
+        median_ms: quantile(&mut t, 0.5),
+        p90_ms: quantile(&mut t, 0.9),
+        physics_ms: quantile(&mut physics, 0.5),
     }
 }
 
@@ -41,6 +48,7 @@ fn press(config: &Config, shape: Arc<dyn Sdf>, lowest: f64, frames: usize) -> St
     let mut sensor = TactileSensor::new(config.clone()).expect("sensor");
     let mut out = vec![0.0; config.sensordata_len()];
     let mut times = Vec::with_capacity(frames);
+    let mut physics = Vec::with_capacity(frames);
     for f in 0..frames {
         let s = f as f64 / (frames - 1).max(1) as f64;
         let depth = 0.1e-3 + 0.9e-3 * s;
@@ -55,10 +63,11 @@ fn press(config: &Config, shape: Arc<dyn Sdf>, lowest: f64, frames: usize) -> St
         let t0 = Instant::now();
         let eval = sensor.evaluate(&placed, &mut out);
         times.push(t0.elapsed().as_secs_f64());
+        physics.push(eval.times.physics);
         assert!(eval.contact);
         std::hint::black_box(&out);
     }
-    stats(times)
+    stats(times, physics)
 }
 
 fn main() {
@@ -90,8 +99,8 @@ fn main() {
     let _ = Vector3::<f64>::zeros();
 
     println!(
-        "{:<14} {:<8} {:>8} {:>12} {:>12}",
-        "mode", "indenter", "threads", "median ms", "p90 ms"
+        "{:<14} {:<8} {:>8} {:>12} {:>12} {:>12}",
+        "mode", "indenter", "threads", "median ms", "p90 ms", "gel ms"
     );
     // (label, physics, solver, frames).
     let mut modes = vec![
@@ -123,8 +132,8 @@ fn main() {
             ] {
                 let s = press(&config, shape, lowest, frames);
                 println!(
-                    "{label:<14} {name:<8} {threads:>8} {:>12.3} {:>12.3}",
-                    s.median_ms, s.p90_ms
+                    "{label:<14} {name:<8} {threads:>8} {:>12.3} {:>12.3} {:>12.3}",
+                    s.median_ms, s.p90_ms, s.physics_ms
                 );
             }
         }

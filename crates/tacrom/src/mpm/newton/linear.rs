@@ -7,32 +7,47 @@
 //! with `K` the Hessian of Newton's discretisation at `u = 0` (the same quadrature points,
 //! and the same selective reduced integration at high Poisson's ratios): the small-strain
 //! elasticity of the gel as bonded and meshed. The indenters load it through vertical
-//! forces `f_q >= 0` at the top slots (the surface points of the particle lattice, as the
-//! relaxation's contact), so the surface displacement is linear in them:
-//! `u_p = sum_q f_q r_q(p)`, with `r_q` the surface's response to a unit downward force at
-//! `q` (a column of the surface compliance).
+//! forces `f_p >= 0` at the points of a contact lattice [`CONTACT_SUBDIVISION`] times
+//! finer than the particles, as Newton's contact (an indenter that reaches between
+//! particles still meets points, and a knife edge does not fall between them).
+//!
+//! Every point of the top surface lies at one height, so a point's stencil is the product
+//! of its in-plane quadratic B-spline weights over a 3 x 3 block of node columns and the
+//! same three vertical weights. A point's load is then a combination of nine *column
+//! loads* (a unit downward force spread over one node column by the vertical weights),
+//! and its displacement the same combination of the columns' mean displacements: the
+//! compliance is kept per node column, `G_ab` the mean displacement of column `a` under
+//! the load of column `b` (one solve with the factor of `K` each). For the points,
+//! `C = W G W^T` with `W` their column weights (nine per row).
 //!
 //! # Contact
 //!
-//! Non-penetration `phi(X_p + u_p) >= 0` (`phi` the smallest signed distance to an
-//! indenter) at every slot, linearised in the vertical sinking `s_p = -u_p.z` about the
-//! current surface: `s_p >= delta_p = s_p0 - phi(X_p + u_p0) / |n_z|`, with `n` the
-//! indenter's outward normal there (`|n_z|` at least [`MIN_SLOPE`]). With
-//! `C_pq = -r_q(p).z`, symmetric and positive definite (Maxwell-Betti reciprocity), that
-//! is the linear complementarity problem `f >= 0, C f - delta >= 0, f . (C f - delta) = 0`,
-//! the minimum of the complementary energy `f^T C f / 2 - f^T delta` over `f >= 0`. It is
-//! solved exactly by block principal pivoting (Judice and Pires 1994; Murty's single
-//! pivots where the blocks stop reducing the infeasibilities, which ends for every
-//! positive definite `C`) over the slots that may touch, and the linearisation repeated
-//! from the new surface until no slot penetrates an indenter by more than the tolerance
-//! times the deepest sinking.
+//! Non-penetration at every lattice point `p`: after the gel deforms, the point lies on
+//! or below the indenters' lower surface above it. About the current surface that is a
+//! bound on the point's vertical sinking `s_p = -u_p.z`: `s_p >= delta_p`, with
+//! `delta_p` the current sinking plus the vertical distance from the point up to the
+//! indenters (negative when below them; marched along the vertical by the signed
+//! distance, and bisected on the way out of an indenter). With the contact's own
+//! compliance `eps` (Newton's penalty over a point's share of the face, [`PENALTY`]),
+//! `H = eps I + W G_zz W^T` is symmetric and positive definite (Maxwell-Betti
+//! reciprocity), and the contact is the linear complementarity problem
+//! `f >= 0, H f - delta >= 0, f . (H f - delta) = 0`, the minimum of the complementary
+//! energy `f^T H f / 2 - f^T delta` over `f >= 0`. It is solved exactly by a projected
+//! Newton method ([`complementarity`]); `H` is never formed: with `G = L L^T` and
+//! `B = W L`, a solve with `H` on a set of points is `(r - B (eps I + B^T B)^-1 B^T r) /
+//! eps`, a system the size of the node columns under the contact, not of its points. The
+//! linearisation is repeated from the new surface (its lateral displacement moves the
+//! points under the indenters) until no point lies inside an indenter by more than the
+//! tolerance times the deepest sinking, beyond what its compliance allows.
 //!
 //! # Cost
 //!
-//! `K` is factored once per gel (faer); the column `r_q` costs one solve with the factor,
-//! taken the first time slot `q` carries a force, and kept. A frame then costs a dense
-//! solve over its contact slots and the sum of their columns over the surface: no pass
-//! over the particles or the grid.
+//! `K` is factored once per gel (faer), at the first contact. The columns' responses are
+//! computed when a contact first needs them, in fixed tiles of [`TILE`] columns (one
+//! multi-column solve each, so a column's bits do not depend on the order of the
+//! contacts that needed it) and kept. A frame then costs dense algebra of the size of
+//! the node columns under its contact and a sum over its loaded columns: no pass over the
+//! particles or the grid.
 //!
 //! # What it leaves out
 //!
@@ -43,7 +58,7 @@
 //!   drags nothing and the surface shears only through Poisson's effect.
 //! * History: the answer depends on the current poses alone, not on the path to them.
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 
 use nalgebra::{DMatrix, DVector, Vector3};
 use rayon::prelude::*;
@@ -54,7 +69,7 @@ use super::super::{
     pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS,
 };
 use super::system::System;
-use super::{contains, Newton, Stencil, PENALTY};
+use super::{contains, Newton, Stencil, CONTACT_SUBDIVISION, PENALTY};
 
 /// Steps at most of a march along the vertical ([`Compliance::vertical_gap`]), the
 /// smallest step (cells) down through an indenter, the bisections of the way out, and the
@@ -67,65 +82,67 @@ const GAP_EPS: f64 = 1e-6;
 /// Linearisations at most per solve.
 const MAX_PASSES: usize = 12;
 
-/// Columns computed per batch of solves (bounds the scratch to `n` times this).
-const COLUMN_BATCH: usize = 64;
+/// Node columns solved for together, always the same ones: tiles of `TILE x TILE`
+/// columns (one block of the multi-column solve each).
+const TILE: usize = 4;
 
-/// Node columns a batch is filled up to with those likely needed next.
-const COLUMN_PREFETCH: usize = 64;
-
-/// Slots that may touch: those whose required sinking exceeds minus this fraction of the
+/// Points that may touch: those whose required sinking exceeds minus this fraction of the
 /// deepest required sinking (the surface around a contact can rise towards an indenter).
 const CANDIDATE_FRACTION: f64 = 0.5;
 
+/// A point's in-plane stencil: nine node columns (`ix * ny + iy`) and weights.
+type Columns = [(u32, f64); 9];
+
 /// The linear solver's state for one gel.
-///
-/// Every top slot lies at the same height, so its stencil is the product of its in-plane
-/// weights over a 3 x 3 block of node columns and the same three vertical weights: a
-/// slot's load is a combination of nine *column loads* (a unit downward force spread over
-/// one node column by the vertical weights), and its displacement the same combination of
-/// the columns' mean displacements. The compliance is kept per node column: the response
-/// of every column to a column load, about a third as many solves as slots and shared by
-/// neighbouring slots.
 #[derive(Clone)]
 pub(crate) struct Compliance {
     system: System,
-    /// Penetration (cells) per internal force unit a slot's contact allows: Newton's
-    /// penalty over the slot's share of the top face.
-    softness: f64,
     dx: f64,
     origin: Vector3<f64>,
-    /// Rest position (cells) of each top slot.
+    /// Node columns along y (the column index is `ix * ny + iy`).
+    ny: usize,
+    /// Rest position (cells) of each top slot, and its node columns.
     rest: Vec<Vector3<f64>>,
-    /// Per slot: its nine node columns (`ix * ny + iy`) and in-plane weights.
-    slots: Vec<[(u32, f64); 9]>,
-    /// Per node column, per level of the slots' vertical stencil: the first unknown of
+    slots: Vec<Columns>,
+    /// The contact lattice: counts, spacing (cells), first point and height (cells).
+    lattice: [usize; 2],
+    spacing: [f64; 2],
+    first: [f64; 2],
+    top: f64,
+    /// Penetration (cells) per internal force unit a lattice point's contact allows:
+    /// Newton's penalty over the point's share of the top face.
+    softness: f64,
+    /// Per node column, per level of the surface's vertical stencil: the first unknown of
     /// the node (`u32::MAX`: fixed), and the three vertical weights.
     levels: Vec<[u32; 3]>,
     weights: [f64; 3],
     /// The response (3 per node column, cells per internal force unit) of every node
-    /// column to each column load computed so far, in single precision (7 digits, for a
-    /// contact solved to the tolerance's 3).
-    columns: HashMap<u32, Box<[f32]>>,
-    /// Slots that carried a force in the last solve (where the next one starts).
-    last_active: Vec<u32>,
+    /// column to each column load computed so far, and the tiles computed.
+    columns: HashMap<u32, Box<[f64]>>,
+    tiles: BTreeSet<u32>,
 }
 
 /// One solve's answer.
 pub(crate) struct Contact {
-    /// Slots carrying a force, and their forces (internal units, downward on the gel).
-    pub slots: Vec<u32>,
+    /// Lattice points carrying a force: their indices, deformed positions (cells) and
+    /// forces (internal units, downward on the gel).
+    pub loaded: Vec<u32>,
+    pub points: Vec<Vector3<f64>>,
     pub forces: Vec<f64>,
-    /// Displacement (cells) of every slot.
+    /// The node columns' mean displacement (cells, 3 per column).
+    pub columns: Vec<f64>,
+    /// Displacement (cells) of every top slot.
     pub surface: Vec<Vector3<f64>>,
-    /// Largest penetration left (cells) and linearisations taken.
+    /// Largest penetration left (cells), linearisations and projected Newton steps.
     pub penetration: f64,
     pub passes: usize,
+    pub iterations: usize,
     /// Whether the penetration left is within the tolerance.
     pub converged: bool,
 }
 
 impl Compliance {
-    /// The stiffness of `gel` at rest, factored, and its top slots.
+    /// The stiffness of `gel` at rest, factored, its top slots and its contact lattice.
     pub fn new(gel: &Gel) -> Result<Compliance, String> {
         let mut newton = Newton::new(gel)?;
         if newton.u.len() > LINEAR_UNKNOWNS {
@@ -148,20 +165,6 @@ impl Compliance {
         let rest: Vec<Vector3<f64>> = gel.top_ref.iter().map(|r| r.cast::<f64>()).collect();
         let [_, ny, nz] = newton.dims;
         let first = Stencil::at(rest.first().ok_or("the gel has no top slots")?);
-        let slots = rest
-            .iter()
-            .map(|x| {
-                let s = Stencil::at(x);
-                std::array::from_fn(|l| {
-                    let (i, j) = (l / 3, l % 3);
-                    let (ix, iy) = (s.base[0] + i as i32, s.base[1] + j as i32);
-                    (
-                        (ix as usize * ny + iy as usize) as u32,
-                        s.w[0][i] * s.w[1][j],
-                    )
-                })
-            })
-            .collect();
         if rest
             .iter()
             .any(|x| Stencil::at(x).base[2] != first.base[2] || x.z != rest[0].z)
@@ -180,19 +183,58 @@ impl Compliance {
                 })
             })
             .collect();
-        let area = gel.layout.spacing[0] * gel.layout.spacing[1] / (newton.dx * newton.dx);
-        Ok(Compliance {
+        let [nx, nyl, _] = gel.layout.lattice;
+        let lattice = [nx * CONTACT_SUBDIVISION, nyl * CONTACT_SUBDIVISION];
+        let [lx, ly, _] = gel.params.size;
+        let dx = newton.dx;
+        let spacing = [lx / lattice[0] as f64 / dx, ly / lattice[1] as f64 / dx];
+        let origin = newton.origin;
+        let mut c = Compliance {
             system,
-            softness: 1.0 / (PENALTY * area),
-            dx: newton.dx,
-            origin: newton.origin,
-            rest,
-            slots,
+            dx,
+            origin,
+            ny,
+            rest: Vec::new(),
+            slots: Vec::new(),
+            lattice,
+            spacing,
+            first: [
+                (-0.5 * lx - origin.x) / dx + 0.5 * spacing[0],
+                (-0.5 * ly - origin.y) / dx + 0.5 * spacing[1],
+            ],
+            top: rest[0].z,
+            softness: 1.0 / (PENALTY * spacing[0] * spacing[1]),
             levels,
             weights: first.w[2],
             columns: HashMap::new(),
-            last_active: Vec::new(),
+            tiles: BTreeSet::new(),
+        };
+        c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
+        c.rest = rest;
+        Ok(c)
+    }
+
+    /// The node columns and in-plane weights of the surface point at `x` (cells).
+    fn columns_at(&self, x: &Vector3<f64>) -> Columns {
+        let s = Stencil::at(x);
+        std::array::from_fn(|l| {
+            let (i, j) = (l / 3, l % 3);
+            let (ix, iy) = (s.base[0] + i as i32, s.base[1] + j as i32);
+            (
+                (ix as usize * self.ny + iy as usize) as u32,
+                s.w[0][i] * s.w[1][j],
+            )
         })
+    }
+
+    /// Rest position (cells) of contact lattice point `k`.
+    fn point(&self, k: u32) -> Vector3<f64> {
+        let (i, j) = (k as usize / self.lattice[1], k as usize % self.lattice[1]);
+        Vector3::new(
+            self.first[0] + i as f64 * self.spacing[0],
+            self.first[1] + j as f64 * self.spacing[1],
+            self.top,
+        )
     }
 
     /// Node columns whose response has been computed.
@@ -200,71 +242,89 @@ impl Compliance {
         self.columns.len()
     }
 
-    /// Computes the responses to the node columns of `slots` not computed yet and, where
-    /// some are missing, to those of `likely` too, up to [`COLUMN_PREFETCH`] in all: a
-    /// batch of solves costs little more than one, since each reads the whole factor.
-    fn ensure(&mut self, slots: impl IntoIterator<Item = u32>, likely: &[u32]) {
-        let mut missing: Vec<u32> = slots
-            .into_iter()
-            .flat_map(|p| self.slots[p as usize].map(|(c, _)| c))
-            .filter(|c| !self.columns.contains_key(c))
-            .collect();
-        missing.sort_unstable();
-        missing.dedup();
-        if missing.is_empty() {
-            return;
-        }
-        for &p in likely {
-            for (c, _) in self.slots[p as usize] {
-                if missing.len() < COLUMN_PREFETCH
-                    && !self.columns.contains_key(&c)
-                    && !missing.contains(&c)
-                {
-                    missing.push(c);
-                }
-            }
-        }
-        let n = self.system.n;
-        for batch in missing.chunks(COLUMN_BATCH) {
-            let mut b = vec![0.0; n * batch.len()];
-            for (rhs, &c) in b.chunks_exact_mut(n).zip(batch) {
-                for (&d, &w) in self.levels[c as usize].iter().zip(&self.weights) {
-                    if d != u32::MAX {
-                        rhs[3 * d as usize + 2] -= w;
-                    }
-                }
-            }
-            self.system.solve_columns(&mut b);
-            let columns: Vec<Box<[f32]>> = b
-                .par_chunks_exact(n)
-                .map(|x| {
-                    let mut r = Vec::with_capacity(3 * self.levels.len());
-                    for level in &self.levels {
-                        let mut u = [0.0; 3];
-                        for (&d, &w) in level.iter().zip(&self.weights) {
-                            if d != u32::MAX {
-                                for (k, u) in u.iter_mut().enumerate() {
-                                    *u += w * x[3 * d as usize + k];
-                                }
-                            }
-                        }
-                        r.extend(u.map(|v| v as f32));
-                    }
-                    r.into_boxed_slice()
-                })
-                .collect();
-            for (&c, r) in batch.iter().zip(columns) {
-                self.columns.insert(c, r);
-            }
-        }
+    /// The tile of node column `c` (`ix * ny + iy`).
+    fn tile_of(&self, c: u32) -> u32 {
+        let (ix, iy) = (c as usize / self.ny, c as usize % self.ny);
+        ((ix / TILE) * self.ny.div_ceil(TILE) + iy / TILE) as u32
     }
 
-    /// The column loads of downward forces `forces` at `slots`.
-    fn column_loads(&self, slots: &[u32], forces: &[f64]) -> Vec<(u32, f64)> {
-        let mut loads: Vec<(u32, f64)> = slots
+    /// The node columns of tile `t`, in index order.
+    fn tile_columns(&self, t: u32) -> impl Iterator<Item = u32> + '_ {
+        let per_row = self.ny.div_ceil(TILE);
+        let (tx, ty) = (t as usize / per_row, t as usize % per_row);
+        let nx = self.levels.len() / self.ny;
+        (tx * TILE..((tx + 1) * TILE).min(nx)).flat_map(move |ix| {
+            (ty * TILE..((ty + 1) * TILE).min(self.ny)).map(move |iy| (ix * self.ny + iy) as u32)
+        })
+    }
+
+    /// Computes the responses to the node columns `needed` not computed yet, whole tiles
+    /// at a time.
+    fn ensure(&mut self, needed: impl IntoIterator<Item = u32>) {
+        let tiles: BTreeSet<u32> = needed
+            .into_iter()
+            .map(|c| self.tile_of(c))
+            .filter(|t| !self.tiles.contains(t))
+            .collect();
+        if tiles.is_empty() {
+            return;
+        }
+        let groups: Vec<Vec<u32>> = tiles
+            .iter()
+            .map(|&t| self.tile_columns(t).collect())
+            .collect();
+        let n = self.system.n;
+        let mut b = vec![0.0; n * groups.iter().map(Vec::len).sum::<usize>()];
+        let batch: Vec<u32> = groups.iter().flatten().copied().collect();
+        for (rhs, &c) in b.chunks_exact_mut(n).zip(&batch) {
+            for (&d, &w) in self.levels[c as usize].iter().zip(&self.weights) {
+                if d != u32::MAX {
+                    rhs[3 * d as usize + 2] -= w;
+                }
+            }
+        }
+        // Each tile one solve, so that its columns' bits do not depend on the others.
+        let mut rest: &mut [f64] = &mut b;
+        let mut parts = Vec::new();
+        for group in &groups {
+            let (head, tail) = rest.split_at_mut(n * group.len());
+            parts.push(head);
+            rest = tail;
+        }
+        parts
+            .into_par_iter()
+            .for_each(|part| self.system.solve_block(part));
+        let columns: Vec<Box<[f64]>> = b
+            .par_chunks_exact(n)
+            .map(|x| {
+                let mut r = Vec::with_capacity(3 * self.levels.len());
+                for level in &self.levels {
+                    let mut u = [0.0; 3];
+                    for (&d, &w) in level.iter().zip(&self.weights) {
+                        if d != u32::MAX {
+                            for (k, u) in u.iter_mut().enumerate() {
+                                *u += w * x[3 * d as usize + k];
+                            }
+                        }
+                    }
+                    r.extend_from_slice(&u);
+                }
+                r.into_boxed_slice()
+            })
+            .collect();
+        for (&c, r) in batch.iter().zip(columns) {
+            self.columns.insert(c, r);
+        }
+        self.tiles.extend(tiles);
+    }
+
+    /// The column loads of downward forces `forces` at points with columns `stencils`.
+    fn column_loads(stencils: &[Columns], forces: &[f64]) -> Vec<(u32, f64)> {
+        let mut loads: Vec<(u32, f64)> = stencils
             .iter()
             .zip(forces)
-            .flat_map(|(&p, &f)| self.slots[p as usize].map(|(c, w)| (c, w * f)))
+            .filter(|(_, &f)| f > 0.0)
+            .flat_map(|(s, &f)| s.map(|(c, w)| (c, w * f)))
             .collect();
         loads.sort_by_key(|&(c, _)| c);
         loads.dedup_by(|b, a| {
@@ -284,32 +344,21 @@ impl Compliance {
         let mut u = vec![0.0; 3 * self.levels.len()];
         for &(c, f) in loads {
             for (u, &r) in u.iter_mut().zip(self.columns[&c].iter()) {
-                *u += f * r as f64;
+                *u += f * r;
             }
         }
         u
     }
 
-    /// Displacement (cells) of slot `p` from the columns' mean displacements `columns`.
-    fn slot_displacement(&self, p: usize, columns: &[f64]) -> Vector3<f64> {
+    /// Displacement (cells) of the surface point with columns `s` from the columns' mean
+    /// displacements `columns`.
+    fn displacement(s: &Columns, columns: &[f64]) -> Vector3<f64> {
         let mut u = Vector3::zeros();
-        for (c, w) in self.slots[p] {
+        for &(c, w) in s {
             let c = 3 * c as usize;
             u += Vector3::new(columns[c], columns[c + 1], columns[c + 2]) * w;
         }
         u
-    }
-
-    /// The sinking (cells) of the node columns under a unit downward force at slot `q`
-    /// (its columns computed).
-    fn slot_sinking(&self, q: u32) -> Vec<f64> {
-        let mut s = vec![0.0; self.levels.len()];
-        for (c, w) in self.slots[q as usize] {
-            for (s, r) in s.iter_mut().zip(self.columns[&c].chunks_exact(3)) {
-                *s -= w * r[2] as f64;
-            }
-        }
-        s
     }
 
     /// The smallest signed distance (cells) from the point at `x` (cells) to an indenter
@@ -367,40 +416,53 @@ impl Compliance {
         phi.is_finite().then_some(t)
     }
 
-    /// The frictionless contact of the gel's surface with `indenters`, to a penetration of
-    /// at most `tolerance` times the deepest sinking.
-    pub fn contact(&mut self, indenters: &[StepIndenter], tolerance: f64) -> Contact {
-        // Slots under an indenter's bounds: the only ones that can touch it.
-        let near: Vec<u32> = (0..self.rest.len() as u32)
-            .filter(|&p| {
-                let x = self.origin + self.rest[p as usize] * self.dx;
-                indenters.iter().any(|ind| {
-                    let (lo, hi) = (ind.bounds.min, ind.bounds.max);
-                    x.x >= lo.x && x.x <= hi.x && x.y >= lo.y && x.y <= hi.y
-                })
-            })
-            .collect();
-        let mut free: Vec<bool> = vec![false; near.len()];
-        for (i, p) in near.iter().enumerate() {
-            free[i] = self.last_active.binary_search(p).is_ok();
+    /// The contact lattice points under the indenters' bounds (the only ones that can
+    /// touch them).
+    fn near(&self, indenters: &[StepIndenter]) -> Vec<u32> {
+        let mut out = BTreeSet::new();
+        for ind in indenters {
+            let (lo, hi) = (ind.bounds.min, ind.bounds.max);
+            let range = |k: usize, a: f64, b: f64| {
+                let o = if k == 0 { self.origin.x } else { self.origin.y };
+                let to = |v: f64| ((v - o) / self.dx - self.first[k]) / self.spacing[k];
+                let n = self.lattice[k] as f64;
+                let (a, b) = (to(a).ceil().max(0.0), to(b).floor().min(n - 1.0));
+                (a as usize, b as usize, a <= b)
+            };
+            let (i0, i1, ok_x) = range(0, lo.x, hi.x);
+            let (j0, j1, ok_y) = range(1, lo.y, hi.y);
+            if ok_x && ok_y {
+                for i in i0..=i1 {
+                    for j in j0..=j1 {
+                        out.insert((i * self.lattice[1] + j) as u32);
+                    }
+                }
+            }
         }
+        out.into_iter().collect()
+    }
+
+    /// The frictionless contact of the gel's surface with `indenters`, to a penetration of
+    /// at most `tolerance` times the deepest sinking beyond what the contact's compliance
+    /// allows.
+    pub fn contact(&mut self, indenters: &[StepIndenter], tolerance: f64) -> Contact {
+        let near = self.near(indenters);
+        let rest: Vec<Vector3<f64>> = near.iter().map(|&k| self.point(k)).collect();
+        let stencils: Vec<Columns> = rest.iter().map(|x| self.columns_at(x)).collect();
         let mut forces = vec![0.0; near.len()];
         let mut u: Vec<Vector3<f64>> = vec![Vector3::zeros(); near.len()];
         let (mut passes, mut iterations) = (0, 0);
         let mut penetration = 0.0;
         let mut converged = false;
         let mut delta = vec![f64::NEG_INFINITY; near.len()];
+        let mut columns = vec![0.0; 3 * self.levels.len()];
         for pass in 0..MAX_PASSES {
             passes = pass + 1;
-            // Each slot's constraint about the current surface: the sinking that brings it
-            // to the indenters' lower surface above (or below) it. Inside an indenter
+            // Each point's constraint about the current surface: the sinking that brings
+            // it to the indenters' lower surface above (or below) it. Inside an indenter
             // first; outside, only within the candidates' reach of it (the gap is at
             // least the distance).
-            let points: Vec<Vector3<f64>> = near
-                .iter()
-                .zip(&u)
-                .map(|(&p, v)| self.rest[p as usize] + v)
-                .collect();
+            let points: Vec<Vector3<f64>> = rest.iter().zip(&u).map(|(x, v)| x + v).collect();
             let clear: Vec<f64> = points
                 .iter()
                 .map(|x| self.clearance(x, indenters))
@@ -428,71 +490,59 @@ impl Compliance {
                 break;
             }
             let cand: Vec<usize> = (0..near.len())
-                .filter(|&i| delta[i] > -CANDIDATE_FRACTION * deepest || forces[i] > 0.0)
+                .filter(|&i| delta[i] > -reach || forces[i] > 0.0)
                 .collect();
+            self.ensure(cand.iter().flat_map(|&i| stencils[i].map(|(c, _)| c)));
+            // The node columns the candidates touch, and their sinking under each other's
+            // loads (reciprocal up to the solves' round-off: the symmetric part).
+            let mut local: Vec<u32> = cand
+                .iter()
+                .flat_map(|&i| stencils[i].map(|(c, _)| c))
+                .collect();
+            local.sort_unstable();
+            local.dedup();
+            let index = |col: u32| local.binary_search(&col).expect("listed") as u32;
+            let rows: Vec<Columns> = cand
+                .iter()
+                .map(|&i| stencils[i].map(|(c, w)| (index(c), w)))
+                .collect();
+            let g = DMatrix::from_fn(local.len(), local.len(), |a, b| {
+                -self.columns[&local[b]][3 * local[a] as usize + 2]
+            });
+            let g = (&g + g.transpose()) * 0.5;
+            // Start from the columns' present loads.
+            let present = Self::column_loads(&stencils, &forces);
+            let mut l = DVector::from_iterator(
+                local.len(),
+                local.iter().map(|c| {
+                    present
+                        .binary_search_by_key(c, |&(col, _)| col)
+                        .map_or(0.0, |i| present[i].1)
+                }),
+            );
             let d: Vec<f64> = cand.iter().map(|&i| delta[i]).collect();
-            // The candidates most deeply pressed first: the likeliest to carry a force.
-            let mut likely: Vec<usize> = (0..cand.len()).collect();
-            likely.sort_by(|&a, &b| d[b].total_cmp(&d[a]));
-            let likely: Vec<u32> = likely.into_iter().map(|j| near[cand[j]]).collect();
-            let mut cand_free: Vec<bool> = cand.iter().map(|&i| free[i]).collect();
-            let solved = {
-                let near = &near;
-                let this = &mut *self;
-                // Each free slot's sinking at every candidate, built once per pass.
-                let mut sinkings: HashMap<usize, Vec<f64>> = HashMap::new();
-                complementarity(&d, &mut cand_free, &mut iterations, |rows, cols| {
-                    this.ensure(cols.iter().map(|&j| near[cand[j]]), &likely);
-                    for &j in cols {
-                        sinkings.entry(j).or_insert_with(|| {
-                            let s = this.slot_sinking(near[cand[j]]);
-                            cand.iter()
-                                .map(|&i| {
-                                    this.slots[near[i] as usize]
-                                        .iter()
-                                        .map(|&(c, w)| w * s[c as usize])
-                                        .sum()
-                                })
-                                .collect()
-                        });
-                    }
-                    DMatrix::from_fn(rows.len(), cols.len(), |a, b| {
-                        let soft = if rows[a] == cols[b] {
-                            this.softness
-                        } else {
-                            0.0
-                        };
-                        soft + sinkings[&cols[b]][rows[a]]
-                    })
-                })
-            };
-            let Some(f) = solved else {
+            let Some((f, steps)) = penalty_contact(&g, &rows, &d, self.softness, &mut l) else {
                 break;
             };
+            iterations += steps;
             forces.fill(0.0);
-            free.fill(false);
-            for ((&i, &fi), &fr) in cand.iter().zip(&f).zip(&cand_free) {
+            for (&i, &fi) in cand.iter().zip(&f) {
                 forces[i] = fi;
-                free[i] = fr;
             }
-            let (slots, loads): (Vec<u32>, Vec<f64>) = near
-                .iter()
-                .zip(&forces)
-                .filter(|(_, &f)| f > 0.0)
-                .map(|(&p, &f)| (p, f))
-                .unzip();
-            let columns = self.column_displacements(&self.column_loads(&slots, &loads));
-            for (i, &p) in near.iter().enumerate() {
-                u[i] = self.slot_displacement(p as usize, &columns);
+            columns = self.column_displacements(&Self::column_loads(&stencils, &forces));
+            for (u, s) in u.iter_mut().zip(&stencils) {
+                *u = Self::displacement(s, &columns);
             }
             let sinking = u.iter().map(|v| -v.z).fold(0.0, f64::max);
             // The penetration beyond what the contact's own compliance allows.
-            penetration = near
+            penetration = rest
                 .iter()
                 .zip(&u)
                 .zip(&forces)
-                .filter_map(|((&p, v), &f)| {
-                    let x = self.rest[p as usize] + v;
+                .zip(&clear)
+                .filter(|(_, &c)| c < 2.0 * reach + 1.0)
+                .filter_map(|(((x, v), &f), _)| {
+                    let x = x + v;
                     if self.clearance(&x, indenters) >= 0.0 {
                         return None;
                     }
@@ -504,172 +554,129 @@ impl Compliance {
                 break;
             }
         }
-        let (slots, forces): (Vec<u32>, Vec<f64>) = near
+        let surface = self
+            .slots
             .iter()
-            .zip(&forces)
-            .filter(|(_, &f)| f > 0.0)
-            .map(|(&p, &f)| (p, f))
-            .unzip();
-        let columns = self.column_displacements(&self.column_loads(&slots, &forces));
-        let surface = (0..self.rest.len())
-            .map(|p| self.slot_displacement(p, &columns))
+            .map(|s| Self::displacement(s, &columns))
             .collect();
-        self.last_active = slots.clone();
+        let loaded: Vec<usize> = (0..near.len()).filter(|&i| forces[i] > 0.0).collect();
         Contact {
-            slots,
-            forces,
+            loaded: loaded.iter().map(|&i| near[i]).collect(),
+            points: loaded.iter().map(|&i| rest[i] + u[i]).collect(),
+            forces: loaded.iter().map(|&i| forces[i]).collect(),
+            columns,
             surface,
             penetration,
             passes,
+            iterations,
             converged,
         }
     }
 }
 
-/// Projected Newton iterations at most.
+/// Newton iterations at most per contact solve.
 const MAX_NEWTON: usize = 60;
 
 /// Line search halvings at most per iteration.
 const MAX_HALVINGS: usize = 40;
 
-/// Solves the linear complementarity problem `f >= 0, w = H f - d >= 0, f . w = 0` for a
-/// symmetric positive definite `H` (its blocks given by `block(rows, cols)`): the minimum
-/// of `f^T H f / 2 - d^T f` over `f >= 0`, by Bertsekas' projected Newton method (1982):
-/// the unknowns at (or within a shrinking margin of) zero whose gradient pushes them down
-/// are held, a Newton step is taken on the rest, and a projected Armijo search keeps the
-/// energy decreasing, so it cannot cycle; once the held set is the answer's, one step
-/// solves it exactly. Starts from the Newton step on the free set `free` (updated to the
-/// answer's) and counts the iterations in `iterations`. Blocks are asked for only with
-/// columns that carry a force or may take one. `None` if a block is not positive
-/// definite or the iterations run out.
-fn complementarity(
-    d: &[f64],
-    free: &mut [bool],
-    iterations: &mut usize,
-    mut block: impl FnMut(&[usize], &[usize]) -> DMatrix<f64>,
-) -> Option<Vec<f64>> {
-    let m = d.len();
-    let all: Vec<usize> = (0..m).collect();
-    let scale = d.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
-    if scale == 0.0 {
-        free.fill(false);
-        return Some(vec![0.0; m]);
-    }
-    // The gradient `H f - d` (from the columns where `f > 0`) and the energy.
-    let gradient = |f: &[f64], block: &mut dyn FnMut(&[usize], &[usize]) -> DMatrix<f64>| {
-        let support: Vec<usize> = (0..m).filter(|&i| f[i] > 0.0).collect();
-        let mut g: Vec<f64> = d.iter().map(|v| -v).collect();
-        if !support.is_empty() {
-            let h = block(&all, &support);
-            for (c, &j) in support.iter().enumerate() {
-                for (i, g) in g.iter_mut().enumerate() {
-                    *g += h[(i, c)] * f[j];
-                }
-            }
-        }
-        g
-    };
-    let energy = |f: &[f64], g: &[f64]| -> f64 {
-        f.iter()
-            .zip(g)
-            .zip(d)
-            .map(|((f, g), d)| 0.5 * f * (g - d))
-            .sum()
-    };
-    let mut f = vec![0.0; m];
-    let start: Vec<usize> = (0..m).filter(|&i| free[i]).collect();
-    if !start.is_empty() {
-        let h = block(&start, &start);
-        let b = DVector::from_iterator(start.len(), start.iter().map(|&i| d[i]));
-        let x = h.cholesky()?.solve(&b);
-        for (&i, &v) in start.iter().zip(x.iter()) {
-            f[i] = v.max(0.0);
-        }
-    }
-    let mut g = gradient(&f, &mut block);
-    let mut e = energy(&f, &g);
-    for _ in 0..MAX_NEWTON {
-        // Optimality: the projected gradient vanishes.
-        let projected = (0..m)
-            .map(|i| {
-                if f[i] > 0.0 {
-                    g[i].abs()
-                } else {
-                    (-g[i]).max(0.0)
-                }
+/// The penalty contact in the node columns' loads `l`: the columns sink `v = G l` (`G`
+/// their sinking under their loads: symmetric, positive definite), the points `s = W v`
+/// (`W` their column weights, rows of `(column, weight)`), and press with forces
+/// `f = max(0, delta - s) / eps`; equilibrium is `l = W^T f`. It is the minimum of the
+/// energy `E(l) = l^T G l / 2 + eps |f|^2 / 2` (the gel's, plus the penalty's), convex
+/// and piecewise quadratic, whose gradient is `G (l - W^T f)`, and the same answer as the
+/// complementarity problem `f >= 0, eps f + W G W^T f - delta >= 0, f . (...) = 0` on the
+/// points. On a fixed set `A` of pressed points the Newton step solves
+/// `(I + W_A^T W_A G / eps) d = W^T f - l`: a system the size of the columns, however many
+/// points there are (here many more points than columns, which makes the problem on the
+/// points degenerate). Armijo's backtracking on `E` keeps it descending (Newton's method
+/// on a convex piecewise quadratic: the primal-dual active set method with a line
+/// search, Hintermueller, Ito and Kunisch 2002); once the pressed set repeats after a full
+/// step, the answer is exact. Starts from `l` (updated); returns the forces and the
+/// iterations, or `None` if they run out or a solve fails.
+fn penalty_contact(
+    g: &DMatrix<f64>,
+    w: &[Columns],
+    delta: &[f64],
+    eps: f64,
+    l: &mut DVector<f64>,
+) -> Option<(Vec<f64>, usize)> {
+    let k = g.nrows();
+    let forces = |l: &DVector<f64>| -> Vec<f64> {
+        let v = g * l;
+        w.iter()
+            .zip(delta)
+            .map(|(row, &d)| {
+                let s: f64 = row.iter().map(|&(c, wt)| wt * v[c as usize]).sum();
+                ((d - s) / eps).max(0.0)
             })
-            .fold(0.0, f64::max);
-        if projected <= 1e-12 * scale {
-            break;
-        }
-        *iterations += 1;
-        let margin = (0..m)
-            .map(|i| (f[i] - (f[i] - g[i]).max(0.0)).abs())
-            .fold(0.0, f64::max)
-            .min(1e-3 * scale);
-        let held: Vec<bool> = (0..m).map(|i| f[i] <= margin && g[i] > 0.0).collect();
-        let set: Vec<usize> = (0..m).filter(|&i| !held[i]).collect();
-        let mut step = vec![0.0; m];
-        if !set.is_empty() {
-            let h = block(&set, &set);
-            let b = DVector::from_iterator(set.len(), set.iter().map(|&i| -g[i]));
-            let x = h.cholesky()?.solve(&b);
-            for (&i, &v) in set.iter().zip(x.iter()) {
-                step[i] = v;
+            .collect()
+    };
+    let loads = |f: &[f64]| -> DVector<f64> {
+        let mut out = DVector::zeros(k);
+        for (row, &f) in w.iter().zip(f) {
+            if f > 0.0 {
+                for &(c, wt) in row {
+                    out[c as usize] += wt * f;
+                }
             }
         }
-        // Held unknowns that carry a force go down their gradient, scaled by the
-        // diagonal (1 where they carry none: they stay at zero).
-        let held_moving: Vec<usize> = (0..m).filter(|&i| held[i] && f[i] > 0.0).collect();
-        if !held_moving.is_empty() {
-            let h = block(&held_moving, &held_moving);
-            for (k, &i) in held_moving.iter().enumerate() {
-                step[i] = -g[i] / h[(k, k)];
+        out
+    };
+    let energy = |l: &DVector<f64>, f: &[f64]| -> f64 {
+        0.5 * l.dot(&(g * l)) + 0.5 * eps * f.iter().map(|f| f * f).sum::<f64>()
+    };
+    let mut f = forces(l);
+    let mut e = energy(l, &f);
+    for it in 0..MAX_NEWTON {
+        let r = &*l - loads(&f);
+        let scale = l.amax().max(loads(&f).amax());
+        if r.amax() <= 1e-12 * scale || scale == 0.0 {
+            return Some((f, it));
+        }
+        let mut wtw = DMatrix::zeros(k, k);
+        for (row, _) in w.iter().zip(&f).filter(|(_, &f)| f > 0.0) {
+            for &(a, wa) in row {
+                for &(b, wb) in row {
+                    wtw[(a as usize, b as usize)] += wa * wb / eps;
+                }
             }
         }
+        let system = DMatrix::identity(k, k) + wtw * g;
+        let mut step = system.lu().solve(&(-&r))?;
+        // The energy's slope along the step, `(G r) . d`; where round-off spoils the
+        // Newton direction, the gradient's own.
+        let gr = g * &r;
+        let mut slope = gr.dot(&step);
+        if !(slope < 0.0) {
+            step = -&r;
+            slope = -gr.dot(&r);
+        }
+        let before: Vec<bool> = f.iter().map(|&f| f > 0.0).collect();
         let mut alpha = 1.0;
         let mut accepted = false;
         for _ in 0..MAX_HALVINGS {
-            let trial: Vec<f64> = (0..m).map(|i| (f[i] + alpha * step[i]).max(0.0)).collect();
-            let decrease: f64 = (0..m)
-                .map(|i| {
-                    if held[i] {
-                        g[i] * (f[i] - trial[i])
-                    } else {
-                        -alpha * g[i] * step[i]
-                    }
-                })
-                .sum();
-            let gt = gradient(&trial, &mut block);
-            let et = energy(&trial, &gt);
-            if et <= e - 1e-4 * decrease {
-                (f, g, e) = (trial, gt, et);
+            let trial = &*l + &step * alpha;
+            let ft = forces(&trial);
+            let et = energy(&trial, &ft);
+            if et <= e + 1e-4 * alpha * slope {
+                (*l, f, e) = (trial, ft, et);
                 accepted = true;
                 break;
             }
             alpha *= 0.5;
         }
         if !accepted {
-            // No decrease left to find: round-off bounds the energy.
-            break;
+            // No decrease left to find: the energy is at its minimum to round-off.
+            return Some((f, it + 1));
+        }
+        if alpha == 1.0 && f.iter().map(|&f| f > 0.0).eq(before.iter().copied()) {
+            // A full step on a pressed set that it keeps: the exact answer on that set.
+            return Some((f, it + 1));
         }
     }
-    let projected = (0..m)
-        .map(|i| {
-            if f[i] > 0.0 {
-                g[i].abs()
-            } else {
-                (-g[i]).max(0.0)
-            }
-        })
-        .fold(0.0, f64::max);
-    if projected > 1e-9 * scale {
-        return None;
-    }
-    for (fr, &v) in free.iter_mut().zip(&f) {
-        *fr = v > 0.0;
-    }
-    Some(f)
+    None
 }
 
 impl Gel {
@@ -679,18 +686,8 @@ impl Gel {
         let dx = self.layout.dx;
         let mut placed = Vec::new();
         sweep.place(sweep.steps.max(1) - 1, dx, &mut placed);
-        let touches = self.top_ref.iter().any(|r| {
-            let x = nalgebra::Point3::from(self.layout.origin + r.cast::<f64>() * dx);
-            placed.iter().any(|ind| {
-                contains(&ind.bounds, &x)
-                    && ind.shape.distance(&ind.now.inverse_transform_point(&x)) < 0.0
-            })
-        });
-        if !touches {
-            // No slot inside an indenter: the undeformed gel is the answer.
-            if let Some(linear) = self.linear.as_mut() {
-                linear.last_active.clear();
-            }
+        if !placed.iter().any(|ind| self.reaches_surface(ind)) {
+            // Nothing inside the undeformed top face: the undeformed gel is the answer.
             self.force = Vector3::zeros();
             self.loads.clear();
             self.set_surface(|_| Vector3::zeros());
@@ -714,8 +711,9 @@ impl Gel {
         let contact = linear.contact(&placed, self.options.tolerance);
         report.columns = linear.columns() - before;
         report.iterations = contact.passes;
+        report.cg_iterations = contact.iterations;
         report.sweep_steps = 1;
-        report.active_particles = contact.slots.len();
+        report.active_particles = contact.points.len();
         report.converged = contact.converged;
         let sinking = contact.surface.iter().map(|v| -v.z).fold(0.0, f64::max);
         report.residual = if sinking > 0.0 {
@@ -727,12 +725,11 @@ impl Gel {
         let total: f64 = contact.forces.iter().sum();
         self.force = Vector3::new(0.0, 0.0, total * scale);
         self.loads = contact
-            .slots
+            .points
             .iter()
             .zip(&contact.forces)
-            .map(|(&p, &f)| {
-                let x = self.layout.origin
-                    + (linear.rest[p as usize] + contact.surface[p as usize]) * dx;
+            .map(|(x, &f)| {
+                let x = self.layout.origin + x * dx;
                 ContactLoad {
                     at: [x.x, x.y],
                     z: x.z,
@@ -742,6 +739,35 @@ impl Gel {
             .collect();
         self.set_surface(|slot| contact.surface[slot] * dx);
         self.linear = Some(linear);
+    }
+
+    /// Whether the indenter `ind` reaches inside the undeformed top face, sampled at the
+    /// contact lattice's spacing over its bounds.
+    fn reaches_surface(&self, ind: &StepIndenter) -> bool {
+        let dx = self.layout.dx;
+        let step = self.contact_spacing(super::super::Solver::Newton);
+        let (lo, hi) = (ind.bounds.min, ind.bounds.max);
+        let [lx, ly, _] = self.params.size;
+        let (x0, x1) = (lo.x.max(-0.5 * lx), hi.x.min(0.5 * lx));
+        let (y0, y1) = (lo.y.max(-0.5 * ly), hi.y.min(0.5 * ly));
+        if x0 > x1 || y0 > y1 {
+            return false;
+        }
+        let z = self.layout.origin.z + self.top_ref[0].z as f64 * dx;
+        let (nx, ny) = (
+            ((x1 - x0) / step).ceil() as usize + 1,
+            ((y1 - y0) / step).ceil() as usize + 1,
+        );
+        (0..nx).any(|i| {
+            (0..ny).any(|j| {
+                let p = nalgebra::Point3::new(
+                    (x0 + i as f64 * step).min(x1),
+                    (y0 + j as f64 * step).min(y1),
+                    z,
+                );
+                ind.shape.distance(&ind.now.inverse_transform_point(&p)) < 0.0
+            })
+        })
     }
 }
 

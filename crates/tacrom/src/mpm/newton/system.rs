@@ -13,7 +13,6 @@ use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, Symbol
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side, Spec};
 use nalgebra::Matrix3;
-use rayon::prelude::*;
 
 /// The offset of a neighbour `(ox, oy, oz)`, each in `-2..=2`, as an index in `0..125`.
 #[inline(always)]
@@ -267,23 +266,18 @@ impl System {
     }
 
     /// Solves `K X = B` in place with the last factorisation for the `B.len() / n`
-    /// right-hand sides in `b` (column after column), in parallel over blocks of 8
-    /// columns (each block reads the factor once; the blocks, not the threads, fix the
-    /// arithmetic, so the thread count does not change the result).
-    pub fn solve_columns(&self, b: &mut [f64]) {
-        const BLOCK: usize = 8;
+    /// right-hand sides in `b`, as one block.
+    pub fn solve_block(&self, b: &mut [f64]) {
         let n = self.n;
-        b.par_chunks_mut(n * BLOCK).for_each(|block| {
-            let k = block.len() / n;
-            let mut mem = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(k, Par::Seq));
-            let rhs = MatMut::from_column_major_slice_mut(block, n, k);
-            LltRef::new(&self.symbolic, &self.factor).solve_in_place_with_conj(
-                Conj::No,
-                rhs,
-                Par::Seq,
-                MemStack::new(&mut mem),
-            );
-        });
+        let k = b.len() / n.max(1);
+        let mut mem = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(k, Par::Seq));
+        let rhs = MatMut::from_column_major_slice_mut(b, n, k);
+        LltRef::new(&self.symbolic, &self.factor).solve_in_place_with_conj(
+            Conj::No,
+            rhs,
+            Par::Seq,
+            MemStack::new(&mut mem),
+        );
     }
 
     /// Solves `K x = b` in place with the last factorisation.

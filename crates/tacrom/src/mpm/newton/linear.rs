@@ -76,8 +76,12 @@ use super::{contains, Newton, Stencil, CONTACT_SUBDIVISION, PENALTY};
 /// distance (cells) at which a march up has met the surface.
 const MARCH_STEPS: usize = 200;
 const MIN_MARCH: f64 = 0.02;
-const BISECTIONS: usize = 30;
+const BISECTIONS: usize = 24;
 const GAP_EPS: f64 = 1e-6;
+
+/// Margin (cells) around an indenter's box within which lattice points may touch it:
+/// the surface moves sideways by much less than a cell.
+const NEAR_CELLS: f64 = 0.5;
 
 /// Linearisations at most per solve.
 const MAX_PASSES: usize = 12;
@@ -124,12 +128,14 @@ pub(crate) struct Compliance {
 
 /// One solve's answer.
 pub(crate) struct Contact {
-    /// Lattice points carrying a force: their indices, deformed positions (cells) and
-    /// forces (internal units, downward on the gel).
-    pub loaded: Vec<u32>,
+    /// Lattice points carrying a force: their deformed positions (cells) and forces
+    /// (internal units, downward on the gel); for the tests, their indices.
     pub points: Vec<Vector3<f64>>,
     pub forces: Vec<f64>,
-    /// The node columns' mean displacement (cells, 3 per column).
+    #[cfg(test)]
+    pub loaded: Vec<u32>,
+    /// For the tests: the node columns' mean displacement (cells, 3 per column).
+    #[cfg(test)]
     pub columns: Vec<f64>,
     /// Displacement (cells) of every top slot.
     pub surface: Vec<Vector3<f64>>,
@@ -416,12 +422,17 @@ impl Compliance {
         phi.is_finite().then_some(t)
     }
 
-    /// The contact lattice points under the indenters' bounds (the only ones that can
-    /// touch them).
+    /// The contact lattice points under the indenters' own boxes, grown by
+    /// [`NEAR_CELLS`] (the only ones that can touch them).
     fn near(&self, indenters: &[StepIndenter]) -> Vec<u32> {
         let mut out = BTreeSet::new();
         for ind in indenters {
-            let (lo, hi) = (ind.bounds.min, ind.bounds.max);
+            let b = ind
+                .shape
+                .aabb()
+                .transformed(&ind.now)
+                .inflated(NEAR_CELLS * self.dx);
+            let (lo, hi) = (b.min, b.max);
             let range = |k: usize, a: f64, b: f64| {
                 let o = if k == 0 { self.origin.x } else { self.origin.y };
                 let to = |v: f64| ((v - o) / self.dx - self.first[k]) / self.spacing[k];
@@ -561,9 +572,11 @@ impl Compliance {
             .collect();
         let loaded: Vec<usize> = (0..near.len()).filter(|&i| forces[i] > 0.0).collect();
         Contact {
+            #[cfg(test)]
             loaded: loaded.iter().map(|&i| near[i]).collect(),
             points: loaded.iter().map(|&i| rest[i] + u[i]).collect(),
             forces: loaded.iter().map(|&i| forces[i]).collect(),
+            #[cfg(test)]
             columns,
             surface,
             penetration,

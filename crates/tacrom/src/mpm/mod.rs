@@ -476,13 +476,15 @@ impl Gel {
     }
 
     /// Spacing (m) of the surface points that `solver`'s contact acts on in this gel: the
-    /// top particles' for relaxation, for Newton a lattice four times finer. An indenter
+    /// top particles' for relaxation, for Newton a lattice four times finer, for the linear
+    /// solver twice as fine. An indenter
     /// that reaches into the gel only between them loads it with no force.
     pub fn contact_spacing(&self, solver: Solver) -> f64 {
         let s = self.layout.spacing[0].max(self.layout.spacing[1]);
         match solver {
             Solver::Newton => s / newton::CONTACT_SUBDIVISION as f64,
-            Solver::Relaxation | Solver::Total | Solver::Linear => s,
+            Solver::Linear => s / newton::linear::SUBDIVISION as f64,
+            Solver::Relaxation | Solver::Total => s,
         }
     }
 

@@ -7,9 +7,12 @@
 //! with `K` the Hessian of Newton's discretisation at `u = 0` (the same quadrature points,
 //! and the same selective reduced integration at high Poisson's ratios): the small-strain
 //! elasticity of the gel as bonded and meshed. The indenters load it through vertical
-//! forces `f_p >= 0` at the points of a contact lattice [`CONTACT_SUBDIVISION`] times
-//! finer than the particles, as Newton's contact (an indenter that reaches between
-//! particles still meets points, and a knife edge does not fall between them).
+//! forces `f_p >= 0` at the points of a contact lattice [`SUBDIVISION`] times finer than
+//! the particles (a 0.4 mm knife edge does not fall between them on the coarse gel). The
+//! lattice is coarser than Newton's: on a grid this coarse, points four times finer than
+//! the particles hold the surface to the indenter's shape more tightly than its quadratic
+//! B-splines can bend, and a small contact came out 1.6 to 5.9 times too stiff (`tacrom mpm
+//! --only small`; twice as fine: 0.8 to 1.7 times).
 //!
 //! Every point of the top surface lies at one height, so a point's stencil is the product
 //! of its in-plane quadratic B-spline weights over a 3 x 3 block of node columns and the
@@ -69,7 +72,7 @@ use super::super::{
     pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS,
 };
 use super::system::System;
-use super::{contains, Newton, Stencil, CONTACT_SUBDIVISION, PENALTY};
+use super::{contains, Newton, Stencil, PENALTY};
 
 /// Steps at most of a march along the vertical ([`Compliance::vertical_gap`]), the
 /// smallest step (cells) down through an indenter, the bisections of the way out, and the
@@ -78,6 +81,9 @@ const MARCH_STEPS: usize = 200;
 const MIN_MARCH: f64 = 0.02;
 const BISECTIONS: usize = 24;
 const GAP_EPS: f64 = 1e-6;
+
+/// Contact lattice points per particle spacing along each axis.
+pub(crate) const SUBDIVISION: usize = 2;
 
 /// Margin (cells) around an indenter's box within which lattice points may touch it:
 /// the surface moves sideways by much less than a cell.
@@ -190,7 +196,7 @@ impl Compliance {
             })
             .collect();
         let [nx, nyl, _] = gel.layout.lattice;
-        let lattice = [nx * CONTACT_SUBDIVISION, nyl * CONTACT_SUBDIVISION];
+        let lattice = [nx * SUBDIVISION, nyl * SUBDIVISION];
         let [lx, ly, _] = gel.params.size;
         let dx = newton.dx;
         let spacing = [lx / lattice[0] as f64 / dx, ly / lattice[1] as f64 / dx];
@@ -758,7 +764,7 @@ impl Gel {
     /// contact lattice's spacing over its bounds.
     fn reaches_surface(&self, ind: &StepIndenter) -> bool {
         let dx = self.layout.dx;
-        let step = self.contact_spacing(super::super::Solver::Newton);
+        let step = self.contact_spacing(super::super::Solver::Linear);
         let (lo, hi) = (ind.bounds.min, ind.bounds.max);
         let [lx, ly, _] = self.params.size;
         let (x0, x1) = (lo.x.max(-0.5 * lx), hi.x.min(0.5 * lx));

@@ -693,8 +693,9 @@ pub fn markdown(result: &MpmBenchResult) -> String {
         s.push_str(
             "## Hertz (bonded layer), force error per depth\n\nFrictionless sphere R = 5 mm \
              on the default gel (30 x 30 x 4 mm, E = 1.19e5 Pa, Poisson 0.43); Dimitriadis et \
-             al. 2002. `*`: hit the iteration cap. Iterations: explicit steps (relaxation) or \
-             Newton steps (newton).\n\n| solver | dx (mm) | particles |",
+             al. 2002. `*`: hit the iteration cap. Iterations: explicit steps (relaxation), \
+             Newton steps (newton) or linearisations of the contact (linear).\n\n| solver \
+             | dx (mm) | particles |",
         );
         for d in &depths {
             let _ = write!(s, " d = {:.2} mm |", d * 1e3);
@@ -750,8 +751,10 @@ pub fn markdown(result: &MpmBenchResult) -> String {
             "## Cost of a moving press\n\nDefault gel with friction 0.5, sphere R = 5 mm; each \
              frame 0.05 mm deeper and 0.02 mm along x, after a warm-up press at 0.1 mm. \
              Solve time only (no image). Active: particles the solve moved (median; the rest \
-             of the gel keeps its state). Particle-steps count active particles; iterations are explicit steps \
-             (relaxation) or Newton steps (newton).\n\n| solver | dx (mm) | particles | \
+             of the gel keeps its state; linear: contact points carrying a force, frictionless). \
+             Particle-steps count active particles; iterations are explicit steps \
+             (relaxation), Newton steps (newton) or linearisations of the contact \
+             (linear).\n\n| solver | dx (mm) | particles | \
              active | tolerance | threads | frames | median ms | p90 ms | iterations \
              (median) | particle-steps/s | unconverged | bytes/particle |\n\
              |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
@@ -765,9 +768,10 @@ pub fn markdown(result: &MpmBenchResult) -> String {
             "\n## Work per frame against the material\n\nThe moving press above on the coarse \
              grid (1.4 mm), one thread, tolerance 3e-3, friction 0.5; Young's modulus varied \
              at Poisson 0.43, Poisson's ratio at E = 1.19e5 Pa. Iterations: explicit steps \
-             (relaxation) or Newton steps (newton); factorisations (or two-grid builds), \
-             Newton steps solved by conjugate gradients with an earlier one, and \
-             conjugate-gradient iterations summed over the frames.\n\n| solver | E (Pa) | \
+             (relaxation), Newton steps (newton) or linearisations of the contact (linear); \
+             factorisations (or two-grid builds), Newton steps solved by conjugate gradients \
+             with an earlier one, and conjugate-gradient iterations (linear: the contact's \
+             Newton steps) summed over the frames.\n\n| solver | E (Pa) | \
              Poisson | frames | iterations (median) | iterations (max) | factorisations | \
              CG steps | CG iterations | median ms | unconverged \
              |\n|---|---|---|---|---|---|---|---|---|---|---|\n",

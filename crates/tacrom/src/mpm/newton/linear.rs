@@ -72,7 +72,7 @@ use super::super::{
     pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS,
 };
 use super::system::System;
-use super::{contains, Newton, Stencil, PENALTY};
+use super::{contact_lattice, contains, Newton, Stencil, PENALTY};
 
 /// Steps at most of a march along the vertical ([`Compliance::vertical_gap`]), the
 /// smallest step (cells) down through an indenter, the bisections of the way out, and the
@@ -195,25 +195,17 @@ impl Compliance {
                 })
             })
             .collect();
-        let [nx, nyl, _] = gel.layout.lattice;
-        let lattice = [nx * SUBDIVISION, nyl * SUBDIVISION];
-        let [lx, ly, _] = gel.params.size;
-        let dx = newton.dx;
-        let spacing = [lx / lattice[0] as f64 / dx, ly / lattice[1] as f64 / dx];
-        let origin = newton.origin;
+        let (lattice, spacing, first_point) = contact_lattice(gel, SUBDIVISION);
         let mut c = Compliance {
             system,
-            dx,
-            origin,
+            dx: newton.dx,
+            origin: newton.origin,
             ny,
             rest: Vec::new(),
             slots: Vec::new(),
             lattice,
             spacing,
-            first: [
-                (-0.5 * lx - origin.x) / dx + 0.5 * spacing[0],
-                (-0.5 * ly - origin.y) / dx + 0.5 * spacing[1],
-            ],
+            first: first_point,
             top: rest[0].z,
             softness: 1.0 / (PENALTY * spacing[0] * spacing[1]),
             levels,

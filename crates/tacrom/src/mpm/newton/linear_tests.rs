@@ -252,12 +252,7 @@ fn the_answer_depends_on_the_pose_alone() {
 /// method meets 5 % at 0.2 mm on the same layer.
 #[test]
 fn hertz_on_a_resolved_layer() {
-    let p = GelParams {
-        size: [0.016, 0.016, 0.002],
-        friction: 0.0,
-        dx: 0.5e-3,
-        ..Default::default()
-    };
+    let p = super::super::tests::resolved_layer();
     let r = 3e-3;
     let mut g = Gel::new(p, options(1)).unwrap();
     for d in [0.2e-3, 0.3e-3, 0.4e-3] {

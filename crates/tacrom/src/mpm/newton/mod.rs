@@ -469,10 +469,9 @@ impl Newton {
         }
         let (dof, nodes) = number(&used);
         let n = 3 * nodes.len();
-        let [lx, ly, t] = params.size;
+        let t = params.size[2];
         let margin = gel.options.active_margin * t / layout.dx;
-        let lattice = [nx * CONTACT_SUBDIVISION, ny * CONTACT_SUBDIVISION];
-        let spacing = [lx / lattice[0] as f64 / dx, ly / lattice[1] as f64 / dx];
+        let (lattice, spacing, first) = contact_lattice(gel, CONTACT_SUBDIVISION);
         let origin = layout.origin;
         Ok(Newton {
             dims,
@@ -504,10 +503,7 @@ impl Newton {
             work: Default::default(),
             lattice,
             spacing,
-            first: [
-                (-0.5 * lx - origin.x) / dx + 0.5 * spacing[0],
-                (-0.5 * ly - origin.y) / dx + 0.5 * spacing[1],
-            ],
+            first,
             top: -origin.z / dx,
             area: spacing[0] * spacing[1],
             anchors: BTreeMap::new(),
@@ -1581,6 +1577,21 @@ fn deformation(stencil: &Stencil, dofs: &[u32; 27], u: &[f64]) -> Matrix3<f64> {
         }
     }
     f
+}
+
+/// A contact lattice `subdivision` times finer than the top particles along each axis:
+/// its counts, spacing (cells) and first point (cells, in-plane).
+fn contact_lattice(gel: &Gel, subdivision: usize) -> ([usize; 2], [f64; 2], [f64; 2]) {
+    let [nx, ny, _] = gel.layout.lattice;
+    let [lx, ly, _] = gel.params.size;
+    let (dx, origin) = (gel.layout.dx, gel.layout.origin);
+    let lattice = [nx * subdivision, ny * subdivision];
+    let spacing = [lx / lattice[0] as f64 / dx, ly / lattice[1] as f64 / dx];
+    let first = [
+        (-0.5 * lx - origin.x) / dx + 0.5 * spacing[0],
+        (-0.5 * ly - origin.y) / dx + 0.5 * spacing[1],
+    ];
+    (lattice, spacing, first)
 }
 
 /// The indices `used` marks, numbered in order: each one's number (`u32::MAX` where not

@@ -157,17 +157,22 @@ fn a_frictionless_equilibrium_does_not_depend_on_the_loading_path() {
     }
 }
 
+/// A frictionless 16 x 16 x 2 mm layer at 0.5 mm: 4 cells through its thickness.
+pub(super) fn resolved_layer() -> GelParams {
+    GelParams {
+        size: [0.016, 0.016, 0.002],
+        friction: 0.0,
+        dx: 0.5e-3,
+        ..Default::default()
+    }
+}
+
 /// On a layer resolved by 4 cells (16 x 16 x 2 mm, dx 0.5 mm) a 3 mm sphere pressed
 /// 0.2 mm gives the bonded-layer Hertz force within 5 % (measured -3.6 %; the relaxation
 /// solver -0.1 %, and the Dimitriadis fit itself is good to a few percent).
 #[test]
 fn hertz_on_a_resolved_layer() {
-    let p = GelParams {
-        size: [0.016, 0.016, 0.002],
-        friction: 0.0,
-        dx: 0.5e-3,
-        ..Default::default()
-    };
+    let p = resolved_layer();
     let (r, d) = (3e-3, 0.2e-3);
     let mut g = Gel::new(p, options(1e-3)).unwrap();
     let rep = g.solve(&[at(&ball(r), r, 0.0, d)]);

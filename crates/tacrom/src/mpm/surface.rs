@@ -10,10 +10,12 @@
 //! interpolated with Catmull-Rom bicubic splines (C1, exact on the lattice), so the images
 //! have no holes or speckle. Pixels outside the lattice box where `|u|` exceeds
 //! `DEPTH_EPS` (grown by the interpolation stencil and the largest lateral displacement)
-//! are zero without work. A point printed on the surface at `X` (a marker) is at
+//! are zero without work. Rows are mapped in parallel in the gel's thread pool, each from
+//! its own start, so the thread count does not change a bit. A point printed on the surface at `X` (a marker) is at
 //! `X + u(X)`: one sample, no inverse map.
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 use super::region::{add_to_box, non_empty, EMPTY_BOX};
 use super::Gel;
@@ -133,18 +135,33 @@ fn for_each_seen(gel: &Gel, grid: &PixelGrid, mut visit: impl FnMut(usize, Vecto
     let ya = y0 + (iy0 as f64 - 2.0) * sy - umax;
     let yb = y0 + (iy1 as f64 + 1.0) * sy + umax;
     let u = &gel.surface_u;
-    for row in grid.rows_in(ya, yb) {
-        let py = grid.y(row);
-        // The previous pixel's displacement: the next pixel's surface point is displaced
-        // nearly as much, so Newton's method starts close to it.
-        let mut guess = Vector3::zeros();
-        for col in grid.cols_in(xa, xb) {
-            let px = grid.x(col);
-            let d = solve_inverse_map(u, nx, ny, (px - x0) / sx, (py - y0) / sy, sx, sy, &guess);
-            if d.iter().all(|v| v.is_finite()) {
-                guess = d;
-            }
-            visit(row * grid.width + col, d);
+    let (rows, cols) = (grid.rows_in(ya, yb), grid.cols_in(xa, xb));
+    if cols.is_empty() {
+        return;
+    }
+    // Rows in parallel in the gel's pool (each row starts afresh, so the threads do not
+    // change a bit), then visited in order.
+    let mut seen = vec![Vector3::zeros(); rows.len() * cols.len()];
+    gel.pool.install(|| {
+        seen.par_chunks_mut(cols.len())
+            .zip(rows.clone().into_par_iter())
+            .for_each(|(line, row)| {
+                let py = grid.y(row);
+                // The previous pixel's displacement: the next pixel's surface point is
+                // displaced nearly as much, so Newton's method starts close to it.
+                let mut guess = Vector3::zeros();
+                for (d, col) in line.iter_mut().zip(cols.clone()) {
+                    let (a, b) = ((grid.x(col) - x0) / sx, (py - y0) / sy);
+                    *d = solve_inverse_map(u, nx, ny, a, b, sx, sy, &guess);
+                    if d.iter().all(|v| v.is_finite()) {
+                        guess = *d;
+                    }
+                }
+            })
+    });
+    for (line, row) in seen.chunks_exact(cols.len()).zip(rows) {
+        for (d, col) in line.iter().zip(cols.clone()) {
+            visit(row * grid.width + col, *d);
         }
     }
 }

@@ -144,8 +144,8 @@ pub enum Linear {
 pub const MULTIGRID_UNKNOWNS: usize = 60_000;
 
 /// Most unknowns (three per grid node, an upper bound) [`Solver::Linear`] factors: the
-/// default gel at 1.0 mm (22,869), not at 0.7 mm (57,132), where the quick benchmark's
-/// larger contacts took 645 MB of compliance columns and 6 s for a frame's first solve.
+/// default gel at 1.0 mm (22,869), not at 0.7 mm (57,132), where the first contact took
+/// 3.5 to 4.4 s (the factorisation and the first node columns) and the process 640 MB.
 pub const LINEAR_UNKNOWNS: usize = 30_000;
 
 /// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that

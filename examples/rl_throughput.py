@@ -48,8 +48,11 @@ def action(env_id: str, step: int, rng: np.random.Generator, policy: str) -> np.
 
 def make(env_id: str, physics: str, resolution):
     """A picklable maker of the environment: ``tacrom.envs:`` in the id makes Gymnasium
-    import (and so register) tacrom in a fresh worker process."""
+    import (and so register) tacrom in a fresh worker process. ``coarse-linear`` is the
+    coarse gel with ``solver="linear"``."""
     kwargs = {"physics": physics}
+    if physics.endswith("-linear"):
+        kwargs = {"physics": physics.removesuffix("-linear"), "sensor_config": {"solver": "linear"}}
     if resolution:
         kwargs["resolution"] = tuple(resolution)
     return functools.partial(gym.make, f"tacrom.envs:{env_id}", **kwargs)
@@ -92,7 +95,12 @@ def measure(
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=["tacrom/Press-v1", "tacrom/GripperLift-v1"])
-    parser.add_argument("--physics", nargs="+", default=["rigid", "coarse", "rom"])
+    parser.add_argument(
+        "--physics",
+        nargs="+",
+        default=["rigid", "coarse", "rom"],
+        help="modes: rigid, coarse, rom, fine, or coarse-linear (coarse with solver=linear)",
+    )
     parser.add_argument("--procs", nargs="+", type=int, default=[1, 2])
     parser.add_argument(
         "--steps",

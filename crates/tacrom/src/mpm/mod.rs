@@ -576,6 +576,9 @@ impl Gel {
         if let Some(n) = self.newton.as_mut() {
             n.reset();
         }
+        if let Some(c) = self.linear.as_mut() {
+            c.release();
+        }
         self.total = None;
     }
 

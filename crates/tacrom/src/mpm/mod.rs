@@ -576,9 +576,6 @@ impl Gel {
         if let Some(n) = self.newton.as_mut() {
             n.reset();
         }
-        if let Some(c) = self.linear.as_mut() {
-            c.release();
-        }
         self.total = None;
     }
 

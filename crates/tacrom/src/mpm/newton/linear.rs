@@ -132,9 +132,6 @@ pub(crate) struct Compliance {
     /// column to each column load computed so far, and the tiles computed.
     columns: HashMap<u32, Box<[f64]>>,
     tiles: BTreeSet<u32>,
-    /// The node columns' loads at the last solve's answer: where the next solve starts
-    /// (empty after a frame without contact or a reset).
-    last_loads: Vec<(u32, f64)>,
 }
 
 /// One solve's answer.
@@ -217,7 +214,6 @@ impl Compliance {
             weights: first.w[2],
             columns: HashMap::new(),
             tiles: BTreeSet::new(),
-            last_loads: Vec::new(),
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
         c.rest = rest;
@@ -245,11 +241,6 @@ impl Compliance {
             self.first[1] + j as f64 * self.spacing[1],
             self.top,
         )
-    }
-
-    /// Forgets the last answer: the next solve starts from the undeformed gel.
-    pub fn release(&mut self) {
-        self.last_loads.clear();
     }
 
     /// Node columns whose response has been computed.
@@ -525,13 +516,8 @@ impl Compliance {
                 -self.columns[&local[b]][3 * local[a] as usize + 2]
             });
             let g = (&g + g.transpose()) * 0.5;
-            // Start from the columns' present loads: the last pass's, or in the first
-            // pass the last frame's answer.
-            let present = if pass == 0 {
-                std::mem::take(&mut self.last_loads)
-            } else {
-                Self::column_loads(&stencils, &forces)
-            };
+            // Start from the columns' present loads.
+            let present = Self::column_loads(&stencils, &forces);
             let mut l = DVector::from_iterator(
                 local.len(),
                 local.iter().map(|c| {
@@ -574,7 +560,6 @@ impl Compliance {
                 break;
             }
         }
-        self.last_loads = Self::column_loads(&stencils, &forces);
         let surface = self
             .slots
             .iter()
@@ -711,9 +696,6 @@ impl Gel {
         sweep.place(sweep.steps.max(1) - 1, dx, &mut placed);
         if !placed.iter().any(|ind| self.reaches_surface(ind)) {
             // Nothing inside the undeformed top face: the undeformed gel is the answer.
-            if let Some(linear) = self.linear.as_mut() {
-                linear.release();
-            }
             self.force = Vector3::zeros();
             self.loads.clear();
             self.set_surface(|_| Vector3::zeros());

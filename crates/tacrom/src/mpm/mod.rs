@@ -499,10 +499,17 @@ impl Gel {
         if self.force != Vector3::zeros() {
             return 0.0;
         }
+        self.reached_depth(indenters::usable(indenters).into_iter())
+    }
+
+    /// How deep (m, a lower bound) `indenters` reach into the undeformed top face, sampled
+    /// at a quarter of [`Gel::contact_spacing`] of the gel's solver (coarser over large
+    /// footprints, at most [`MISSED_SAMPLES`] points per indenter); 0 if nowhere.
+    pub(crate) fn reached_depth<'a>(&self, indenters: impl Iterator<Item = &'a Placed>) -> f64 {
         let [lx, ly, _] = self.params.size;
         let fine = 0.25 * self.contact_spacing(self.options.solver);
         let mut deepest = 0.0f64;
-        for p in indenters::usable(indenters) {
+        for p in indenters {
             let b = p.aabb();
             if b.min.z.is_nan() || b.min.z >= 0.0 {
                 continue;

@@ -173,8 +173,8 @@ pub enum Solver {
     /// the path.
     Total,
     /// Linear elasticity about the undeformed gel with frictionless contact, solved
-    /// exactly on a surface compliance computed once per contact slot
-    /// (`mpm/newton/linear.rs`): a frame costs no pass over the particles.
+    /// exactly on a surface compliance kept per node column (`mpm/newton/linear.rs`): a
+    /// frame costs no pass over the particles.
     Linear,
 }
 
@@ -285,9 +285,10 @@ pub struct SolveReport {
     /// Newton solver: steps solved by conjugate gradients preconditioned with an earlier
     /// factorisation.
     pub reused: usize,
-    /// Newton solver: conjugate gradient iterations, over all its steps.
+    /// Newton solver: conjugate gradient iterations, over all its steps (linear solver: the
+    /// contact's Newton steps).
     pub cg_iterations: usize,
-    /// Linear solver: columns of the surface compliance computed (one solve with the
+    /// Linear solver: node columns whose response this solve computed (one solve with the
     /// factorisation each).
     pub columns: usize,
     /// Whether the relaxation missed the contact and Newton's method solved the frame

@@ -113,8 +113,7 @@ pub(crate) struct Compliance {
     origin: Vector3<f64>,
     /// Node columns along y (the column index is `ix * ny + iy`).
     ny: usize,
-    /// Rest position (cells) of each top slot, and its node columns.
-    rest: Vec<Vector3<f64>>,
+    /// The node columns of each top slot.
     slots: Vec<Columns>,
     /// The contact lattice: counts, spacing (cells), first point and height (cells).
     lattice: [usize; 2],
@@ -129,9 +128,8 @@ pub(crate) struct Compliance {
     levels: Vec<[u32; 3]>,
     weights: [f64; 3],
     /// The response (3 per node column, cells per internal force unit) of every node
-    /// column to each column load computed so far, and the tiles computed.
+    /// column to each column load computed so far (whole tiles).
     columns: HashMap<u32, Box<[f64]>>,
-    tiles: BTreeSet<u32>,
 }
 
 /// One solve's answer.
@@ -203,7 +201,6 @@ impl Compliance {
             dx: newton.dx,
             origin: newton.origin,
             ny,
-            rest: Vec::new(),
             slots: Vec::new(),
             lattice,
             spacing,
@@ -213,10 +210,8 @@ impl Compliance {
             levels,
             weights: first.w[2],
             columns: HashMap::new(),
-            tiles: BTreeSet::new(),
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
-        c.rest = rest;
         Ok(c)
     }
 
@@ -269,8 +264,8 @@ impl Compliance {
     fn ensure(&mut self, needed: impl IntoIterator<Item = u32>) {
         let tiles: BTreeSet<u32> = needed
             .into_iter()
+            .filter(|c| !self.columns.contains_key(c))
             .map(|c| self.tile_of(c))
-            .filter(|t| !self.tiles.contains(t))
             .collect();
         if tiles.is_empty() {
             return;
@@ -321,7 +316,6 @@ impl Compliance {
         for (&c, r) in batch.iter().zip(columns) {
             self.columns.insert(c, r);
         }
-        self.tiles.extend(tiles);
     }
 
     /// The column loads of downward forces `forces` at points with columns `stencils`.
@@ -512,8 +506,9 @@ impl Compliance {
                 .iter()
                 .map(|&i| stencils[i].map(|(c, w)| (index(c), w)))
                 .collect();
+            let responses: Vec<&[f64]> = local.iter().map(|c| &self.columns[c][..]).collect();
             let g = DMatrix::from_fn(local.len(), local.len(), |a, b| {
-                -self.columns[&local[b]][3 * local[a] as usize + 2]
+                -responses[b][3 * local[a] as usize + 2]
             });
             let g = (&g + g.transpose()) * 0.5;
             // Start from the columns' present loads.
@@ -611,15 +606,19 @@ fn penalty_contact(
     l: &mut DVector<f64>,
 ) -> Option<(Vec<f64>, usize)> {
     let k = g.nrows();
-    let forces = |l: &DVector<f64>| -> Vec<f64> {
+    // The forces at `l` and the energy there, from one product `G l`.
+    let evaluate = |l: &DVector<f64>| -> (Vec<f64>, f64) {
         let v = g * l;
-        w.iter()
+        let f: Vec<f64> = w
+            .iter()
             .zip(delta)
             .map(|(row, &d)| {
                 let s: f64 = row.iter().map(|&(c, wt)| wt * v[c as usize]).sum();
                 ((d - s) / eps).max(0.0)
             })
-            .collect()
+            .collect();
+        let e = 0.5 * l.dot(&v) + 0.5 * eps * f.iter().map(|f| f * f).sum::<f64>();
+        (f, e)
     };
     let loads = |f: &[f64]| -> DVector<f64> {
         let mut out = DVector::zeros(k);
@@ -632,14 +631,11 @@ fn penalty_contact(
         }
         out
     };
-    let energy = |l: &DVector<f64>, f: &[f64]| -> f64 {
-        0.5 * l.dot(&(g * l)) + 0.5 * eps * f.iter().map(|f| f * f).sum::<f64>()
-    };
-    let mut f = forces(l);
-    let mut e = energy(l, &f);
+    let (mut f, mut e) = evaluate(l);
     for it in 0..MAX_NEWTON {
-        let r = &*l - loads(&f);
-        let scale = l.amax().max(loads(&f).amax());
+        let wf = loads(&f);
+        let r = &*l - &wf;
+        let scale = l.amax().max(wf.amax());
         if r.amax() <= 1e-12 * scale || scale == 0.0 {
             return Some((f, it));
         }
@@ -666,8 +662,7 @@ fn penalty_contact(
         let mut accepted = false;
         for _ in 0..MAX_HALVINGS {
             let trial = &*l + &step * alpha;
-            let ft = forces(&trial);
-            let et = energy(&trial, &ft);
+            let (ft, et) = evaluate(&trial);
             if et <= e + 1e-4 * alpha * slope {
                 (*l, f, e) = (trial, ft, et);
                 accepted = true;
@@ -694,14 +689,15 @@ impl Gel {
         let dx = self.layout.dx;
         let mut placed = Vec::new();
         sweep.place(sweep.steps.max(1) - 1, dx, &mut placed);
-        if !placed.iter().any(|ind| self.reaches_surface(ind)) {
-            // Nothing inside the undeformed top face: the undeformed gel is the answer.
-            self.force = Vector3::zeros();
-            self.loads.clear();
-            self.set_surface(|_| Vector3::zeros());
-            return;
-        }
         if self.linear.is_none() {
+            if self.reached_depth(sweep.indenters.iter().copied()) <= 0.0 {
+                // Nothing inside the undeformed top face yet: the undeformed gel is the
+                // answer, and nothing is built (once built, the contact solve finds this).
+                self.force = Vector3::zeros();
+                self.loads.clear();
+                self.set_surface(|_| Vector3::zeros());
+                return;
+            }
             match Compliance::new(self) {
                 Ok(c) => {
                     self.linear = Some(Box::new(c));
@@ -747,35 +743,6 @@ impl Gel {
             .collect();
         self.set_surface(|slot| contact.surface[slot] * dx);
         self.linear = Some(linear);
-    }
-
-    /// Whether the indenter `ind` reaches inside the undeformed top face, sampled at the
-    /// contact lattice's spacing over its bounds.
-    fn reaches_surface(&self, ind: &StepIndenter) -> bool {
-        let dx = self.layout.dx;
-        let step = self.contact_spacing(super::super::Solver::Linear);
-        let (lo, hi) = (ind.bounds.min, ind.bounds.max);
-        let [lx, ly, _] = self.params.size;
-        let (x0, x1) = (lo.x.max(-0.5 * lx), hi.x.min(0.5 * lx));
-        let (y0, y1) = (lo.y.max(-0.5 * ly), hi.y.min(0.5 * ly));
-        if x0 > x1 || y0 > y1 {
-            return false;
-        }
-        let z = self.layout.origin.z + self.top_ref[0].z as f64 * dx;
-        let (nx, ny) = (
-            ((x1 - x0) / step).ceil() as usize + 1,
-            ((y1 - y0) / step).ceil() as usize + 1,
-        );
-        (0..nx).any(|i| {
-            (0..ny).any(|j| {
-                let p = nalgebra::Point3::new(
-                    (x0 + i as f64 * step).min(x1),
-                    (y0 + j as f64 * step).min(y1),
-                    z,
-                );
-                ind.shape.distance(&ind.now.inverse_transform_point(&p)) < 0.0
-            })
-        })
     }
 }
 

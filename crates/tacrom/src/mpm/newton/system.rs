@@ -280,16 +280,10 @@ impl System {
         );
     }
 
-    /// Solves `K x = b` in place with the last factorisation.
+    /// Solves `K x = b` in place with the last factorisation (`b` of length `n`).
     pub fn solve(&self, b: &mut [f64]) {
-        let mut mem = MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
-        let rhs = MatMut::from_column_major_slice_mut(b, self.n, 1);
-        LltRef::new(&self.symbolic, &self.factor).solve_in_place_with_conj(
-            Conj::No,
-            rhs,
-            Par::Seq,
-            MemStack::new(&mut mem),
-        );
+        debug_assert_eq!(b.len(), self.n);
+        self.solve_block(b);
     }
 }
 

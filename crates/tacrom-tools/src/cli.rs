@@ -310,6 +310,9 @@ pub struct MpmArgs {
     /// Equilibrium solvers, each measured on every row, side by side [relaxation].
     #[arg(long, value_name = "NAME", value_delimiter = ',', value_parser = solver_name)]
     pub solver: Vec<tacrom::mpm::Solver>,
+    /// The gel's friction coefficient in the cost runs [0.5].
+    #[arg(long, value_name = "MU", value_parser = non_negative)]
+    pub friction: Option<f64>,
     /// Report folder.
     #[arg(long, value_name = "DIR", default_value = "out/bench/mpm")]
     pub out: PathBuf,

@@ -237,6 +237,7 @@ fn mpm(a: MpmArgs) -> Result<(), BenchError> {
         options.threads = a.threads;
     }
     options.frames = a.frames.unwrap_or(options.frames);
+    options.friction = a.friction.unwrap_or(options.friction);
     if !a.tolerances.is_empty() {
         options.tolerances = a.tolerances;
     }

@@ -353,23 +353,6 @@ pub mod defaults {
 }
 
 impl Config {
-    /// What this configuration asks for that its sensor will not do, as warnings for the
-    /// model's load: the linear solver's contact is frictionless.
-    pub fn notices(&self) -> Vec<String> {
-        let mut out = Vec::new();
-        if self.solver == Some(Solver::Linear)
-            && self.physics != Physics::Rigid
-            && self.friction > 0.0
-        {
-            out.push(format!(
-                "tacrom.tactile sensor '{}': solver=\"linear\" is frictionless: friction = {} \
-                 is not applied (the surface shears through Poisson's effect only)",
-                self.name, self.friction
-            ));
-        }
-        out
-    }
-
     /// The gel of this configuration on a grid of spacing `dx` (m).
     pub fn gel_params(&self, dx: f64) -> GelParams {
         GelParams {
@@ -1035,22 +1018,6 @@ mod tests {
         for (name, _) in Physics::ALL {
             assert!(msg.contains(name), "{msg}");
         }
-    }
-
-    #[test]
-    fn the_linear_solver_notes_that_it_ignores_friction() {
-        let c = parse(&[(ATTR_PHYSICS, "coarse"), (ATTR_SOLVER, "linear")]).unwrap();
-        let notes = c.notices();
-        assert!(
-            notes.len() == 1 && notes[0].contains("friction = 0.5"),
-            "{notes:?}"
-        );
-        let c = parse(&[(ATTR_SOLVER, "linear"), (ATTR_FRICTION, "0")]).unwrap();
-        assert!(c.notices().is_empty());
-        assert!(parse(&[(ATTR_SOLVER, "newton")])
-            .unwrap()
-            .notices()
-            .is_empty());
     }
 
     #[test]

@@ -79,6 +79,8 @@ pub struct MpmBenchOptions {
     pub work_frames: usize,
     /// Depths of the small-contact presses (m), increasing; empty: not run.
     pub small_depths: Vec<f64>,
+    /// The gel's friction coefficient in the cost runs (the default gel's, 0.5).
+    pub friction: f64,
 }
 
 impl MpmBenchOptions {
@@ -99,6 +101,7 @@ impl MpmBenchOptions {
             poissons: vec![0.3, 0.43, 0.49, 0.499],
             work_frames: 4,
             small_depths: vec![0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3],
+            friction: GelParams::default().friction,
         }
     }
 
@@ -169,6 +172,8 @@ pub struct SpeedRow {
     pub unconverged: usize,
     /// Bytes per particle, the grid's share included.
     pub bytes_per_particle: f64,
+    /// The gel's friction coefficient.
+    pub friction: f64,
 }
 
 impl SpeedRow {
@@ -495,14 +500,9 @@ pub fn speed_run(
     tolerance: f64,
     frames: usize,
     solver: Solver,
+    friction: f64,
 ) -> Result<SpeedRow, BenchError> {
-    let mut g = gel(
-        dx,
-        GelParams::default().friction,
-        threads,
-        tolerance,
-        solver,
-    )?;
+    let mut g = gel(dx, friction, threads, tolerance, solver)?;
     let n = g.num_particles();
     let (mut times, mut iters, mut active) = (Vec::new(), Vec::new(), Vec::new());
     let mut unconverged = 0;
@@ -536,6 +536,7 @@ pub fn speed_run(
         particle_steps_per_s: total_steps / total_time,
         unconverged,
         bytes_per_particle: Gel::bytes_per_particle() as f64 + g.grid_bytes() as f64 / n as f64,
+        friction,
     })
 }
 
@@ -626,7 +627,7 @@ pub fn run(options: &MpmBenchOptions) -> Result<MpmBenchResult, BenchError> {
                         dx * 1e3
                     );
                     progress.message(what.clone());
-                    let row = speed_run(dx, threads, tolerance, frames, solver)?;
+                    let row = speed_run(dx, threads, tolerance, frames, solver, options.friction)?;
                     progress.advance(1);
                     progress.line(&format!(
                         "{what}: median {:.1} ms/frame, {} it, {:.2e} particle-steps/s",
@@ -747,17 +748,19 @@ pub fn markdown(result: &MpmBenchResult) -> String {
         s.push('\n');
     }
     if !result.speed.is_empty() {
-        s.push_str(
-            "## Cost of a moving press\n\nDefault gel with friction 0.5, sphere R = 5 mm; each \
+        let _ = write!(
+            s,
+            "## Cost of a moving press\n\nDefault gel with friction {}, sphere R = 5 mm; each \
              frame 0.05 mm deeper and 0.02 mm along x, after a warm-up press at 0.1 mm. \
              Solve time only (no image). Active: particles the solve moved (median; the rest \
-             of the gel keeps its state; linear: contact points carrying a force, frictionless). \
+             of the gel keeps its state; linear: contact points carrying a force). \
              Particle-steps count active particles; iterations are explicit steps \
              (relaxation), Newton steps (newton) or linearisations of the contact \
              (linear).\n\n| solver | dx (mm) | particles | \
              active | tolerance | threads | frames | median ms | p90 ms | iterations \
              (median) | particle-steps/s | unconverged | bytes/particle |\n\
              |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+            result.speed[0].friction
         );
         for r in &result.speed {
             let _ = writeln!(s, "| {} |", r.cells(false).join(" | "));
@@ -1007,7 +1010,7 @@ mod tests {
     // The cost run at a coarse spacing reports consistent figures.
     #[test]
     fn speed_run_counts_particle_steps() {
-        let r = speed_run(2e-3, 1, 1e-3, 2, Solver::Relaxation).expect("run");
+        let r = speed_run(2e-3, 1, 1e-3, 2, Solver::Relaxation, 0.5).expect("run");
         assert_eq!(r.frames, 2);
         assert!(r.median_iterations > 0 && r.particle_steps_per_s > 0.0);
         assert!(r.bytes_per_particle >= Gel::bytes_per_particle() as f64);

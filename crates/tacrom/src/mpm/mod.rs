@@ -583,6 +583,9 @@ impl Gel {
         if let Some(n) = self.newton.as_mut() {
             n.reset();
         }
+        if let Some(l) = self.linear.as_mut() {
+            l.reset();
+        }
         self.total = None;
     }
 
@@ -679,7 +682,7 @@ impl Gel {
         }
         let sweep = self.plan_sweep(used, &matched);
         if self.options.solver == Solver::Linear {
-            self.solve_linear(&sweep, &mut report);
+            self.solve_linear(&sweep, &matched, &mut report);
             self.prev = current;
             self.resting = !touching && self.surface_box.is_none();
             return report;

@@ -365,8 +365,7 @@ pub unsafe extern "C" fn tacrom_init(
             .ok_or_else(|| format!("tacrom.tactile: plugin instance {instance} has no sensor"))?;
         let config = config_of(m, instance, sensor_id)?;
         let site = site_of(m, sensor_id, &config)?;
-        let (scene, mut warnings) = SceneSpec::build(m, site, &config)?;
-        warnings.extend(config.notices());
+        let (scene, warnings) = SceneSpec::build(m, site, &config)?;
         let sensor = TactileSensor::new(config).map_err(|e| e.to_string())?;
         let state = Box::new(Instance {
             sensor_id,

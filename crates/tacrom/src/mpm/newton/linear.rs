@@ -62,9 +62,9 @@
 //!   drags nothing and the surface shears only through Poisson's effect.
 //! * History: the answer depends on the current poses alone, not on the path to them.
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix2, Matrix3, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use super::super::contact::StepIndenter;
@@ -73,7 +73,10 @@ use super::super::{
     pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS,
 };
 use super::system::System;
-use super::{contact_lattice, contains, Newton, Stencil, PENALTY};
+use super::{contact_lattice, contains, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK};
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::llt;
+use faer::{Conj, MatMut, MatRef, Par};
 
 /// Steps at most of a march along the vertical ([`Compliance::vertical_gap`]), the
 /// smallest step (cells) down through an indenter, the bisections of the way out, and the
@@ -130,14 +133,24 @@ pub(crate) struct Compliance {
     /// The response (3 per node column, cells per internal force unit) of every node
     /// column to each column load computed so far (whole tiles).
     columns: HashMap<u32, Box<[f64]>>,
+    /// Coulomb friction coefficient; where it is positive, the responses to the columns'
+    /// lateral loads (+x, then +y: 6 per node column), computed as `columns`.
+    friction: f64,
+    shear: HashMap<u32, Box<[f64]>>,
+    /// Friction's history: the stick anchor of each lattice point in contact, its force on
+    /// the gel (internal units) and the node columns' mean displacement (cells, 3 per
+    /// column; empty: at rest) at the end of the last frame.
+    anchors: BTreeMap<u32, Anchor>,
+    lagged: HashMap<u32, Vector3<f64>>,
+    last: Vec<f64>,
 }
 
 /// One solve's answer.
 pub(crate) struct Contact {
-    /// Lattice points carrying a force: their deformed positions (cells) and forces
-    /// (internal units, downward on the gel); for the tests, their indices.
+    /// Lattice points carrying a force: their deformed positions (cells) and forces on
+    /// the gel (internal units: +x, +y, downward); for the tests, their indices.
     pub points: Vec<Vector3<f64>>,
-    pub forces: Vec<f64>,
+    pub forces: Vec<Vector3<f64>>,
     #[cfg(test)]
     pub loaded: Vec<u32>,
     /// For the tests: the node columns' mean displacement (cells, 3 per column).
@@ -210,6 +223,11 @@ impl Compliance {
             levels,
             weights: first.w[2],
             columns: HashMap::new(),
+            friction: gel.params.friction,
+            shear: HashMap::new(),
+            anchors: BTreeMap::new(),
+            lagged: HashMap::new(),
+            last: Vec::new(),
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
         Ok(c)
@@ -260,27 +278,48 @@ impl Compliance {
     }
 
     /// Computes the responses to the node columns `needed` not computed yet, whole tiles
-    /// at a time.
-    fn ensure(&mut self, needed: impl IntoIterator<Item = u32>) {
-        let tiles: BTreeSet<u32> = needed
-            .into_iter()
-            .filter(|c| !self.columns.contains_key(c))
-            .map(|c| self.tile_of(c))
-            .collect();
+    /// at a time: to their downward loads, and with friction to their lateral ones.
+    fn ensure(&mut self, needed: &[u32]) {
+        let missing = |c: &Self, have: &HashMap<u32, Box<[f64]>>| -> BTreeSet<u32> {
+            needed
+                .iter()
+                .filter(|k| !have.contains_key(k))
+                .map(|&k| c.tile_of(k))
+                .collect()
+        };
+        let down = missing(self, &self.columns);
+        for (c, r) in self.responses(&down, &[2]) {
+            self.columns.insert(c, r);
+        }
+        if self.friction > 0.0 {
+            let lateral = missing(self, &self.shear);
+            for (c, r) in self.responses(&lateral, &[0, 1]) {
+                self.shear.insert(c, r);
+            }
+        }
+    }
+
+    /// The responses of every node column to unit loads on each column of `tiles` along
+    /// `axes` (2: downward; 0, 1: +x, +y), 3 per node column and axis, in that order.
+    fn responses(&self, tiles: &BTreeSet<u32>, axes: &[usize]) -> Vec<(u32, Box<[f64]>)> {
         if tiles.is_empty() {
-            return;
+            return Vec::new();
         }
         let groups: Vec<Vec<u32>> = tiles
             .iter()
             .map(|&t| self.tile_columns(t).collect())
             .collect();
         let n = self.system.n;
-        let mut b = vec![0.0; n * groups.iter().map(Vec::len).sum::<usize>()];
+        let per = axes.len();
+        let mut b = vec![0.0; n * per * groups.iter().map(Vec::len).sum::<usize>()];
         let batch: Vec<u32> = groups.iter().flatten().copied().collect();
-        for (rhs, &c) in b.chunks_exact_mut(n).zip(&batch) {
-            for (&d, &w) in self.levels[c as usize].iter().zip(&self.weights) {
-                if d != u32::MAX {
-                    rhs[3 * d as usize + 2] -= w;
+        for (rhs, &c) in b.chunks_exact_mut(n * per).zip(&batch) {
+            for (rhs, &axis) in rhs.chunks_exact_mut(n).zip(axes) {
+                let sign = if axis == 2 { -1.0 } else { 1.0 };
+                for (&d, &w) in self.levels[c as usize].iter().zip(&self.weights) {
+                    if d != u32::MAX {
+                        rhs[3 * d as usize + axis] += sign * w;
+                    }
                 }
             }
         }
@@ -288,7 +327,7 @@ impl Compliance {
         let mut rest: &mut [f64] = &mut b;
         let mut parts = Vec::new();
         for group in &groups {
-            let (head, tail) = rest.split_at_mut(n * group.len());
+            let (head, tail) = rest.split_at_mut(n * per * group.len());
             parts.push(head);
             rest = tail;
         }
@@ -296,35 +335,36 @@ impl Compliance {
             .into_par_iter()
             .for_each(|part| self.system.solve_block(part));
         let columns: Vec<Box<[f64]>> = b
-            .par_chunks_exact(n)
-            .map(|x| {
-                let mut r = Vec::with_capacity(3 * self.levels.len());
-                for level in &self.levels {
-                    let mut u = [0.0; 3];
-                    for (&d, &w) in level.iter().zip(&self.weights) {
-                        if d != u32::MAX {
-                            for (k, u) in u.iter_mut().enumerate() {
-                                *u += w * x[3 * d as usize + k];
+            .par_chunks_exact(n * per)
+            .map(|xs| {
+                let mut r = Vec::with_capacity(3 * per * self.levels.len());
+                for x in xs.chunks_exact(n) {
+                    for level in &self.levels {
+                        let mut u = [0.0; 3];
+                        for (&d, &w) in level.iter().zip(&self.weights) {
+                            if d != u32::MAX {
+                                for (k, u) in u.iter_mut().enumerate() {
+                                    *u += w * x[3 * d as usize + k];
+                                }
                             }
                         }
+                        r.extend_from_slice(&u);
                     }
-                    r.extend_from_slice(&u);
                 }
                 r.into_boxed_slice()
             })
             .collect();
-        for (&c, r) in batch.iter().zip(columns) {
-            self.columns.insert(c, r);
-        }
+        batch.into_iter().zip(columns).collect()
     }
 
-    /// The column loads of downward forces `forces` at points with columns `stencils`.
-    fn column_loads(stencils: &[Columns], forces: &[f64]) -> Vec<(u32, f64)> {
-        let mut loads: Vec<(u32, f64)> = stencils
+    /// The column loads (+x, +y, downward) of forces `forces` on the gel (the same) at
+    /// points with columns `stencils`.
+    fn column_loads(stencils: &[Columns], forces: &[Vector3<f64>]) -> Vec<(u32, Vector3<f64>)> {
+        let mut loads: Vec<(u32, Vector3<f64>)> = stencils
             .iter()
             .zip(forces)
-            .filter(|(_, &f)| f > 0.0)
-            .flat_map(|(s, &f)| s.map(|(c, w)| (c, w * f)))
+            .filter(|(_, f)| *f != &Vector3::zeros())
+            .flat_map(|(s, &f)| s.map(|(c, w)| (c, f * w)))
             .collect();
         loads.sort_by_key(|&(c, _)| c);
         loads.dedup_by(|b, a| {
@@ -340,11 +380,19 @@ impl Compliance {
 
     /// The mean displacement (cells) of every node column under column loads `loads`
     /// (computed), 3 per column.
-    fn column_displacements(&self, loads: &[(u32, f64)]) -> Vec<f64> {
+    fn column_displacements(&self, loads: &[(u32, Vector3<f64>)]) -> Vec<f64> {
         let mut u = vec![0.0; 3 * self.levels.len()];
         for &(c, f) in loads {
-            for (u, &r) in u.iter_mut().zip(self.columns[&c].iter()) {
-                *u += f * r;
+            if f.z != 0.0 {
+                for (u, &r) in u.iter_mut().zip(self.columns[&c].iter()) {
+                    *u += f.z * r;
+                }
+            }
+            if f.x != 0.0 || f.y != 0.0 {
+                let (x, y) = self.shear[&c].split_at(u.len());
+                for ((u, &rx), &ry) in u.iter_mut().zip(x).zip(y) {
+                    *u += f.x * rx + f.y * ry;
+                }
             }
         }
         u
@@ -447,19 +495,77 @@ impl Compliance {
         out.into_iter().collect()
     }
 
-    /// The frictionless contact of the gel's surface with `indenters`, to a penetration of
-    /// at most `tolerance` times the deepest sinking beyond what the contact's compliance
-    /// allows.
-    pub fn contact(&mut self, indenters: &[StepIndenter], tolerance: f64) -> Contact {
+    /// Index of the indenter nearest to the point at `x` (cells), among those whose
+    /// bounds hold it.
+    fn nearest(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> Option<usize> {
+        let p = Point3::from(self.origin + x * self.dx);
+        indenters
+            .iter()
+            .enumerate()
+            .filter(|(_, ind)| contains(&ind.bounds, &p))
+            .map(|(m, ind)| (m, ind.shape.distance(&ind.now.inverse_transform_point(&p))))
+            .filter(|(_, d)| !d.is_nan())
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(m, _)| m)
+    }
+
+    /// Where the anchor `a` is now (cells).
+    fn anchor_at(&self, a: &Anchor, indenters: &[StepIndenter]) -> Option<Vector3<f64>> {
+        let ind = indenters.get(a.indenter)?;
+        Some(((ind.now * a.local).coords - self.origin) / self.dx)
+    }
+
+    /// The compliance of the node columns `local` (computed) under each other's loads,
+    /// symmetrised (reciprocal up to the solves' round-off): their sinking under their
+    /// downward loads, or with `lateral` all three components (+x, +y, sinking) under all
+    /// three loads (+x, +y, downward), 3 per column.
+    fn local_compliance(&self, local: &[u32], lateral: bool) -> DMatrix<f64> {
+        let down: Vec<&[f64]> = local.iter().map(|c| &self.columns[c][..]).collect();
+        let g = if lateral {
+            let shear: Vec<&[f64]> = local.iter().map(|c| &self.shear[c][..]).collect();
+            let n = 3 * self.levels.len();
+            DMatrix::from_fn(3 * local.len(), 3 * local.len(), |p, q| {
+                let (a, i, b, j) = (p / 3, p % 3, q / 3, q % 3);
+                let r = if j == 2 {
+                    down[b]
+                } else {
+                    &shear[b][j * n..(j + 1) * n]
+                };
+                let u = r[3 * local[a] as usize + i];
+                if i == 2 {
+                    -u
+                } else {
+                    u
+                }
+            })
+        } else {
+            DMatrix::from_fn(local.len(), local.len(), |a, b| {
+                -down[b][3 * local[a] as usize + 2]
+            })
+        };
+        (&g + g.transpose()) * 0.5
+    }
+
+    /// The contact of the gel's surface with `indenters` (which started the frame at
+    /// `starts`), to a penetration of at most `tolerance` times the deepest sinking beyond
+    /// what the contact's compliance allows; with friction, until the lagged normal forces
+    /// change by at most `tolerance` of their sum.
+    pub fn contact(
+        &mut self,
+        indenters: &[StepIndenter],
+        starts: &[Isometry3<f64>],
+        tolerance: f64,
+    ) -> Contact {
         let near = self.near(indenters);
         let rest: Vec<Vector3<f64>> = near.iter().map(|&k| self.point(k)).collect();
         let stencils: Vec<Columns> = rest.iter().map(|x| self.columns_at(x)).collect();
-        let mut forces = vec![0.0; near.len()];
+        let mut forces = vec![Vector3::zeros(); near.len()];
         let mut u: Vec<Vector3<f64>> = vec![Vector3::zeros(); near.len()];
         let (mut passes, mut iterations) = (0, 0);
         let mut penetration = 0.0;
         let mut converged = false;
         let mut columns = vec![0.0; 3 * self.levels.len()];
+        let friction = self.friction > 0.0;
         // Each point's constraint in the linear model's small-displacement setting: it
         // sinks at least as deep as the indenters' lower surface reaches below its rest
         // position (the vertical distance, negative where they are above it). Inside an
@@ -482,53 +588,167 @@ impl Compliance {
                 (delta[i], known[i]) = (depth(self, &rest[i]), true);
             }
         }
+        // With friction, the answer depends on the path: the forces, and the lagged normal
+        // forces, start from the last frame's.
+        for (f, k) in forces.iter_mut().zip(&near) {
+            *f = self.lagged.get(k).copied().unwrap_or(Vector3::zeros());
+        }
+        let mut lag: Vec<f64> = forces.iter().map(|f| f.z).collect();
+        let mut offsets = vec![Vector2::zeros(); near.len()];
+
         for pass in 0..MAX_PASSES {
             passes = pass + 1;
-            if deepest <= 0.0 && forces.iter().all(|&f| f == 0.0) {
+            if deepest <= 0.0 && forces.iter().all(|f| f.z == 0.0) {
                 converged = true;
                 penetration = 0.0;
                 break;
             }
             let cand: Vec<usize> = (0..near.len())
-                .filter(|&i| delta[i] > -reach || forces[i] > 0.0)
+                .filter(|&i| delta[i] > -reach || forces[i].z > 0.0)
                 .collect();
-            self.ensure(cand.iter().flat_map(|&i| stencils[i].map(|(c, _)| c)));
-            // The node columns the candidates touch, and their sinking under each other's
-            // loads (reciprocal up to the solves' round-off: the symmetric part).
+            // The node columns the candidates touch, and their compliance.
             let mut local: Vec<u32> = cand
                 .iter()
                 .flat_map(|&i| stencils[i].map(|(c, _)| c))
                 .collect();
             local.sort_unstable();
             local.dedup();
+            self.ensure(&local);
             let index = |col: u32| local.binary_search(&col).expect("listed") as u32;
             let rows: Vec<Columns> = cand
                 .iter()
                 .map(|&i| stencils[i].map(|(c, w)| (index(c), w)))
                 .collect();
-            let responses: Vec<&[f64]> = local.iter().map(|c| &self.columns[c][..]).collect();
-            let g = DMatrix::from_fn(local.len(), local.len(), |a, b| {
-                -responses[b][3 * local[a] as usize + 2]
-            });
-            let g = (&g + g.transpose()) * 0.5;
-            // Start from the columns' present loads.
-            let present = Self::column_loads(&stencils, &forces);
-            let mut l = DVector::from_iterator(
-                local.len(),
-                local.iter().map(|c| {
-                    present
-                        .binary_search_by_key(c, |&(col, _)| col)
-                        .map_or(0.0, |i| present[i].1)
-                }),
-            );
-            let d: Vec<f64> = cand.iter().map(|&i| delta[i]).collect();
-            let Some((f, steps)) = penalty_contact(&g, &rows, &d, self.softness, &mut l) else {
+            let g = self.local_compliance(&local, friction);
+            let Some(stiffness) = spd_inverse(&g) else {
                 break;
             };
-            iterations += steps;
-            forces.fill(0.0);
-            for (&i, &fi) in cand.iter().zip(&f) {
-                forces[i] = fi;
+            let d: Vec<f64> = cand.iter().map(|&i| delta[i]).collect();
+            let mut solved = true;
+            if friction && pass == 0 {
+                // The normal forces without friction first: the first lagged ones (the
+                // last frame's lateral forces kept, to tell which points held).
+                let none = vec![0.0; cand.len()];
+                let free = vec![Vector2::zeros(); cand.len()];
+                let friction = Friction {
+                    caps: &none,
+                    anchors: &free,
+                    held: &vec![false; cand.len()],
+                };
+                let mut l = DVector::zeros(3 * local.len());
+                match frictional_contact(
+                    &g,
+                    &stiffness,
+                    &rows,
+                    &d,
+                    self.softness,
+                    &friction,
+                    &mut l,
+                ) {
+                    Some((f, steps)) => {
+                        iterations += steps;
+                        for (&i, fi) in cand.iter().zip(&f) {
+                            (forces[i].z, lag[i]) = (fi.z, fi.z);
+                        }
+                    }
+                    None => solved = false,
+                }
+            }
+            // Start from the columns' present loads.
+            let present = Self::column_loads(&stencils, &forces);
+            let load = |c: &u32| {
+                present
+                    .binary_search_by_key(c, |&(col, _)| col)
+                    .map_or(Vector3::zeros(), |i| present[i].1)
+            };
+            if friction && solved {
+                let mut l = DVector::from_iterator(
+                    3 * local.len(),
+                    local.iter().flat_map(|c| load(c).data.0[0]),
+                );
+                let mut settled = false;
+                for _ in 0..MAX_LAGS {
+                    // Points that carry a lagged normal force without an anchor stick where
+                    // they were at the start of the frame, in their indenter's frame there.
+                    for &i in &cand {
+                        if lag[i] > 0.0 && !self.anchors.contains_key(&near[i]) {
+                            let x0 = rest[i]
+                                + if self.last.is_empty() {
+                                    Vector3::zeros()
+                                } else {
+                                    Self::displacement(&stencils[i], &self.last)
+                                };
+                            if let Some(m) = self.nearest(&rest[i], indenters) {
+                                let p0 = Point3::from(self.origin + x0 * self.dx);
+                                let local = starts[m].inverse_transform_point(&p0);
+                                self.anchors.insert(near[i], Anchor { indenter: m, local });
+                            }
+                        }
+                    }
+                    let caps: Vec<f64> = cand.iter().map(|&i| self.friction * lag[i]).collect();
+                    for &i in &cand {
+                        offsets[i] = self
+                            .anchors
+                            .get(&near[i])
+                            .and_then(|a| self.anchor_at(a, indenters))
+                            .map_or(Vector2::zeros(), |a| (a - rest[i]).xy());
+                    }
+                    let anchors: Vec<Vector2<f64>> = cand.iter().map(|&i| offsets[i]).collect();
+                    // Points whose friction was below its cap (last frame, or last pass).
+                    let held: Vec<bool> = cand
+                        .iter()
+                        .map(|&i| {
+                            let f = forces[i];
+                            f.z > 0.0 && f.xy().norm() < self.friction * f.z * (1.0 - HELD)
+                        })
+                        .collect();
+                    let friction = Friction {
+                        caps: &caps,
+                        anchors: &anchors,
+                        held: &held,
+                    };
+                    let Some((f, steps)) = frictional_contact(
+                        &g,
+                        &stiffness,
+                        &rows,
+                        &d,
+                        self.softness,
+                        &friction,
+                        &mut l,
+                    ) else {
+                        solved = false;
+                        break;
+                    };
+                    iterations += steps;
+                    forces.fill(Vector3::zeros());
+                    let (mut change, mut total) = (0.0, 0.0);
+                    for (&i, &fi) in cand.iter().zip(&f) {
+                        forces[i] = fi;
+                        change += (fi.z - lag[i]).abs();
+                        total += fi.z;
+                        lag[i] = fi.z;
+                    }
+                    if change <= tolerance * total {
+                        settled = true;
+                        break;
+                    }
+                }
+                solved &= settled;
+            } else {
+                let mut l = DVector::from_iterator(local.len(), local.iter().map(|c| load(c).z));
+                match penalty_contact(&g, &stiffness, &rows, &d, self.softness, &mut l) {
+                    Some((f, steps)) => {
+                        iterations += steps;
+                        forces.fill(Vector3::zeros());
+                        for (&i, &fi) in cand.iter().zip(&f) {
+                            forces[i] = Vector3::new(0.0, 0.0, fi);
+                        }
+                    }
+                    None => solved = false,
+                }
+            }
+            if !solved {
+                break;
             }
             columns = self.column_displacements(&Self::column_loads(&stencils, &forces));
             for (u, s) in u.iter_mut().zip(&stencils) {
@@ -538,7 +758,7 @@ impl Compliance {
             // The constraint's violation beyond what the contact's own compliance allows.
             penetration = (0..near.len())
                 .filter(|&i| known[i] && delta[i] > f64::NEG_INFINITY)
-                .map(|i| delta[i] + u[i].z - self.softness * forces[i])
+                .map(|i| delta[i] + u[i].z - self.softness * forces[i].z)
                 .fold(0.0, f64::max);
             // Points left out that the surface rose above their clearance: in, and again.
             let risen: Vec<usize> = (0..near.len())
@@ -555,19 +775,23 @@ impl Compliance {
                 break;
             }
         }
+        if friction {
+            self.slide(&near, &forces, &u, &offsets, &rest, indenters);
+        }
         let surface = self
             .slots
             .iter()
             .map(|s| Self::displacement(s, &columns))
             .collect();
-        let loaded: Vec<usize> = (0..near.len()).filter(|&i| forces[i] > 0.0).collect();
+        self.last = columns;
+        let loaded: Vec<usize> = (0..near.len()).filter(|&i| forces[i].z > 0.0).collect();
         Contact {
             #[cfg(test)]
             loaded: loaded.iter().map(|&i| near[i]).collect(),
             points: loaded.iter().map(|&i| rest[i] + u[i]).collect(),
             forces: loaded.iter().map(|&i| forces[i]).collect(),
             #[cfg(test)]
-            columns,
+            columns: self.last.clone(),
             surface,
             penetration,
             passes,
@@ -575,10 +799,146 @@ impl Compliance {
             converged,
         }
     }
+
+    /// After a frame with friction (points `near`, their forces on the gel, displacements,
+    /// anchors' lateral offsets from the rest positions `rest`): points out of contact
+    /// lose their anchors, those sliding drag theirs to the stick radius; the normal
+    /// forces are kept to start the next frame's lagged ones.
+    fn slide(
+        &mut self,
+        near: &[u32],
+        forces: &[Vector3<f64>],
+        u: &[Vector3<f64>],
+        offsets: &[Vector2<f64>],
+        rest: &[Vector3<f64>],
+        indenters: &[StepIndenter],
+    ) {
+        let mut kept = BTreeMap::new();
+        self.lagged.clear();
+        for (i, &k) in near.iter().enumerate() {
+            if forces[i].z <= 0.0 {
+                continue;
+            }
+            self.lagged.insert(k, forces[i]);
+            let Some(mut a) = self.anchors.get(&k).copied() else {
+                continue;
+            };
+            let Some(at) = self.anchor_at(&a, indenters) else {
+                continue;
+            };
+            let t = u[i].xy() - offsets[i];
+            let y = t.norm();
+            if y > STICK {
+                let moved = Vector3::new(rest[i].x + offsets[i].x, rest[i].y + offsets[i].y, at.z)
+                    + Vector3::new(t.x, t.y, 0.0) * (1.0 - STICK / y);
+                let p = Point3::from(self.origin + moved * self.dx);
+                a.local = indenters[a.indenter].now.inverse_transform_point(&p);
+            }
+            kept.insert(k, a);
+        }
+        self.anchors = kept;
+    }
+
+    /// Renumbers the anchors' indenters (`matched[i]`: previous index of indenter `i`);
+    /// anchors of indenters that are gone are dropped.
+    pub fn remap(&mut self, matched: &[Option<usize>]) {
+        let new_index: BTreeMap<usize, usize> = matched
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| m.map(|j| (j, i)))
+            .collect();
+        self.anchors
+            .retain(|_, a| match new_index.get(&a.indenter) {
+                Some(&i) => {
+                    a.indenter = i;
+                    true
+                }
+                None => false,
+            });
+    }
+
+    /// Back to the undeformed gel without contact history (the factor and the
+    /// responses stay: they depend on the gel alone).
+    pub fn reset(&mut self) {
+        self.anchors.clear();
+        self.lagged.clear();
+        self.last.clear();
+    }
+}
+
+/// The inverse of the symmetric positive definite `a` (faer's Cholesky, in the calling
+/// thread); `None` if it is not positive definite.
+fn spd_inverse(a: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let n = a.nrows();
+    let mut l = a.clone();
+    cholesky(&mut l)?;
+    let mut out = DMatrix::zeros(n, n);
+    let mut mem = MemBuffer::new(llt::inverse::inverse_scratch::<f64>(n, Par::Seq));
+    llt::inverse::inverse(
+        MatMut::from_column_major_slice_mut(out.as_mut_slice(), n, n),
+        MatRef::from_column_major_slice(l.as_slice(), n, n),
+        Par::Seq,
+        MemStack::new(&mut mem),
+    );
+    // The inverse is written to one triangle: mirror it.
+    out.fill_upper_triangle_with_lower_triangle();
+    Some(out)
+}
+
+/// Overwrites the lower triangle of the symmetric positive definite `a` with its
+/// Cholesky factor (faer, in the calling thread); `None` if it is not positive definite.
+fn cholesky(a: &mut DMatrix<f64>) -> Option<()> {
+    let n = a.nrows();
+    let mut mem = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+        n,
+        Par::Seq,
+        Default::default(),
+    ));
+    llt::factor::cholesky_in_place(
+        MatMut::from_column_major_slice_mut(a.as_mut_slice(), n, n),
+        Default::default(),
+        Par::Seq,
+        MemStack::new(&mut mem),
+        Default::default(),
+    )
+    .ok()
+    .map(|_| ())
+}
+
+/// Solves `a x = b` in place, `a` overwritten by [`cholesky`].
+fn cholesky_solve(a: &DMatrix<f64>, b: &mut DVector<f64>) {
+    let n = a.nrows();
+    llt::solve::solve_in_place_with_conj(
+        MatRef::from_column_major_slice(a.as_slice(), n, n),
+        Conj::No,
+        MatMut::from_column_major_slice_mut(b.as_mut_slice(), n, 1),
+        Par::Seq,
+        MemStack::new(&mut MemBuffer::new(StackReq::EMPTY)),
+    );
+}
+
+/// The Newton step `d` of `(I + W^T Phi'' W G) d = -r` (`Phi''` the points' stiffness,
+/// positive semi-definite, already added to `system = G^-1 + W^T Phi'' W`): `d = G^-1 z`
+/// with `system z = -r`, symmetric positive definite.
+fn newton_step(
+    mut system: DMatrix<f64>,
+    inverse: &DMatrix<f64>,
+    r: &DVector<f64>,
+) -> Option<DVector<f64>> {
+    cholesky(&mut system)?;
+    let mut z = -r;
+    cholesky_solve(&system, &mut z);
+    Some(inverse * z)
 }
 
 /// Newton iterations at most per contact solve.
 const MAX_NEWTON: usize = 60;
+
+/// Refreshes of friction's lagged normal forces at most per solve.
+const MAX_LAGS: usize = 12;
+
+/// Residual (relative to the loads) at which a frictional contact solve stops.
+const FRICTION_RESIDUAL: f64 = 1e-10;
 
 /// Line search halvings at most per iteration.
 const MAX_HALVINGS: usize = 40;
@@ -600,6 +960,7 @@ const MAX_HALVINGS: usize = 40;
 /// iterations, or `None` if they run out or a solve fails.
 fn penalty_contact(
     g: &DMatrix<f64>,
+    inverse: &DMatrix<f64>,
     w: &[Columns],
     delta: &[f64],
     eps: f64,
@@ -639,16 +1000,15 @@ fn penalty_contact(
         if r.amax() <= 1e-12 * scale || scale == 0.0 {
             return Some((f, it));
         }
-        let mut wtw = DMatrix::zeros(k, k);
+        let mut system = inverse.clone();
         for (row, _) in w.iter().zip(&f).filter(|(_, &f)| f > 0.0) {
             for &(a, wa) in row {
                 for &(b, wb) in row {
-                    wtw[(a as usize, b as usize)] += wa * wb / eps;
+                    system[(a as usize, b as usize)] += wa * wb / eps;
                 }
             }
         }
-        let system = DMatrix::identity(k, k) + wtw * g;
-        let mut step = system.lu().solve(&(-&r))?;
+        let mut step = newton_step(system, inverse, &r)?;
         // The energy's slope along the step, `(G r) . d`; where round-off spoils the
         // Newton direction, the gradient's own.
         let gr = g * &r;
@@ -682,10 +1042,165 @@ fn penalty_contact(
     None
 }
 
+/// Friction's data per point of [`frictional_contact`]: the cap of its force (`mu` times
+/// its lagged normal force), its anchor's lateral offset from its rest position (cells),
+/// and whether it held (its friction below the cap) in the last answer: the first
+/// Newton step takes it as sticking (its anchor has moved with the indenter since, and
+/// it would otherwise start as sliding, which takes a step per point that sticks again).
+struct Friction<'a> {
+    caps: &'a [f64],
+    anchors: &'a [Vector2<f64>],
+    held: &'a [bool],
+}
+
+/// Friction below this fraction of its cap holds ([`Friction::held`]).
+const HELD: f64 = 1e-6;
+
+/// The penalty contact with friction, in the node columns' loads `l` (+x, +y and
+/// downward per column): the columns move `v = G l` (+x, +y and sinking; `G` symmetric,
+/// positive definite), the points `s = W v`; each presses with `f = max(0, delta - s_z) /
+/// eps` and, where it carries a lagged normal force, `caps = mu f_lagged`, is held towards
+/// its anchor (lateral offset `anchors` from its rest position) by Coulomb friction
+/// smoothed as Newton's: the lateral offset `y = |s_xy - anchor|` costs `cap f0(y)`, `f0`
+/// quadratic up to [`STICK`] and linear beyond (the full sliding force `cap`). The energy
+/// `E(l) = l^T G l / 2 + sum_p (eps f_p^2 / 2 + cap_p f0(y_p))` is convex, its gradient
+/// `G (l - W^T F)` with `F` the points' forces on the gel; Newton's method with its
+/// Hessian (the points' contact and friction stiffness, per 3 x 3 block; any positive
+/// semi-definite stiffness gives a descent direction, so the first step's held points
+/// may stick) and Armijo's backtracking, as [`penalty_contact`], to a residual of [`FRICTION_RESIDUAL`] of the
+/// loads. Starts from `l` (updated); returns the forces on the gel (+x, +y, downward) and
+/// the iterations, or `None` if they run out or a solve fails.
+fn frictional_contact(
+    g: &DMatrix<f64>,
+    inverse: &DMatrix<f64>,
+    w: &[Columns],
+    delta: &[f64],
+    eps: f64,
+    friction: &Friction,
+    l: &mut DVector<f64>,
+) -> Option<(Vec<Vector3<f64>>, usize)> {
+    let Friction {
+        caps,
+        anchors,
+        held,
+    } = *friction;
+    let k = g.nrows();
+    // The points' displacements and forces at `l` and the energy there, from one `G l`.
+    let evaluate = |l: &DVector<f64>| -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>, f64) {
+        let v = g * l;
+        let mut e = 0.5 * l.dot(&v);
+        let mut at = Vec::with_capacity(w.len());
+        let mut out = Vec::with_capacity(w.len());
+        for (i, row) in w.iter().enumerate() {
+            let mut s = Vector3::zeros();
+            for &(c, wt) in row {
+                let c = 3 * c as usize;
+                s += Vector3::new(v[c], v[c + 1], v[c + 2]) * wt;
+            }
+            let f = ((delta[i] - s.z) / eps).max(0.0);
+            e += 0.5 * eps * f * f;
+            let mut t = Vector2::zeros();
+            if caps[i] > 0.0 {
+                let d = s.xy() - anchors[i];
+                let y = d.norm();
+                e += caps[i] * smooth_slip(y);
+                t = -d * (caps[i] / y.max(STICK));
+            }
+            at.push(s);
+            out.push(Vector3::new(t.x, t.y, f));
+        }
+        (at, out, e)
+    };
+    let loads = |f: &[Vector3<f64>]| -> DVector<f64> {
+        let mut out = DVector::zeros(k);
+        for (row, f) in w.iter().zip(f) {
+            for &(c, wt) in row {
+                let c = 3 * c as usize;
+                for j in 0..3 {
+                    out[c + j] += wt * f[j];
+                }
+            }
+        }
+        out
+    };
+    let (mut s, mut f, mut e) = evaluate(l);
+    for it in 0..MAX_NEWTON {
+        let wf = loads(&f);
+        let r = &*l - &wf;
+        let scale = l.amax().max(wf.amax());
+        if r.amax() <= FRICTION_RESIDUAL * scale || scale == 0.0 {
+            return Some((f, it));
+        }
+        // `G^-1 + W^T Phi'' W`, with each point's stiffness (penalty where it presses,
+        // friction's where it carries a cap) on its columns: symmetric positive definite.
+        let mut system = inverse.clone();
+        for (i, row) in w.iter().enumerate() {
+            let mut h = Matrix3::zeros();
+            if f[i].z > 0.0 {
+                h[(2, 2)] = 1.0 / eps;
+            }
+            if caps[i] > 0.0 {
+                let d = s[i].xy() - anchors[i];
+                let y = d.norm();
+                let t = if y < STICK || (it == 0 && held[i]) {
+                    Matrix2::identity() * (caps[i] / STICK)
+                } else {
+                    let n = d / y;
+                    (Matrix2::identity() - n * n.transpose()) * (caps[i] / y)
+                };
+                h.fixed_view_mut::<2, 2>(0, 0).copy_from(&t);
+            }
+            if h == Matrix3::zeros() {
+                continue;
+            }
+            for &(a, wa) in row {
+                for &(b, wb) in row {
+                    let mut block = system.fixed_view_mut::<3, 3>(3 * a as usize, 3 * b as usize);
+                    block += h * (wa * wb);
+                }
+            }
+        }
+        let mut step = newton_step(system, inverse, &r)?;
+        let gr = g * &r;
+        let mut slope = gr.dot(&step);
+        if !(slope < 0.0) {
+            step = -&r;
+            slope = -gr.dot(&r);
+        }
+        let mut alpha = 1.0;
+        let mut accepted = false;
+        for _ in 0..MAX_HALVINGS {
+            let trial = &*l + &step * alpha;
+            let (st, ft, et) = evaluate(&trial);
+            // Armijo's decrease; where the energy's change is below its round-off (near
+            // the answer, where it changes by the residual squared), a smaller residual.
+            let unresolved = (et - e).abs() <= 16.0 * f64::EPSILON * e.abs();
+            if et <= e + 1e-4 * alpha * slope
+                || (unresolved && (&trial - loads(&ft)).amax() < r.amax())
+            {
+                (*l, s, f, e) = (trial, st, ft, et);
+                accepted = true;
+                break;
+            }
+            alpha *= 0.5;
+        }
+        if !accepted {
+            // No decrease left to find: the energy is at its minimum to round-off.
+            return Some((f, it + 1));
+        }
+    }
+    None
+}
+
 impl Gel {
-    /// The linear solver's frame: the frictionless contact of the small-strain gel with
-    /// the indenters at the end of `sweep`.
-    pub(in crate::mpm) fn solve_linear(&mut self, sweep: &Sweep, report: &mut SolveReport) {
+    /// The linear solver's frame: the contact of the small-strain gel with the indenters
+    /// at the end of `sweep` (`matched[i]`: the previous index of indenter `i`).
+    pub(in crate::mpm) fn solve_linear(
+        &mut self,
+        sweep: &Sweep,
+        matched: &[Option<usize>],
+        report: &mut SolveReport,
+    ) {
         let dx = self.layout.dx;
         let mut placed = Vec::new();
         sweep.place(sweep.steps.max(1) - 1, dx, &mut placed);
@@ -711,8 +1226,9 @@ impl Gel {
             }
         }
         let mut linear = self.linear.take().expect("built above");
+        linear.remap(matched);
         let before = linear.columns();
-        let contact = linear.contact(&placed, self.options.tolerance);
+        let contact = linear.contact(&placed, &sweep.starts, self.options.tolerance);
         report.columns = linear.columns() - before;
         report.iterations = contact.passes;
         report.cg_iterations = contact.iterations;
@@ -726,18 +1242,19 @@ impl Gel {
             0.0
         };
         let scale = self.modulus * dx * dx;
-        let total: f64 = contact.forces.iter().sum();
-        self.force = Vector3::new(0.0, 0.0, total * scale);
+        // The gel's force on the indenters: the reverse of theirs on it (+x, +y, downward).
+        let on_indenters = |f: &Vector3<f64>| Vector3::new(-f.x, -f.y, f.z) * scale;
+        self.force = contact.forces.iter().map(on_indenters).sum();
         self.loads = contact
             .points
             .iter()
             .zip(&contact.forces)
-            .map(|(x, &f)| {
+            .map(|(x, f)| {
                 let x = self.layout.origin + x * dx;
                 ContactLoad {
                     at: [x.x, x.y],
                     z: x.z,
-                    force: Vector3::new(0.0, 0.0, f * scale),
+                    force: on_indenters(f),
                 }
             })
             .collect();

@@ -83,7 +83,8 @@ fn the_penalty_contact_solves_the_complementarity_problem() {
         });
         let h = DMatrix::identity(m, m) * eps + &wm * &g * wm.transpose();
         let mut l = DVector::zeros(k);
-        let (f, _) = penalty_contact(&g, &rows, &delta, eps, &mut l).expect("solved");
+        let inverse = spd_inverse(&g).expect("positive definite");
+        let (f, _) = penalty_contact(&g, &inverse, &rows, &delta, eps, &mut l).expect("solved");
         let w = &h * DVector::from_column_slice(&f) - DVector::from_column_slice(&delta);
         for i in 0..m {
             assert!(f[i] >= 0.0, "trial {trial}: f[{i}] = {}", f[i]);
@@ -120,7 +121,7 @@ fn the_compliance_is_reciprocal() {
     let mut c = Compliance::new(&g).unwrap();
     // Columns under the top face (the slots' centre columns).
     let cols: Vec<u32> = c.slots.iter().step_by(5).map(|s| s[4].0).collect();
-    c.ensure(cols.iter().copied());
+    c.ensure(&cols);
     let sink = |c: &Compliance, a: u32, b: u32| -c.columns[&b][3 * a as usize + 2];
     let peak = cols.iter().map(|&b| sink(&c, b, b)).fold(0.0, f64::max);
     assert!(peak > 0.0);
@@ -159,9 +160,10 @@ fn contact_neither_penetrates_nor_pulls() {
     ];
     let indenters = step(&placed, g.layout.dx);
     let tolerance = 1e-3;
-    let contact = c.contact(&indenters, tolerance);
+    let poses: Vec<Isometry3<f64>> = placed.iter().map(|p| p.pose).collect();
+    let contact = c.contact(&indenters, &poses, tolerance);
     assert!(contact.converged && contact.loaded.len() >= 2);
-    assert!(contact.forces.iter().all(|&f| f > 0.0));
+    assert!(contact.forces.iter().all(|f| f.z > 0.0));
     let near = c.near(&indenters);
     assert!(near.len() > 100);
     // The linear model's small-displacement setting: each point sinks in place.
@@ -183,7 +185,7 @@ fn contact_neither_penetrates_nor_pulls() {
             .loaded
             .iter()
             .position(|&j| j == k)
-            .map_or(0.0, |i| contact.forces[i]);
+            .map_or(0.0, |i| contact.forces[i].z);
         if let Some(h) = c.vertical_gap(&x, &indenters) {
             worst = worst.max(-h - tolerance * sinking - c.softness * f);
         }
@@ -292,4 +294,217 @@ fn nothing_is_built_without_contact_and_fine_grids_are_refused() {
     };
     let e = Gel::new(fine, options(1)).unwrap_err().to_string();
     assert!(e.contains("dx") && e.contains("linear"), "{e}");
+}
+
+/// The energy that [`frictional_contact`] minimises, written out on its own: the gel's
+/// complementary energy, the penalty and the smoothed Coulomb friction.
+fn friction_energy(
+    g: &DMatrix<f64>,
+    rows: &[Columns],
+    delta: &[f64],
+    eps: f64,
+    caps: &[f64],
+    anchors: &[Vector2<f64>],
+    l: &DVector<f64>,
+) -> f64 {
+    let v = g * l;
+    let mut e = 0.5 * l.dot(&v);
+    for (i, row) in rows.iter().enumerate() {
+        let s: Vector3<f64> = row
+            .iter()
+            .map(|&(c, w)| v.fixed_rows::<3>(3 * c as usize) * w)
+            .sum();
+        let pressed = (delta[i] - s.z).max(0.0);
+        e += pressed * pressed / (2.0 * eps);
+        let y = (s.xy() - anchors[i]).norm();
+        e += caps[i]
+            * if y < STICK {
+                y * y / (2.0 * STICK)
+            } else {
+                y - STICK / 2.0
+            };
+    }
+    e
+}
+
+/// On random problems (up to 8 columns, 3 loads each, and 30 points), the frictional
+/// contact returns the minimum of its convex energy: the loads balance the points'
+/// forces (the energy's gradient `G (l - W^T F)` vanishes) to 1e-8 of the loads, no
+/// point's friction exceeds its cap, and no random move of the loads lowers the energy.
+/// Without caps it carries no lateral load and its normal forces are the frictionless
+/// solve's on the vertical block of the same compliance.
+#[test]
+fn the_frictional_contact_is_the_minimum_of_its_energy() {
+    let mut noise = Noise(0x2545_f491_4f6c_dd1d);
+    for trial in 0..40 {
+        let k = 1 + trial % 8;
+        let m = 1 + (trial * 7) % 30;
+        let a = DMatrix::from_fn(3 * k, 3 * k, |_, _| noise.next());
+        let g = &a * a.transpose() + DMatrix::identity(3 * k, 3 * k) * 0.05;
+        let rows: Vec<Columns> = (0..m)
+            .map(|_| {
+                std::array::from_fn(|_| {
+                    let c = ((noise.next() + 1.0) * 0.5 * k as f64) as u32 % k as u32;
+                    (c, (noise.next() + 1.0) / 18.0)
+                })
+            })
+            .collect();
+        let delta: Vec<f64> = (0..m).map(|_| noise.next()).collect();
+        let eps = 0.02;
+        let caps: Vec<f64> = (0..m).map(|_| (noise.next() + 1.0) * 0.5).collect();
+        let anchors: Vec<Vector2<f64>> = (0..m)
+            .map(|_| Vector2::new(noise.next(), noise.next()) * 0.3)
+            .collect();
+        let held: Vec<bool> = (0..m).map(|_| noise.next() > 0.0).collect();
+        let inverse = spd_inverse(&g).expect("positive definite");
+        let friction = Friction {
+            caps: &caps,
+            anchors: &anchors,
+            held: &held,
+        };
+        let mut l = DVector::zeros(3 * k);
+        let (f, _) = frictional_contact(&g, &inverse, &rows, &delta, eps, &friction, &mut l)
+            .expect("solved");
+        let mut balance = l.clone();
+        for (row, f) in rows.iter().zip(&f) {
+            for &(c, w) in row {
+                let mut at = balance.fixed_rows_mut::<3>(3 * c as usize);
+                at -= f * w;
+            }
+        }
+        let scale = l.amax().max(1e-300);
+        assert!(
+            balance.amax() <= 1e-8 * scale,
+            "trial {trial}: {}",
+            balance.amax()
+        );
+        for (i, f) in f.iter().enumerate() {
+            assert!(
+                f.z >= 0.0 && f.xy().norm() <= caps[i] * (1.0 + 1e-12),
+                "trial {trial}"
+            );
+        }
+        let e = friction_energy(&g, &rows, &delta, eps, &caps, &anchors, &l);
+        for _ in 0..20 {
+            let step = DVector::from_fn(3 * k, |_, _| noise.next() * 1e-3 * (scale + 1e-3));
+            let moved = friction_energy(&g, &rows, &delta, eps, &caps, &anchors, &(&l + step));
+            assert!(
+                moved >= e - 1e-12 * e.abs().max(1.0),
+                "trial {trial}: {moved} < {e}"
+            );
+        }
+        // Without friction: no lateral load, and the frictionless solve's forces.
+        let none = vec![0.0; m];
+        let friction = Friction {
+            caps: &none,
+            ..friction
+        };
+        let mut l = DVector::zeros(3 * k);
+        let (f, _) = frictional_contact(&g, &inverse, &rows, &delta, eps, &friction, &mut l)
+            .expect("solved");
+        let vertical = DMatrix::from_fn(k, k, |a, b| g[(3 * a + 2, 3 * b + 2)]);
+        let mut lz = DVector::zeros(k);
+        let inverse = spd_inverse(&vertical).expect("positive definite");
+        let (fz, _) =
+            penalty_contact(&vertical, &inverse, &rows, &delta, eps, &mut lz).expect("solved");
+        for (f, fz) in f.iter().zip(&fz) {
+            assert!(f.x == 0.0 && f.y == 0.0);
+            assert!(
+                (f.z - fz).abs() <= 1e-8 * (1.0 + fz.abs()),
+                "{} against {fz}",
+                f.z
+            );
+        }
+    }
+}
+
+/// The small gel with friction `mu`.
+fn rough_gel(mu: f64) -> GelParams {
+    GelParams {
+        friction: mu,
+        ..small_gel()
+    }
+}
+
+/// A 3 mm sphere pressed 0.25 mm into the small gel with friction 2, then moved 20 um
+/// sideways: the points that stick (their friction below its cap) move with it, to the
+/// stick radius plus the press tolerance of their motion; they carry most of the
+/// contact, and the gel holds the sphere back.
+#[test]
+fn stuck_points_follow_the_indenter() {
+    let g = Gel::new(rough_gel(2.0), options(1)).unwrap();
+    let mut c = Compliance::new(&g).unwrap();
+    let s = ball(3e-3);
+    let dx = g.layout.dx;
+    let first = [at(&s, 3e-3, 0.0, 0.0, 0.25e-3)];
+    let shift = 20e-6;
+    let second = [at(&s, 3e-3, shift, 0.0, 0.25e-3)];
+    let tolerance = 1e-6;
+    let before = c.contact(&step(&first, dx), &[first[0].pose], tolerance);
+    // A centred press: friction holds the surface against Poisson's outward push
+    // symmetrically, with no net lateral force.
+    let (lateral, normal) = before
+        .forces
+        .iter()
+        .fold((Vector2::zeros(), 0.0), |(t, n), f| (t + f.xy(), n + f.z));
+    assert!(
+        before.converged && lateral.norm() <= 1e-9 * normal,
+        "{lateral}"
+    );
+    let after = c.contact(&step(&second, dx), &[first[0].pose], tolerance);
+    assert!(after.converged);
+    let moved = |k: u32| {
+        let s = c.columns_at(&c.point(k));
+        (Compliance::displacement(&s, &after.columns)
+            - Compliance::displacement(&s, &before.columns))
+        .xy()
+    };
+    let (mut stuck, mut total) = (0.0, 0.0);
+    for (&k, f) in after.loaded.iter().zip(&after.forces) {
+        total += f.z;
+        if f.xy().norm() < 2.0 * f.z * (1.0 - 1e-3) {
+            stuck += f.z;
+            let off = (moved(k) - Vector2::new(shift / dx, 0.0)).norm();
+            assert!(off <= STICK * (1.0 + 1e-6), "point {k} slipped {off} cells");
+        }
+    }
+    assert!(stuck > 0.5 * total, "stuck {stuck} of {total}");
+    let mut gel = Gel::new(rough_gel(2.0), options(1)).unwrap();
+    gel.solve(&first);
+    gel.solve(&second);
+    assert!(gel.force().x < 0.0 && gel.force().y.abs() < 1e-9 * gel.force().z);
+}
+
+/// Slid 1 mm in four frames with friction 0.3, every point slides: the lateral force is
+/// friction times the normal force (within the lagged forces' tolerance and the spread
+/// of the points' sliding directions), and sliding the other way mirrors it to
+/// round-off. A reset forgets the history: the next press equals a fresh gel's.
+#[test]
+fn a_sliding_press_carries_mu_times_its_normal_force() {
+    let mu = 0.3;
+    let s = ball(3e-3);
+    let slide = |sign: f64| {
+        let mut g = Gel::new(rough_gel(mu), options(1)).unwrap();
+        assert!(g.solve(&[at(&s, 3e-3, 0.0, 0.0, 0.25e-3)]).converged);
+        for k in 1..=4 {
+            let x = sign * 0.25e-3 * k as f64;
+            assert!(g.solve(&[at(&s, 3e-3, x, 0.0, 0.25e-3)]).converged);
+        }
+        g
+    };
+    let (mut right, left) = (slide(1.0), slide(-1.0));
+    let (f, o) = (right.force(), left.force());
+    let ratio = -f.x / (mu * f.z);
+    assert!(
+        (0.97..=1.0 + 1e-3).contains(&ratio),
+        "F_x / (mu F_z) = {ratio}"
+    );
+    assert!((f.x + o.x).abs() <= 1e-9 * f.z && (f.z - o.z).abs() <= 1e-9 * f.z);
+    assert!((f.y - o.y).abs() <= 1e-9 * f.z);
+    right.reset();
+    let press = [at(&s, 3e-3, 0.4e-3, 0.0, 0.2e-3)];
+    right.solve(&press);
+    let mut fresh = Gel::new(rough_gel(mu), options(1)).unwrap();
+    fresh.solve(&press);
+    assert!(right.force() == fresh.force() && right.surface_u == fresh.surface_u);
 }

@@ -125,6 +125,42 @@ def test_linear_solver_through_mujoco(press_xml):
         np.testing.assert_array_equal(again[name], first[0.3e-3][name])
 
 
+def test_linear_solver_friction_through_mujoco(press_xml):
+    """``solver="linear"`` with friction 0.5: the 5 mm sphere pressed 0.3 mm and slid
+    sideways. The gel holds it back (a lateral force against the motion) that grows while
+    the contact sticks and never exceeds friction times the normal force; slid 1 mm it
+    slides, carrying friction times the normal force (within 3 %: the lagged normal
+    forces' tolerance and the spread of the points' sliding directions). Frictionless, the
+    same slide carries no lateral force at all."""
+    slid = press_xml.replace(
+        '<joint name="press" type="slide" axis="0 0 -1" range="-0.002 0.003" damping="5"/>',
+        '<joint name="press" type="slide" axis="0 0 -1" range="-0.002 0.003" damping="5"/>'
+        '<joint name="slide" type="slide" axis="1 0 0"/>',
+    )
+
+    def slide(friction, xs):
+        model = mujoco.MjModel.from_xml_string(
+            with_config(slid, physics="coarse", solver="linear", friction=friction,
+                        outputs="force", resolution="32 24")
+        )
+        data = mujoco.MjData(model)
+        out = []
+        for x in xs:
+            data.qpos[:2] = (0.3e-3, x)
+            mujoco.mj_forward(model, data)
+            out.append(tacrom.outputs(model, data, "touch")["force"].copy())
+        return np.array(out)
+
+    small = slide("0.5", [0.0, 5e-6, 10e-6, 20e-6])
+    assert np.all(small[1:, 0] < 0), small
+    assert np.all(np.diff(small[:, 0]) < 0), small
+    assert np.all(np.abs(small[:, 0]) <= 0.5 * small[:, 2] * 1.001), small
+    far = slide("0.5", [0.0, 0.25e-3, 0.5e-3, 0.75e-3, 1e-3])[-1]
+    assert abs(-far[0] / (0.5 * far[2]) - 1) < 0.03, far
+    frictionless = slide("0", [0.0, 0.25e-3, 0.5e-3])
+    assert np.all(frictionless[:, :2] == 0), frictionless
+
+
 def test_solver_threads_do_not_change_results(press_xml):
     images = []
     for threads in ("1", "2"):

@@ -172,8 +172,8 @@ pub enum Solver {
     /// points (total-Lagrangian, `mpm/total.rs`), whose equilibrium does not depend on
     /// the path.
     Total,
-    /// Linear elasticity about the undeformed gel with frictionless contact, solved
-    /// exactly on a surface compliance kept per node column (`mpm/newton/linear.rs`): a
+    /// Linear elasticity about the undeformed gel with contact and Coulomb friction,
+    /// solved on a surface compliance kept per node column (`mpm/newton/linear.rs`): a
     /// frame costs no pass over the particles.
     Linear,
 }

@@ -1,5 +1,5 @@
-//! Linear elasticity about the undeformed gel, with frictionless contact solved exactly
-//! ([`super::super::Solver::Linear`]).
+//! Linear elasticity about the undeformed gel, with contact and Coulomb friction solved on
+//! its surface compliance ([`super::super::Solver::Linear`]).
 //!
 //! # Model
 //!
@@ -44,6 +44,22 @@
 //! repeated solves, did not settle on a flat face pressed over a whole pad, and was
 //! further from the 0.7 mm reference on the benchmark's patterns.
 //!
+//! # Friction
+//!
+//! With a friction coefficient `mu > 0`, Coulomb friction acts in the plane of the
+//! surface, as Newton's (IPC's lagged friction, Li et al. 2020): a point in contact keeps
+//! a stick anchor fixed in its indenter's frame (where it was at the start of the frame
+//! it touched in), and its lateral offset `y` from the anchor costs `mu f_lag f0(y)`,
+//! `f0` quadratic up to [`STICK`] and linear beyond, with `f_lag` its normal force
+//! lagged. The responses to the columns' lateral loads are computed as the vertical ones,
+//! and the contact becomes one convex problem in the columns' three loads
+//! ([`frictional_contact`]), solved with the normal forces lagged until they change by
+//! less than the tolerance (two or three solves; the first lagged ones from a solve
+//! without friction). After the frame, points that left contact drop their anchors and
+//! sliding points drag theirs to the stick radius; the anchors, forces and displacement
+//! carry over to the next frame (a reset forgets them). Without friction (`mu = 0`) none
+//! of this is built and the answer depends on the poses alone.
+//!
 //! # Cost
 //!
 //! `K` is factored once per gel (faer), at the first contact. The columns' responses are
@@ -58,9 +74,9 @@
 //! * Large deformation: rotations and stretches enter to first order only, so forces
 //!   drift from the nonlinear solvers' as the strain under the indenter grows (`tacrom
 //!   mpm --solver linear,relaxation` measures by how much).
-//! * Friction: the contact carries normal (vertical) forces only, so a sliding indenter
-//!   drags nothing and the surface shears only through Poisson's effect.
-//! * History: the answer depends on the current poses alone, not on the path to them.
+//! * Sliding geometry: friction acts in the plane of the undeformed surface and the
+//!   contact's normal is vertical, as in the small-displacement setting of Hertz and
+//!   Cattaneo-Mindlin; a slope of the indenter does not turn its force.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
@@ -614,10 +630,20 @@ impl Compliance {
             local.sort_unstable();
             local.dedup();
             self.ensure(&local);
-            let index = |col: u32| local.binary_search(&col).expect("listed") as u32;
+            // Columns whose nodes are all fixed (beyond the gel's edge) do not move: they
+            // are left out of the system, and their weights with them.
+            local.retain(|&c| self.levels[c as usize].iter().any(|&d| d != u32::MAX));
+            if local.is_empty() {
+                break;
+            }
             let rows: Vec<Columns> = cand
                 .iter()
-                .map(|&i| stencils[i].map(|(c, w)| (index(c), w)))
+                .map(|&i| {
+                    stencils[i].map(|(c, w)| match local.binary_search(&c) {
+                        Ok(k) => (k as u32, w),
+                        Err(_) => (0, 0.0),
+                    })
+                })
                 .collect();
             let g = self.local_compliance(&local, friction);
             let Some(stiffness) = spd_inverse(&g) else {
@@ -1079,6 +1105,34 @@ fn frictional_contact(
     friction: &Friction,
     l: &mut DVector<f64>,
 ) -> Option<(Vec<Vector3<f64>>, usize)> {
+    let mut total = 0;
+    let stages = [STICK * 100.0, STICK * 10.0, STICK];
+    for (n, &radius) in stages.iter().enumerate() {
+        let last = n + 1 == stages.len();
+        let tolerance = if last { FRICTION_RESIDUAL } else { 1e-6 };
+        let (f, its) = minimise(g, inverse, w, delta, eps, friction, radius, tolerance, l)?;
+        total += its;
+        if last {
+            return Some((f, total));
+        }
+    }
+    None
+}
+
+/// [`frictional_contact`] with stick radius `radius` (cells), to a residual of
+/// `tolerance` of the loads.
+#[allow(clippy::too_many_arguments)]
+fn minimise(
+    g: &DMatrix<f64>,
+    inverse: &DMatrix<f64>,
+    w: &[Columns],
+    delta: &[f64],
+    eps: f64,
+    friction: &Friction,
+    radius: f64,
+    tolerance: f64,
+    l: &mut DVector<f64>,
+) -> Option<(Vec<Vector3<f64>>, usize)> {
     let Friction {
         caps,
         anchors,
@@ -1103,8 +1157,8 @@ fn frictional_contact(
             if caps[i] > 0.0 {
                 let d = s.xy() - anchors[i];
                 let y = d.norm();
-                e += caps[i] * smooth_slip(y);
-                t = -d * (caps[i] / y.max(STICK));
+                e += caps[i] * smooth_slip(y, radius);
+                t = -d * (caps[i] / y.max(radius));
             }
             at.push(s);
             out.push(Vector3::new(t.x, t.y, f));
@@ -1128,7 +1182,7 @@ fn frictional_contact(
         let wf = loads(&f);
         let r = &*l - &wf;
         let scale = l.amax().max(wf.amax());
-        if r.amax() <= FRICTION_RESIDUAL * scale || scale == 0.0 {
+        if r.amax() <= tolerance * scale || scale == 0.0 {
             return Some((f, it));
         }
         // `G^-1 + W^T Phi'' W`, with each point's stiffness (penalty where it presses,
@@ -1142,8 +1196,8 @@ fn frictional_contact(
             if caps[i] > 0.0 {
                 let d = s[i].xy() - anchors[i];
                 let y = d.norm();
-                let t = if y < STICK || (it == 0 && held[i]) {
-                    Matrix2::identity() * (caps[i] / STICK)
+                let t = if y < radius || (it == 0 && held[i]) {
+                    Matrix2::identity() * (caps[i] / radius)
                 } else {
                     let n = d / y;
                     (Matrix2::identity() - n * n.transpose()) * (caps[i] / y)

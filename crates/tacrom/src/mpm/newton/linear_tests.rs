@@ -508,3 +508,29 @@ fn a_sliding_press_carries_mu_times_its_normal_force() {
     fresh.solve(&press);
     assert!(right.force() == fresh.force() && right.surface_u == fresh.surface_u);
 }
+
+/// A press at the coarse gel's edge, where the contact's node columns reach beyond the
+/// gel (columns whose nodes are all fixed, with no compliance of their own), converges
+/// with friction and without.
+#[test]
+fn a_press_at_the_edge_converges() {
+    let s = ball(3e-3);
+    for mu in [0.0, 0.5] {
+        let p = GelParams {
+            friction: mu,
+            ..GelParams::default()
+        };
+        let edge = 0.5 * p.size[0];
+        let mut g = Gel::new(p, options(1)).unwrap();
+        for (x, d) in [
+            (edge - 0.3e-3, 0.2e-3),
+            (edge - 0.1e-3, 0.3e-3),
+            (edge, 0.4e-3),
+        ] {
+            let rep = g.solve(&[at(&s, 3e-3, x, 0.0, d)]);
+            assert!(rep.converged, "mu {mu} at {x}: {rep:?}");
+            let f = g.force();
+            assert!(f.z > 0.0 && f.iter().all(|v| v.is_finite()), "{f}");
+        }
+    }
+}

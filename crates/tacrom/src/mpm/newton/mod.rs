@@ -1001,7 +1001,7 @@ impl Newton {
         }
         if let Some((y, d)) = self.slip(c, x, indenters) {
             let scale = self.friction * c.lag_force;
-            term.energy += scale * smooth_slip(y);
+            term.energy += scale * smooth_slip(y, STICK);
             let n = c.lag_normal;
             let tangent = Matrix3::identity() - n * n.transpose();
             if y < STICK {
@@ -1691,12 +1691,13 @@ fn penalty(g: f64) -> (f64, f64, f64) {
     (0.5 * PENALTY * g * g, PENALTY * g, PENALTY)
 }
 
-/// The smoothed slip magnitude: `y^2 / (2 STICK)` below [`STICK`], `y - STICK / 2` beyond.
-fn smooth_slip(y: f64) -> f64 {
-    if y < STICK {
-        0.5 * y * y / STICK
+/// The smoothed slip magnitude at offset `y` with stick radius `r` (cells): `y^2 / (2 r)`
+/// below `r`, `y - r / 2` beyond ([`STICK`] for Newton's).
+fn smooth_slip(y: f64, r: f64) -> f64 {
+    if y < r {
+        0.5 * y * y / r
     } else {
-        y - 0.5 * STICK
+        y - 0.5 * r
     }
 }
 

@@ -765,21 +765,18 @@ impl Compliance {
             let mut solved = true;
             if friction && pass == 0 {
                 // The normal forces without friction first: the first lagged ones (the
-                // last frame's lateral forces kept, to tell which points held).
-                let none = vec![0.0; cand.len()];
-                let free = vec![Vector2::zeros(); cand.len()];
-                let friction = Friction {
-                    caps: &none,
-                    anchors: &free,
-                    held: &vec![false; cand.len()],
-                    warm: true,
-                };
-                let mut l = DVector::zeros(3 * local.len());
-                match frictional_contact(&g, &stiffness, &rows, &d, &eps, &friction, &mut l) {
+                // last frame's lateral forces kept, to tell which points held). Without
+                // friction no column carries a lateral load: the vertical block's problem.
+                let k = local.len();
+                let vertical = DMatrix::from_fn(k, k, |a, b| g[(3 * a + 2, 3 * b + 2)]);
+                let mut l = DVector::zeros(k);
+                match spd_inverse(&vertical)
+                    .and_then(|inv| penalty_contact(&vertical, &inv, &rows, &d, &eps, &mut l))
+                {
                     Some((f, steps)) => {
                         iterations += steps;
-                        for (&i, fi) in cand.iter().zip(&f) {
-                            (forces[i].z, lag[i]) = (fi.z, fi.z);
+                        for (&i, &fi) in cand.iter().zip(&f) {
+                            (forces[i].z, lag[i]) = (fi, fi);
                         }
                     }
                     None => solved = false,

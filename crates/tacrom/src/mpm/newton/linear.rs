@@ -54,8 +54,8 @@
 //! grid's B-splines, which cannot bend the surface as sharply as the patch asks (alone,
 //! a 0.1 mm cone press came out 16 times Sneddon's force); in series with its penalty it
 //! gets the compliance the grid misses: that of the patch on the layer, `1 / (k E* a)`
-//! with `a` the radius of the rigid footprint and `k` [`TIP_STIFFNESS`] (less the bonded
-//! layer's stiffening), less the grid's own at the point (`w^T G w`, exact here). Tip
+//! with `a` the radius of the rigid footprint and `k` [`TIP_STIFFNESS`] (with the bonded
+//! layer's first-order stiffening), less the grid's own at the point (`w^T G w`, exact here). Tip
 //! points carry no friction.
 //!
 //! # Friction
@@ -69,7 +69,9 @@
 //! and the contact becomes one convex problem in the columns' three loads
 //! ([`frictional_contact`]), solved with the normal forces lagged until they change by
 //! less than the tolerance (two or three solves; the first lagged ones from a solve
-//! without friction). After the frame, points that left contact drop their anchors and
+//! without friction, the first frictional one through stick radii 100 and 10 times
+//! larger, since a box face sliding over a whole pad did not converge at the final one
+//! in 60 Newton steps). After the frame, points that left contact drop their anchors and
 //! sliding points drag theirs to the stick radius; the anchors, forces and displacement
 //! carry over to the next frame (a reset forgets them). Without friction (`mu = 0`) none
 //! of this is built and the answer depends on the poses alone.
@@ -103,7 +105,9 @@ use super::super::{
     pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS,
 };
 use super::system::System;
-use super::{contact_lattice, contains, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK};
+use super::{
+    contact_lattice, contains, remap_anchors, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK,
+};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt;
 use faer::{Conj, MatMut, MatRef, Par};
@@ -972,19 +976,7 @@ impl Compliance {
     /// Renumbers the anchors' indenters (`matched[i]`: previous index of indenter `i`);
     /// anchors of indenters that are gone are dropped.
     pub fn remap(&mut self, matched: &[Option<usize>]) {
-        let new_index: BTreeMap<usize, usize> = matched
-            .iter()
-            .enumerate()
-            .filter_map(|(i, m)| m.map(|j| (j, i)))
-            .collect();
-        self.anchors
-            .retain(|_, a| match new_index.get(&a.indenter) {
-                Some(&i) => {
-                    a.indenter = i;
-                    true
-                }
-                None => false,
-            });
+        remap_anchors(&mut self.anchors, matched);
     }
 
     /// Back to the undeformed gel without contact history (the factor and the

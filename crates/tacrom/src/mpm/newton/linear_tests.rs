@@ -50,6 +50,23 @@ impl Noise {
         self.0 ^= self.0 << 17;
         (self.0 >> 11) as f64 / (1u64 << 52) as f64 - 1.0
     }
+
+    /// A random contact problem: a symmetric positive definite compliance of order `n`,
+    /// the rows of `m` points over `k` columns (nine weights each) and their depths.
+    fn problem(&mut self, n: usize, k: usize, m: usize) -> (DMatrix<f64>, Vec<Columns>, Vec<f64>) {
+        let a = DMatrix::from_fn(n, n, |_, _| self.next());
+        let g = &a * a.transpose() + DMatrix::identity(n, n) * 0.05;
+        let rows: Vec<Columns> = (0..m)
+            .map(|_| {
+                std::array::from_fn(|_| {
+                    let c = ((self.next() + 1.0) * 0.5 * k as f64) as u32 % k as u32;
+                    (c, (self.next() + 1.0) / 18.0)
+                })
+            })
+            .collect();
+        let delta: Vec<f64> = (0..m).map(|_| self.next()).collect();
+        (g, rows, delta)
+    }
 }
 
 /// On random problems with up to 40 points on up to 12 columns (more points than columns,
@@ -62,17 +79,7 @@ fn the_penalty_contact_solves_the_complementarity_problem() {
     for trial in 0..60 {
         let k = 1 + trial % 12;
         let m = 1 + (trial * 7) % 40;
-        let a = DMatrix::from_fn(k, k, |_, _| noise.next());
-        let g = &a * a.transpose() + DMatrix::identity(k, k) * 0.05;
-        let rows: Vec<Columns> = (0..m)
-            .map(|_| {
-                std::array::from_fn(|_| {
-                    let c = ((noise.next() + 1.0) * 0.5 * k as f64) as u32 % k as u32;
-                    (c, (noise.next() + 1.0) / 18.0)
-                })
-            })
-            .collect();
-        let delta: Vec<f64> = (0..m).map(|_| noise.next()).collect();
+        let (g, rows, delta) = noise.problem(k, k, m);
         let eps = vec![0.02; m];
         let wm = DMatrix::from_fn(m, k, |i, c| {
             rows[i]
@@ -339,17 +346,7 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
     for trial in 0..40 {
         let k = 1 + trial % 8;
         let m = 1 + (trial * 7) % 30;
-        let a = DMatrix::from_fn(3 * k, 3 * k, |_, _| noise.next());
-        let g = &a * a.transpose() + DMatrix::identity(3 * k, 3 * k) * 0.05;
-        let rows: Vec<Columns> = (0..m)
-            .map(|_| {
-                std::array::from_fn(|_| {
-                    let c = ((noise.next() + 1.0) * 0.5 * k as f64) as u32 % k as u32;
-                    (c, (noise.next() + 1.0) / 18.0)
-                })
-            })
-            .collect();
-        let delta: Vec<f64> = (0..m).map(|_| noise.next()).collect();
+        let (g, rows, delta) = noise.problem(3 * k, k, m);
         let eps: Vec<f64> = (0..m).map(|_| 0.02 + 0.01 * noise.next()).collect();
         let caps: Vec<f64> = (0..m).map(|_| (noise.next() + 1.0) * 0.5).collect();
         let anchors: Vec<Vector2<f64>> = (0..m)

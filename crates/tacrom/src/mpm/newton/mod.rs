@@ -288,6 +288,23 @@ struct Anchor {
     local: Point3<f64>,
 }
 
+/// Renumbers the indenters of `anchors` (`matched[i]`: previous index of indenter `i`);
+/// anchors of indenters that are gone are dropped.
+fn remap_anchors(anchors: &mut BTreeMap<u32, Anchor>, matched: &[Option<usize>]) {
+    let new_index: BTreeMap<usize, usize> = matched
+        .iter()
+        .enumerate()
+        .filter_map(|(i, m)| m.map(|j| (j, i)))
+        .collect();
+    anchors.retain(|_, a| match new_index.get(&a.indenter) {
+        Some(&i) => {
+            a.indenter = i;
+            true
+        }
+        None => false,
+    });
+}
+
 /// The state of one contact point at a displacement field.
 struct Touch {
     /// Penetration depth (cells; the signed distance's negative).
@@ -568,20 +585,7 @@ impl Newton {
         {
             self.last_motion.clear();
         }
-        let mut new_index = BTreeMap::new();
-        for (i, m) in matched.iter().enumerate() {
-            if let Some(j) = *m {
-                new_index.insert(j, i);
-            }
-        }
-        self.anchors
-            .retain(|_, a| match new_index.get(&a.indenter) {
-                Some(&i) => {
-                    a.indenter = i;
-                    true
-                }
-                None => false,
-            });
+        remap_anchors(&mut self.anchors, matched);
     }
 
     /// Free index of the node at grid coordinates `p`, if free.

@@ -48,7 +48,7 @@
 //!
 //! An indenter that reaches below the rest surface between the lattice's points (a sharp
 //! tip pressed less than about a spacing) gets a *tip point*, as Newton's (`subgrid.rs`):
-//! the surface around the lattice point nearest to it is sampled [`TIP_SAMPLES`] times
+//! the surface around the lattice point nearest to it is sampled [`TIP_SAMPLES`](super::subgrid::TIP_SAMPLES) times
 //! finer, and one point at the deepest penetrating sample, standing for the penetrating
 //! samples' share of a lattice point's face, joins the contact. Its load acts through the
 //! grid's B-splines, which cannot bend the surface as sharply as the patch asks (alone,
@@ -104,6 +104,7 @@ use super::super::indenters::Sweep;
 use super::super::{
     pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS,
 };
+use super::subgrid::tip_samples;
 use super::system::System;
 use super::{
     contact_lattice, contains, remap_anchors, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK,
@@ -126,9 +127,6 @@ pub(crate) const SUBDIVISION: usize = 2;
 /// Margin (cells) around an indenter's box within which lattice points may touch it:
 /// the surface moves sideways by much less than a cell.
 const NEAR_CELLS: f64 = 0.5;
-
-/// Surface samples per contact lattice spacing and axis in the search for a tip point.
-const TIP_SAMPLES: usize = 8;
 
 /// The stiffness `F / delta` of a small contact, in units of `E* a` with `a` the radius
 /// of its rigid footprint on the undeformed surface: a 45-degree cone's is `2 / pi =
@@ -560,7 +558,7 @@ impl Compliance {
     /// A tip point for `indenter` (see the module docs, "Small contacts"): where it
     /// reaches below the rest surface and no contact lattice point (rest positions
     /// `rest`, clearances `clear`) lies inside it, the deepest of the surface samples
-    /// [`TIP_SAMPLES`] times finer around the lattice point nearest to it, with the share
+    /// [`TIP_SAMPLES`](super::subgrid::TIP_SAMPLES) times finer around the lattice point nearest to it, with the share
     /// of a lattice point's face that the penetrating samples cover and its clearance.
     fn tip(
         &self,
@@ -583,24 +581,19 @@ impl Compliance {
             }
         }
         let centre = rest[nearest?.1];
-        let n = TIP_SAMPLES as i64;
-        let step = [0, 1].map(|a| self.spacing[a] / TIP_SAMPLES as f64);
+        let (samples, share) = tip_samples(centre, centre, self.spacing);
         let (mut inside, mut deepest) = (0usize, None::<(f64, Vector3<f64>)>);
-        for i in -n..=n {
-            for j in -n..=n {
-                let x = centre + Vector3::new(i as f64 * step[0], j as f64 * step[1], 0.0);
-                let d = own(&x);
-                if d < 0.0 {
-                    inside += 1;
-                    if deepest.map_or(true, |(b, _)| d < b) {
-                        deepest = Some((d, x));
-                    }
+        for x in samples {
+            let d = own(&x);
+            if d < 0.0 {
+                inside += 1;
+                if deepest.map_or(true, |(b, _)| d < b) {
+                    deepest = Some((d, x));
                 }
             }
         }
         let (d, at) = deepest?;
-        let share = (inside as f64 / (n * n) as f64).min(1.0);
-        Some((at, share, d))
+        Some((at, (inside as f64 * share).min(1.0), d))
     }
 
     /// The contact compliance of a tip point at `at` (cells) standing for `share` of a
@@ -769,14 +762,23 @@ impl Compliance {
             let mut solved = true;
             if friction && pass == 0 {
                 // The normal forces without friction first: the first lagged ones (the
-                // last frame's lateral forces kept, to tell which points held). Without
-                // friction no column carries a lateral load: the vertical block's problem.
+                // last frame's lateral forces kept, to start the lateral loads from).
+                // Without friction no column carries a lateral load: the vertical block's
+                // problem.
                 let k = local.len();
                 let vertical = DMatrix::from_fn(k, k, |a, b| g[(3 * a + 2, 3 * b + 2)]);
                 let mut l = DVector::zeros(k);
-                match spd_inverse(&vertical)
-                    .and_then(|inv| penalty_contact(&vertical, &inv, &rows, &d, &eps, &mut l))
-                {
+                let solve = |inverse: DMatrix<f64>| {
+                    let problem = Problem {
+                        g: &vertical,
+                        inverse: &inverse,
+                        w: &rows,
+                        delta: &d,
+                        eps: &eps,
+                    };
+                    penalty_contact(&problem, &mut l)
+                };
+                match spd_inverse(&vertical).and_then(solve) {
                     Some((f, steps)) => {
                         iterations += steps;
                         for (&i, &fi) in cand.iter().zip(&f) {
@@ -786,6 +788,13 @@ impl Compliance {
                     None => solved = false,
                 }
             }
+            let problem = Problem {
+                g: &g,
+                inverse: &stiffness,
+                w: &rows,
+                delta: &d,
+                eps: &eps,
+            };
             // Start from the columns' present loads.
             let present = Self::column_loads(&stencils, &forces);
             let load = |c: &u32| {
@@ -833,23 +842,12 @@ impl Compliance {
                             .map_or(Vector2::zeros(), |a| (a - rest[i]).xy());
                     }
                     let anchors: Vec<Vector2<f64>> = cand.iter().map(|&i| offsets[i]).collect();
-                    // Points whose friction was below its cap (last frame, or last pass).
-                    let held: Vec<bool> = cand
-                        .iter()
-                        .map(|&i| {
-                            let f = forces[i];
-                            f.z > 0.0 && f.xy().norm() < self.friction * f.z * (1.0 - HELD)
-                        })
-                        .collect();
                     let friction = Friction {
                         caps: &caps,
                         anchors: &anchors,
-                        held: &held,
                         warm: lags > 0,
                     };
-                    let Some((f, steps)) =
-                        frictional_contact(&g, &stiffness, &rows, &d, &eps, &friction, &mut l)
-                    else {
+                    let Some((f, steps)) = frictional_contact(&problem, &friction, &mut l) else {
                         solved = false;
                         break;
                     };
@@ -870,7 +868,7 @@ impl Compliance {
                 solved &= settled;
             } else {
                 let mut l = DVector::from_iterator(local.len(), local.iter().map(|c| load(c).z));
-                match penalty_contact(&g, &stiffness, &rows, &d, &eps, &mut l) {
+                match penalty_contact(&problem, &mut l) {
                     Some((f, steps)) => {
                         iterations += steps;
                         forces.fill(Vector3::zeros());
@@ -1039,18 +1037,37 @@ fn cholesky_solve(a: &DMatrix<f64>, b: &mut DVector<f64>) {
     );
 }
 
-/// The Newton step `d` of `(I + W^T Phi'' W G) d = -r` (`Phi''` the points' stiffness,
-/// positive semi-definite, already added to `system = G^-1 + W^T Phi'' W`): `d = G^-1 z`
-/// with `system z = -r`, symmetric positive definite.
-fn newton_step(
-    mut system: DMatrix<f64>,
-    inverse: &DMatrix<f64>,
-    r: &DVector<f64>,
-) -> Option<DVector<f64>> {
-    cholesky(&mut system)?;
-    let mut z = -r;
-    cholesky_solve(&system, &mut z);
-    Some(inverse * z)
+/// One contact solve in the loads of the node columns under the contact: their
+/// compliance `g` (symmetric, positive definite) and its inverse, the points' rows of
+/// column weights `w`, the depths `delta` they must sink and their contact compliances
+/// `eps`.
+struct Problem<'a> {
+    g: &'a DMatrix<f64>,
+    inverse: &'a DMatrix<f64>,
+    w: &'a [Columns],
+    delta: &'a [f64],
+    eps: &'a [f64],
+}
+
+impl Problem<'_> {
+    /// The Newton step `d` of `(I + W^T Phi'' W G) d = -r` (`Phi''` the points'
+    /// stiffness, positive semi-definite, already added to `system = G^-1 + W^T Phi''
+    /// W`): `d = G^-1 z` with `system z = -r`, symmetric positive definite; and the
+    /// energy's slope along it, `(G r) . d`. Where round-off spoils the Newton direction,
+    /// the gradient's own.
+    fn descent(&self, mut system: DMatrix<f64>, r: &DVector<f64>) -> Option<(DVector<f64>, f64)> {
+        cholesky(&mut system)?;
+        let mut z = -r;
+        cholesky_solve(&system, &mut z);
+        let step = self.inverse * z;
+        let gr = self.g * r;
+        let slope = gr.dot(&step);
+        if slope < 0.0 {
+            Some((step, slope))
+        } else {
+            Some((-r, -gr.dot(r)))
+        }
+    }
 }
 
 /// Newton iterations at most per contact solve.
@@ -1085,14 +1102,14 @@ const MAX_HALVINGS: usize = 40;
 /// search, Hintermueller, Ito and Kunisch 2002); once the pressed set repeats after a full
 /// step, the answer is exact. Starts from `l` (updated); returns the forces and the
 /// iterations, or `None` if they run out or a solve fails.
-fn penalty_contact(
-    g: &DMatrix<f64>,
-    inverse: &DMatrix<f64>,
-    w: &[Columns],
-    delta: &[f64],
-    eps: &[f64],
-    l: &mut DVector<f64>,
-) -> Option<(Vec<f64>, usize)> {
+fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize)> {
+    let Problem {
+        g,
+        inverse,
+        w,
+        delta,
+        eps,
+    } = *p;
     let k = g.nrows();
     // The forces at `l` and the energy there, from one product `G l`.
     let evaluate = |l: &DVector<f64>| -> (Vec<f64>, f64) {
@@ -1136,15 +1153,7 @@ fn penalty_contact(
                 }
             }
         }
-        let mut step = newton_step(system, inverse, &r)?;
-        // The energy's slope along the step, `(G r) . d`; where round-off spoils the
-        // Newton direction, the gradient's own.
-        let gr = g * &r;
-        let mut slope = gr.dot(&step);
-        if !(slope < 0.0) {
-            step = -&r;
-            slope = -gr.dot(&r);
-        }
+        let (step, slope) = p.descent(system, &r)?;
         let before: Vec<bool> = f.iter().map(|&f| f > 0.0).collect();
         let mut alpha = 1.0;
         let mut accepted = false;
@@ -1171,22 +1180,16 @@ fn penalty_contact(
 }
 
 /// Friction's data per point of [`frictional_contact`]: the cap of its force (`mu` times
-/// its lagged normal force), its anchor's lateral offset from its rest position (cells),
-/// and whether it held (its friction below the cap) in the last answer: the first
-/// Newton step takes it as sticking (its anchor has moved with the indenter since, and
-/// it would otherwise start as sliding, which takes a step per point that sticks again).
+/// its lagged normal force) and its anchor's lateral offset from its rest position
+/// (cells).
 struct Friction<'a> {
     caps: &'a [f64],
     anchors: &'a [Vector2<f64>],
-    held: &'a [bool],
     /// Whether the start is the answer to a nearby problem (the last lagged forces'):
     /// then Newton's method goes straight at the stick radius, and only if that takes
     /// more than [`WARM_NEWTON`] steps through the larger radii.
     warm: bool,
 }
-
-/// Friction below this fraction of its cap holds ([`Friction::held`]).
-const HELD: f64 = 1e-6;
 
 /// The penalty contact with friction, in the node columns' loads `l` (+x, +y and
 /// downward per column): the columns move `v = G l` (+x, +y and sinking; `G` symmetric,
@@ -1197,17 +1200,12 @@ const HELD: f64 = 1e-6;
 /// quadratic up to [`STICK`] and linear beyond (the full sliding force `cap`). The energy
 /// `E(l) = l^T G l / 2 + sum_p (eps f_p^2 / 2 + cap_p f0(y_p))` is convex, its gradient
 /// `G (l - W^T F)` with `F` the points' forces on the gel; Newton's method with its
-/// Hessian (the points' contact and friction stiffness, per 3 x 3 block; any positive
-/// semi-definite stiffness gives a descent direction, so the first step's held points
-/// may stick) and Armijo's backtracking, as [`penalty_contact`], to a residual of [`FRICTION_RESIDUAL`] of the
+/// Hessian (the points' contact and friction stiffness, per 3 x 3 block) and Armijo's
+/// backtracking, as [`penalty_contact`], to a residual of [`FRICTION_RESIDUAL`] of the
 /// loads. Starts from `l` (updated); returns the forces on the gel (+x, +y, downward) and
 /// the iterations, or `None` if they run out or a solve fails.
 fn frictional_contact(
-    g: &DMatrix<f64>,
-    inverse: &DMatrix<f64>,
-    w: &[Columns],
-    delta: &[f64],
-    eps: &[f64],
+    p: &Problem,
     friction: &Friction,
     l: &mut DVector<f64>,
 ) -> Option<(Vec<Vector3<f64>>, usize)> {
@@ -1215,18 +1213,7 @@ fn frictional_contact(
     if friction.warm {
         let start = l.clone();
         let budget = WARM_NEWTON;
-        if let Some(answer) = minimise(
-            g,
-            inverse,
-            w,
-            delta,
-            eps,
-            friction,
-            STICK,
-            FRICTION_RESIDUAL,
-            budget,
-            l,
-        ) {
+        if let Some(answer) = minimise(p, friction, STICK, FRICTION_RESIDUAL, budget, l) {
             return Some(answer);
         }
         (*l, total) = (start, budget);
@@ -1239,9 +1226,7 @@ fn frictional_contact(
         } else {
             STAGE_RESIDUAL
         };
-        let (f, its) = minimise(
-            g, inverse, w, delta, eps, friction, radius, tolerance, MAX_NEWTON, l,
-        )?;
+        let (f, its) = minimise(p, friction, radius, tolerance, MAX_NEWTON, l)?;
         total += its;
         if last {
             return Some((f, total));
@@ -1252,25 +1237,22 @@ fn frictional_contact(
 
 /// [`frictional_contact`] with stick radius `radius` (cells), to a residual of
 /// `tolerance` of the loads, in at most `budget` Newton steps.
-#[allow(clippy::too_many_arguments)]
 fn minimise(
-    g: &DMatrix<f64>,
-    inverse: &DMatrix<f64>,
-    w: &[Columns],
-    delta: &[f64],
-    eps: &[f64],
+    p: &Problem,
     friction: &Friction,
     radius: f64,
     tolerance: f64,
     budget: usize,
     l: &mut DVector<f64>,
 ) -> Option<(Vec<Vector3<f64>>, usize)> {
-    let Friction {
-        caps,
-        anchors,
-        held,
-        ..
-    } = *friction;
+    let Problem {
+        g,
+        inverse,
+        w,
+        delta,
+        eps,
+    } = *p;
+    let Friction { caps, anchors, .. } = *friction;
     let k = g.nrows();
     // The points' displacements and forces at `l` and the energy there, from one `G l`.
     let evaluate = |l: &DVector<f64>| -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>, f64) {
@@ -1329,7 +1311,7 @@ fn minimise(
             if caps[i] > 0.0 {
                 let d = s[i].xy() - anchors[i];
                 let y = d.norm();
-                let t = if y < radius || (it == 0 && held[i]) {
+                let t = if y < radius {
                     Matrix2::identity() * (caps[i] / radius)
                 } else {
                     let n = d / y;
@@ -1347,13 +1329,7 @@ fn minimise(
                 }
             }
         }
-        let mut step = newton_step(system, inverse, &r)?;
-        let gr = g * &r;
-        let mut slope = gr.dot(&step);
-        if !(slope < 0.0) {
-            step = -&r;
-            slope = -gr.dot(&r);
-        }
+        let (step, slope) = p.descent(system, &r)?;
         let mut alpha = 1.0;
         let mut accepted = false;
         for _ in 0..MAX_HALVINGS {

@@ -91,7 +91,14 @@ fn the_penalty_contact_solves_the_complementarity_problem() {
         let h = DMatrix::identity(m, m) * eps[0] + &wm * &g * wm.transpose();
         let mut l = DVector::zeros(k);
         let inverse = spd_inverse(&g).expect("positive definite");
-        let (f, _) = penalty_contact(&g, &inverse, &rows, &delta, &eps, &mut l).expect("solved");
+        let problem = Problem {
+            g: &g,
+            inverse: &inverse,
+            w: &rows,
+            delta: &delta,
+            eps: &eps,
+        };
+        let (f, _) = penalty_contact(&problem, &mut l).expect("solved");
         let w = &h * DVector::from_column_slice(&f) - DVector::from_column_slice(&delta);
         for i in 0..m {
             assert!(f[i] >= 0.0, "trial {trial}: f[{i}] = {}", f[i]);
@@ -352,17 +359,21 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
         let anchors: Vec<Vector2<f64>> = (0..m)
             .map(|_| Vector2::new(noise.next(), noise.next()) * 0.3)
             .collect();
-        let held: Vec<bool> = (0..m).map(|_| noise.next() > 0.0).collect();
         let inverse = spd_inverse(&g).expect("positive definite");
+        let problem = Problem {
+            g: &g,
+            inverse: &inverse,
+            w: &rows,
+            delta: &delta,
+            eps: &eps,
+        };
         let friction = Friction {
             caps: &caps,
             anchors: &anchors,
-            held: &held,
             warm: trial % 2 == 0,
         };
         let mut l = DVector::zeros(3 * k);
-        let (f, _) = frictional_contact(&g, &inverse, &rows, &delta, &eps, &friction, &mut l)
-            .expect("solved");
+        let (f, _) = frictional_contact(&problem, &friction, &mut l).expect("solved");
         let mut balance = l.clone();
         for (row, f) in rows.iter().zip(&f) {
             for &(c, w) in row {
@@ -398,13 +409,16 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
             ..friction
         };
         let mut l = DVector::zeros(3 * k);
-        let (f, _) = frictional_contact(&g, &inverse, &rows, &delta, &eps, &friction, &mut l)
-            .expect("solved");
+        let (f, _) = frictional_contact(&problem, &friction, &mut l).expect("solved");
         let vertical = DMatrix::from_fn(k, k, |a, b| g[(3 * a + 2, 3 * b + 2)]);
         let mut lz = DVector::zeros(k);
         let inverse = spd_inverse(&vertical).expect("positive definite");
-        let (fz, _) =
-            penalty_contact(&vertical, &inverse, &rows, &delta, &eps, &mut lz).expect("solved");
+        let problem = Problem {
+            g: &vertical,
+            inverse: &inverse,
+            ..problem
+        };
+        let (fz, _) = penalty_contact(&problem, &mut lz).expect("solved");
         for (f, fz) in f.iter().zip(&fz) {
             assert!(f.x == 0.0 && f.y == 0.0);
             assert!(

@@ -52,7 +52,31 @@ use crate::mpm::contact::StepIndenter;
 pub(super) const MAX_CALIBRATION_UNKNOWNS: usize = 60_000;
 
 /// Samples per contact lattice spacing and axis in the search for a tip point.
-const TIP_SAMPLES: usize = 8;
+pub(super) const TIP_SAMPLES: usize = 8;
+
+/// Surface positions [`TIP_SAMPLES`] times finer than a contact lattice of `spacing`
+/// (cells) along each axis, over the box from `lo` to `hi` (cells) grown by a spacing, at
+/// `lo`'s height; and the face share (in lattice points) that each stands for. Newton's
+/// and the linear solver's search for a tip point.
+pub(super) fn tip_samples(
+    lo: Vector3<f64>,
+    hi: Vector3<f64>,
+    spacing: [f64; 2],
+) -> (Vec<Vector3<f64>>, f64) {
+    let step = [0, 1].map(|a| spacing[a] / TIP_SAMPLES as f64);
+    let counts = [0, 1].map(|a| ((hi[a] - lo[a]) / step[a]).round() as usize + 2 * TIP_SAMPLES);
+    let mut out = Vec::with_capacity((counts[0] + 1) * (counts[1] + 1));
+    for i in 0..=counts[0] {
+        for j in 0..=counts[1] {
+            out.push(Vector3::new(
+                lo.x - spacing[0] + i as f64 * step[0],
+                lo.y - spacing[1] + j as f64 * step[1],
+                lo.z,
+            ));
+        }
+    }
+    (out, 1.0 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
+}
 
 /// Distance, in resolved radii, within which touching points belong to one patch: the
 /// grid does not tell apart loads closer than it resolves (the rim of a round contact on
@@ -332,25 +356,6 @@ impl Newton {
         change
     }
 
-    /// Surface positions [`TIP_SAMPLES`] times finer than the contact lattice along each
-    /// axis, over the box from `lo` to `hi` (cells) grown by a lattice spacing, at `lo`'s
-    /// height; and the face share (in lattice points) that each stands for.
-    fn samples(&self, lo: Vector3<f64>, hi: Vector3<f64>) -> (Vec<Vector3<f64>>, f64) {
-        let step = [0, 1].map(|a| self.spacing[a] / TIP_SAMPLES as f64);
-        let counts = [0, 1].map(|a| ((hi[a] - lo[a]) / step[a]).round() as usize + 2 * TIP_SAMPLES);
-        let mut out = Vec::with_capacity((counts[0] + 1) * (counts[1] + 1));
-        for i in 0..=counts[0] {
-            for j in 0..=counts[1] {
-                out.push(Vector3::new(
-                    lo.x - self.spacing[0] + i as f64 * step[0],
-                    lo.y - self.spacing[1] + j as f64 * step[1],
-                    lo.z,
-                ));
-            }
-        }
-        (out, 1.0 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
-    }
-
     /// The deepest penetrating rest position among the samples of the four lattice
     /// elements around the lattice point at `rest` (each displaced with the gel), and the
     /// samples' penetrating share of one lattice point's face.
@@ -359,7 +364,7 @@ impl Newton {
         rest: &Vector3<f64>,
         indenter: &StepIndenter,
     ) -> Option<(Vector3<f64>, f64)> {
-        let (samples, share) = self.samples(*rest, *rest);
+        let (samples, share) = tip_samples(*rest, *rest, self.spacing);
         let mut deepest: Option<(f64, Vector3<f64>)> = None;
         let mut inside = 0usize;
         for at in samples {
@@ -388,7 +393,7 @@ impl Newton {
             lo = lo.inf(&x);
             hi = hi.sup(&x);
         }
-        let (samples, share) = self.samples(lo, hi);
+        let (samples, share) = tip_samples(lo, hi, self.spacing);
         let inside = samples
             .iter()
             .filter(|x| self.clearance(x, indenters) < 0.0)

@@ -211,9 +211,12 @@ def sample_indices(path):
 def gen_command(path, ds):
     """The `tacrom gen-data` command that regenerates the data set in `path`."""
     n = max(sample_indices(path), default=-1) + 1
+    mm = lambda key: f"{1e3 * ds.get(key):g}"  # noqa: E731  (the data set's metres, the CLI's mm)
+    solver = (ds.get("recipe") or {}).get("solver", "relaxation")
     return (f"tacrom gen-data --out {path} --samples {n} --seed {ds.get('seed')} "
-            f"--coarse-dx {ds.get('coarse_dx')} --fine-dx {ds.get('fine_dx')} --pitch {ds.get('pitch')} "
-            f"--fine-max-iterations {ds.get('fine_max_iterations')} [--shard K/N for parallel shards]")
+            f"--coarse-dx {mm('coarse_dx')} --fine-dx {mm('fine_dx')} --pitch {mm('pitch')} "
+            + (f"--coarse-solver {solver} " if solver != "relaxation" else "")
+            + f"--fine-max-iterations {ds.get('fine_max_iterations')} [--shard K/N for parallel shards]")
 
 
 def main(argv=None):

@@ -345,6 +345,10 @@ pub struct GenDataArgs {
     /// Coarse grid spacing.
     #[arg(long, value_name = "MM", default_value = "1.4", value_parser = positive_mm)]
     pub coarse_dx: f64,
+    /// The coarse solve's equilibrium solver (relaxation, newton, total, linear): the
+    /// one a model trained on the data set serves.
+    #[arg(long, value_name = "NAME", default_value = "relaxation", value_parser = solver_name)]
+    pub coarse_solver: tacrom::mpm::Solver,
     /// Pitch of the surface lattice.
     #[arg(long, value_name = "MM", default_value = "0.3", value_parser = positive_mm)]
     pub pitch: f64,

@@ -38,7 +38,7 @@ use rand_xoshiro::SplitMix64;
 use serde::{Deserialize, Serialize};
 
 use tacrom::geometry::{Aabb, Capsule, Cuboid, Cylinder, PixelGrid, Placed, Sdf, Sphere, TriMesh};
-use tacrom::mpm::{Gel, GelParams, Material, SolveReport, SolverOptions};
+use tacrom::mpm::{Gel, GelParams, Material, SolveReport, Solver, SolverOptions};
 use tacrom::rom::features::{penetration, LatticeSpec, Observation};
 
 use crate::npy;
@@ -70,6 +70,8 @@ pub struct GenConfig {
     pub seed: u64,
     /// Coarse grid spacing (m).
     pub coarse_dx: f64,
+    /// The coarse solve's equilibrium solver (the reference's is the default one).
+    pub coarse_solver: Solver,
     /// Reference grid spacing (m).
     pub fine_dx: f64,
     /// Lattice pitch (m).
@@ -143,6 +145,7 @@ impl Default for GenConfig {
             shard: (0, 1),
             seed: 1,
             coarse_dx: 1.4e-3,
+            coarse_solver: Solver::Relaxation,
             fine_dx: 0.7e-3,
             pitch: 0.3e-3,
             threads: 1,
@@ -898,7 +901,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         recipe: Some(tacrom::rom::Recipe {
             dx: config.coarse_dx,
             material: tacrom::config::material_name(Material::FixedCorotated).to_owned(),
-            solver: tacrom::mpm::SOLVER.to_owned(),
+            solver: config.coarse_solver.name().to_owned(),
             tolerance: SolverOptions::default().tolerance,
             max_tolerance: tacrom::rom::MAX_TOLERANCE,
         }),
@@ -936,7 +939,11 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
     };
     let indices = config.shard_indices(&mut meshes)?;
     let first = indices.first().copied().unwrap_or(0);
-    let mut coarse = new_gel(first, config.coarse_dx, options)?;
+    let coarse_options = SolverOptions {
+        solver: config.coarse_solver,
+        ..options
+    };
+    let mut coarse = new_gel(first, config.coarse_dx, coarse_options)?;
     let mut fine = new_gel(first, config.fine_dx, fine_options)?;
     let (k, n) = config.shard;
     let (mut done, mut skipped) = (0usize, 0usize);
@@ -965,7 +972,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         }
         bar.message(format!("sample {index}: {}", press.family));
         if *coarse.params() != gel_params(config, index, config.coarse_dx) {
-            coarse = new_gel(index, config.coarse_dx, options)?;
+            coarse = new_gel(index, config.coarse_dx, coarse_options)?;
             fine = new_gel(index, config.fine_dx, fine_options)?;
         }
         let last = press.poses.len() - 1;

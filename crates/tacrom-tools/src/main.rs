@@ -295,6 +295,7 @@ fn gen_data(a: GenDataArgs) -> Result<(), BenchError> {
         shard: a.shard,
         seed: a.seed,
         coarse_dx: a.coarse_dx,
+        coarse_solver: a.coarse_solver,
         fine_dx: a.fine_dx,
         pitch: a.pitch,
         threads: a.threads,

@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-fine gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-linear train-linear gen-data-fine gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -126,6 +126,20 @@ train: train-env
 	$(TRAIN) --out models/rom-default
 	$(TRAIN) --out models/rom-latent16 --latent 16
 	$(TRAIN) --out models/rom-no-multiscale --no-multiscale
+
+# The model of the linear solver's coarse solve (`solver="linear"`, models/rom-linear): the
+# presses of ROM_DATA with the linear coarse channel, against the 0.7 mm reference, and its
+# force factor from the same presses.
+ROM_LINEAR_DATA ?= data/rom-linear
+gen-data-linear: build
+	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
+	  target/release/tacrom gen-data --out $(ROM_LINEAR_DATA) --samples $(ROM_SAMPLES) --seed 1 \
+	    --fine-dx 0.7 --fine-max-iterations 1000 --coarse-solver linear --shard $$k/$(ROM_SHARDS) & \
+	done; wait
+train-linear: train-env
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_DATA) --steps $(ROM_STEPS) \
+		--out models/rom-linear
+	PYTHONPATH=training $(PY) -m tacrom_rom.force_factor $(ROM_LINEAR_DATA) models/rom-linear
 
 # The presses of ROM_DATA again, with the reference at the fine 0.3 mm spacing (each takes
 # 10 s to 22 min on one core); resumable like gen-data.

@@ -1,13 +1,14 @@
 """Builds the tacrom wheel: the Python package with the plugin library
-(``tacrom/_lib/libtacrom.so``), the shipped reduced-order model
-(``tacrom/models/rom-default``: manifest and ONNX files) and the environments' scenes
+(``tacrom/_lib/libtacrom.so``), the shipped reduced-order models
+(``tacrom/models/rom-default`` and, for ``solver="linear"``, ``tacrom/models/rom-linear``:
+manifests and ONNX files) and the environments' scenes
 (``tacrom/envs/assets``: ``examples/gripper.xml`` and its mesh).
 
     .venv/bin/python python/build_wheel.py --out dist      # what `make wheel` runs
 
-The package is staged in a scratch folder so that the checkout keeps one copy of the model
-and the scenes. The library looks for ``models/rom-default`` beside itself, walking up from
-``_lib`` (``tacrom::rom::default_model_dir``), so ``tacrom/models/rom-default`` is where an
+The package is staged in a scratch folder so that the checkout keeps one copy of the models
+and the scenes. The library looks for ``models/<name>`` beside itself, walking up from
+``_lib`` (``tacrom::rom::shipped_model_dir``), so ``tacrom/models/rom-default`` is where an
 installed package's ``physics="rom"`` finds it. The wheel is tagged ``py3-none-<platform>``:
 the library is native code but does not depend on the Python version.
 """
@@ -23,7 +24,7 @@ import sysconfig
 import tempfile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-MODEL = "rom-default"
+MODELS = ("rom-default", "rom-linear")
 #: What of a model directory the run time needs (not its training weights or validation).
 MODEL_FILES = ("manifest.json", "*.onnx")
 
@@ -40,13 +41,14 @@ def stage(dest: pathlib.Path) -> None:
         dest / "tacrom",
         ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "models", "assets"),
     )
-    model_dir = dest / "tacrom" / "models" / MODEL
-    model_dir.mkdir(parents=True)
-    for pattern in MODEL_FILES:
-        for f in sorted((ROOT / "models" / MODEL).glob(pattern)):
-            shutil.copy2(f, model_dir / f.name)
-    if not (model_dir / "manifest.json").is_file():
-        raise SystemExit(f"no {MODEL} model in {ROOT / 'models'}")
+    for model in MODELS:
+        model_dir = dest / "tacrom" / "models" / model
+        model_dir.mkdir(parents=True)
+        for pattern in MODEL_FILES:
+            for f in sorted((ROOT / "models" / model).glob(pattern)):
+                shutil.copy2(f, model_dir / f.name)
+        if not (model_dir / "manifest.json").is_file():
+            raise SystemExit(f"no {model} model in {ROOT / 'models'}")
     assets = dest / "tacrom" / "envs" / "assets"
     (assets / "meshes").mkdir(parents=True)
     shutil.copy2(ROOT / "examples" / "gripper.xml", assets / "gripper.xml")

@@ -78,6 +78,10 @@ def test_the_wheel_holds_the_library_the_model_and_the_package(wheel):
         "tacrom/models/rom-default/encoder.onnx",
         "tacrom/models/rom-default/decoder.onnx",
         "tacrom/models/rom-default/decoder_jacobian.onnx",
+        "tacrom/models/rom-linear/manifest.json",
+        "tacrom/models/rom-linear/encoder.onnx",
+        "tacrom/models/rom-linear/decoder.onnx",
+        "tacrom/models/rom-linear/decoder_jacobian.onnx",
     ]:
         assert name in names, name
     # Training artefacts stay out.
@@ -85,15 +89,18 @@ def test_the_wheel_holds_the_library_the_model_and_the_package(wheel):
     with zipfile.ZipFile(wheel) as z:
         entry_points = z.read("tacrom-0.1.0.dist-info/entry_points.txt").decode()
         manifest = json.loads(z.read("tacrom/models/rom-default/manifest.json"))
+        linear = json.loads(z.read("tacrom/models/rom-linear/manifest.json"))
         lib = z.read("tacrom/_lib/libtacrom.so")
     assert "[mujoco.plugins]" in entry_points and "tacrom:_register_with_mujoco" in entry_points
     assert manifest["format"] == "tacrom-rom-1"
+    assert manifest["recipe"]["solver"] == "relaxation"
+    assert linear["recipe"]["solver"] == "linear"
     assert lib == (ROOT / "python" / "tacrom" / "_lib" / "libtacrom.so").read_bytes()
 
 
 # Run in the fresh environment, from a folder outside the checkout: the press scene pressed
-# 0.8 mm (rigid, then rom with the wheel's model), and the gripper environment from the
-# wheel's scene.
+# 0.8 mm (rigid, then rom with the wheel's models: "rom" the default solver's, "rom:linear"
+# the linear solver's), and the gripper environment from the wheel's scene.
 SCRIPT = textwrap.dedent(
     """
     import json, pathlib, sys
@@ -114,18 +121,23 @@ SCRIPT = textwrap.dedent(
       <sensor>
         <plugin name="touch" plugin="tacrom.tactile" objtype="site" objname="gel">
           <config key="physics" value="PHYSICS"/>
+          SOLVER
           <config key="resolution" value="32 24"/>
         </plugin>
       </sensor>
     </mujoco>
     '''
     result = {"tacrom": tacrom.__file__, "library": str(tacrom.library_path())}
-    for physics in sys.argv[1].split(","):
-        model = mujoco.MjModel.from_xml_string(PRESS.replace("PHYSICS", physics))
+    for spec in sys.argv[1].split(","):
+        physics, _, solver = spec.partition(":")
+        xml = PRESS.replace("PHYSICS", physics).replace(
+            "SOLVER", f'<config key="solver" value="{solver}"/>' if solver else ""
+        )
+        model = mujoco.MjModel.from_xml_string(xml)
         data = mujoco.MjData(model)
         data.qpos[0] = 0.0008
         mujoco.mj_forward(model, data)
-        result[physics] = float(tacrom.depth(model, data, "touch").max())
+        result[spec] = float(tacrom.depth(model, data, "touch").max())
     if len(sys.argv) > 2:
         import gymnasium as gym
         from tacrom.envs.base import asset_path
@@ -179,12 +191,12 @@ def test_the_installed_wheel_presses_from_outside_the_checkout(wheel, tmp_path):
 
     outside = tmp_path / "elsewhere"
     outside.mkdir()
-    result = run_outside(python, outside, "rigid,rom", "gripper")
+    result = run_outside(python, outside, "rigid,rom,rom:linear", "gripper")
     installed = venv.resolve()
     assert pathlib.Path(result["tacrom"]).resolve().is_relative_to(installed), result
     assert pathlib.Path(result["library"]).resolve().is_relative_to(installed), result
     assert pathlib.Path(result["gripper_scene"]).resolve().is_relative_to(installed), result
-    assert result["rigid"] > 5e-4 and result["rom"] > 5e-4, result
+    assert result["rigid"] > 5e-4 and result["rom"] > 5e-4 and result["rom:linear"] > 5e-4, result
     assert result["gripper_depth"] > 3e-4, result
 
     # The library reads the model inside the installed package (not the checkout's): with

@@ -105,6 +105,8 @@ def load_dir(path, drop_unconverged=True):
         if spec.conditioning:
             m = spec.material(meta.get("poisson", ds["poisson"]), meta.get("friction", ds["friction"]))
             a = np.concatenate([a, np.broadcast_to(np.array(m, np.float32)[:, None, None], (2,) + a.shape[1:])])
+        # The spacing of the sample's reference (`overlay_references` updates it).
+        meta["reference_dx"] = ds.get("fine_dx")
         arrays.append(a)
         metas.append(meta)
     if not arrays:

@@ -169,7 +169,8 @@ def test_finer_references_replace_the_base_ones_where_present(tmp_path):
     assert refs["replaced"] == 4 and refs["indices"] == [0, 1, 2, 5]
     assert refs["train"] == {"0.0003": 3, "0.0007": 6}
     assert refs["validation"] == {"0.0003": 1, "0.0007": 2}
-    assert "--fine-dx 0.0007" in m["data"]["command"] and "--fine-dx 0.0003" in refs["command"]
+    # The commands in millimetres, as the CLI reads them.
+    assert "--fine-dx 0.7 " in m["data"]["command"] and "--fine-dx 0.3 " in refs["command"]
 
 
 def test_finer_references_of_other_presses_are_refused(tmp_path):

@@ -113,6 +113,12 @@ fn main() {
             if quick { 5 } else { 20 },
         ),
         ("rom", "rom", None, if quick { 5 } else { 20 }),
+        (
+            "rom-linear",
+            "rom",
+            Some("linear"),
+            if quick { 5 } else { 20 },
+        ),
     ];
     if with_fine {
         modes.push(("fine", "fine", None, 3));

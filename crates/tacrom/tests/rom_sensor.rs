@@ -271,3 +271,39 @@ fn a_coarse_solve_other_than_the_models_recipe_is_refused() {
     let e = load_error(RawConfig::default().with(ATTR_MODEL, dir.to_str().unwrap()));
     assert!(e.contains("recipe"), "{e}");
 }
+
+/// `solver="linear"` gets the shipped model trained on that solver's coarse solve
+/// (`models/rom-linear`, whose recipe names it: a model of another solver is refused, as
+/// the default model is when named explicitly), and presses a sphere with it.
+#[test]
+fn the_linear_solver_gets_its_own_shipped_model() {
+    use tacrom::rom::{shipped_model, shipped_model_dir, LINEAR_MODEL};
+    assert_eq!(shipped_model("linear"), LINEAR_MODEL);
+    assert_eq!(shipped_model("relaxation"), tacrom::rom::DEFAULT_MODEL);
+    let raw = RawConfig::default()
+        .with(ATTR_RESOLUTION, "160 120")
+        .with(ATTR_SOLVER, "linear");
+    let mut sensor = TactileSensor::new(Config::from_raw("touch", &raw).unwrap()).unwrap();
+    let placed = [Placed {
+        shape: Arc::new(Sphere::new(0.005)),
+        pose: Isometry3::translation(0.0, 0.0, 0.005 - 0.5e-3),
+    }];
+    let mut out = vec![0.0; 160 * 120];
+    let eval = sensor.evaluate(&placed, &mut out);
+    assert!(eval.rom.is_some(), "{:?}", eval.warnings);
+    // The depth rule bounds every pixel by the deepest indenter point (0.5 mm); a gel
+    // pressed 0.5 mm reaches it within a tenth.
+    let peak = out.iter().cloned().fold(0.0, f64::max);
+    assert!((peak - 0.5e-3).abs() < 0.05e-3, "peak {peak}");
+    assert!(out.iter().all(|d| d.is_finite() && *d >= 0.0));
+    let text = std::fs::read_to_string(
+        shipped_model_dir(LINEAR_MODEL)
+            .unwrap()
+            .join("manifest.json"),
+    );
+    let manifest: serde_json::Value = serde_json::from_str(&text.unwrap()).unwrap();
+    assert_eq!(manifest["recipe"]["solver"], "linear");
+    let default = tacrom::rom::default_model_dir().unwrap();
+    let e = load_error(raw.with(ATTR_MODEL, default.to_str().unwrap()));
+    assert!(e.contains("linear") && e.contains("relaxation"), "{e}");
+}

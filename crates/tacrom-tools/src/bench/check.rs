@@ -3,7 +3,8 @@
 //!
 //! The checks, each a failure when broken:
 //! * **Ordering**: rom's depth MAE below coarse's, coarse's below rigid's (the decoder must
-//!   add detail the coarse gel lacks; the gel must beat the rigid penetration).
+//!   add detail the coarse gel lacks; the gel must beat the rigid penetration); the same
+//!   for the linear solver's rows (`rom-linear`, `coarse-linear`) where the run has them.
 //! * **Drift**: per mode in the baseline, depth MAE at most `1 + RELATIVE` times the
 //!   baseline's plus [`ABSOLUTE_MAE`], SSIM at least the baseline's minus [`SSIM_DROP`], the
 //!   relative force error at most the baseline's plus [`FORCE_POINTS`] percentage points.
@@ -212,12 +213,19 @@ pub fn compare(
     };
     let verdict_note = |line: String| lines.borrow_mut().push(line);
     let mae = |m: &str| now.get(m).map(|r| r.mae_um);
-    for (better, worse) in [("rom", "coarse"), ("coarse", "rigid")] {
+    let orders = [
+        ("rom", "coarse", true),
+        ("coarse", "rigid", true),
+        ("rom-linear", "coarse-linear", false),
+        ("coarse-linear", "rigid", false),
+    ];
+    for (better, worse, required) in orders {
         match (mae(better), mae(worse)) {
             (Some(b), Some(w)) => verdict(
                 b < w,
                 format!("{better} depth MAE {b:.2} um below {worse}'s {w:.2} um"),
             ),
+            (None, _) if !required => {}
             _ => verdict(false, format!("{better} and {worse} both in the run")),
         }
     }
@@ -336,6 +344,19 @@ mod tests {
         let (lines, ok) = compare(&b, &swapped);
         assert!(
             !ok && lines.iter().any(|l| l.starts_with("FAIL rom depth MAE")),
+            "{lines:?}"
+        );
+        // The linear solver's rows are ordered the same way where the run has them.
+        let mut linear = b.modes.clone();
+        linear.insert("coarse-linear".into(), row(6.0));
+        linear.insert("rom-linear".into(), row(3.0));
+        assert!(compare(&b, &linear).1);
+        linear.get_mut("rom-linear").unwrap().mae_um = 6.5;
+        let (lines, ok) = compare(&b, &linear);
+        assert!(
+            !ok && lines
+                .iter()
+                .any(|l| l.starts_with("FAIL rom-linear depth MAE")),
             "{lines:?}"
         );
         let mut missing = b.modes.clone();

@@ -21,6 +21,12 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
     ("rigid", &[("physics", "rigid")]),
     ("coarse", &[("physics", "coarse")]),
     ("rom", &[("physics", "rom")]),
+    // The linear solver's coarse gel, and rom on it (the shipped model for that solver).
+    (
+        "coarse-linear",
+        &[("physics", "coarse"), ("solver", "linear")],
+    ),
+    ("rom-linear", &[("physics", "rom"), ("solver", "linear")]),
     // The solver's tolerance around the default 3e-3: the fine mode's 1e-3, and 1e-2.
     (
         "coarse-tol1e-3",

@@ -89,8 +89,20 @@ pub const VOLUME_RATIO: [f64; 2] = [0.25, 4.0];
 
 /// Format tag of the manifests this build reads.
 pub const FORMAT: &str = "tacrom-rom-1";
-/// Name of the shipped model's directory under `models/`.
+/// Name of the shipped model's directory under `models/`: the one for the default coarse
+/// solve (the relaxation).
 pub const DEFAULT_MODEL: &str = "rom-default";
+/// Name of the shipped model for the linear solver's coarse solve (`solver="linear"`).
+pub const LINEAR_MODEL: &str = "rom-linear";
+
+/// The shipped model (its directory's name under `models/`) trained on the coarse solve of
+/// the solver named `solver`.
+pub fn shipped_model(solver: &str) -> &'static str {
+    match solver {
+        "linear" => LINEAR_MODEL,
+        _ => DEFAULT_MODEL,
+    }
+}
 
 /// Errors of the reduced-order model.
 #[derive(Debug, thiserror::Error)]
@@ -697,13 +709,18 @@ pub struct Rom {
 /// source tree): `models/rom-default` beside the library, in the Python package's `_lib`,
 /// or at the root of the checkout that built it.
 pub fn default_model_dir() -> Option<PathBuf> {
+    shipped_model_dir(DEFAULT_MODEL)
+}
+
+/// The directory of the shipped model `name` (see [`default_model_dir`]).
+pub fn shipped_model_dir(name: &str) -> Option<PathBuf> {
     let mut candidates = Vec::new();
     if let Some(lib) = runtime::own_library_path() {
         for dir in lib.ancestors().skip(1).take(4) {
-            candidates.push(dir.join("models").join(DEFAULT_MODEL));
+            candidates.push(dir.join("models").join(name));
         }
     }
-    candidates.push(crate::checkout_root().join("models").join(DEFAULT_MODEL));
+    candidates.push(crate::checkout_root().join("models").join(name));
     candidates
         .into_iter()
         .find(|d| d.join("manifest.json").is_file())

@@ -406,16 +406,16 @@ impl SurfaceModel for Reduced {
 }
 
 /// Loads the reduced-order model of a `physics="rom"` sensor: the `model` directory or the
-/// shipped one, checked against the sensor's gel and coarse solve.
+/// shipped one for its solver, checked against the sensor's gel and coarse solve.
 fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
     let attr = crate::config::ATTR_MODEL;
+    let shipped = crate::rom::shipped_model(solver.name());
     let dir = match &config.model {
         Some(d) => d.clone(),
-        None => crate::rom::default_model_dir().ok_or_else(|| {
+        None => crate::rom::shipped_model_dir(shipped).ok_or_else(|| {
             format!(
-                "attribute '{attr}': the shipped model models/{} was not found beside the \
-                 plugin library; set '{attr}' to a model directory",
-                crate::rom::DEFAULT_MODEL
+                "attribute '{attr}': the shipped model models/{shipped} was not found beside \
+                 the plugin library; set '{attr}' to a model directory",
             )
         })?,
     };

@@ -6,6 +6,9 @@ mode leaves them out.
 
     .venv/bin/python examples/demo.py --out out/demo --physics rigid coarse
     .venv/bin/python examples/demo.py --outputs depth      # depth images only
+
+A mode ending in ``-linear`` (``coarse-linear``, ``rom-linear``) is that mode with
+``solver="linear"``: the small-strain gel, and for rom the model shipped for it.
 """
 
 from __future__ import annotations
@@ -26,7 +29,13 @@ HERE = pathlib.Path(__file__).resolve().parent
 
 def model_for(physics: str, outputs: list, xml_path: pathlib.Path) -> mujoco.MjModel:
     xml = xml_path.read_text()
-    xml = re.sub(r'key="physics" value="[^"]*"', f'key="physics" value="{physics}"', xml)
+    base = physics.removesuffix("-linear")
+    solver = '<config key="solver" value="linear"/>' if base != physics else ""
+    xml = re.sub(
+        r'<config key="physics" value="[^"]*"/>',
+        f'<config key="physics" value="{base}"/>{solver}',
+        xml,
+    )
     value = " ".join(outputs)
     xml = re.sub(r'key="outputs" value="[^"]*"', f'key="outputs" value="{value}"', xml)
     return mujoco.MjModel.from_xml_string(xml)

@@ -274,7 +274,8 @@ fn a_coarse_solve_other_than_the_models_recipe_is_refused() {
 
 /// `solver="linear"` gets the shipped model trained on that solver's coarse solve
 /// (`models/rom-linear`, whose recipe names it: a model of another solver is refused, as
-/// the default model is when named explicitly), and presses a sphere with it.
+/// the default model is when named explicitly), presses a sphere with it, and serves the
+/// materials its manifest was validated on.
 #[test]
 fn the_linear_solver_gets_its_own_shipped_model() {
     use tacrom::rom::{shipped_model, shipped_model_dir, LINEAR_MODEL};
@@ -304,6 +305,14 @@ fn the_linear_solver_gets_its_own_shipped_model() {
     let manifest: serde_json::Value = serde_json::from_str(&text.unwrap()).unwrap();
     assert_eq!(manifest["recipe"]["solver"], "linear");
     let default = tacrom::rom::default_model_dir().unwrap();
-    let e = load_error(raw.with(ATTR_MODEL, default.to_str().unwrap()));
+    let e = load_error(raw.clone().with(ATTR_MODEL, default.to_str().unwrap()));
     assert!(e.contains("linear") && e.contains("relaxation"), "{e}");
+    // Its manifest's validated materials: friction 0 to 1 at Poisson 0.43 (a frictionless
+    // gel for a cheap grasp), and not another Poisson's ratio.
+    for friction in ["0", "1"] {
+        let raw = raw.clone().with(ATTR_FRICTION, friction);
+        assert!(TactileSensor::new(Config::from_raw("touch", &raw).unwrap()).is_ok());
+    }
+    let e = load_error(raw.with(ATTR_POISSON, "0.3"));
+    assert!(e.contains("0.3") && e.contains("0.43"), "{e}");
 }

@@ -260,7 +260,7 @@ fn a_coarse_solve_other_than_the_models_recipe_is_refused() {
     let dir = model_with("solver", recipe("solver", "newton".into()));
     let e = load_error(RawConfig::default().with(ATTR_MODEL, dir.to_str().unwrap()));
     assert!(
-        e.contains("newton") && e.contains(tacrom::mpm::SOLVER),
+        e.contains("newton") && e.contains(tacrom::mpm::Solver::Relaxation.name()),
         "{e}"
     );
     // The shipped model (relaxation) under the Newton solver.

@@ -73,10 +73,6 @@
 //! * `transfer.rs`: the four parts of a step; `contact.rs`: the contact forces;
 //!   `material.rs`: the constitutive models; `surface.rs`: the depth and shear images.
 
-/// The quasi-static solver's name, recorded in a reduced-order model's recipe: a model
-/// trained on one solver's coarse solutions refuses another's.
-pub const SOLVER: &str = "relaxation";
-
 mod contact;
 pub mod hertz;
 mod indenters;

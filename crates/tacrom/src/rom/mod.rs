@@ -322,7 +322,8 @@ pub struct Recipe {
     pub dx: f64,
     /// Constitutive model (`material` attribute value).
     pub material: String,
-    /// Coarse solver ([`crate::mpm::SOLVER`]).
+    /// Coarse solver ([`crate::mpm::Solver::name`]): a model trained on one solver's coarse
+    /// solutions refuses another's.
     pub solver: String,
     /// Convergence tolerance of the coarse solves in the training data.
     pub tolerance: f64,

@@ -675,6 +675,34 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
         e.to_string().contains("lattice") && e.to_string().contains("heldout-lattice"),
         "{e}"
     );
+    // So is a data set whose coarse channel another solver wrote (the model reads the
+    // relaxation's), with both solvers and the folder named.
+    let linear = scratch("heldout-linear");
+    datagen::generate(
+        &GenConfig {
+            out: linear.clone(),
+            samples: 1,
+            coarse_solver: tacrom::mpm::Solver::Linear,
+            held_out_only: false,
+            ..config.clone()
+        },
+        |_| {},
+    )
+    .unwrap();
+    let e = tacrom_tools::bench::heldout::run(&tacrom_tools::bench::heldout::EvalOptions {
+        data: vec![linear.clone()],
+        all: true,
+        compare: None,
+        models: vec![model_dir()],
+        out: out.join("report"),
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("\"linear\"") && e.contains("\"relaxation\"") && e.contains("heldout-linear"),
+        "{e}"
+    );
     let _ = std::fs::remove_dir_all(&out);
     let _ = std::fs::remove_dir_all(&other);
+    let _ = std::fs::remove_dir_all(&linear);
 }

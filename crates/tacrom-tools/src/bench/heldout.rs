@@ -22,7 +22,7 @@ use serde::Deserialize;
 use crate::datagen::{read_npy, Dataset};
 use crate::progress::Progress;
 use tacrom::rom::features::{LatticeSpec, Observation};
-use tacrom::rom::{Rom, RomOptions};
+use tacrom::rom::{Manifest, Rom, RomOptions};
 
 /// Field of view the metrics cover (m), centred on the lattice.
 pub const FOV: [f64; 2] = [0.024, 0.018];
@@ -160,12 +160,29 @@ struct Timing {
 }
 
 /// The samples of `dir` (held-out ones unless `all`), and the data set's reference spacing.
+/// Its coarse channel must come from the coarse solver `solver` (the models'): a model fed
+/// another solver's coarse surface is not the model a sensor runs.
 fn load_samples(
     dir: &Path,
     spec: &LatticeSpec,
     all: bool,
+    solver: &str,
 ) -> Result<(Vec<Sample>, f64), BenchError> {
     let dataset: Dataset = read_json(&dir.join("dataset.json"))?;
+    // Data sets written before the recipe was recorded hold the relaxation's solves.
+    let theirs = dataset
+        .recipe
+        .as_ref()
+        .map_or("relaxation", |r| r.solver.as_str());
+    if theirs != solver {
+        return Err(bad(
+            dir,
+            format!(
+                "coarse solves of the \"{theirs}\" solver, the models were trained on the \
+                 \"{solver}\" solver's"
+            ),
+        ));
+    }
     let lattice = dataset.lattice;
     if lattice != [spec.ny, spec.nx] {
         return Err(bad(
@@ -343,11 +360,24 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
         Rom::load(dir, RomOptions { refine, threads: 1 })
             .map_err(|e| BenchError::Config(e.to_string()))
     };
-    let spec = load(first, None)?.manifest().lattice;
+    let manifests = options
+        .models
+        .iter()
+        .map(|m| Manifest::load(m).map_err(|e| BenchError::Config(e.to_string())))
+        .collect::<Result<Vec<_>, _>>()?;
+    let solver = manifests[0].recipe.solver.clone();
+    if let Some(m) = manifests.iter().find(|m| m.recipe.solver != solver) {
+        return Err(BenchError::Usage(format!(
+            "eval-rom: the models were trained on different coarse solvers (\"{solver}\" and \
+             \"{}\"); compare models of one solver on its data",
+            m.recipe.solver
+        )));
+    }
+    let spec = manifests[0].lattice;
     let mut samples = Vec::new();
     let mut result = EvalResult::default();
     for dir in &options.data {
-        let (s, dx) = load_samples(dir, &spec, options.all)?;
+        let (s, dx) = load_samples(dir, &spec, options.all, &solver)?;
         samples.extend(s);
         result.reference_dx.push(dx);
     }

@@ -116,6 +116,9 @@ const PAD_BOTTOM: usize = 2;
 /// Most points per indenter that [`Gel::unloaded_penetration`] samples.
 pub const MISSED_SAMPLES: usize = 16_384;
 
+/// Moves at most of the compass search for a tip between those samples.
+const COMPASS_MOVES: usize = 200;
+
 /// Geometry of the particle lattice and grid, fixed at construction.
 #[derive(Clone, Copy, Debug)]
 struct Layout {
@@ -522,18 +525,48 @@ impl Gel {
             let nx = ((x1 - x0) / pitch).floor() as usize + 1;
             let ny = ((y1 - y0) / pitch).floor() as usize + 1;
             let inverse = p.pose.inverse();
+            let distance = |x: f64, y: f64| {
+                let x = x.clamp(-0.5 * lx, 0.5 * lx);
+                let y = y.clamp(-0.5 * ly, 0.5 * ly);
+                p.shape.distance(&(inverse * Point3::new(x, y, 0.0)))
+            };
+            // The sample nearest to reaching in.
+            let mut best = (f64::INFINITY, 0.0, 0.0);
             for j in 0..ny {
                 for i in 0..nx {
-                    let q = Point3::new(
-                        x0 + (i as f64 + 0.5) * (x1 - x0) / nx as f64,
-                        y0 + (j as f64 + 0.5) * (y1 - y0) / ny as f64,
-                        0.0,
-                    );
-                    let d = p.shape.distance(&(inverse * q));
-                    if d.is_finite() {
-                        deepest = deepest.max(-d);
+                    let x = x0 + (i as f64 + 0.5) * (x1 - x0) / nx as f64;
+                    let y = y0 + (j as f64 + 0.5) * (y1 - y0) / ny as f64;
+                    let d = distance(x, y);
+                    if d < best.0 {
+                        best = (d, x, y);
                     }
                 }
+            }
+            // A tip narrower than the sampling can reach in between the samples: a compass
+            // search from the nearest sample down to a sixty-fourth of their pitch finds
+            // it (where the sample lies within a pitch of the indenter).
+            if best.0 >= 0.0 && best.0 < pitch {
+                let mut step = 0.5 * pitch;
+                for _ in 0..COMPASS_MOVES {
+                    if step <= pitch / 64.0 || best.0 < 0.0 {
+                        break;
+                    }
+                    let (_, x, y) = best;
+                    let moves = [(step, 0.0), (-step, 0.0), (0.0, step), (0.0, -step)];
+                    let mut moved = false;
+                    for (u, v) in moves {
+                        let d = distance(x + u, y + v);
+                        if d < best.0 {
+                            (best, moved) = ((d, x + u, y + v), true);
+                        }
+                    }
+                    if !moved {
+                        step *= 0.5;
+                    }
+                }
+            }
+            if best.0.is_finite() {
+                deepest = deepest.max(-best.0);
             }
         }
         deepest

@@ -104,7 +104,7 @@ use super::super::indenters::Sweep;
 use super::super::{
     pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS,
 };
-use super::subgrid::tip_samples;
+use super::subgrid::{tip_samples, TIP_SAMPLES};
 use super::system::System;
 use super::{
     contact_lattice, contains, remap_anchors, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK,
@@ -129,11 +129,27 @@ pub(crate) const SUBDIVISION: usize = 2;
 const NEAR_CELLS: f64 = 0.5;
 
 /// The stiffness `F / delta` of a small contact, in units of `E* a` with `a` the radius
-/// of its rigid footprint on the undeformed surface: a 45-degree cone's is `2 / pi =
-/// 0.64` (Sneddon: contact radius `2 delta / pi`, footprint `delta`), a sphere's `4 / (3
-/// sqrt 2) = 0.94` (Hertz: contact radius `sqrt(R delta)`, footprint `sqrt(2 R delta)`),
-/// a flat punch's 2. A tip point's patch takes the one between cone and sphere.
-const TIP_STIFFNESS: f64 = 0.8;
+/// of its rigid footprint on the undeformed surface and `delta` its deepest penetration,
+/// as a function of its fullness `phi`, the footprint's mean penetration over `delta`:
+/// `k = FULLNESS_SLOPE phi + FULLNESS_OFFSET`. The exact values it is fitted to (least
+/// squares; each within 2.5 %): a 45-degree cone, `phi = 1 / 3`, `k = 2 / pi = 0.64`
+/// (Sneddon: contact radius `2 delta / pi`, footprint `delta`); a sphere pressed
+/// shallowly, `phi = 1 / 2`, `k = 4 / (3 sqrt 2) = 0.94` (Hertz: contact radius `sqrt(R
+/// delta)`, footprint `sqrt(2 R delta)`); a flat punch, `phi = 1`, `k = 2`. It follows a
+/// sphere pressed deep as well (`delta = 0.8 R`: `phi = 0.61`, `k` 1.19 against Hertz's
+/// 1.22 on the exact footprint).
+const FULLNESS_SLOPE: f64 = 2.06;
+const FULLNESS_OFFSET: f64 = -0.067;
+
+/// The least stiffness of a small contact (units of [`FULLNESS_SLOPE`]'s): profiles
+/// sharper than a cone's (whose fullness is a third at any angle) are held to it.
+const MIN_FULLNESS_STIFFNESS: f64 = 0.3;
+
+/// A cone's fullness (at any angle).
+const CONE_FULLNESS: f64 = 1.0 / 3.0;
+
+/// Surface samples at most per axis over a small contact's lattice points.
+const FOOTPRINT_SAMPLES: usize = 48;
 
 /// Solves at most per frame (more only where the surface rose past points left out).
 const MAX_PASSES: usize = 12;
@@ -198,6 +214,9 @@ pub(crate) struct Contact {
     pub forces: Vec<Vector3<f64>>,
     #[cfg(test)]
     pub loaded: Vec<u32>,
+    /// For the tests: the lattice points that a small contact's point stood for.
+    #[cfg(test)]
+    pub replaced: Vec<u32>,
     /// For the tests: the node columns' mean displacement (cells, 3 per column).
     #[cfg(test)]
     pub columns: Vec<f64>,
@@ -565,7 +584,7 @@ impl Compliance {
         indenter: &StepIndenter,
         rest: &[Vector3<f64>],
         clear: &[f64],
-    ) -> Option<(Vector3<f64>, f64, f64)> {
+    ) -> Option<(Vector3<f64>, f64, f64, f64)> {
         let own = |x: &Vector3<f64>| self.clearance(x, std::slice::from_ref(indenter));
         // Only points within a lattice diagonal can be next to a tip (the clearance is the
         // nearest indenter's, at most this one's).
@@ -581,30 +600,20 @@ impl Compliance {
             }
         }
         let centre = rest[nearest?.1];
-        let (samples, share) = tip_samples(centre, centre, self.spacing);
-        let (mut inside, mut deepest) = (0usize, None::<(f64, Vector3<f64>)>);
-        for x in samples {
-            let d = own(&x);
-            if d < 0.0 {
-                inside += 1;
-                if deepest.map_or(true, |(b, _)| d < b) {
-                    deepest = Some((d, x));
-                }
-            }
-        }
-        let (d, at) = deepest?;
-        Some((at, (inside as f64 * share).min(1.0), d))
+        let one = std::slice::from_ref(indenter);
+        let depth = |x: &Vector3<f64>| self.vertical_gap(x, one).map_or(0.0, |g| -g);
+        let (at, share, d, fullness) =
+            footprint(tip_samples(centre, centre, self.spacing), own, depth)?;
+        Some((at, share.min(1.0), d, fullness))
     }
 
-    /// The contact compliance of a tip point at `at` (cells) standing for `share` of a
-    /// lattice point's face: its penalty over that share, in series with what the grid
-    /// misses of the patch's compliance (see the module docs, "Small contacts").
-    fn tip_softness(&mut self, at: &Vector3<f64>, share: f64) -> f64 {
+    /// The grid's own compliance at the surface point `at` (cells): its sinking under a
+    /// unit load on it.
+    fn point_compliance(&mut self, at: &Vector3<f64>) -> f64 {
         let stencil = self.columns_at(at);
         let columns: Vec<u32> = stencil.iter().map(|&(c, _)| c).collect();
         self.ensure(&columns);
-        // The grid's own compliance at the point: its sinking under a unit load on it.
-        let grid: f64 = stencil
+        stencil
             .iter()
             .map(|&(a, wa)| {
                 let response = &self.columns[&a];
@@ -614,12 +623,137 @@ impl Compliance {
                     .sum::<f64>()
                     * wa
             })
-            .sum();
-        // The patch's compliance on the layer, from the radius of its rigid footprint.
+            .sum()
+    }
+
+    /// The compliance `delta / F` on the layer of a small contact whose rigid footprint
+    /// covers `share` lattice points' faces with fullness `fullness` (see
+    /// [`FULLNESS_SLOPE`]).
+    fn patch_compliance(&self, share: f64, fullness: f64) -> f64 {
         let radius = (share * self.spacing[0] * self.spacing[1] / std::f64::consts::PI).sqrt();
         let [e_star, slope, thickness] = self.layer;
-        let patch = 1.0 / (TIP_STIFFNESS * e_star * radius * (1.0 + slope * radius / thickness));
-        self.softness / share + (patch - grid).max(0.0)
+        let k = (FULLNESS_SLOPE * fullness + FULLNESS_OFFSET).max(MIN_FULLNESS_STIFFNESS);
+        1.0 / (k * e_star * radius * (1.0 + slope * radius / thickness))
+    }
+
+    /// Surface samples over the box from `lo` to `hi` (cells) grown by a lattice spacing,
+    /// at `lo`'s height, as [`tip_samples`] does but at most [`FOOTPRINT_SAMPLES`] per
+    /// axis; and the face share (in lattice points) that each stands for.
+    fn footprint_samples(&self, lo: Vector3<f64>, hi: Vector3<f64>) -> (Vec<Vector3<f64>>, f64) {
+        let (fine, share) = tip_samples(lo, hi, self.spacing);
+        let extent = [0, 1].map(|a| hi[a] - lo[a] + 2.0 * self.spacing[a]);
+        let steps = [0, 1].map(|a| extent[a] / FOOTPRINT_SAMPLES as f64);
+        if (0..2).all(|a| steps[a] <= self.spacing[a] / TIP_SAMPLES as f64) {
+            return (fine, share);
+        }
+        let mut out = Vec::with_capacity((FOOTPRINT_SAMPLES + 1).pow(2));
+        for i in 0..=FOOTPRINT_SAMPLES {
+            for j in 0..=FOOTPRINT_SAMPLES {
+                out.push(Vector3::new(
+                    lo.x - self.spacing[0] + i as f64 * steps[0],
+                    lo.y - self.spacing[1] + j as f64 * steps[1],
+                    lo.z,
+                ));
+            }
+        }
+        (
+            out,
+            steps[0] * steps[1] / (self.spacing[0] * self.spacing[1]),
+        )
+    }
+
+    /// Contacts smaller than the grid resolves that reach lattice points (see the module
+    /// docs, "Small contacts"). A patch is a connected set of lattice points inside the
+    /// indenters (clearance `clear` below zero: the rigid footprint on the rest surface).
+    /// Under a patch more compliant than a point load on the grid, the grid deflects as
+    /// under a point load, and the lattice points, which lie far above the deepest point
+    /// under a sphere or a cone tip, sample the indenter too coarsely: such a patch
+    /// becomes one point as a tip does, at the deepest of the surface samples over it,
+    /// with their share of the face and the patch's compliance less the grid's in series
+    /// with its penalty, and its lattice points leave the contact. Larger patches keep
+    /// their lattice points. The new points are appended to `near`, `rest`, `clear` and
+    /// `soft` (indices from `first`); returns the lattice points they stand for.
+    fn small_contacts(
+        &mut self,
+        first: u32,
+        indenters: &[StepIndenter],
+        near: &mut Vec<u32>,
+        rest: &mut Vec<Vector3<f64>>,
+        clear: &mut Vec<f64>,
+        soft: &mut Vec<f64>,
+    ) -> Vec<u32> {
+        let count = (self.lattice[0] * self.lattice[1]) as u32;
+        let lattice = near.partition_point(|&k| k < count);
+        let inside: HashMap<u32, usize> = (0..lattice)
+            .filter(|&i| clear[i] < 0.0)
+            .map(|i| (near[i], i))
+            .collect();
+        if inside.is_empty() {
+            return Vec::new();
+        }
+        let [nx, ny] = self.lattice.map(|n| n as i64);
+        let mut seen = vec![false; lattice];
+        let mut points = Vec::new();
+        for start in 0..lattice {
+            if !(clear[start] < 0.0) || seen[start] {
+                continue;
+            }
+            seen[start] = true;
+            let mut list = vec![start];
+            let mut next = 0;
+            while next < list.len() {
+                let k = near[list[next]] as i64;
+                next += 1;
+                let (ix, iy) = (k / ny, k % ny);
+                for x in (ix - 1).max(0)..=(ix + 1).min(nx - 1) {
+                    for y in (iy - 1).max(0)..=(iy + 1).min(ny - 1) {
+                        if let Some(&j) = inside.get(&((x * ny + y) as u32)) {
+                            if !seen[j] {
+                                seen[j] = true;
+                                list.push(j);
+                            }
+                        }
+                    }
+                }
+            }
+            // Patches the lattice resolves need no finer look: a cone's footprint of this
+            // size, and a footprint two thirds its radius, are stiffer than the grid's
+            // point load (the lattice points' count measures a large footprint well).
+            let grid = self.point_compliance(&rest[start]);
+            let n = list.len() as f64;
+            if self.patch_compliance(n / (1.5f64).powi(2), CONE_FULLNESS) < grid {
+                continue;
+            }
+            let lo = list
+                .iter()
+                .fold(Vector3::repeat(f64::INFINITY), |m, &i| m.inf(&rest[i]));
+            let hi = list
+                .iter()
+                .fold(Vector3::repeat(f64::NEG_INFINITY), |m, &i| m.sup(&rest[i]));
+            let distance = |x: &Vector3<f64>| self.clearance(x, indenters);
+            let depth = |x: &Vector3<f64>| self.vertical_gap(x, indenters).map_or(0.0, |g| -g);
+            let Some((at, share, d, fullness)) =
+                footprint(self.footprint_samples(lo, hi), distance, depth)
+            else {
+                continue;
+            };
+            let missing = self.patch_compliance(share, fullness) - self.point_compliance(&at);
+            if missing > 0.0 {
+                points.push((list, at, d, self.softness / share + missing));
+            }
+        }
+        let mut replaced = Vec::new();
+        for (k, (list, at, d, compliance)) in points.into_iter().enumerate() {
+            for i in list {
+                clear[i] = f64::INFINITY;
+                replaced.push(near[i]);
+            }
+            near.push(first + k as u32);
+            rest.push(at);
+            clear.push(d);
+            soft.push(compliance);
+        }
+        replaced
     }
 
     /// Where the anchor `a` is now (cells).
@@ -676,13 +810,20 @@ impl Compliance {
         let mut soft = vec![self.softness; near.len()];
         let count = (self.lattice[0] * self.lattice[1]) as u32;
         for (m, indenter) in indenters.iter().enumerate() {
-            if let Some((at, share, c)) = self.tip(indenter, &rest, &clear) {
+            if let Some((at, share, c, fullness)) = self.tip(indenter, &rest, &clear) {
+                // Its penalty over its share of the face, in series with what the grid
+                // misses of the patch's compliance.
+                let missing = self.patch_compliance(share, fullness) - self.point_compliance(&at);
                 near.push(count + m as u32);
                 rest.push(at);
                 clear.push(c);
-                soft.push(self.tip_softness(&at, share));
+                soft.push(self.softness / share + missing.max(0.0));
             }
         }
+        let first = count + indenters.len() as u32;
+        let _replaced = self.small_contacts(
+            first, indenters, &mut near, &mut rest, &mut clear, &mut soft,
+        );
         let stencils: Vec<Columns> = rest.iter().map(|x| self.columns_at(x)).collect();
         let mut forces = vec![Vector3::zeros(); near.len()];
         let mut u: Vec<Vector3<f64>> = vec![Vector3::zeros(); near.len()];
@@ -920,6 +1061,8 @@ impl Compliance {
         Contact {
             #[cfg(test)]
             loaded: loaded.iter().map(|&i| near[i]).collect(),
+            #[cfg(test)]
+            replaced: _replaced,
             points: loaded.iter().map(|&i| rest[i] + u[i]).collect(),
             forces: loaded.iter().map(|&i| forces[i]).collect(),
             #[cfg(test)]
@@ -984,6 +1127,39 @@ impl Compliance {
         self.lagged.clear();
         self.last.clear();
     }
+}
+
+/// The rigid footprint of a small contact on surface `samples` (positions, and the face
+/// share in lattice points that each stands for) under indenters of signed distance
+/// `distance` and vertical depth `depth` (below their lower surface, positive inside
+/// them): its deepest sample, the penetrating samples' share of the face, the deepest
+/// sample's signed distance and the footprint's fullness (its mean depth over the
+/// deepest; see [`FULLNESS_SLOPE`]). `None` where no sample penetrates.
+fn footprint(
+    (samples, share): (Vec<Vector3<f64>>, f64),
+    distance: impl Fn(&Vector3<f64>) -> f64,
+    depth: impl Fn(&Vector3<f64>) -> f64,
+) -> Option<(Vector3<f64>, f64, f64, f64)> {
+    let (mut inside, mut sum) = (0usize, 0.0);
+    let mut deepest: Option<(f64, f64, Vector3<f64>)> = None;
+    for x in samples {
+        let d = distance(&x);
+        if d < 0.0 {
+            let h = depth(&x).max(0.0);
+            inside += 1;
+            sum += h;
+            if deepest.map_or(true, |(b, _, _)| h > b) {
+                deepest = Some((h, d, x));
+            }
+        }
+    }
+    let (h, d, at) = deepest?;
+    let fullness = if h > 0.0 {
+        sum / (inside as f64 * h)
+    } else {
+        1.0
+    };
+    Some((at, inside as f64 * share, d, fullness))
 }
 
 /// The inverse of the symmetric positive definite `a` (faer's Cholesky, in the calling

@@ -162,7 +162,9 @@ fn step(placed: &[Placed], dx: f64) -> Vec<StepIndenter> {
 
 /// After a press of two spheres, every force pushes (no tension), and no contact lattice
 /// point, sunk in place, lies inside an indenter by more than the tolerance of the deepest
-/// sinking plus what its own contact compliance allows.
+/// sinking plus what its own contact compliance allows (but those a small contact's point
+/// stands for: the grid cannot follow the indenter there, see
+/// `small_contacts_carry_the_analytic_force`).
 #[test]
 fn contact_neither_penetrates_nor_pulls() {
     let g = Gel::new(small_gel(), options(1)).unwrap();
@@ -194,7 +196,14 @@ fn contact_neither_penetrates_nor_pulls() {
         .map(|(k, x)| c.point(*k).z - x.z)
         .fold(0.0, f64::max);
     let mut worst: f64 = 0.0;
-    for (k, x) in moved {
+    assert!(
+        !contact.replaced.is_empty(),
+        "the 1 mm sphere is a small contact"
+    );
+    for (k, x) in moved
+        .into_iter()
+        .filter(|(k, _)| !contact.replaced.contains(k))
+    {
         let f = contact
             .loaded
             .iter()
@@ -547,35 +556,71 @@ fn a_press_at_the_edge_converges() {
     }
 }
 
-/// A 45-degree cone tip pressed 0.1 to 0.4 mm into the coarse gel (contact radius 0.06 to
-/// 0.25 mm, between the contact lattice's points at the shallow end): the gel carries a
-/// force at every depth, growing with it, within a factor of 2 of Sneddon's half-space
-/// cone (measured +17, +30, -9 and +61 %; at 0.1 and 0.2 mm a tip point carries it, from
-/// 0.3 mm the lattice points, whose patch the grid resolves too stiffly).
+/// Contacts smaller than the grid resolves on the coarse gel (1.4 mm; contact lattice
+/// 0.35 mm): spheres of radius 0.5 and 1 mm pressed 0.05 to 0.3 mm (depth at most 0.6
+/// radii, where Hertz holds) and a 45-degree cone tip pressed 0.1 to 0.4 mm, each at the
+/// gel's centre and off it by a third and a half of a lattice spacing, carry Hertz's
+/// (bonded layer) or Sneddon's (half-space) force within 15 %, growing with depth: the
+/// small contacts' stiffness law is within 2.5 % of the exact cone, sphere and punch (see
+/// `FULLNESS_SLOPE`), and the rest is the grid's point load standing in for the patch
+/// (measured: spheres 0.97 to 1.07, cone 0.94 to 1.09). A cone tip pressed 0.05 mm, its
+/// footprint far between the lattice's points, still carries a force (0.71 to 0.93 of
+/// Sneddon's measured; held within a factor of 1.5). Before small patches became one
+/// point, the lattice points sampled these indenters far from their deepest point and
+/// the grid deflected as under a point load: up to 4.6 times the force.
 #[test]
-fn a_cone_tip_between_lattice_points_loads_the_gel() {
+fn small_contacts_carry_the_analytic_force() {
     use crate::geometry::TriMesh;
     use crate::mpm::hertz::sneddon_cone;
     let angle = std::f64::consts::FRAC_PI_4;
-    let cone: Arc<dyn Sdf> = Arc::new(TriMesh::cone_tip(3e-3, angle, 64).unwrap());
     let p = GelParams {
         friction: 0.0,
         ..GelParams::default()
     };
-    let mut g = Gel::new(p, options(1)).unwrap();
-    let mut last = 0.0;
-    for d in [0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3] {
-        let placed = [Placed {
-            shape: cone.clone(),
-            pose: Isometry3::translation(0.0, 0.0, -d),
-        }];
-        assert!(g.solve(&placed).converged);
-        let f = g.force().z;
-        let ratio = f / sneddon_cone(p.young, p.poisson, angle, d);
-        assert!(
-            f > last && (0.5..2.0).contains(&ratio),
-            "depth {d}: {f} N, {ratio}"
-        );
-        last = f;
+    let cone: Arc<dyn Sdf> = Arc::new(TriMesh::cone_tip(3e-3, angle, 64).unwrap());
+    let cone_force = |d: f64| sneddon_cone(p.young, p.poisson, angle, d);
+    let mut cases: Vec<(Arc<dyn Sdf>, f64, Vec<f64>, Box<dyn Fn(f64) -> f64>)> = [0.5e-3, 1e-3]
+        .into_iter()
+        .map(|r| {
+            let hertz = move |d: f64| hertz_bonded(p.young, p.poisson, r, d, p.size[2]);
+            (
+                ball(r),
+                r,
+                vec![0.05e-3, 0.1e-3, 0.2e-3, 0.3e-3],
+                Box::new(hertz) as Box<dyn Fn(f64) -> f64>,
+            )
+        })
+        .collect();
+    cases.push((
+        cone,
+        0.0,
+        vec![0.05e-3, 0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3],
+        Box::new(cone_force),
+    ));
+    let spacing = p.dx / SUBDIVISION as f64;
+    for (shape, lowest, depths, analytic) in &cases {
+        for offset in [0.0, spacing / 3.0, spacing / 2.0] {
+            let mut g = Gel::new(p, options(1)).unwrap();
+            let mut last = 0.0;
+            for &d in depths {
+                let placed = [Placed {
+                    shape: shape.clone(),
+                    pose: Isometry3::translation(offset, 0.5 * offset, lowest - d),
+                }];
+                assert!(g.solve(&placed).converged);
+                let f = g.force().z;
+                let ratio = f / analytic(d);
+                let bound = if d < 0.1e-3 && *lowest == 0.0 {
+                    1.5
+                } else {
+                    1.15
+                };
+                assert!(
+                    f > last && ratio < bound && ratio > 1.0 / bound,
+                    "radius {lowest}, offset {offset}, depth {d}: {f} N, {ratio} of the analytic force"
+                );
+                last = f;
+            }
+        }
     }
 }

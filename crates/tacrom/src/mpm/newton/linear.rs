@@ -119,6 +119,10 @@ use faer::{Conj, MatMut, MatRef, Par};
 const MARCH_STEPS: usize = 200;
 const MIN_MARCH: f64 = 0.02;
 const BISECTIONS: usize = 24;
+
+/// Bisections of the way out of an indenter for a small contact's footprint samples,
+/// whose depths make its fullness (a ratio wanted to a few per cent).
+const FOOTPRINT_BISECTIONS: usize = 8;
 const GAP_EPS: f64 = 1e-6;
 
 /// Contact lattice points per particle spacing along each axis.
@@ -149,7 +153,7 @@ const MIN_FULLNESS_STIFFNESS: f64 = 0.3;
 const CONE_FULLNESS: f64 = 1.0 / 3.0;
 
 /// Surface samples at most per axis over a small contact's lattice points.
-const FOOTPRINT_SAMPLES: usize = 48;
+const FOOTPRINT_SAMPLES: usize = 24;
 
 /// Solves at most per frame (more only where the surface rose past points left out).
 const MAX_PASSES: usize = 12;
@@ -492,6 +496,16 @@ impl Compliance {
     /// the signed distance, which never overshoots an exact distance's surface, and the
     /// way out from inside bisected.
     fn vertical_gap(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> Option<f64> {
+        self.vertical_gap_to(x, indenters, BISECTIONS)
+    }
+
+    /// [`Self::vertical_gap`] with `bisections` of the way out from inside.
+    fn vertical_gap_to(
+        &self,
+        x: &Vector3<f64>,
+        indenters: &[StepIndenter],
+        bisections: usize,
+    ) -> Option<f64> {
         let at = |t: f64| self.clearance(&(x + Vector3::z() * t), indenters);
         let mut phi = at(0.0);
         if phi < 0.0 {
@@ -501,7 +515,7 @@ impl Compliance {
                 phi = at(-t);
                 if phi >= 0.0 {
                     let mut outside = t;
-                    for _ in 0..BISECTIONS {
+                    for _ in 0..bisections {
                         let mid = 0.5 * (inside + outside);
                         if at(-mid) < 0.0 {
                             inside = mid;
@@ -601,7 +615,10 @@ impl Compliance {
         }
         let centre = rest[nearest?.1];
         let one = std::slice::from_ref(indenter);
-        let depth = |x: &Vector3<f64>| self.vertical_gap(x, one).map_or(0.0, |g| -g);
+        let depth = |x: &Vector3<f64>| {
+            self.vertical_gap_to(x, one, FOOTPRINT_BISECTIONS)
+                .map_or(0.0, |g| -g)
+        };
         let (at, share, d, fullness) =
             footprint(tip_samples(centre, centre, self.spacing), own, depth)?;
         Some((at, share.min(1.0), d, fullness))
@@ -731,7 +748,10 @@ impl Compliance {
                 .iter()
                 .fold(Vector3::repeat(f64::NEG_INFINITY), |m, &i| m.sup(&rest[i]));
             let distance = |x: &Vector3<f64>| self.clearance(x, indenters);
-            let depth = |x: &Vector3<f64>| self.vertical_gap(x, indenters).map_or(0.0, |g| -g);
+            let depth = |x: &Vector3<f64>| {
+                self.vertical_gap_to(x, indenters, FOOTPRINT_BISECTIONS)
+                    .map_or(0.0, |g| -g)
+            };
             let Some((at, share, d, fullness)) =
                 footprint(self.footprint_samples(lo, hi), distance, depth)
             else {

@@ -1,5 +1,8 @@
 //! Force of small frictionless presses on the coarse gel against the analytic force, per
-//! solver: `cargo run --release --example small_probe -- SOLVER`. Spheres of radius 0.25
+//! solver: `cargo run --release --example small_probe -- SOLVER` (`default`: the
+//! relaxation with Newton's method for the frames whose contact it cannot see, as a
+//! coarse sensor that names no solver). `PROBE_FRICTION=MU` sets the friction (default
+//! 0), `PROBE_DEBUG=1` prints each frame's solve, force and time. Spheres of radius 0.25
 //! to 2 mm and a 45-degree cone, at the gel's centre and offset by a third and a half of a
 //! contact-lattice spacing, each pressed through 0.05 to 0.4 mm in one sequence.
 
@@ -11,8 +14,9 @@ use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
 fn main() {
     let solver = std::env::args().nth(1).unwrap_or_else(|| "linear".into());
+    let friction = std::env::var("PROBE_FRICTION").map_or(0.0, |v| v.parse().unwrap());
     let p = GelParams {
-        friction: 0.0,
+        friction,
         ..GelParams::default()
     };
     let depths = [0.05e-3, 0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3];
@@ -39,7 +43,8 @@ fn main() {
             let mut g = Gel::new(
                 p,
                 SolverOptions {
-                    solver: Solver::named(&solver).unwrap(),
+                    solver: Solver::named(&solver).unwrap_or(Solver::Relaxation),
+                    fallback: solver == "default",
                     threads: 1,
                     ..Default::default()
                 },
@@ -51,7 +56,17 @@ fn main() {
                     shape: shape.clone(),
                     pose: Isometry3::translation(offset, offset * 0.5, lowest - d),
                 }];
-                g.solve(&placed);
+                let t0 = std::time::Instant::now();
+                let rep = g.solve(&placed);
+                if std::env::var_os("PROBE_DEBUG").is_some() {
+                    eprintln!(
+                        "{name} {d}: fallback {} converged {} force {} {:.1} ms",
+                        rep.fallback,
+                        rep.converged,
+                        g.force().z,
+                        t0.elapsed().as_secs_f64() * 1e3
+                    );
+                }
                 let f = g.force().z;
                 let a = if name.starts_with("cone") {
                     sneddon_cone(p.young, p.poisson, alpha, d)

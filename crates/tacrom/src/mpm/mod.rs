@@ -101,7 +101,7 @@ pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, Neo
 pub use params::{
     GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
     AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, LINEAR_UNKNOWNS,
-    MISSED_FRACTION, MULTIGRID_UNKNOWNS,
+    MISSED_FRACTION, MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
@@ -542,13 +542,14 @@ impl Gel {
                     }
                 }
             }
-            // A tip narrower than the sampling can reach in between the samples: a compass
-            // search from the nearest sample down to a sixty-fourth of their pitch finds
-            // it (where the sample lies within a pitch of the indenter).
-            if best.0 >= 0.0 && best.0 < pitch {
+            // A tip narrower than the sampling reaches in between the samples, or deeper
+            // than the deepest of them: a compass search from that sample down to a
+            // sixty-fourth of their pitch finds it (where the sample lies within a pitch
+            // of the indenter).
+            if best.0 < pitch {
                 let mut step = 0.5 * pitch;
                 for _ in 0..COMPASS_MOVES {
-                    if step <= pitch / 64.0 || best.0 < 0.0 {
+                    if step <= pitch / 64.0 {
                         break;
                     }
                     let (_, x, y) = best;
@@ -736,20 +737,32 @@ impl Gel {
         report.active_particles = self.ctx.region.particles(self.ctx.column_len);
         self.relax_material(&sweep, &mut report);
         self.finish(current, touching, repaired, &mut report);
-        if self.options.newton_fallback {
+        if self.options.fallback {
             let spacing = self.contact_spacing(Solver::Relaxation);
             if touching
-                && self.force == Vector3::zeros()
-                && self.unloaded_penetration(indenters) > MISSED_FRACTION * spacing
+                && self.loads.len() <= UNRESOLVED_POINTS
+                && self.reached_depth(indenters::usable(indenters).into_iter())
+                    > MISSED_FRACTION * spacing
             {
-                // The relaxation left the gel undeformed under a contact it cannot see;
-                // Newton's state carries on from its own last fallback frame, if any.
-                self.solve_newton(&sweep, &matched, &mut report);
-                report.newton_fallback = true;
+                // The relaxation's surface points missed the contact, or caught it with too
+                // few of them to carry it: the linear solver, whose small contacts follow
+                // Hertz and Sneddon, solves the frame again (Newton's method on a grid too
+                // fine for it). Its state carries on from its own last fallback frame.
+                if params::linear_fits(&self.params) {
+                    self.solve_linear(&sweep, &matched, &mut report);
+                } else {
+                    self.solve_newton(&sweep, &matched, &mut report);
+                }
+                report.fallback = true;
                 self.resting = false;
-            } else if let Some(n) = self.newton.as_mut() {
+            } else {
                 // The relaxation carries this frame: a later fallback starts afresh.
-                n.reset();
+                if let Some(n) = self.newton.as_mut() {
+                    n.reset();
+                }
+                if let Some(l) = self.linear.as_mut() {
+                    l.reset();
+                }
             }
         }
         report

@@ -115,12 +115,13 @@ pub struct SolverOptions {
     pub active_margin: f64,
     /// The equilibrium solver.
     pub solver: Solver,
-    /// With [`Solver::Relaxation`]: a frame whose contact the relaxation misses (no force
-    /// while an indenter reaches more than [`MISSED_FRACTION`] of the top particles'
-    /// spacing into the gel between them) is solved again by Newton's method, whose
-    /// contact lattice and sub-grid compliance carry it. What the sensor does for a
-    /// coarse gel whose configuration names no solver.
-    pub newton_fallback: bool,
+    /// With [`Solver::Relaxation`]: a frame whose contact the relaxation does not resolve
+    /// (at most [`UNRESOLVED_POINTS`] surface points in contact while an indenter reaches
+    /// more than [`MISSED_FRACTION`] of the top particles' spacing into the gel) is solved
+    /// again by [`Solver::Linear`], whose contact lattice and small-contact model carry it
+    /// (by Newton's method on a grid too fine for the linear solver). What the sensor does
+    /// for a coarse gel whose configuration names no solver.
+    pub fallback: bool,
     /// How Newton's method solves its linear systems.
     pub linear: Linear,
 }
@@ -150,12 +151,16 @@ pub const LINEAR_UNKNOWNS: usize = 30_000;
 
 /// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that
 /// carries no force has missed a contact that fell between its contact points (the
-/// sensor warns; [`SolverOptions::newton_fallback`] solves the frame again). A smooth
+/// sensor warns; [`SolverOptions::fallback`] solves the frame again). A smooth
 /// body of radius `R` can sink `s^2 / 4R` between four points untouched (26 um for a 5 mm
 /// sphere on the coarse gel, where a ball landing on it reached 18 um for a step); 5 % of
 /// `s` (36 um there) stays silent for bodies of radius above 5 `s`, and catches a 0.5 mm
 /// sphere or a cone tip, which sink up to 0.25 mm untouched.
 pub const MISSED_FRACTION: f64 = 0.05;
+
+/// Surface points in contact at most with which the relaxation does not resolve a
+/// contact (see [`SolverOptions::fallback`]).
+pub const UNRESOLVED_POINTS: usize = 4;
 
 /// How [`Gel::solve`] finds the equilibrium.
 ///
@@ -232,7 +237,7 @@ impl Default for SolverOptions {
             fbar: true,
             active_margin: ACTIVE_MARGIN,
             solver: Solver::Relaxation,
-            newton_fallback: false,
+            fallback: false,
             linear: Linear::Automatic,
         }
     }
@@ -291,9 +296,9 @@ pub struct SolveReport {
     /// Linear solver: node columns whose response this solve computed (one solve with the
     /// factorisation each).
     pub columns: usize,
-    /// Whether the relaxation missed the contact and Newton's method solved the frame
-    /// ([`SolverOptions::newton_fallback`]).
-    pub newton_fallback: bool,
+    /// Whether the relaxation did not resolve the contact and another solver solved the
+    /// frame ([`SolverOptions::fallback`]).
+    pub fallback: bool,
 }
 impl SolveReport {
     /// The report of a solve with `indenters` usable indenters that has not stepped yet.
@@ -313,7 +318,7 @@ impl SolveReport {
             reused: 0,
             cg_iterations: 0,
             columns: 0,
-            newton_fallback: false,
+            fallback: false,
         }
     }
 }
@@ -351,20 +356,26 @@ impl Gel {
             count <= MAX_PARTICLES as f64,
             "gives too many particles",
         )?;
-        let unknowns: f64 = 3.0
-            * params
-                .size
-                .iter()
-                .map(|&l| (l / params.dx).round().max(1.0) + 3.0)
-                .product::<f64>();
         check(
             "dx",
             params.dx,
-            options.solver != Solver::Linear || unknowns <= LINEAR_UNKNOWNS as f64,
+            options.solver != Solver::Linear || linear_fits(params),
             "is too small for solver=\"linear\": its grid has more unknowns than the 30,000 \
              it factors",
         )
     }
+}
+
+/// Whether the grid of `params` has at most the [`LINEAR_UNKNOWNS`] that
+/// [`Solver::Linear`] factors (three per node, an upper bound).
+pub(crate) fn linear_fits(params: &GelParams) -> bool {
+    let unknowns: f64 = 3.0
+        * params
+            .size
+            .iter()
+            .map(|&l| (l / params.dx).round().max(1.0) + 3.0)
+            .product::<f64>();
+    unknowns <= LINEAR_UNKNOWNS as f64
 }
 
 fn check_params(p: &GelParams) -> Result<(), MpmError> {

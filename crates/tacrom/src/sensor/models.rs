@@ -152,8 +152,8 @@ impl Mpm {
             // reduced-order model checks its recipe against this one.
             solver: config.solver.unwrap_or_else(|| Solver::automatic(&params)),
             // A coarse gel whose configuration names no solver does not lose a contact
-            // smaller than its particles resolve: Newton's method solves such frames.
-            newton_fallback: config.solver.is_none() && config.physics == Physics::Coarse,
+            // smaller than its particles resolve: the linear solver solves such frames.
+            fallback: config.solver.is_none() && config.physics == Physics::Coarse,
             ..SolverOptions::default()
         };
         Gel::validate(&params, &options).map_err(|e| SensorError::Physics {
@@ -216,7 +216,12 @@ impl SurfaceModel for Mpm {
         let missed = gel.unloaded_penetration(scene.indenters);
         if missed > MISSED_FRACTION * spacing {
             let advice = match self.options.solver {
-                Solver::Relaxation | Solver::Total | Solver::Linear => format!(
+                Solver::Relaxation | Solver::Total => format!(
+                    "solver=\"linear\" (contact points {:.3} mm apart, and contacts smaller \
+                     than the grid modelled) or a smaller 'dx'",
+                    gel.contact_spacing(Solver::Linear) * 1e3
+                ),
+                Solver::Linear => format!(
                     "solver=\"newton\" (contact points {:.3} mm apart) or a smaller 'dx'",
                     gel.contact_spacing(Solver::Newton) * 1e3
                 ),

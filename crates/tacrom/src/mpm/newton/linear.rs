@@ -46,17 +46,23 @@
 //!
 //! # Small contacts
 //!
-//! An indenter that reaches below the rest surface between the lattice's points (a sharp
-//! tip pressed less than about a spacing) gets a *tip point*, as Newton's (`subgrid.rs`):
-//! the surface around the lattice point nearest to it is sampled [`TIP_SAMPLES`](super::subgrid::TIP_SAMPLES) times
-//! finer, and one point at the deepest penetrating sample, standing for the penetrating
-//! samples' share of a lattice point's face, joins the contact. Its load acts through the
-//! grid's B-splines, which cannot bend the surface as sharply as the patch asks (alone,
-//! a 0.1 mm cone press came out 16 times Sneddon's force); in series with its penalty it
-//! gets the compliance the grid misses: that of the patch on the layer, `1 / (k E* a)`
-//! with `a` the radius of the rigid footprint and `k` [`TIP_STIFFNESS`] (with the bonded
-//! layer's first-order stiffening), less the grid's own at the point (`w^T G w`, exact here). Tip
-//! points carry no friction.
+//! The grid's B-splines cannot bend the surface as sharply as a contact of a fraction of a
+//! cell asks: under it the grid deflects about as under a point load (alone, a 0.1 mm cone
+//! press came out 16 times Sneddon's force), and the lattice points under a sphere or a
+//! cone tip lie far above its deepest point. A contact patch more compliant than a point
+//! load on the grid (an indenter that reaches below the rest surface between the
+//! lattice's points, or a connected set of lattice points inside the indenters) therefore
+//! becomes one point, as a *tip point* of Newton's (`subgrid.rs`): the surface over it is
+//! sampled [`TIP_SAMPLES`](super::subgrid::TIP_SAMPLES) times finer than the lattice, and
+//! one point at the deepest sample (by vertical depth), standing for the penetrating
+//! samples' share of the face, joins the contact in place of the patch's lattice points.
+//! In series with its penalty it gets the compliance the grid misses: that of the patch on
+//! the layer, `1 / (k E* a)` with `a` the radius of the rigid footprint and `k` from the
+//! footprint's fullness (its mean depth over its deepest; [`FULLNESS_SLOPE`], exact for a
+//! cone, a sphere and a flat punch to 2.5 %, with the bonded layer's first-order
+//! stiffening), less the grid's own at the point (`w^T G w`, exact here). Patches that a
+//! point load on the grid already covers keep their lattice points. Tip points carry no
+//! friction.
 //!
 //! # Friction
 //!
@@ -119,11 +125,11 @@ use faer::{Conj, MatMut, MatRef, Par};
 const MARCH_STEPS: usize = 200;
 const MIN_MARCH: f64 = 0.02;
 const BISECTIONS: usize = 24;
+const GAP_EPS: f64 = 1e-6;
 
 /// Bisections of the way out of an indenter for a small contact's footprint samples,
 /// whose depths make its fullness (a ratio wanted to a few per cent).
 const FOOTPRINT_BISECTIONS: usize = 8;
-const GAP_EPS: f64 = 1e-6;
 
 /// Contact lattice points per particle spacing along each axis.
 pub(crate) const SUBDIVISION: usize = 2;
@@ -657,11 +663,10 @@ impl Compliance {
     /// at `lo`'s height, as [`tip_samples`] does but at most [`FOOTPRINT_SAMPLES`] per
     /// axis; and the face share (in lattice points) that each stands for.
     fn footprint_samples(&self, lo: Vector3<f64>, hi: Vector3<f64>) -> (Vec<Vector3<f64>>, f64) {
-        let (fine, share) = tip_samples(lo, hi, self.spacing);
         let extent = [0, 1].map(|a| hi[a] - lo[a] + 2.0 * self.spacing[a]);
         let steps = [0, 1].map(|a| extent[a] / FOOTPRINT_SAMPLES as f64);
         if (0..2).all(|a| steps[a] <= self.spacing[a] / TIP_SAMPLES as f64) {
-            return (fine, share);
+            return tip_samples(lo, hi, self.spacing);
         }
         let mut out = Vec::with_capacity((FOOTPRINT_SAMPLES + 1).pow(2));
         for i in 0..=FOOTPRINT_SAMPLES {

@@ -76,8 +76,8 @@ pub const ATTR_INDEX: &str = "index";
 /// particle spacing, near-incompressible gels; `mpm::newton`). Unset, the gel's own choice
 /// ([`crate::mpm::Solver::automatic`]: Newton for Poisson's ratios of 0.49 and more on
 /// grids up to the 0.7 mm one, relaxation elsewhere, and for `coarse` the linear solver in
-/// the frames whose contact the relaxation does not resolve,
-/// [`crate::mpm::SolverOptions::fallback`]); a
+/// the frames whose contact the relaxation misses, [`crate::mpm::SolverOptions::fallback`]);
+/// a
 /// reduced-order model uses its recipe's.
 pub const ATTR_SOLVER: &str = "solver";
 

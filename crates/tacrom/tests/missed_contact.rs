@@ -72,12 +72,12 @@ fn a_contact_between_the_contact_points_warns() {
 }
 
 /// With no solver named, the coarse sensor solves a frame whose contact the relaxation
-/// does not resolve by the linear solver (`SolverOptions::fallback`): the 0.5 mm sphere
+/// misses by the linear solver (`SolverOptions::fallback`): the 0.5 mm sphere
 /// pressed 0.3 mm gets the force of a sensor that names it, within 10 % of Hertz's on the
 /// bonded layer (its small-contact model; measured 1.01), and no warning. A contact the
 /// relaxation carries keeps the relaxation's force.
 #[test]
-fn the_default_coarse_sensor_solves_an_unresolved_contact_by_the_linear_solver() {
+fn the_default_coarse_sensor_solves_a_missed_contact_by_the_linear_solver() {
     let small = sphere(0.5e-3, 0.3e-3);
     let (force, warnings) = press(None, &small);
     let (linear, _) = press(Some("linear"), &small);
@@ -130,7 +130,7 @@ fn unloaded_penetration_measures_only_missed_contacts() {
 }
 
 /// The fallback through a sequence: a 0.5 mm sphere pressed 0.1 to 0.4 mm, each frame
-/// unresolved by the relaxation, gives the forces of a linear gel pressed the same way
+/// missed by the relaxation, gives the forces of a linear gel pressed the same way
 /// (the fallback's state carries on from frame to frame); a 5 mm sphere 10 mm away is the
 /// relaxation's own frame; the small sphere after it starts the linear solver afresh, as
 /// on a new gel.

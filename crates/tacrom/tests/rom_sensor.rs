@@ -154,10 +154,9 @@ fn sphere_forces(physics: &str, solver: Option<&str>, r: f64, depths: &[f64]) ->
 /// to proportional to the displaced volume, whatever the indenter). Spheres of radius 2
 /// and 5 mm pressed 0.1 to 0.5 mm, a force-only sensor (which decodes for the force):
 /// against Hertz on the bonded layer (Dimitriadis et al. 2002), rom's mean error must be
-/// below that of the coarse gel it decodes (the relaxation) and at most 10 % for each
-/// radius (measured in the message). (A coarse sensor that names no solver solves the
-/// 2 mm sphere's first frame, which the relaxation does not resolve, by the linear solver,
-/// closer to Hertz than both.)
+/// below that of the coarse gel it decodes (the relaxation, named: a coarse sensor that
+/// names no solver may solve a frame by another) and at most 10 % for each radius
+/// (measured in the message).
 #[test]
 fn rom_force_follows_the_decoded_surface_closer_to_hertz_than_coarse() {
     let depths = [0.1e-3, 0.2e-3, 0.3e-3, 0.5e-3];

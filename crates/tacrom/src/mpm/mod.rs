@@ -101,7 +101,7 @@ pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, Neo
 pub use params::{
     GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
     AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, LINEAR_UNKNOWNS,
-    MISSED_FRACTION, MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,
+    MISSED_FRACTION, MULTIGRID_UNKNOWNS,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
@@ -740,14 +740,13 @@ impl Gel {
         if self.options.fallback {
             let spacing = self.contact_spacing(Solver::Relaxation);
             if touching
-                && self.loads.len() <= UNRESOLVED_POINTS
-                && self.reached_depth(indenters::usable(indenters).into_iter())
-                    > MISSED_FRACTION * spacing
+                && self.force == Vector3::zeros()
+                && self.unloaded_penetration(indenters) > MISSED_FRACTION * spacing
             {
-                // The relaxation's surface points missed the contact, or caught it with too
-                // few of them to carry it: the linear solver, whose small contacts follow
-                // Hertz and Sneddon, solves the frame again (Newton's method on a grid too
-                // fine for it). Its state carries on from its own last fallback frame.
+                // The relaxation left the gel undeformed under a contact it cannot see: the
+                // linear solver, whose small contacts follow Hertz and Sneddon, solves the
+                // frame again (Newton's method on a grid too fine for it). Its state
+                // carries on from its own last fallback frame.
                 if params::linear_fits(&self.params) {
                     self.solve_linear(&sweep, &matched, &mut report);
                 } else {

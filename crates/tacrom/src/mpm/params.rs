@@ -115,12 +115,12 @@ pub struct SolverOptions {
     pub active_margin: f64,
     /// The equilibrium solver.
     pub solver: Solver,
-    /// With [`Solver::Relaxation`]: a frame whose contact the relaxation does not resolve
-    /// (at most [`UNRESOLVED_POINTS`] surface points in contact while an indenter reaches
-    /// more than [`MISSED_FRACTION`] of the top particles' spacing into the gel) is solved
-    /// again by [`Solver::Linear`], whose contact lattice and small-contact model carry it
-    /// (by Newton's method on a grid too fine for the linear solver). What the sensor does
-    /// for a coarse gel whose configuration names no solver.
+    /// With [`Solver::Relaxation`]: a frame whose contact the relaxation misses (no force
+    /// while an indenter reaches more than [`MISSED_FRACTION`] of the top particles'
+    /// spacing into the gel between them) is solved again by [`Solver::Linear`], whose
+    /// contact lattice and small-contact model carry it (by Newton's method on a grid too
+    /// fine for the linear solver). What the sensor does for a coarse gel whose
+    /// configuration names no solver.
     pub fallback: bool,
     /// How Newton's method solves its linear systems.
     pub linear: Linear,
@@ -157,10 +157,6 @@ pub const LINEAR_UNKNOWNS: usize = 30_000;
 /// `s` (36 um there) stays silent for bodies of radius above 5 `s`, and catches a 0.5 mm
 /// sphere or a cone tip, which sink up to 0.25 mm untouched.
 pub const MISSED_FRACTION: f64 = 0.05;
-
-/// Surface points in contact at most with which the relaxation does not resolve a
-/// contact (see [`SolverOptions::fallback`]).
-pub const UNRESOLVED_POINTS: usize = 4;
 
 /// How [`Gel::solve`] finds the equilibrium.
 ///
@@ -296,8 +292,8 @@ pub struct SolveReport {
     /// Linear solver: node columns whose response this solve computed (one solve with the
     /// factorisation each).
     pub columns: usize,
-    /// Whether the relaxation did not resolve the contact and another solver solved the
-    /// frame ([`SolverOptions::fallback`]).
+    /// Whether the relaxation missed the contact and another solver solved the frame
+    /// ([`SolverOptions::fallback`]).
     pub fallback: bool,
 }
 impl SolveReport {

@@ -151,9 +151,11 @@ impl Mpm {
             // The solver the configuration names, or the gel's own choice; a
             // reduced-order model checks its recipe against this one.
             solver: config.solver.unwrap_or_else(|| Solver::automatic(&params)),
-            // A coarse gel whose configuration names no solver does not lose a contact
-            // smaller than its particles resolve: the linear solver solves such frames.
-            fallback: config.solver.is_none() && config.physics == Physics::Coarse,
+            // A coarse gel (under rom too) whose configuration names no solver does not
+            // lose a contact smaller than its particles resolve: the linear solver solves
+            // such frames.
+            fallback: config.solver.is_none()
+                && matches!(config.physics, Physics::Coarse | Physics::Rom),
             ..SolverOptions::default()
         };
         Gel::validate(&params, &options).map_err(|e| SensorError::Physics {
@@ -336,7 +338,15 @@ impl SurfaceModel for Reduced {
         if let (Some(gel), false) = (self.mpm.gel(), scene.indenters.is_empty()) {
             match self.rom.evaluate(gel, scene.indenters, scene.grid, out) {
                 Ok(report) => {
-                    self.force_factor = self.rom.force_factor();
+                    // A frame the relaxation missed carries the linear solver's force, which
+                    // follows the contact mechanics already; the factor is fitted to the
+                    // relaxation's surface.
+                    let fallback = eval.solve.as_ref().is_some_and(|r| r.fallback);
+                    self.force_factor = if fallback {
+                        1.0
+                    } else {
+                        self.rom.force_factor()
+                    };
                     eval.bound_excess = report.bound_excess;
                     eval.rom = Some(report);
                     return;

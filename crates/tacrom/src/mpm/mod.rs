@@ -101,7 +101,7 @@ pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, Neo
 pub use params::{
     GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
     AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, LINEAR_UNKNOWNS,
-    MISSED_FRACTION, MULTIGRID_UNKNOWNS,
+    MISSED_FRACTION, MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
@@ -573,6 +573,30 @@ impl Gel {
         deepest
     }
 
+    /// The top surface's rest points (the relaxation's contact points at rest) inside
+    /// `indenters`, counted up to one more than `limit`: the rigid footprint in the
+    /// relaxation's own points, a function of the poses alone.
+    fn footprint_points(&self, indenters: &[Placed], limit: usize) -> usize {
+        let (dx, origin) = (self.layout.dx, self.layout.origin);
+        let mut count = 0;
+        for p in indenters::usable(indenters) {
+            let b = p.aabb();
+            let inverse = p.pose.inverse();
+            for r in &self.top_ref {
+                let x = origin + r.cast::<f64>() * dx;
+                let within =
+                    (b.min.x..=b.max.x).contains(&x.x) && (b.min.y..=b.max.y).contains(&x.y);
+                if within && p.shape.distance(&(inverse * Point3::from(x))) < 0.0 {
+                    count += 1;
+                    if count > limit {
+                        return count;
+                    }
+                }
+            }
+        }
+        count
+    }
+
     /// The parameters the gel was built with.
     pub fn params(&self) -> &GelParams {
         &self.params
@@ -740,13 +764,16 @@ impl Gel {
         if self.options.fallback {
             let spacing = self.contact_spacing(Solver::Relaxation);
             if touching
-                && self.force == Vector3::zeros()
-                && self.unloaded_penetration(indenters) > MISSED_FRACTION * spacing
+                && self.footprint_points(indenters, UNRESOLVED_POINTS) <= UNRESOLVED_POINTS
+                && self.reached_depth(indenters::usable(indenters).into_iter())
+                    > MISSED_FRACTION * spacing
             {
-                // The relaxation left the gel undeformed under a contact it cannot see: the
-                // linear solver, whose small contacts follow Hertz and Sneddon, solves the
-                // frame again (Newton's method on a grid too fine for it). Its state
-                // carries on from its own last fallback frame.
+                // The relaxation's surface points cannot carry a contact whose footprint
+                // holds so few of them (or none): the linear solver, whose small contacts
+                // follow Hertz and Sneddon, solves the frame again (Newton's method on a
+                // grid too fine for it). The choice depends on the poses alone, so a body
+                // bouncing on the gel meets one force law on the way in and out. The
+                // fallback's state carries on from its own last fallback frame.
                 if params::linear_fits(&self.params) {
                     self.solve_linear(&sweep, &matched, &mut report);
                 } else {

@@ -115,12 +115,13 @@ pub struct SolverOptions {
     pub active_margin: f64,
     /// The equilibrium solver.
     pub solver: Solver,
-    /// With [`Solver::Relaxation`]: a frame whose contact the relaxation misses (no force
-    /// while an indenter reaches more than [`MISSED_FRACTION`] of the top particles'
-    /// spacing into the gel between them) is solved again by [`Solver::Linear`], whose
+    /// With [`Solver::Relaxation`]: a frame whose contact the relaxation does not resolve
+    /// (the indenters' rigid footprint holds at most [`UNRESOLVED_POINTS`] of the top
+    /// surface's rest points while they reach more than [`MISSED_FRACTION`] of the top
+    /// particles' spacing into the gel) is solved again by [`Solver::Linear`], whose
     /// contact lattice and small-contact model carry it (by Newton's method on a grid too
-    /// fine for the linear solver). What the sensor does for a coarse gel whose
-    /// configuration names no solver.
+    /// fine for the linear solver). What the sensor does for a coarse gel (and rom's)
+    /// whose configuration names no solver.
     pub fallback: bool,
     /// How Newton's method solves its linear systems.
     pub linear: Linear,
@@ -157,6 +158,12 @@ pub const LINEAR_UNKNOWNS: usize = 30_000;
 /// `s` (36 um there) stays silent for bodies of radius above 5 `s`, and catches a 0.5 mm
 /// sphere or a cone tip, which sink up to 0.25 mm untouched.
 pub const MISSED_FRACTION: f64 = 0.05;
+
+/// Top-surface points in an indenter's rigid footprint at most with which the relaxation
+/// does not resolve a contact (see [`SolverOptions::fallback`]): with one or two of its
+/// points in contact, the 0.5 mm sphere carried 0.13 to 0.65 and the 1 and 2 mm spheres up
+/// to 1.98 times Hertz's force.
+pub const UNRESOLVED_POINTS: usize = 4;
 
 /// How [`Gel::solve`] finds the equilibrium.
 ///
@@ -292,8 +299,8 @@ pub struct SolveReport {
     /// Linear solver: node columns whose response this solve computed (one solve with the
     /// factorisation each).
     pub columns: usize,
-    /// Whether the relaxation missed the contact and another solver solved the frame
-    /// ([`SolverOptions::fallback`]).
+    /// Whether the relaxation did not resolve the contact and another solver solved the
+    /// frame ([`SolverOptions::fallback`]).
     pub fallback: bool,
 }
 impl SolveReport {

@@ -390,6 +390,8 @@ pub struct Gel {
     loads: Vec<pressure::ContactLoad>,
     /// The total-Lagrangian relaxation's nodal state ([`Solver::Total`]).
     total: Option<Box<total::Total>>,
+    /// Whether the relaxation ran since its state was last put back to rest.
+    relaxed: bool,
     /// The linear solver's factorisation and surface compliance ([`Solver::Linear`]).
     linear: Option<Box<newton::linear::Compliance>>,
 }
@@ -459,6 +461,7 @@ impl Gel {
             last_footprint: None,
             last_change: Vec::new(),
             last_motion: Vec::new(),
+            relaxed: false,
             newton: None,
             loads: Vec::new(),
             total: None,
@@ -619,7 +622,8 @@ impl Gel {
 
     /// Back to the undeformed gel at rest, forgetting the previous indenter poses.
     pub fn reset(&mut self) {
-        self.restore_rest();
+        self.relaxed = true;
+        self.rest_relaxation();
         self.prev.clear();
         self.force = Vector3::zeros();
         self.surface_u
@@ -627,19 +631,29 @@ impl Gel {
             .for_each(|u| *u = Vector3::zeros());
         self.surface_box = None;
         self.resting = true;
-        self.last_reaction = 0.0;
-        self.clamped = false;
-        self.last_footprint = None;
-        self.contacts.fill(SlotContact::NONE);
         self.loads.clear();
-        self.last_change.clear();
-        self.last_motion.clear();
         if let Some(n) = self.newton.as_mut() {
             n.reset();
         }
         if let Some(l) = self.linear.as_mut() {
             l.reset();
         }
+    }
+
+    /// The relaxation's own state back to the undeformed gel at rest (its particles, stick
+    /// contacts, reaction scale, footprint and motion), where a solve since the last such
+    /// reset moved it.
+    fn rest_relaxation(&mut self) {
+        if !std::mem::take(&mut self.relaxed) {
+            return;
+        }
+        self.restore_rest();
+        self.last_reaction = 0.0;
+        self.clamped = false;
+        self.last_footprint = None;
+        self.contacts.fill(SlotContact::NONE);
+        self.last_change.clear();
+        self.last_motion.clear();
         self.total = None;
     }
 
@@ -751,6 +765,34 @@ impl Gel {
             self.resting = !touching && self.surface_box.is_none();
             return report;
         }
+        if self.options.fallback
+            && touching
+            && self.footprint_points(indenters, UNRESOLVED_POINTS) <= UNRESOLVED_POINTS
+            && self.reached_depth(indenters::usable(indenters).into_iter())
+                > MISSED_FRACTION * self.contact_spacing(Solver::Relaxation)
+        {
+            // The relaxation's surface points cannot carry a contact whose footprint holds
+            // so few of them (or none): the linear solver, whose small contacts follow
+            // Hertz and Sneddon, solves the frame instead (Newton's method on a grid too
+            // fine for it). The choice depends on the poses alone, so a body bouncing on
+            // the gel meets one force law on the way in and out. The fallback's state
+            // carries on from its own last fallback frame; the relaxation's goes back to
+            // rest, to start afresh from the frame it carries again.
+            self.rest_relaxation();
+            if params::linear_fits(&self.params) {
+                self.solve_linear(&sweep, &matched, &mut report);
+            } else {
+                self.solve_newton(&sweep, &matched, &mut report);
+            }
+            report.fallback = true;
+            self.prev = if report.nonfinite_recovered {
+                Vec::new()
+            } else {
+                current
+            };
+            self.resting = false;
+            return report;
+        }
         report.sweep_steps = sweep.steps;
         self.ctx.region = if touching {
             self.active_region(&sweep)
@@ -759,36 +801,16 @@ impl Gel {
             Region::whole(self.layout.lattice, self.layout.dims)
         };
         report.active_particles = self.ctx.region.particles(self.ctx.column_len);
+        self.relaxed = true;
         self.relax_material(&sweep, &mut report);
         self.finish(current, touching, repaired, &mut report);
         if self.options.fallback {
-            let spacing = self.contact_spacing(Solver::Relaxation);
-            if touching
-                && self.footprint_points(indenters, UNRESOLVED_POINTS) <= UNRESOLVED_POINTS
-                && self.reached_depth(indenters::usable(indenters).into_iter())
-                    > MISSED_FRACTION * spacing
-            {
-                // The relaxation's surface points cannot carry a contact whose footprint
-                // holds so few of them (or none): the linear solver, whose small contacts
-                // follow Hertz and Sneddon, solves the frame again (Newton's method on a
-                // grid too fine for it). The choice depends on the poses alone, so a body
-                // bouncing on the gel meets one force law on the way in and out. The
-                // fallback's state carries on from its own last fallback frame.
-                if params::linear_fits(&self.params) {
-                    self.solve_linear(&sweep, &matched, &mut report);
-                } else {
-                    self.solve_newton(&sweep, &matched, &mut report);
-                }
-                report.fallback = true;
-                self.resting = false;
-            } else {
-                // The relaxation carries this frame: a later fallback starts afresh.
-                if let Some(n) = self.newton.as_mut() {
-                    n.reset();
-                }
-                if let Some(l) = self.linear.as_mut() {
-                    l.reset();
-                }
+            // The relaxation carries this frame: a later fallback starts afresh.
+            if let Some(n) = self.newton.as_mut() {
+                n.reset();
+            }
+            if let Some(l) = self.linear.as_mut() {
+                l.reset();
             }
         }
         report

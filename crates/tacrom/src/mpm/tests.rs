@@ -1027,3 +1027,41 @@ fn the_total_lagrangian_relaxation_does_not_depend_on_the_loading_path() {
         "force {force}, surface {surface}"
     );
 }
+
+/// A frame the relaxation cannot carry (the 5 mm sphere 0.05 mm deep: a footprint of at
+/// most 4 of its surface points) is solved by the fallback alone: the relaxation does not
+/// run, and its particles stay at rest (they would sink under the contact if it ran). When
+/// the press deepens to 0.5 mm (about 16 points) the relaxation carries the frame again,
+/// starting afresh from rest: the same force as the same press solved from rest by a
+/// fresh gel, within its tolerance's spread between two starts (1 %).
+#[test]
+fn a_fallback_frame_leaves_the_relaxation_at_rest() {
+    let options = SolverOptions {
+        fallback: true,
+        ..Default::default()
+    };
+    let params = frictionless(GelParams::default().dx);
+    let mut g = gel(params, options);
+    let rest: Vec<Vector3<f32>> = g.particles.iter().map(|p| p.x).collect();
+    let rep = g.solve(&[press(0.0, 0.0, 0.05e-3)]);
+    assert!(
+        rep.fallback && rep.converged && g.force().z > 0.0,
+        "{rep:?}"
+    );
+    let moved = g
+        .particles
+        .iter()
+        .zip(&rest)
+        .filter(|(p, r)| p.x != **r)
+        .count();
+    assert_eq!(moved, 0, "the relaxation ran in a fallback frame");
+    let rep = g.solve(&[press(0.0, 0.0, 0.5e-3)]);
+    assert!(!rep.fallback && rep.converged, "{rep:?}");
+    let mut fresh = gel(params, options);
+    fresh.solve(&[press(0.0, 0.0, 0.5e-3)]);
+    let (a, b) = (g.force().z, fresh.force().z);
+    assert!(
+        (a / b - 1.0).abs() < 0.01,
+        "after the fallback {a} N, from rest {b} N"
+    );
+}

@@ -1,6 +1,6 @@
 //! Force of small frictionless presses on the coarse gel against the analytic force, per
 //! solver: `cargo run --release --example small_probe -- SOLVER` (`default`: the
-//! relaxation with Newton's method for the frames whose contact it cannot see, as a
+//! relaxation with the fallback solver for the frames whose contact it cannot carry, as a
 //! coarse sensor that names no solver). `PROBE_FRICTION=MU` sets the friction (default
 //! 0), `PROBE_DEBUG=1` prints each frame's solve, force and time. Spheres of radius 0.25
 //! to 2 mm and a 45-degree cone, at the gel's centre and offset by a third and a half of a

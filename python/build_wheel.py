@@ -1,7 +1,7 @@
 """Builds the tacrom wheel: the Python package with the plugin library
 (``tacrom/_lib/libtacrom.so``), the shipped reduced-order models
 (``tacrom/models/rom-default`` and, for ``solver="linear"``, ``tacrom/models/rom-linear``:
-manifests and ONNX files) and the environments' scenes
+manifests and the ONNX files they name) and the environments' scenes
 (``tacrom/envs/assets``: ``examples/gripper.xml`` and its mesh).
 
     .venv/bin/python python/build_wheel.py --out dist      # what `make wheel` runs
@@ -16,6 +16,7 @@ the library is native code but does not depend on the Python version.
 from __future__ import annotations
 
 import argparse
+import json
 import pathlib
 import shutil
 import subprocess
@@ -25,8 +26,17 @@ import tempfile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODELS = ("rom-default", "rom-linear")
-#: What of a model directory the run time needs (not its training weights or validation).
-MODEL_FILES = ("manifest.json", "*.onnx")
+
+
+def model_files(model_dir: pathlib.Path) -> list[pathlib.Path]:
+    """What of a model directory the run time needs: its manifest and the ONNX files the
+    manifest names (not its training weights, its validation pairs, or a float decoder
+    that an 8-bit copy replaces)."""
+    manifest = model_dir / "manifest.json"
+    if not manifest.is_file():
+        raise SystemExit(f"no {model_dir.name} model in {model_dir.parent}")
+    files = json.loads(manifest.read_text())["files"]
+    return [manifest] + [model_dir / f["path"] for f in files.values()]
 
 
 def stage(dest: pathlib.Path) -> None:
@@ -44,11 +54,8 @@ def stage(dest: pathlib.Path) -> None:
     for model in MODELS:
         model_dir = dest / "tacrom" / "models" / model
         model_dir.mkdir(parents=True)
-        for pattern in MODEL_FILES:
-            for f in sorted((ROOT / "models" / model).glob(pattern)):
-                shutil.copy2(f, model_dir / f.name)
-        if not (model_dir / "manifest.json").is_file():
-            raise SystemExit(f"no {model} model in {ROOT / 'models'}")
+        for f in model_files(ROOT / "models" / model):
+            shutil.copy2(f, model_dir / f.name)
     assets = dest / "tacrom" / "envs" / "assets"
     (assets / "meshes").mkdir(parents=True)
     shutil.copy2(ROOT / "examples" / "gripper.xml", assets / "gripper.xml")

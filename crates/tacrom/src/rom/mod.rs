@@ -51,7 +51,9 @@
 //!
 //! # Decoding and the image
 //!
-//! The decoder is then evaluated densely on the lattice points of the deformable region:
+//! The decoder is then evaluated densely on the lattice points of the deformable region
+//! (the manifest's `files.decoder`: for `rom-linear`, a copy of the float decoder with its
+//! two hidden layers in 8-bit integers, `training/tacrom_rom/quantize.py`):
 //! where the coarse depth exceeds `region.eps_mm` or the indenters pierce the gel, grown by
 //! `region.grow` points (elsewhere the surface is the coarse one). The lattice is the
 //! field's resolution, set from the reference simulation's (finer detail is not in the
@@ -1014,8 +1016,10 @@ impl Rom {
             let mut set = self.energy_set(obs);
             report.energy_points = set.terms.len();
             if self.manifest.refinement.anchor_encoder && !set.terms.is_empty() {
+                // From the graph the refinement differentiates, so that `z0` is where the
+                // prediction term is zero for it (the dense decoder may be quantized).
                 let z0 = self.z.clone();
-                let d0 = self.decode(&z0, &set.query)?;
+                let (d0, _) = self.decode_with_jacobian(&z0, &set.query)?;
                 for (t, &d) in set.terms.iter_mut().zip(&d0) {
                     t.anchor = d as f64;
                 }

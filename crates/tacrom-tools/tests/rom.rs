@@ -142,6 +142,18 @@ fn bad_model_directories_give_clear_errors() {
     assert!(matches!(e, RomError::MissingFile(_)), "{e}");
     assert!(e.to_string().contains("decoder.onnx"), "{e}");
 
+    // The Jacobian graph is loaded only for the latent refinement, which needs it.
+    let d = scratch("no-jacobian");
+    copy_model(&d);
+    std::fs::remove_file(d.join("decoder_jacobian.onnx")).unwrap();
+    let e = Rom::load(&d, RomOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("decoder_jacobian.onnx"), "{e}");
+    let plain = RomOptions {
+        refine: Some(false),
+        ..Default::default()
+    };
+    Rom::load(&d, plain).expect("without the refinement no Jacobian graph is read");
+
     // Corrupt ONNX file.
     let d = scratch("corrupt");
     copy_model(&d);

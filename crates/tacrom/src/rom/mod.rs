@@ -698,7 +698,8 @@ pub struct Rom {
     options: RomOptions,
     encoder: Graph,
     decoder: Graph,
-    jacobian: Graph,
+    /// The Jacobian graph, loaded only where the latent refinement runs.
+    jacobian: Option<Graph>,
     obs: Observation,
     zmin: Vec<f64>,
     enc_in: Vec<f32>,
@@ -730,15 +731,19 @@ pub fn shipped_model_dir(name: &str) -> Option<PathBuf> {
 }
 
 impl Rom {
-    /// Loads the model in `dir`: manifest, then the three graphs with their inputs and
-    /// outputs checked.
+    /// Loads the model in `dir`: manifest, then its graphs with their inputs and outputs
+    /// checked (the Jacobian graph only where the latent refinement runs).
     pub fn load(dir: &Path, options: RomOptions) -> Result<Rom, RomError> {
         let manifest = Manifest::load(dir)?;
         let threads = options.threads.max(1);
         let [enc, dec, jac] = &manifest.files;
         let encoder = load_graph(&enc.0, &enc.1, &enc.2, threads)?;
         let decoder = load_graph(&dec.0, &dec.1, &dec.2, threads)?;
-        let jacobian = load_graph(&jac.0, &jac.1, &jac.2, threads)?;
+        let jacobian = if options.refine.unwrap_or(manifest.refinement.enabled) {
+            Some(load_graph(&jac.0, &jac.1, &jac.2, threads)?)
+        } else {
+            None
+        };
         Ok(Rom {
             z: vec![0.0; manifest.latent],
             manifest,
@@ -855,19 +860,23 @@ impl Rom {
         Ok(d.to_vec())
     }
 
-    /// Runs the Jacobian graph: depth (`N` values) and d depth / dz (`N x latent`).
+    /// Runs the Jacobian graph: depth (`N` values) and d depth / dz (`N x latent`). An
+    /// error where the refinement is off (the graph is not loaded).
     pub fn decode_with_jacobian(
         &mut self,
         z: &[f32],
         query: &[f32],
     ) -> Result<(Vec<f32>, Vec<f32>), RomError> {
+        let jacobian = self
+            .jacobian
+            .as_mut()
+            .ok_or_else(|| run_err("jacobian", "not loaded: the latent refinement is off"))?;
         let f = self.manifest.lattice.query_len();
         let n = query.len() / f;
         let zt = TensorRef::from_array_view(([1usize, z.len()], z))
             .map_err(|e| run_err("jacobian", e))?;
         let qt = TensorRef::from_array_view(([n, f], query)).map_err(|e| run_err("jacobian", e))?;
-        let out = self
-            .jacobian
+        let out = jacobian
             .session
             .run(ort::inputs!["z" => zt, "query" => qt])
             .map_err(|e| run_err("jacobian", e))?;

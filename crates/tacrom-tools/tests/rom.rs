@@ -53,7 +53,12 @@ fn scratch(name: &str) -> PathBuf {
 }
 
 fn copy_model(to: &Path) {
-    for e in std::fs::read_dir(model_dir()).unwrap() {
+    copy_files(&model_dir(), to);
+}
+
+/// The files (not the folders) of `from` into `to`.
+fn copy_files(from: &Path, to: &Path) {
+    for e in std::fs::read_dir(from).unwrap() {
         let p = e.unwrap().path();
         if p.is_file() {
             std::fs::copy(&p, to.join(p.file_name().unwrap())).unwrap();
@@ -63,6 +68,30 @@ fn copy_model(to: &Path) {
 
 fn read_npy(path: &Path) -> (Vec<usize>, Vec<f32>) {
     datagen::read_npy(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// The observation of a `gen-data` pair's `data` (coarse depth, rigid penetration,
+/// reference; `spec.points()` values each).
+fn pair_observation(spec: &LatticeSpec, data: &[f32]) -> Observation {
+    let n = spec.points();
+    let pen: Vec<f64> = data[n..2 * n].iter().map(|&v| v as f64).collect();
+    Observation {
+        coarse: data[..n].iter().map(|&v| v as f64).collect(),
+        rule: DepthRule::from_penetration(spec.size[2], &pen),
+        pen,
+        material: Vec::new(),
+    }
+}
+
+/// The `gen-data` pairs in the `validation/` folder of the model in `dir`, sorted.
+fn validation_pairs(dir: &Path) -> Vec<PathBuf> {
+    let mut pairs: Vec<PathBuf> = std::fs::read_dir(dir.join("validation"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "npy"))
+        .collect();
+    pairs.sort();
+    pairs
 }
 
 #[test]
@@ -266,12 +295,7 @@ fn rom_linear_is_closer_to_the_reference_than_its_coarse_gel_on_held_out_familie
 fn rom_linear_8_bit_decoder_follows_its_float_original() {
     let dir = tacrom::rom::shipped_model_dir(tacrom::rom::LINEAR_MODEL).expect("models/rom-linear");
     let float = scratch("float-decoder");
-    for e in std::fs::read_dir(&dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.is_file() {
-            std::fs::copy(&p, float.join(p.file_name().unwrap())).unwrap();
-        }
-    }
+    copy_files(&dir, &float);
     let manifest = float.join("manifest.json");
     let mut json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&manifest).unwrap()).unwrap();
@@ -286,21 +310,9 @@ fn rom_linear_8_bit_decoder_follows_its_float_original() {
     let mut int8 = Rom::load(&dir, RomOptions::default()).unwrap();
     let mut full = Rom::load(&float, RomOptions::default()).unwrap();
     let spec = int8.manifest().lattice;
-    let n = spec.points();
     let (mut sum, mut count, mut worst) = (0.0, 0usize, 0.0f64);
-    for e in std::fs::read_dir(dir.join("validation")).unwrap() {
-        let p = e.unwrap().path();
-        if p.extension().is_none_or(|x| x != "npy") {
-            continue;
-        }
-        let (_, data) = read_npy(&p);
-        let pen: Vec<f64> = data[n..2 * n].iter().map(|&v| v as f64).collect();
-        let obs = Observation {
-            coarse: data[..n].iter().map(|&v| v as f64).collect(),
-            rule: DepthRule::from_penetration(spec.size[2], &pen),
-            pen,
-            material: Vec::new(),
-        };
+    for p in validation_pairs(&dir) {
+        let obs = pair_observation(&spec, &read_npy(&p).1);
         int8.infer(&obs).unwrap();
         full.infer(&obs).unwrap();
         for ((a, b), c) in int8
@@ -345,12 +357,7 @@ fn held_out_gate(dir: &Path, reference_dx: f64) {
     .unwrap();
     let spec = rom.manifest().lattice;
     let n = spec.points();
-    let mut pairs: Vec<PathBuf> = std::fs::read_dir(dir.join("validation"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|x| x == "npy"))
-        .collect();
-    pairs.sort();
+    let pairs = validation_pairs(&dir);
     assert!(!pairs.is_empty(), "no held-out pairs in {}", dir.display());
     let mut families: std::collections::BTreeMap<String, (usize, Mae)> = Default::default();
     // The latent refinement's steps, and the decoder's contact violations before the depth
@@ -369,13 +376,7 @@ fn held_out_gate(dir: &Path, reference_dx: f64) {
         );
         let (shape, data) = read_npy(p);
         assert_eq!(shape, vec![3, spec.ny, spec.nx]);
-        let pen: Vec<f64> = data[n..2 * n].iter().map(|&v| v as f64).collect();
-        let obs = Observation {
-            coarse: data[..n].iter().map(|&v| v as f64).collect(),
-            rule: DepthRule::from_penetration(spec.size[2], &pen),
-            pen,
-            material: Vec::new(),
-        };
+        let obs = pair_observation(&spec, &data);
         let reference = &data[2 * n..];
         let report = rom.infer(&obs).unwrap();
         let m_rom = fov_mae(&spec, rom.lattice_depth(), reference);

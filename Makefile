@@ -57,8 +57,9 @@ bench: build
 # The committed full-profile report (docs/benchmark/report.md) and its accuracy rows
 # (benchmarks/full-baseline.json): every pattern at the centre position against the 0.5 mm
 # reference (README "Benchmarks": why not the 0.3 mm one and the 3 x 3 grid yet).
-BENCH_REPORT_MODES = rigid coarse rom coarse-tol1e-3 coarse-tol1e-2 rom-tol1e-3 rom-tol1e-2 \
-	rom-norefine rom-latent16 rom-no-multiscale coarse-newton:physics=coarse,solver=newton
+BENCH_REPORT_MODES = rigid coarse rom coarse-linear rom-linear coarse-tol1e-3 coarse-tol1e-2 \
+	rom-tol1e-3 rom-tol1e-2 rom-norefine rom-latent16 rom-no-multiscale \
+	coarse-newton:physics=coarse,solver=newton
 bench-report: build
 	$(CARGO) run --release --bin tacrom -- bench --full --grid 1 --reference-dx 0.5 \
 		$(addprefix --mode ,$(BENCH_REPORT_MODES)) --out docs/benchmark --panels 2 \

@@ -118,6 +118,7 @@ use super::{
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt;
 use faer::{Conj, MatMut, MatRef, Par};
+use std::sync::{Arc, Mutex, Weak};
 
 /// Steps at most of a march along the vertical ([`Compliance::vertical_gap`]), the
 /// smallest step (cells) down through an indenter, the bisections of the way out, and the
@@ -179,7 +180,9 @@ type Columns = [(u32, f64); 9];
 /// The linear solver's state for one gel.
 #[derive(Clone)]
 pub(crate) struct Compliance {
-    system: System,
+    /// The gel's stiffness at rest, factored: shared by every gel of the same parameters
+    /// ([`shared_factor`]).
+    system: Arc<System>,
     dx: f64,
     origin: Vector3<f64>,
     /// Node columns along y (the column index is `ix * ny + iy`).
@@ -240,6 +243,32 @@ pub(crate) struct Contact {
     pub converged: bool,
 }
 
+/// The factored stiffness at rest of the gels alive, by their parameters (`GelParams` as
+/// `Debug` prints them: every field, each float to the bit).
+static FACTORS: Mutex<Vec<(String, Weak<System>)>> = Mutex::new(Vec::new());
+
+/// The factored stiffness of a gel whose parameters print as `key`: the one a live gel of
+/// the same parameters holds, else `build`'s. The linear solver's factor is the largest
+/// thing a gel holds (tens of MB on the coarse gel); the sensors of one process (an RL
+/// process with several environments, a gripper's two fingers) hold one per gel.
+fn shared_factor(
+    key: &str,
+    build: impl FnOnce() -> Result<System, String>,
+) -> Result<Arc<System>, String> {
+    let mut factors = FACTORS.lock().unwrap_or_else(|e| e.into_inner());
+    factors.retain(|(_, w)| w.strong_count() > 0);
+    if let Some(system) = factors
+        .iter()
+        .find(|(k, _)| k == key)
+        .and_then(|(_, w)| w.upgrade())
+    {
+        return Ok(system);
+    }
+    let system = Arc::new(build()?);
+    factors.push((key.to_owned(), Arc::downgrade(&system)));
+    Ok(system)
+}
+
 impl Compliance {
     /// The stiffness of `gel` at rest, factored, its top slots and its contact lattice.
     pub fn new(gel: &Gel) -> Result<Compliance, String> {
@@ -253,14 +282,17 @@ impl Compliance {
         }
         newton.linear = LinearSolve::Factor;
         newton.set_region([0, newton.dims[0], 0, newton.dims[1]])?;
-        newton
-            .evaluate(&[])
-            .ok_or("the material is not defined at rest")?;
-        let mut system = newton.system.take().ok_or("no stiffness system")?;
-        newton.fill_matrix(&mut system);
-        system
-            .factor()
-            .map_err(|_| "the stiffness at rest is not positive definite".to_owned())?;
+        let system = shared_factor(&format!("{:?}", gel.params), || {
+            newton
+                .evaluate(&[])
+                .ok_or("the material is not defined at rest")?;
+            let mut system = newton.system.take().ok_or("no stiffness system")?;
+            newton.fill_matrix(&mut system);
+            system
+                .factor()
+                .map_err(|_| "the stiffness at rest is not positive definite".to_owned())?;
+            Ok(system)
+        })?;
         let rest: Vec<Vector3<f64>> = gel.top_ref.iter().map(|r| r.cast::<f64>()).collect();
         let [_, ny, nz] = newton.dims;
         let first = Stencil::at(rest.first().ok_or("the gel has no top slots")?);

@@ -148,6 +148,29 @@ fn the_compliance_is_reciprocal() {
     }
 }
 
+/// Gels of the same parameters share one factored stiffness while any of them holds it
+/// (whatever their thread counts); other parameters get their own; once the last gel
+/// holding it is gone, the next one builds it afresh.
+#[test]
+fn gels_of_the_same_parameters_share_the_factor() {
+    let params = GelParams {
+        young: 1.2345e5,
+        ..small_gel()
+    };
+    let a = Compliance::new(&Gel::new(params, options(1)).unwrap()).unwrap();
+    let b = Compliance::new(&Gel::new(params, options(2)).unwrap()).unwrap();
+    assert!(Arc::ptr_eq(&a.system, &b.system));
+    let other = GelParams {
+        poisson: 0.41,
+        ..params
+    };
+    let c = Compliance::new(&Gel::new(other, options(1)).unwrap()).unwrap();
+    assert!(!Arc::ptr_eq(&a.system, &c.system));
+    drop((a, b));
+    let rebuilt = shared_factor(&format!("{params:?}"), || Err("built afresh".into()));
+    assert_eq!(rebuilt.err().as_deref(), Some("built afresh"));
+}
+
 /// The indenters `placed` as one solve step sees them (bounds inflated by two cells).
 fn step(placed: &[Placed], dx: f64) -> Vec<StepIndenter> {
     placed

@@ -749,23 +749,7 @@ impl Gel {
             return report;
         }
         let sweep = self.plan_sweep(used, &matched);
-        if self.options.solver == Solver::Linear {
-            self.solve_linear(&sweep, &matched, &mut report);
-            self.prev = current;
-            self.resting = !touching && self.surface_box.is_none();
-            return report;
-        }
-        if self.options.solver == Solver::Newton {
-            self.solve_newton(&sweep, &matched, &mut report);
-            self.prev = if report.nonfinite_recovered {
-                Vec::new()
-            } else {
-                current
-            };
-            self.resting = !touching && self.surface_box.is_none();
-            return report;
-        }
-        if self.options.fallback
+        let solver = if self.options.fallback
             && touching
             && self.footprint_points(indenters, UNRESOLVED_POINTS) <= UNRESOLVED_POINTS
             && self.reached_depth(indenters::usable(indenters).into_iter())
@@ -779,18 +763,27 @@ impl Gel {
             // carries on from its own last fallback frame; the relaxation's goes back to
             // rest, to start afresh from the frame it carries again.
             self.rest_relaxation();
+            report.fallback = true;
             if params::linear_fits(&self.params) {
+                Solver::Linear
+            } else {
+                Solver::Newton
+            }
+        } else {
+            self.options.solver
+        };
+        if matches!(solver, Solver::Linear | Solver::Newton) {
+            if solver == Solver::Linear {
                 self.solve_linear(&sweep, &matched, &mut report);
             } else {
                 self.solve_newton(&sweep, &matched, &mut report);
             }
-            report.fallback = true;
             self.prev = if report.nonfinite_recovered {
                 Vec::new()
             } else {
                 current
             };
-            self.resting = false;
+            self.resting = !touching && self.surface_box.is_none();
             return report;
         }
         report.sweep_steps = sweep.steps;

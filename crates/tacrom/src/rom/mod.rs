@@ -1024,14 +1024,17 @@ impl Rom {
         if self.refine_enabled() {
             let mut set = self.energy_set(obs);
             report.energy_points = set.terms.len();
+            // The Jacobian graph at `z0`, kept for the refinement's first evaluation there.
+            let mut at_z0 = None;
             if self.manifest.refinement.anchor_encoder && !set.terms.is_empty() {
                 // From the graph the refinement differentiates, so that `z0` is where the
                 // prediction term is zero for it (the dense decoder may be quantized).
                 let z0 = self.z.clone();
-                let (d0, _) = self.decode_with_jacobian(&z0, &set.query)?;
+                let (d0, j0) = self.decode_with_jacobian(&z0, &set.query)?;
                 for (t, &d) in set.terms.iter_mut().zip(&d0) {
                     t.anchor = d as f64;
                 }
+                at_z0 = Some((z0, (d0, j0)));
             }
             if !set.terms.is_empty() {
                 let r = self.manifest.latent;
@@ -1043,7 +1046,10 @@ impl Rom {
                     for (a, &b) in z32.iter_mut().zip(z) {
                         *a = b as f32;
                     }
-                    let (d, jac) = self.decode_with_jacobian(&z32, &set.query)?;
+                    let (d, jac) = match at_z0.take() {
+                        Some((z0, known)) if z0 == z32 => known,
+                        _ => self.decode_with_jacobian(&z32, &set.query)?,
+                    };
                     let e = Self::energy(&set, &d, &mut dd);
                     grad.iter_mut().for_each(|g| *g = 0.0);
                     for (k, &w) in dd.iter().enumerate() {

@@ -82,14 +82,17 @@ def conditioning_of(ds):
             "friction": list(ds.get("friction_range") or [ds["friction"]] * 2)}
 
 
-def load_dir(path, drop_unconverged=True):
+def load_dir(path, drop_unconverged=True, conditioned=True):
     """(spec, dataset meta, arrays [S, C, ny, nx] in model units, list of sample metas).
     C is 3 (coarse, penetration, reference), and 5 for a data set with per-sample materials:
-    two constant channels of material inputs (Spec.material) follow."""
+    two constant channels of material inputs (Spec.material) follow. With `conditioned`
+    False such a data set loads without them (a model that reads the material from the
+    coarse channel alone)."""
     with open(os.path.join(path, "dataset.json")) as f:
         ds = json.load(f)
     ny, nx = ds["lattice"]
-    spec = Spec(size=tuple(ds["size"]), nx=nx, ny=ny, conditioning=conditioning_of(ds))
+    spec = Spec(size=tuple(ds["size"]), nx=nx, ny=ny,
+                conditioning=conditioning_of(ds) if conditioned else None)
     arrays, metas = [], []
     for npy in sorted(glob.glob(os.path.join(path, "sample-*.npy"))):
         js = npy[:-4] + ".json"

@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-linear train-linear gen-data-fine gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-linear gen-data-linear-material train-linear train-linear-seeds gen-data-fine gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -95,6 +95,8 @@ ROM_DATA ?= data/rom-v2
 ROM_SAMPLES ?= 300
 ROM_SHARDS ?= 2
 ROM_STEPS ?= 5000
+# torch device of the training loop (cpu, cuda)
+ROM_DEVICE ?= cpu
 # The presses of ROM_DATA at the fine 0.3 mm spacing: by default only the held-out ones
 # (validation); `make gen-data-fine ROM_FINE_FLAGS= ROM_FINE_SAMPLES=300` fills in the rest
 # (training against the fine mode).
@@ -129,18 +131,41 @@ train: train-env
 	$(TRAIN) --out models/rom-no-multiscale --no-multiscale
 
 # The model of the linear solver's coarse solve (`solver="linear"`, models/rom-linear): the
-# presses of ROM_DATA with the linear coarse channel, against the 0.7 mm reference, and its
-# force factor from the same presses.
+# presses of ROM_DATA with the linear coarse channel, against the 0.7 mm reference; its
+# force factor per Poisson's ratio from those presses and ROM_LINEAR_MAT_SAMPLES more whose
+# Poisson's ratio and friction are drawn per press from ROM_POISSON and ROM_FRICTION
+# (merged), and its decoder in 8 bits. `train-linear-seeds` trains, on the merged presses,
+# three seeds of a model conditioned on the material, of each of its ablations and of one
+# without the material inputs into out/models (the README's seed table; 12 runs, each
+# about 95 s on one GPU with ROM_DEVICE=cuda; measured, not shipped).
 ROM_LINEAR_DATA ?= data/rom-linear
+ROM_LINEAR_MAT_DATA ?= data/rom-linear-mat
+ROM_LINEAR_MAT_SAMPLES ?= 400
+ROM_LINEAR_MERGED := data/rom-linear-merged
 gen-data-linear: build
 	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
 	  target/release/tacrom gen-data --out $(ROM_LINEAR_DATA) --samples $(ROM_SAMPLES) --seed 1 \
 	    --fine-dx 0.7 --fine-max-iterations 1000 --coarse-solver linear --shard $$k/$(ROM_SHARDS) & \
 	done; wait
-train-linear: train-env
+gen-data-linear-material: build
+	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
+	  target/release/tacrom gen-data --out $(ROM_LINEAR_MAT_DATA) --samples $(ROM_LINEAR_MAT_SAMPLES) \
+	    --seed 1 --fine-dx 0.7 --fine-max-iterations 1000 --coarse-solver linear \
+	    --poisson $(ROM_POISSON) --friction $(ROM_FRICTION) --shard $$k/$(ROM_SHARDS) & \
+	done; wait
+$(ROM_LINEAR_MERGED)/dataset.json:
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge $(ROM_LINEAR_MERGED) $(ROM_LINEAR_MAT_DATA) $(ROM_LINEAR_DATA)
+train-linear: train-env $(ROM_LINEAR_MERGED)/dataset.json
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_DATA) --steps $(ROM_STEPS) \
-		--out models/rom-linear
-	PYTHONPATH=training $(PY) -m tacrom_rom.force_factor $(ROM_LINEAR_DATA) models/rom-linear
+		--device $(ROM_DEVICE) --region-eps-mm 0.01 --out models/rom-linear
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear
+train-linear-seeds: train-env $(ROM_LINEAR_MERGED)/dataset.json
+	for s in 0 1 2; do for v in "conditioned:" "latent16:--latent 16" "no-multiscale:--no-multiscale" \
+	    "unconditioned:--no-conditioning"; do \
+	  PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_MERGED) --steps $(ROM_STEPS) \
+	    --seed $$s --device $(ROM_DEVICE) --region-eps-mm 0.01 $${v#*:} --out out/models/rom-linear-$${v%%:*}-s$$s; \
+	done; done
 
 # The presses of ROM_DATA again, with the reference at the fine 0.3 mm spacing (each takes
 # 10 s to 22 min on one core); resumable like gen-data.
@@ -168,7 +193,6 @@ gen-data-material: build
 eval-rom-material: build
 	target/release/tacrom eval-rom --data $(ROM_MAT_DATA) --out out/bench/eval-rom-material
 
-ROM_DEVICE ?= cpu
 train-material: train-env
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge data/rom-mat-merged $(ROM_MAT_DATA) $(ROM_DATA)
 	for s in 0 1 2; do \

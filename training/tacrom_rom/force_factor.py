@@ -9,6 +9,12 @@ displaced volume over the coarse one's, times this factor: the median, over the 
 presses of DATA (a `tacrom gen-data` set that records forces; held-out families are left
 out), of (F_ref / V_ref) / (F_coarse / V_coarse), which takes out the coarse grid's own
 constant. Writes it into MODEL_DIR/manifest.json.
+
+For a data set whose presses draw Poisson's ratio from a range (`tacrom gen-data --poisson
+LO,HI`, or such a set merged with fixed ones), the constant depends on it: the linear coarse
+gel's ratio rises from about 1.08 at 0.3 to 1.6 at 0.48, steeply above 0.44. The manifest then also gets
+`by_poisson`, the median over each of POISSON_BINS equal bins of the range at the bin's
+median Poisson's ratio, which the sensor interpolates linearly (and holds beyond the ends).
 """
 from __future__ import annotations
 
@@ -20,13 +26,15 @@ import sys
 import numpy as np
 
 MIN_FORCE = 1e-3  # N: lighter presses carry round-off, not the grid's constant
+POISSON_BINS = 9
+MIN_BIN = 10  # presses a bin needs for its median
 
 
 def factor(path):
     with open(os.path.join(path, "dataset.json")) as f:
         ds = json.load(f)
     held_out = set(ds["held_out"])
-    ratios = []
+    ratios, poisson = [], []
     for js in sorted(glob.glob(os.path.join(path, "sample-*.json"))):
         with open(js) as f:
             meta = json.load(f)
@@ -40,10 +48,27 @@ def factor(path):
         vc, vr = a[0].sum(), a[2].sum()
         if vc > 0 and vr > 0:
             ratios.append((fr / vr) / (fc / vc))
+            poisson.append(meta.get("poisson", ds["poisson"]))
     if not ratios:
         raise SystemExit(f"{path}: no training press with both forces recorded")
     r = np.array(ratios)
-    return float(np.median(r)), len(r), float(np.percentile(r, 10)), float(np.percentile(r, 90)), ds
+    return float(np.median(r)), len(r), float(np.percentile(r, 10)), float(np.percentile(r, 90)), ds, \
+        by_poisson(np.array(poisson), r, ds.get("poisson_range"))
+
+
+def by_poisson(nu, r, bounds):
+    """[[Poisson's ratio, factor], ...] over the bins of `bounds` that hold MIN_BIN presses
+    (None for a data set of one Poisson's ratio)."""
+    if not bounds or bounds[1] <= bounds[0]:
+        return None
+    edges = np.linspace(bounds[0], bounds[1], POISSON_BINS + 1)
+    table = []
+    for k in range(POISSON_BINS):
+        last = k == POISSON_BINS - 1
+        inside = (nu >= edges[k]) & ((nu <= edges[k + 1]) if last else (nu < edges[k + 1]))
+        if inside.sum() >= MIN_BIN:
+            table.append([round(float(np.median(nu[inside])), 4), round(float(np.median(r[inside])), 4)])
+    return table if len(table) >= 2 else None
 
 
 def main(argv=None):
@@ -51,7 +76,7 @@ def main(argv=None):
     if len(argv) != 2:
         raise SystemExit(__doc__)
     data, model = argv
-    k, n, p10, p90, ds = factor(data)
+    k, n, p10, p90, ds, table = factor(data)
     path = os.path.join(model, "manifest.json")
     with open(path) as f:
         m = json.load(f)
@@ -59,12 +84,15 @@ def main(argv=None):
         "volume_factor": round(k, 4),
         "presses": n,
         "percentiles_10_90": [round(p10, 4), round(p90, 4)],
+        **({"by_poisson": table} if table else {}),
         "reference_dx": ds.get("fine_dx"),
         "command": f"python -m tacrom_rom.force_factor {data} {model}",
     }
     with open(path, "w") as f:
         json.dump(m, f, indent=1)
     print(f"volume factor {k:.4f} over {n} training presses (10th to 90th percentile {p10:.4f} to {p90:.4f})")
+    if table:
+        print("by Poisson's ratio: " + ", ".join(f"{nu}: {v}" for nu, v in table))
 
 
 if __name__ == "__main__":

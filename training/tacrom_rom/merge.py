@@ -4,7 +4,8 @@ training a model conditioned on the gel's material on presses of several materia
     python -m tacrom_rom.merge OUT RANGED [FIXED ...]
 
 RANGED is a data set that draws each sample's Poisson's ratio and friction from ranges
-(`tacrom gen-data --poisson LO,HI --friction LO,HI`); its dataset.json becomes OUT's. Each
+(`tacrom gen-data --poisson LO,HI --friction LO,HI`); its dataset.json becomes OUT's, with
+`merged_from` listing the inputs. Each
 FIXED data set (one material, such as `make gen-data`'s) adds its samples with indices
 offset by 100000 * k and its material written into each sample's JSON; its material must
 lie inside RANGED's ranges. Files are copied; OUT is created if needed.
@@ -34,7 +35,8 @@ def main(argv=None):
     if "poisson_range" not in ds and "friction_range" not in ds:
         raise SystemExit(f"{ranged}: its dataset.json has no material ranges")
     os.makedirs(out, exist_ok=True)
-    shutil.copy(os.path.join(ranged, "dataset.json"), os.path.join(out, "dataset.json"))
+    with open(os.path.join(out, "dataset.json"), "w") as f:
+        json.dump(dict(ds, merged_from=[ranged] + fixed), f, indent=1)
     n = 0
     for k, path in enumerate([ranged] + fixed):
         other = json.load(open(os.path.join(path, "dataset.json")))

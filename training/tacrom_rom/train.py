@@ -208,8 +208,37 @@ def sample_indices(path):
     return sorted(int(f[7:13]) for f in os.listdir(path) if f.startswith("sample-") and f.endswith(".json"))
 
 
+# Coarse depth error (mm, over the field of view) below which a held-out press says nothing
+# about a model: the 0.7 mm reference itself is 1.4 um from the 0.3 mm fine mode.
+VALIDATION_MIN_COARSE_MAE_MM = 5e-4
+
+
+def write_validation_pairs(out, spec, arrays, metas, va, per_family):
+    """Held-out pairs for the Rust test, stratified by family (it gates each family and the
+    pool): up to `per_family` of each held-out family, the finest references first, among the
+    presses whose coarse depth is at least VALIDATION_MIN_COARSE_MAE_MM off the reference
+    (chosen by the data, not by the model)."""
+    vdir = os.path.join(out, "validation")
+    os.makedirs(vdir, exist_ok=True)
+    picks = []
+    for family in sorted({metas[i]["family"] for i in va}):
+        members = [i for i in va if metas[i]["family"] == family]
+        informative = [i for i in members
+                       if np.abs(fov_crop(spec, arrays[i][0] - arrays[i][2])).mean() >= VALIDATION_MIN_COARSE_MAE_MM]
+        members = sorted(informative or members, key=lambda i: metas[i].get("reference_dx") or 1.0)
+        picks += members[:per_family]
+    for k, i in enumerate(picks):
+        np.save(os.path.join(vdir, f"pair-{k}.npy"), (arrays[i][:3] / spec.depth_scale).astype(np.float32))
+        with open(os.path.join(vdir, f"pair-{k}.json"), "w") as f:
+            json.dump(metas[i], f)
+
+
 def gen_command(path, ds):
-    """The `tacrom gen-data` command that regenerates the data set in `path`."""
+    """The `tacrom gen-data` command that regenerates the data set in `path` (for a merged
+    one, the merge of the data sets it came from)."""
+    if ds.get("merged_from"):
+        return f"python -m tacrom_rom.merge {path} " + " ".join(ds["merged_from"]) + \
+            " (each written by tacrom gen-data)"
     n = max(sample_indices(path), default=-1) + 1
     mm = lambda key: f"{1e3 * ds.get(key):g}"  # noqa: E731  (the data set's metres, the CLI's mm)
     solver = (ds.get("recipe") or {}).get("solver", "relaxation")
@@ -241,6 +270,9 @@ def main(argv=None):
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--device", default="cpu", help="torch device of the training loop (cpu, cuda); "
                    "the model is evaluated and exported on the CPU")
+    p.add_argument("--region-eps-mm", type=float, default=REGION_EPS_MM,
+                   help="coarse depth above which the manifest's deformable region starts at run time "
+                        "(training uses 1e-3 mm; the linear gel's slow fall-off wants 0.01)")
     p.add_argument("--max-seconds", type=float, default=None, help="stop training after this wall time")
     p.add_argument("--validation-per-family", type=int, default=2,
                    help="held-out pairs of each held-out family copied into the model for tests")
@@ -326,20 +358,8 @@ def main(argv=None):
     model_ds = dict(ds, fine_dx=fine_ds["fine_dx"]) if references else ds
     export_model(model, spec, model_ds, a.out, training=training, data=data_info,
                  validation={"held_out": val, "train_subset": train_m},
-                 refinement=not a.no_refinement)
-    # Held-out pairs for the Rust test, stratified by family (it gates each family and the
-    # pool): up to `validation_per_family` of each held-out family, the finest references first.
-    vdir = os.path.join(a.out, "validation")
-    os.makedirs(vdir, exist_ok=True)
-    picks = []
-    for family in sorted({metas[i]["family"] for i in va}):
-        members = sorted((i for i in va if metas[i]["family"] == family),
-                         key=lambda i: metas[i].get("reference_dx") or 1.0)
-        picks += members[: a.validation_per_family]
-    for k, i in enumerate(picks):
-        np.save(os.path.join(vdir, f"pair-{k}.npy"), (arrays[i][:3] / spec.depth_scale).astype(np.float32))
-        with open(os.path.join(vdir, f"pair-{k}.json"), "w") as f:
-            json.dump(metas[i], f)
+                 refinement=not a.no_refinement, region_eps_mm=a.region_eps_mm)
+    write_validation_pairs(a.out, spec, arrays, metas, va, a.validation_per_family)
     print(f"wrote {a.out} in {seconds:.0f}s of training", flush=True)
 
 

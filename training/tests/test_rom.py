@@ -188,3 +188,41 @@ def test_finer_references_of_other_presses_are_refused(tmp_path):
     _finer_copy(str(base), str(seeded), [3], {"seed": 7})
     with pytest.raises(SystemExit, match="seed = 7"):
         D.overlay_references(str(seeded), spec, ds, arrays, metas)
+
+
+def test_force_factor_per_poisson_bin_of_a_ranged_data_set(tmp_path):
+    """For presses whose Poisson's ratio is drawn from a range, the factor gets a table: per
+    bin, the median ratio at the median Poisson's ratio (here ratio = 1 + nu exactly, so
+    each entry lies on that line); held-out families and light presses are left out."""
+    from tacrom_rom import force_factor as FF
+
+    path = tmp_path / "ranged"
+    os.makedirs(path)
+    with open(path / "dataset.json", "w") as f:
+        json.dump({"poisson": 0.3, "friction": 0.0, "poisson_range": [0.3, 0.48], "held_out": ["ridges"],
+                   "fine_dx": 7e-4}, f)
+    rng = np.random.default_rng(0)
+    for i in range(400):
+        nu = float(rng.uniform(0.3, 0.48))
+        coarse = np.zeros((3, 4, 4), np.float32)
+        coarse[0] = 1e-4  # coarse volume 16e-4, reference volume 8e-4 -> ratio = (fr / fc) * 2
+        coarse[2] = 0.5e-4
+        fc = 0.1
+        fr = fc * (1 + nu) / 2
+        family = "ridges" if i % 10 == 0 else "sphere"
+        if i % 10 == 1:
+            fc = fr = 1e-4  # below MIN_FORCE
+        np.save(path / f"sample-{i:06d}.npy", coarse)
+        with open(path / f"sample-{i:06d}.json", "w") as f:
+            json.dump({"index": i, "family": family, "poisson": nu, "friction": 0.5,
+                       "coarse": {"force": [0, 0, fc]}, "reference": {"converged": True, "force": [0, 0, fr]}}, f)
+    k, n, _, _, _, table = FF.factor(str(path))
+    assert n == 320
+    assert len(table) == FF.POISSON_BINS
+    nus = [nu for nu, _ in table]
+    assert nus == sorted(nus) and 0.3 < nus[0] < nus[-1] < 0.48
+    for nu, v in table:
+        assert abs(v - (1 + nu)) < 2e-4, (nu, v)
+    assert abs(k - (1 + np.median(nus))) < 0.02
+    # A data set of one Poisson's ratio gets no table.
+    assert FF.by_poisson(np.full(50, 0.43), np.ones(50), None) is None

@@ -80,7 +80,24 @@ fn pair_observation(spec: &LatticeSpec, data: &[f32]) -> Observation {
         rule: DepthRule::from_penetration(spec.size[2], &pen),
         pen,
         material: Vec::new(),
+        poisson: 0.0,
     }
+}
+
+/// The observation of the pair in `p` for `rom`, with the material inputs of the pair's
+/// gel (its JSON's `poisson` and `friction`, else the model's gel).
+fn pair_observation_for(rom: &Rom, p: &Path, data: &[f32]) -> Observation {
+    let m = rom.manifest();
+    let mut obs = pair_observation(&m.lattice, data);
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(p.with_extension("json")).unwrap()).unwrap();
+    let value = |key: &str, default: f64| meta[key].as_f64().unwrap_or(default);
+    let (poisson, friction) = (
+        value("poisson", m.gel.poisson),
+        value("friction", m.gel.friction),
+    );
+    rom.set_material(&mut obs, poisson, friction);
+    obs
 }
 
 /// The `gen-data` pairs in the `validation/` folder of the model in `dir`, sorted.
@@ -104,6 +121,7 @@ fn shipped_model_loads_and_outputs_have_the_manifests_shapes() {
         pen: vec![0.0; spec.points()],
         rule: DepthRule::new(spec.size[2], &[]),
         material: Vec::new(),
+        poisson: 0.0,
     };
     let z = rom.encode(&obs).unwrap();
     assert_eq!(z.len(), m.latent);
@@ -309,10 +327,9 @@ fn rom_linear_8_bit_decoder_follows_its_float_original() {
     std::fs::write(&manifest, serde_json::to_string(&json).unwrap()).unwrap();
     let mut int8 = Rom::load(&dir, RomOptions::default()).unwrap();
     let mut full = Rom::load(&float, RomOptions::default()).unwrap();
-    let spec = int8.manifest().lattice;
     let (mut sum, mut count, mut worst) = (0.0, 0usize, 0.0f64);
     for p in validation_pairs(&dir) {
-        let obs = pair_observation(&spec, &read_npy(&p).1);
+        let obs = pair_observation_for(&int8, &p, &read_npy(&p).1);
         int8.infer(&obs).unwrap();
         full.infer(&obs).unwrap();
         for ((a, b), c) in int8
@@ -376,7 +393,7 @@ fn held_out_gate(dir: &Path, reference_dx: f64) {
         );
         let (shape, data) = read_npy(p);
         assert_eq!(shape, vec![3, spec.ny, spec.nx]);
-        let obs = pair_observation(&spec, &data);
+        let obs = pair_observation_for(&rom, p, &data);
         let reference = &data[2 * n..];
         let report = rom.infer(&obs).unwrap();
         let m_rom = fov_mae(&spec, rom.lattice_depth(), reference);

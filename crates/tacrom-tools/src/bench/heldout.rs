@@ -234,6 +234,7 @@ fn load_samples(
                     rule: tacrom::render::DepthRule::from_penetration(spec.size[2], &pen),
                     pen,
                     material: Vec::new(),
+                    poisson: meta.poisson.unwrap_or(dataset.poisson),
                 }
             },
             material: [
@@ -458,7 +459,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             acc.row.into_indenter += report.penetration_excess;
             acc.row.below_reach += report.bound_excess.max(0.0);
             if let Some([fc, fr]) = s.force.filter(|f| f[1] > 1e-3) {
-                let reported = fc * rom.force_factor_on(&s.obs.coarse);
+                let reported = fc * rom.force_factor_on(&s.obs);
                 force_errors.push((reported / fr - 1.0).abs());
                 forces.push(ForceRow {
                     file: s.file.to_string_lossy().into_owned(),

@@ -155,6 +155,8 @@ pub struct Observation {
     /// The material inputs of a conditioned model ([`Conditioning::inputs`]; empty for
     /// others).
     pub material: Vec<f64>,
+    /// The gel's Poisson's ratio (for the force's [`super::VolumeFactor`]).
+    pub poisson: f64,
 }
 
 impl Default for Observation {
@@ -164,6 +166,7 @@ impl Default for Observation {
             pen: Vec::new(),
             rule: DepthRule::new(0.0, &[]),
             material: Vec::new(),
+            poisson: 0.0,
         }
     }
 }

@@ -89,6 +89,62 @@ use runtime::{load_graph, Graph};
 /// uses it: the decoder corrects the coarse surface, it does not replace it.
 pub const VOLUME_RATIO: [f64; 2] = [0.25, 4.0];
 
+/// The factor of `rom`'s force from the decoded surface's displaced volume (manifest
+/// `force`): `volume_factor`, or, for a model of several Poisson's ratios, its `by_poisson`
+/// table interpolated linearly in Poisson's ratio and held beyond its ends (the linear
+/// coarse gel's own constant rises from about 1.08 at Poisson 0.3 to 1.6 at 0.48).
+#[derive(Clone, Debug, PartialEq)]
+pub struct VolumeFactor {
+    /// The factor of the training gel (of all presses, for a table).
+    pub factor: f64,
+    /// `(poisson, factor)` in increasing Poisson's ratio; empty for one factor.
+    pub by_poisson: Vec<(f64, f64)>,
+}
+
+impl VolumeFactor {
+    const RANGE: std::ops::RangeInclusive<f64> = 0.5..=2.0;
+
+    fn new(doc: document::Force) -> Result<Self, String> {
+        let check = |name: &str, k: f64| {
+            if Self::RANGE.contains(&k) {
+                Ok(k)
+            } else {
+                Err(format!(
+                    "'force.{name}' is {k}, expected a factor in [0.5, 2]"
+                ))
+            }
+        };
+        let factor = check("volume_factor", doc.volume_factor)?;
+        let mut by_poisson = Vec::with_capacity(doc.by_poisson.len());
+        for &[nu, k] in &doc.by_poisson {
+            check("by_poisson", k)?;
+            let last = by_poisson.last().map_or(-1.0, |&(n, _)| n);
+            if !(nu > last && nu < 0.5) {
+                return Err(format!(
+                    "'force.by_poisson' has Poisson's ratio {nu} after {last}, expected \
+                     increasing ratios below 0.5"
+                ));
+            }
+            by_poisson.push((nu, k));
+        }
+        Ok(Self { factor, by_poisson })
+    }
+
+    /// The factor for a gel of Poisson's ratio `poisson`.
+    pub fn at(&self, poisson: f64) -> f64 {
+        let t = &self.by_poisson;
+        match t.iter().position(|&(nu, _)| nu >= poisson) {
+            None if t.is_empty() => self.factor,
+            None => t[t.len() - 1].1,
+            Some(0) => t[0].1,
+            Some(i) => {
+                let ((n0, k0), (n1, k1)) = (t[i - 1], t[i]);
+                k0 + (k1 - k0) * (poisson - n0) / (n1 - n0)
+            }
+        }
+    }
+}
+
 /// Format tag of the manifests this build reads.
 pub const FORMAT: &str = "tacrom-rom-1";
 /// Name of the shipped model's directory under `models/`: the one for the default coarse
@@ -215,8 +271,8 @@ pub struct Manifest {
     /// (manifest `materials`, with the evaluation that measured it; `None`: the gel's only).
     pub materials: Option<Conditioning>,
     /// The factor of the force from the decoded surface's displaced volume (manifest
-    /// `force.volume_factor`; `None`: `rom` reports the coarse gel's force).
-    pub force_volume_factor: Option<f64>,
+    /// `force`; `None`: `rom` reports the coarse gel's force).
+    pub force_volume_factor: Option<VolumeFactor>,
     /// The whole document (training, data, validation records).
     pub json: serde_json::Value,
 }
@@ -258,6 +314,9 @@ mod document {
     #[derive(Deserialize)]
     pub(super) struct Force {
         pub volume_factor: f64,
+        /// `[[poisson, factor], ...]` for a model of several Poisson's ratios.
+        #[serde(default)]
+        pub by_poisson: Vec<[f64; 2]>,
     }
 
     #[derive(Deserialize)]
@@ -513,16 +572,7 @@ impl Manifest {
             } else {
                 doc.materials
             },
-            force_volume_factor: match doc.force {
-                Some(f) if (0.5..=2.0).contains(&f.volume_factor) => Some(f.volume_factor),
-                Some(f) => {
-                    return Err(bad(format!(
-                        "'force.volume_factor' is {}, expected a factor in [0.5, 2]",
-                        f.volume_factor
-                    )))
-                }
-                None => None,
-            },
+            force_volume_factor: doc.force.map(VolumeFactor::new).transpose().map_err(bad)?,
             files,
             json,
         })
@@ -769,6 +819,7 @@ impl Rom {
     /// friction `friction` (none for a model that is not conditioned on the material).
     pub fn set_material(&self, obs: &mut Observation, poisson: f64, friction: f64) {
         obs.material.clear();
+        obs.poisson = poisson;
         if let Some(c) = &self.manifest.conditioning {
             obs.material.extend(c.inputs(poisson, friction));
         }
@@ -785,9 +836,9 @@ impl Rom {
     }
 
     /// The factor of the coarse gel's normal force for the last inference, on the
-    /// observation whose coarse depth is `coarse` (the last [`Rom::evaluate`]'s for
-    /// [`Rom::force_factor`]): the decoded surface's displaced volume over the coarse
-    /// one's (on the lattice, over the whole face) times the manifest's `force.volume_factor`; 1 for a model without one, or
+    /// observation `obs` (the last [`Rom::evaluate`]'s for [`Rom::force_factor`]): the
+    /// decoded surface's displaced volume over the coarse one's (on the lattice, over the
+    /// whole face) times the manifest's [`VolumeFactor`] at the gel's Poisson's ratio; 1 for a model without one, or
     /// where the ratio falls outside [`VOLUME_RATIO`] (a surface it does not describe).
     ///
     /// On a bonded layer the total normal force is close to proportional to the surface's
@@ -795,12 +846,13 @@ impl Rom {
     /// the indenter (1.65 to 1.79 in units of `M / h` over spheres, a punch and a bar on
     /// the coarse grid); the manifest's factor, measured on the training presses, takes
     /// out the coarse grid's own constant.
-    pub fn force_factor_on(&self, coarse: &[f64]) -> f64 {
-        let Some(k) = self.manifest.force_volume_factor else {
+    pub fn force_factor_on(&self, obs: &Observation) -> f64 {
+        let Some(k) = &self.manifest.force_volume_factor else {
             return 1.0;
         };
+        let k = k.at(obs.poisson);
         let decoded: f64 = self.lattice_depth.iter().sum();
-        let coarse: f64 = coarse.iter().sum();
+        let coarse: f64 = obs.coarse.iter().sum();
         let ratio = decoded / coarse;
         if coarse > 0.0 && ratio.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&ratio)
         {
@@ -812,7 +864,7 @@ impl Rom {
 
     /// [`Rom::force_factor_on`] the last [`Rom::evaluate`]'s observation.
     pub fn force_factor(&self) -> f64 {
-        self.force_factor_on(&self.obs.coarse)
+        self.force_factor_on(&self.obs)
     }
 
     fn refine_enabled(&self) -> bool {
@@ -1172,5 +1224,55 @@ fn run_err(graph: &'static str, e: impl std::fmt::Display) -> RomError {
     RomError::Run {
         graph,
         message: e.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn factor(by_poisson: Vec<[f64; 2]>) -> Result<VolumeFactor, String> {
+        VolumeFactor::new(document::Force {
+            volume_factor: 1.1,
+            by_poisson,
+        })
+    }
+
+    /// One factor for every gel without a table; with one, linear between its points and
+    /// held beyond its ends.
+    #[test]
+    fn the_volume_factor_follows_its_poisson_table() {
+        let one = factor(vec![]).unwrap();
+        assert_eq!((one.at(0.3), one.at(0.48)), (1.1, 1.1));
+        let t = factor(vec![[0.3, 1.0], [0.4, 1.2], [0.46, 1.5]]).unwrap();
+        for (nu, k) in [
+            (0.2, 1.0),
+            (0.3, 1.0),
+            (0.35, 1.1),
+            (0.4, 1.2),
+            (0.43, 1.35),
+            (0.46, 1.5),
+            (0.49, 1.5),
+        ] {
+            assert!(
+                (t.at(nu) - k).abs() < 1e-12,
+                "{nu}: {} against {k}",
+                t.at(nu)
+            );
+        }
+    }
+
+    /// A table out of order, beyond Poisson 0.5 or with a factor outside [0.5, 2] is
+    /// refused, naming the value.
+    #[test]
+    fn a_bad_poisson_table_is_refused() {
+        for (table, named) in [
+            (vec![[0.4, 1.0], [0.3, 1.1]], "0.3"),
+            (vec![[0.3, 1.0], [0.5, 1.1]], "0.5"),
+            (vec![[0.3, 1.0], [0.4, 2.5]], "2.5"),
+        ] {
+            let e = factor(table).unwrap_err();
+            assert!(e.contains("by_poisson") && e.contains(named), "{e}");
+        }
     }
 }

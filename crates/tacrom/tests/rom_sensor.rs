@@ -122,16 +122,23 @@ fn rom_serves_the_materials_it_was_validated_on_and_refuses_others() {
 }
 
 /// Force of a frictionless sphere of radius `r` pressed to each of `depths` in one
-/// sequence, by a sensor of `physics` (and `solver`, if named) reporting only the force.
+/// sequence, by a sensor of `physics` (and `solver`, if named) on a frictionless gel
+/// reporting only the force.
 fn sphere_forces(physics: &str, solver: Option<&str>, r: f64, depths: &[f64]) -> Vec<f64> {
     let mut raw = RawConfig::default()
         .with(ATTR_PHYSICS, physics)
-        .with(ATTR_OUTPUTS, "force")
-        .with(ATTR_RESOLUTION, "32 24")
         .with(ATTR_FRICTION, "0");
     if let Some(solver) = solver {
         raw = raw.with(ATTR_SOLVER, solver);
     }
+    sphere_forces_of(raw, r, depths)
+}
+
+/// [`sphere_forces`] by a sensor of the attributes `raw` (and the force as its only output).
+fn sphere_forces_of(raw: RawConfig, r: f64, depths: &[f64]) -> Vec<f64> {
+    let raw = raw
+        .with(ATTR_OUTPUTS, "force")
+        .with(ATTR_RESOLUTION, "32 24");
     let config = Config::from_raw("touch", &raw).unwrap();
     let mut out = vec![0.0; config.sensordata_len()];
     let mut sensor = TactileSensor::new(config).unwrap();
@@ -363,24 +370,12 @@ fn rom_linear_force_follows_hertz_at_every_poisson_it_serves() {
                 let raw = RawConfig::default()
                     .with(ATTR_PHYSICS, "rom")
                     .with(ATTR_SOLVER, "linear")
-                    .with(ATTR_OUTPUTS, "force")
-                    .with(ATTR_RESOLUTION, "32 24")
                     .with(ATTR_FRICTION, friction)
                     .with(ATTR_POISSON, &nu.to_string());
-                let config = Config::from_raw("touch", &raw).unwrap();
-                let mut out = vec![0.0; config.sensordata_len()];
-                let mut sensor = TactileSensor::new(config).unwrap();
-                let ball: Arc<dyn tacrom::geometry::Sdf> = Arc::new(Sphere::new(r));
-                let ratios: Vec<f64> = depths
+                let ratios: Vec<f64> = sphere_forces_of(raw, r, &depths)
                     .iter()
-                    .map(|&d| {
-                        let placed = [Placed {
-                            shape: ball.clone(),
-                            pose: Isometry3::translation(0.0, 0.0, r - d),
-                        }];
-                        sensor.evaluate(&placed, &mut out);
-                        out[2] / tacrom::mpm::hertz::hertz_bonded(1.19e5, nu, r, d, 0.004)
-                    })
+                    .zip(&depths)
+                    .map(|(f, &d)| f / tacrom::mpm::hertz::hertz_bonded(1.19e5, nu, r, d, 0.004))
                     .collect();
                 let err = ratios.iter().map(|q| (q - 1.0).abs()).sum::<f64>() / ratios.len() as f64;
                 eprintln!(

@@ -87,12 +87,15 @@ def load_dir(path, drop_unconverged=True, conditioned=True):
     C is 3 (coarse, penetration, reference), and 5 for a data set with per-sample materials:
     two constant channels of material inputs (Spec.material) follow. With `conditioned`
     False such a data set loads without them (a model that reads the material from the
-    coarse channel alone)."""
+    coarse channel alone); with "poisson", the friction range collapses to its midpoint, so
+    that its input is always 0 (a model of Poisson's ratio alone)."""
     with open(os.path.join(path, "dataset.json")) as f:
         ds = json.load(f)
     ny, nx = ds["lattice"]
-    spec = Spec(size=tuple(ds["size"]), nx=nx, ny=ny,
-                conditioning=conditioning_of(ds) if conditioned else None)
+    conditioning = conditioning_of(ds) if conditioned else None
+    if conditioning and conditioned == "poisson":
+        conditioning["friction"] = [sum(conditioning["friction"]) / 2] * 2
+    spec = Spec(size=tuple(ds["size"]), nx=nx, ny=ny, conditioning=conditioning)
     arrays, metas = [], []
     for npy in sorted(glob.glob(os.path.join(path, "sample-*.npy"))):
         js = npy[:-4] + ".json"

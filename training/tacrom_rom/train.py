@@ -266,6 +266,9 @@ def main(argv=None):
     p.add_argument("--no-conditioning", action="store_true",
                    help="a data set of several materials without the material inputs: the model "
                         "reads the gel's material from the coarse channel alone")
+    p.add_argument("--poisson-only", action="store_true",
+                   help="condition on Poisson's ratio alone (the friction input held at 0; the "
+                        "manifest's `materials` then states the friction it serves)")
     p.add_argument("--no-augment", action="store_true", help="no mirror / quarter-turn augmentation")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--device", default="cpu", help="torch device of the training loop (cpu, cuda); "
@@ -281,7 +284,8 @@ def main(argv=None):
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
     rng = np.random.default_rng(a.seed)
-    spec, ds, arrays, metas = D.load_dir(a.data, conditioned=not a.no_conditioning)
+    spec, ds, arrays, metas = D.load_dir(
+        a.data, conditioned="poisson" if a.poisson_only else not a.no_conditioning)
     held_out = set(ds["held_out"])
     tr, va = split(metas, held_out)
     references = None

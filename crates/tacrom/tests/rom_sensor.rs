@@ -391,3 +391,63 @@ fn rom_linear_force_follows_hertz_at_every_poisson_it_serves() {
         }
     }
 }
+
+/// The materials a model serves: the range of each material input it has, else the range
+/// its manifest was validated on (`materials`), else the value it was trained for. A model
+/// conditioned on Poisson's ratio alone (its friction input held at 0 by a range of one
+/// value) serves the friction of its `materials`, and the Poisson's ratios of its input.
+#[test]
+fn a_model_serves_its_inputs_ranges_then_its_validated_ones() {
+    let served =
+        |name: &str, edit: &dyn Fn(&mut serde_json::Value), poisson: f64, friction: f64| {
+            let dir = model_with(name, edit);
+            let manifest = tacrom::rom::Manifest::load(&dir).unwrap();
+            manifest
+                .check_gel([0.03, 0.03, 0.004], poisson, friction)
+                .map_err(|e| e.to_string())
+        };
+    let poisson_only = |m: &mut serde_json::Value| {
+        m["conditioning"] = serde_json::json!({"poisson": [0.3, 0.48], "friction": [0.5, 0.5]});
+        for key in ["encoder_input", "query_features"] {
+            m[key] = (m[key].as_u64().unwrap() + 2).into();
+        }
+        // The graphs' declared inputs (the files are not read here).
+        let files = &mut m["files"];
+        for (graph, input) in [
+            ("encoder", "observation"),
+            ("decoder", "query"),
+            ("jacobian", "query"),
+        ] {
+            let shape = &mut files[graph]["inputs"][input];
+            shape[1] = (shape[1].as_i64().unwrap() + 2).into();
+        }
+    };
+    let validated = |m: &mut serde_json::Value| {
+        m["materials"] = serde_json::json!({"poisson": [0.3, 0.48], "friction": [0.0, 1.0]});
+    };
+    let poisson_only_validated = |m: &mut serde_json::Value| {
+        poisson_only(m);
+        validated(m);
+    };
+    // Its inputs' Poisson range and its validated friction range.
+    let ok = |edit: &dyn Fn(&mut serde_json::Value), p, f| served("served-ok", edit, p, f).is_ok();
+    assert!(ok(&poisson_only_validated, 0.3, 0.0));
+    assert!(ok(&poisson_only_validated, 0.48, 1.0));
+    let e = served("served-a", &poisson_only_validated, 0.49, 0.5).unwrap_err();
+    assert!(e.contains("in [0.3, 0.48]") && e.contains("0.49"), "{e}");
+    // Without `materials`, the friction it was trained for alone.
+    let bare = |m: &mut serde_json::Value| {
+        poisson_only(m);
+        m.as_object_mut().unwrap().remove("materials");
+    };
+    assert!(ok(&bare, 0.4, 0.5));
+    let e = served("served-b", &bare, 0.4, 1.0).unwrap_err();
+    assert!(
+        e.contains("friction 0.5") && e.contains("friction 1"),
+        "{e}"
+    );
+    // A model without inputs: its validated ranges.
+    assert!(ok(&validated, 0.3, 1.0));
+    let e = served("served-c", &validated, 0.29, 0.5).unwrap_err();
+    assert!(e.contains("in [0.3, 0.48]"), "{e}");
+}

@@ -267,8 +267,10 @@ pub struct Manifest {
     pub recipe: Recipe,
     /// The gel materials a conditioned model serves (`None`: the gel's only).
     pub conditioning: Option<Conditioning>,
-    /// The gel materials a model without material inputs was validated on and serves
-    /// (manifest `materials`, with the evaluation that measured it; `None`: the gel's only).
+    /// The gel materials a model was validated on and serves where it has no input for
+    /// them (manifest `materials`, with the evaluation that measured it; `None`: the gel's
+    /// only): every material of a model without material inputs, the friction of one
+    /// conditioned on Poisson's ratio alone (its friction range of one value).
     pub materials: Option<Conditioning>,
     /// The factor of the force from the decoded surface's displaced volume (manifest
     /// `force`; `None`: `rom` reports the coarse gel's force).
@@ -567,11 +569,7 @@ impl Manifest {
             refinement,
             recipe,
             conditioning: doc.conditioning,
-            materials: if doc.conditioning.is_some() {
-                None
-            } else {
-                doc.materials
-            },
+            materials: doc.materials,
             force_volume_factor: doc.force.map(VolumeFactor::new).transpose().map_err(bad)?,
             files,
             json,
@@ -645,31 +643,42 @@ impl Manifest {
                 format!("{size:?} m"),
             ));
         }
-        match self.conditioning.as_ref().or(self.materials.as_ref()) {
-            Some(c) => {
-                for (what, [lo, hi], v) in [
-                    ("Poisson's ratio", c.poisson, poisson),
-                    ("friction", c.friction, friction),
-                ] {
-                    if !(v >= lo - 1e-9 && v <= hi + 1e-9) {
-                        return Err(mismatch(what, format!("in [{lo}, {hi}]"), format!("{v}")));
+        for (what, value, pick, trained) in [
+            (
+                "Poisson's ratio",
+                poisson,
+                (|c: &Conditioning| c.poisson) as fn(&Conditioning) -> [f64; 2],
+                g.poisson,
+            ),
+            (
+                "friction",
+                friction,
+                |c: &Conditioning| c.friction,
+                g.friction,
+            ),
+        ] {
+            // A range the model reads (its input), else the one it was validated on, else
+            // the value it was trained for.
+            let input = self
+                .conditioning
+                .as_ref()
+                .map(pick)
+                .filter(|[lo, hi]| hi > lo);
+            match input.or(self.materials.as_ref().map(pick)) {
+                Some([lo, hi]) => {
+                    if !(value >= lo - 1e-9 && value <= hi + 1e-9) {
+                        return Err(mismatch(
+                            what,
+                            format!("in [{lo}, {hi}]"),
+                            format!("{value}"),
+                        ));
                     }
                 }
-            }
-            None => {
-                if !close(poisson, g.poisson) {
-                    return Err(mismatch(
-                        "Poisson's ratio",
-                        format!("{}", g.poisson),
-                        format!("{poisson}"),
-                    ));
-                }
-                if !close(friction, g.friction) {
-                    return Err(mismatch(
-                        "friction",
-                        format!("{}", g.friction),
-                        format!("{friction}"),
-                    ));
+                None => {
+                    let trained = self.conditioning.as_ref().map_or(trained, |c| pick(c)[0]);
+                    if !close(value, trained) {
+                        return Err(mismatch(what, format!("{trained}"), format!("{value}")));
+                    }
                 }
             }
         }

@@ -135,9 +135,10 @@ train: train-env
 # force factor per Poisson's ratio from those presses and ROM_LINEAR_MAT_SAMPLES more whose
 # Poisson's ratio and friction are drawn per press from ROM_POISSON and ROM_FRICTION
 # (merged), and its decoder in 8 bits. `train-linear-seeds` trains, on the merged presses,
-# three seeds of a model conditioned on the material, of each of its ablations and of one
-# without the material inputs into out/models (the README's seed table; 12 runs, each
-# about 95 s on one GPU with ROM_DEVICE=cuda; measured, not shipped).
+# three seeds of a model conditioned on the material, of each of its ablations, of one
+# without the material inputs and of one conditioned on Poisson's ratio alone into
+# out/models (the README's seed table; 15 runs, each about 95 s on one GPU with
+# ROM_DEVICE=cuda; measured, not shipped).
 ROM_LINEAR_DATA ?= data/rom-linear
 ROM_LINEAR_MAT_DATA ?= data/rom-linear-mat
 ROM_LINEAR_MAT_SAMPLES ?= 400
@@ -162,7 +163,7 @@ train-linear: train-env $(ROM_LINEAR_MERGED)/dataset.json
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear
 train-linear-seeds: train-env $(ROM_LINEAR_MERGED)/dataset.json
 	for s in 0 1 2; do for v in "conditioned:" "latent16:--latent 16" "no-multiscale:--no-multiscale" \
-	    "unconditioned:--no-conditioning"; do \
+	    "unconditioned:--no-conditioning" "poisson-only:--poisson-only"; do \
 	  PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_MERGED) --steps $(ROM_STEPS) \
 	    --seed $$s --device $(ROM_DEVICE) --region-eps-mm 0.01 $${v#*:} --out out/models/rom-linear-$${v%%:*}-s$$s; \
 	done; done

@@ -226,3 +226,36 @@ def test_force_factor_per_poisson_bin_of_a_ranged_data_set(tmp_path):
     assert abs(k - (1 + np.median(nus))) < 0.02
     # A data set of one Poisson's ratio gets no table.
     assert FF.by_poisson(np.full(50, 0.43), np.ones(50), None) is None
+
+
+@pytest.mark.parametrize("flag, conditioning", [
+    ([], {"poisson": [0.3, 0.48], "friction": [0.0, 1.0]}),
+    (["--poisson-only"], {"poisson": [0.3, 0.48], "friction": [0.5, 0.5]}),
+    (["--no-conditioning"], None),
+])
+def test_material_inputs_of_a_ranged_data_set(tmp_path, flag, conditioning):
+    """A data set of drawn materials trains a model with both material inputs, with
+    Poisson's ratio's alone (the friction range collapsed to its midpoint: input 0), or
+    with none; the manifest says which, and the input sizes follow."""
+    data = tmp_path / "data"
+    write_synthetic(str(data))
+    ds = json.load(open(data / "dataset.json"))
+    ds.update(poisson_range=[0.3, 0.48], friction_range=[0.0, 1.0], friction=0.0)
+    json.dump(ds, open(data / "dataset.json", "w"))
+    rng = np.random.default_rng(1)
+    for js in data.glob("sample-*.json"):
+        meta = json.load(open(js))
+        meta.update(poisson=float(rng.uniform(0.3, 0.48)), friction=float(rng.uniform(0, 1)))
+        json.dump(meta, open(js, "w"))
+    spec, _, arrays, _ = D.load_dir(str(data), conditioned="poisson" if flag == ["--poisson-only"] else flag == [])
+    out = tmp_path / "model"
+    train_main(["--data", str(data), "--out", str(out), "--steps", "2", "--batch", "4", "--points", "16",
+                "--latent", "16", "--validation-per-family", "1"] + flag)
+    m = json.load(open(out / "manifest.json"))
+    assert m.get("conditioning") == conditioning
+    extra = 2 if conditioning else 0
+    assert arrays.shape[1] == 3 + extra
+    if flag == ["--poisson-only"]:
+        assert np.all(arrays[:, 4] == 0) and np.ptp(arrays[:, 3]) > 0
+    r, c = spec.encoder_dims()
+    assert m["encoder_input"] == 2 * r * c + extra

@@ -159,33 +159,53 @@ fn sphere_forces_of(raw: RawConfig, r: f64, depths: &[f64]) -> Vec<f64> {
 /// rom's normal force is the coarse gel's times the decoded surface's displaced volume over
 /// the coarse one's and the manifest's volume factor (on a bonded layer the force is close
 /// to proportional to the displaced volume, whatever the indenter). Spheres of radius 2
-/// and 5 mm pressed 0.1 to 0.5 mm, a force-only sensor (which decodes for the force):
-/// against Hertz on the bonded layer (Dimitriadis et al. 2002), rom's mean error must be
-/// below that of the coarse gel it decodes (the relaxation, named: a coarse sensor that
-/// names no solver may solve a frame by another) and at most 10 % for each radius
-/// (measured in the message).
+/// and 5 mm pressed 0.1 to 0.5 mm, a force-only sensor (which decodes for the force), on
+/// gels of Poisson's ratio 0.43 (the trained one) and 0.3: against Hertz on the bonded
+/// layer (Dimitriadis et al. 2002), rom's mean error must be below that of the coarse gel
+/// it decodes (the relaxation, named: a coarse sensor that names no solver may solve a
+/// frame by another) and at most 10 % for each radius at 0.43, 12 % at 0.3 (measured in
+/// the message: 5.6 to 11.5 %). Not at 0.48, the other end of the range it serves: there
+/// the frames of small contacts, which the linear solver takes over, come out 0.48 to 0.82
+/// of Hertz (README: "Known limitation: the fallback at Poisson's ratios of 0.45 and
+/// more").
 #[test]
 fn rom_force_follows_the_decoded_surface_closer_to_hertz_than_coarse() {
     let depths = [0.1e-3, 0.2e-3, 0.3e-3, 0.5e-3];
-    let (e, nu, h) = (1.19e5, 0.43, 0.004);
-    for r in [2e-3, 5e-3] {
-        let rom = sphere_forces("rom", None, r, &depths);
-        let coarse = sphere_forces("coarse", Some("relaxation"), r, &depths);
-        let err = |f: &[f64]| {
-            f.iter()
-                .zip(&depths)
-                .map(|(&f, &d)| (f / tacrom::mpm::hertz::hertz_bonded(e, nu, r, d, h) - 1.0).abs())
-                .sum::<f64>()
-                / depths.len() as f64
-        };
-        let (er, ec) = (err(&rom), err(&coarse));
-        eprintln!(
-            "R {} mm: mean force error against Hertz: rom {:.1} %, coarse {:.1} % (rom {rom:?} N, coarse {coarse:?} N)",
-            r * 1e3,
-            er * 100.0,
-            ec * 100.0
-        );
-        assert!(er < ec && er <= 0.10, "R {r}: rom {er:.3}, coarse {ec:.3}");
+    let (e, h) = (1.19e5, 0.004);
+    for (nu, bound) in [(0.43, 0.10), (0.3, 0.12)] {
+        for r in [2e-3, 5e-3] {
+            let forces = |physics: &str, solver: Option<&str>| {
+                let mut raw = RawConfig::default()
+                    .with(ATTR_PHYSICS, physics)
+                    .with(ATTR_FRICTION, "0")
+                    .with(ATTR_POISSON, &nu.to_string());
+                if let Some(solver) = solver {
+                    raw = raw.with(ATTR_SOLVER, solver);
+                }
+                sphere_forces_of(raw, r, &depths)
+            };
+            let (rom, coarse) = (forces("rom", None), forces("coarse", Some("relaxation")));
+            let err = |f: &[f64]| {
+                f.iter()
+                    .zip(&depths)
+                    .map(|(&f, &d)| {
+                        (f / tacrom::mpm::hertz::hertz_bonded(e, nu, r, d, h) - 1.0).abs()
+                    })
+                    .sum::<f64>()
+                    / depths.len() as f64
+            };
+            let (er, ec) = (err(&rom), err(&coarse));
+            eprintln!(
+                "Poisson {nu}, R {} mm: mean force error against Hertz: rom {:.1} %, coarse {:.1} % (rom {rom:?} N, coarse {coarse:?} N)",
+                r * 1e3,
+                er * 100.0,
+                ec * 100.0
+            );
+            assert!(
+                er < ec && er <= bound,
+                "Poisson {nu}, R {r}: rom {er:.3}, coarse {ec:.3}"
+            );
+        }
     }
 }
 

@@ -263,11 +263,12 @@ def main(argv=None):
     p.add_argument("--no-multiscale", action="store_true")
     p.add_argument("--no-refinement", action="store_true", help="ablation 'w/o physics': manifest disables latent refinement")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--no-conditioning", action="store_true",
-                   help="a data set of several materials without the material inputs: the model "
+    inputs = p.add_mutually_exclusive_group()
+    inputs.add_argument("--no-conditioning", action="store_true",
+                        help="a data set of several materials without the material inputs: the model "
                         "reads the gel's material from the coarse channel alone")
-    p.add_argument("--poisson-only", action="store_true",
-                   help="condition on Poisson's ratio alone (the friction input held at 0; the "
+    inputs.add_argument("--poisson-only", action="store_true",
+                        help="condition on Poisson's ratio alone (the friction input held at 0; the "
                         "manifest's `materials` then states the friction it serves)")
     p.add_argument("--no-augment", action="store_true", help="no mirror / quarter-turn augmentation")
     p.add_argument("--threads", type=int, default=1)

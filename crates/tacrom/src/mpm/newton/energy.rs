@@ -15,8 +15,8 @@
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-/// A material, or the deviatoric or volumetric part of one (selective integration
-/// against locking evaluates the two on different points).
+/// A material, or a part of one (selective integration against locking evaluates the
+/// stiff part of the volume term on other points than the rest).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Density {
     pub kind: Kind,

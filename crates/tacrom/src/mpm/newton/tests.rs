@@ -212,20 +212,57 @@ fn a_sharp_mesh_tip_converges() {
     }
 }
 
-/// Poisson 0.499: the selective volume integration keeps the press from locking. The
-/// solve converges, and the force stays within the range that Hertz's `1 / (1 - nu^2)`
-/// predicts relative to Poisson 0.45 on a thin bonded layer (more than 1, less than 3).
+/// Near-incompressible gels on the coarse grid (the default 30 x 30 x 4 mm gel, dx 1.4
+/// mm), Newton's method and the linear solver on the same equations: a frictionless
+/// sphere of radius 5 mm pressed 0.3 and 0.5 mm gives the bonded-layer Hertz force
+/// (Dimitriadis et al. 2002) within 12 % at Poisson 0.45, 0.48 and 0.499, and the gel
+/// does not jump at the threshold of the selective volume integration (0.449 against
+/// 0.451: within 2 %, where Hertz moves by 0.7 %). Measured: 0.96 to 1.06 of Hertz. With
+/// the whole volume term on the cells the press came out 0.68 to 0.76 of Hertz at 0.48
+/// and 0.499, and 0.451 was 0.71 of 0.449.
 #[test]
-fn near_incompressible_press_converges_without_locking() {
-    let s = ball(3e-3);
-    let force = |nu: f64| {
-        let mut g = Gel::new(small_gel(0.0, nu), options(1e-3)).unwrap();
-        let rep = g.solve(&[at(&s, 3e-3, 0.0, 0.4e-3)]);
-        assert!(rep.converged && rep.iterations < 40, "nu {nu}: {rep:?}");
-        g.force().z
-    };
-    let ratio = force(0.499) / force(0.45);
-    assert!(ratio > 1.0 && ratio < 3.0, "ratio {ratio}");
+fn near_incompressible_gels_follow_hertz_without_locking() {
+    let r = 5e-3;
+    let s = ball(r);
+    for solver in [Solver::Linear, Solver::Newton] {
+        let forces = |nu: f64| -> Vec<f64> {
+            let p = GelParams {
+                poisson: nu,
+                friction: 0.0,
+                ..Default::default()
+            };
+            let mut g = Gel::new(
+                p,
+                SolverOptions {
+                    solver,
+                    ..options(1e-3)
+                },
+            )
+            .unwrap();
+            [0.3e-3, 0.5e-3]
+                .iter()
+                .map(|&d| {
+                    let rep = g.solve(&[at(&s, r, 0.0, d)]);
+                    assert!(rep.converged, "{solver:?} nu {nu}: {rep:?}");
+                    g.force().z / hertz_bonded(p.young, nu, r, d, p.size[2])
+                })
+                .collect()
+        };
+        for nu in [0.45, 0.48, 0.499] {
+            for ratio in forces(nu) {
+                assert!(
+                    (ratio - 1.0).abs() < 0.12,
+                    "{solver:?} nu {nu}: {ratio} of Hertz"
+                );
+            }
+        }
+        for (below, above) in forces(0.449).into_iter().zip(forces(0.451)) {
+            assert!(
+                (above / below - 1.0).abs() < 0.02,
+                "{solver:?}: {above} of Hertz at 0.451, {below} at 0.449"
+            );
+        }
+    }
 }
 
 /// The result does not depend on the gel's thread count, with either linear solve.

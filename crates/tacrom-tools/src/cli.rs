@@ -375,6 +375,11 @@ pub struct GenDataArgs {
     /// the full set of the same seed, for a few chosen samples.
     #[arg(long, value_name = "I", value_delimiter = ',')]
     pub indices: Vec<usize>,
+    /// Solve again only the coarse press of the samples already on disk (the same
+    /// settings as when written) and rewrite their coarse channel and report, keeping the
+    /// reference: for a data set whose coarse solver has changed since.
+    #[arg(long)]
+    pub refresh_coarse: bool,
     /// Print each sample's press (index, family, depth, slide) without solving anything.
     #[arg(long)]
     pub list: bool,

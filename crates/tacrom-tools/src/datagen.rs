@@ -17,7 +17,10 @@
 //! stream seeded by `(seed, i)`, so a run is reproducible whatever the sharding: shard
 //! `k/N` does every `N`-th of the selected samples from the `k`-th on (all, or those of
 //! `--indices` and `--held-out-only`, so that shards get equal counts), skipping those
-//! already on disk (resumable).
+//! already on disk (resumable). `--refresh-coarse` instead solves again only the coarse
+//! press of the samples on disk and rewrites their coarse channel and report, keeping the
+//! reference (a few seconds for a data set, against minutes for its references): for a
+//! data set whose coarse solver has changed since it was written.
 //! `numpy.load` reads every file; `training/dataset.py` loads a directory.
 //!
 //! Families: `sphere`, `cylinder` (end-on or lying), `box`, `edge` (a box on one edge),
@@ -91,6 +94,9 @@ pub struct GenConfig {
     pub held_out_only: bool,
     /// Only these sample indices (empty: all); the presses are those of the full set.
     pub indices: Vec<usize>,
+    /// Solve again only the coarse press of the samples already on disk, keeping their
+    /// reference (see the module docs).
+    pub refresh_coarse: bool,
     /// Draw each sample's Poisson's ratio uniformly from this range (the same presses as
     /// with a fixed material; [`GenConfig::gel`]'s otherwise).
     pub poisson_range: Option<[f64; 2]>,
@@ -155,6 +161,7 @@ impl Default for GenConfig {
             fine_max_iterations: 6000,
             held_out_only: false,
             indices: Vec::new(),
+            refresh_coarse: false,
             poisson_range: None,
             friction_range: None,
         }
@@ -825,6 +832,43 @@ pub struct SampleMeta {
     pub friction: Option<f64>,
 }
 
+/// Rewrites the coarse channel of the sample `npy` and the coarse report of its `json` from
+/// a coarse press just solved (`obs` of `coarse`, report `rc`, `seconds`), keeping the
+/// reference channel and report.
+fn refresh_coarse(
+    npy: &Path,
+    json: &Path,
+    obs: &Observation,
+    spec: &LatticeSpec,
+    coarse: &Gel,
+    rc: &SolveReport,
+    seconds: f64,
+) -> Result<(), String> {
+    let (shape, data) = read_npy(npy)?;
+    let n = spec.points();
+    if shape != [3, spec.ny, spec.nx] || data.len() != 3 * n {
+        return Err(format!(
+            "{}: shape {shape:?}, expected [3, {}, {}]",
+            npy.display(),
+            spec.ny,
+            spec.nx
+        ));
+    }
+    let reference: Vec<f64> = data[2 * n..].iter().map(|&v| f64::from(v)).collect();
+    let text = std::fs::read_to_string(json).map_err(|e| format!("{}: {e}", json.display()))?;
+    let mut meta: SampleMeta =
+        serde_json::from_str(&text).map_err(|e| format!("{}: {e}", json.display()))?;
+    meta.coarse = SolveMeta {
+        force: Some(coarse.force().into()),
+        ..SolveMeta::new(rc, seconds)
+    };
+    write_npy(npy, &shape, &sample_array(obs, &reference))
+        .map_err(|e| format!("{}: {e}", npy.display()))?;
+    let mut text = serde_json::to_string_pretty(&meta).map_err(|e| e.to_string())?;
+    text.push('\n');
+    npy::write_atomic(json, text.as_bytes()).map_err(|e| format!("{}: {e}", json.display()))
+}
+
 /// Sample `index`'s gel parameters at grid spacing `dx`.
 fn gel_params(config: &GenConfig, index: usize, dx: f64) -> GelParams {
     GelParams {
@@ -944,7 +988,13 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         ..options
     };
     let mut coarse = new_gel(first, config.coarse_dx, coarse_options)?;
-    let mut fine = new_gel(first, config.fine_dx, fine_options)?;
+    // A refresh keeps the references: no fine gel.
+    let fine_gel = |index: usize| {
+        (!config.refresh_coarse)
+            .then(|| new_gel(index, config.fine_dx, fine_options))
+            .transpose()
+    };
+    let mut fine = fine_gel(first)?;
     let (k, n) = config.shard;
     let (mut done, mut skipped) = (0usize, 0usize);
     let (mut t_coarse, mut t_fine) = (0.0, 0.0);
@@ -955,7 +1005,8 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         bar.advance(1);
         let stem = config.out.join(format!("sample-{index:06}"));
         let (npy, json) = (stem.with_extension("npy"), stem.with_extension("json"));
-        if npy.is_file() && json.is_file() {
+        let present = npy.is_file() && json.is_file();
+        if present != config.refresh_coarse {
             skipped += 1;
             continue;
         }
@@ -973,13 +1024,21 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         bar.message(format!("sample {index}: {}", press.family));
         if *coarse.params() != gel_params(config, index, config.coarse_dx) {
             coarse = new_gel(index, config.coarse_dx, coarse_options)?;
-            fine = new_gel(index, config.fine_dx, fine_options)?;
+            fine = fine_gel(index)?;
         }
         let last = press.poses.len() - 1;
         let placed = [press.placed(last)];
         let (rc, sc) = solve_press(&mut coarse, &press);
         obs.update(&coarse, &placed, &spec, &mut zmin);
-        let (rf, sf) = solve_press(&mut fine, &press);
+        if config.refresh_coarse {
+            refresh_coarse(&npy, &json, &obs, &spec, &coarse, &rc, sc)?;
+            done += 1;
+            t_coarse += sc;
+            bar.suspend(|| progress(&format!("sample {index}: {} coarse {sc:.2}s", press.family)));
+            continue;
+        }
+        let fine = fine.as_mut().ok_or("no fine gel")?;
+        let (rf, sf) = solve_press(fine, &press);
         let mut reference = vec![0.0; spec.points()];
         fine.surface_depth(&spec.grid(), &mut reference);
         let data = sample_array(&obs, &reference);
@@ -1021,6 +1080,15 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
     }
     bar.finish();
     let per = |t: f64| if done > 0 { t / done as f64 } else { 0.0 };
+    if config.refresh_coarse {
+        return Ok(format!(
+            "shard {k}/{n}: {done} samples' coarse channel refreshed, {skipped} not on disk; \
+             mean coarse {:.3}s per sample (dx {:e} m, {} threads)",
+            per(t_coarse),
+            config.coarse_dx,
+            config.threads
+        ));
+    }
     Ok(format!(
         "shard {k}/{n}: {done} samples written, {skipped} already present; mean coarse {:.3}s, \
          reference {:.3}s per sample (dx {:e} / {:e} m, {} threads)",

@@ -304,6 +304,7 @@ fn gen_data(a: GenDataArgs) -> Result<(), BenchError> {
         fine_max_iterations: a.fine_max_iterations,
         held_out_only: a.held_out_only,
         indices: a.indices,
+        refresh_coarse: a.refresh_coarse,
         gel: tacrom::mpm::GelParams {
             poisson: a.poisson.first().copied().unwrap_or(defaults.gel.poisson),
             friction: a.friction.first().copied().unwrap_or(defaults.gel.friction),

@@ -809,3 +809,63 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
     let _ = std::fs::remove_dir_all(&other);
     let _ = std::fs::remove_dir_all(&linear);
 }
+
+/// `--refresh-coarse` solves the coarse presses of a data set again and rewrites only their
+/// coarse channel and report: a data set whose coarse channel was spoiled gets back the
+/// bits a fresh run writes, its reference channel and report untouched, and a sample not
+/// on disk is not written.
+#[test]
+fn a_refresh_rewrites_the_coarse_channel_and_keeps_the_reference() {
+    let out = scratch("refresh");
+    let config = GenConfig {
+        out: out.clone(),
+        samples: 2,
+        coarse_dx: 2e-3,
+        fine_dx: 2e-3,
+        pitch: 5e-4,
+        families: vec!["sphere".into()],
+        ..GenConfig::default()
+    };
+    datagen::generate(&config, |_| {}).unwrap();
+    let (npy, json) = (
+        out.join("sample-000000.npy"),
+        out.join("sample-000000.json"),
+    );
+    let (shape, fresh) = datagen::read_npy(&npy).unwrap();
+    let fresh_meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let n = fresh.len() / 3;
+    assert!(fresh[..n].iter().any(|&v| v != 0.0), "an untouched gel");
+    // Spoil the coarse channel and report, and mark the reference.
+    let mut spoiled = fresh.clone();
+    spoiled[..n].iter_mut().for_each(|v| *v = 0.0);
+    spoiled[2 * n] += 1e-3;
+    datagen::write_npy(&npy, &shape, &spoiled).unwrap();
+    let mut meta = fresh_meta.clone();
+    meta["coarse"]["force"] = serde_json::json!([0.0, 0.0, 0.0]);
+    meta["reference"]["iterations"] = serde_json::json!(7);
+    std::fs::write(&json, serde_json::to_string(&meta).unwrap()).unwrap();
+    std::fs::remove_file(out.join("sample-000001.json")).unwrap();
+    datagen::generate(
+        &GenConfig {
+            refresh_coarse: true,
+            ..config
+        },
+        |_| {},
+    )
+    .unwrap();
+    let (_, refreshed) = datagen::read_npy(&npy).unwrap();
+    assert_eq!(refreshed[..n], fresh[..n], "the coarse channel");
+    assert_eq!(refreshed[n..2 * n], fresh[n..2 * n], "the penetration");
+    assert_eq!(
+        refreshed[2 * n..],
+        spoiled[2 * n..],
+        "the reference was rewritten"
+    );
+    let after: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(after["coarse"]["force"], fresh_meta["coarse"]["force"]);
+    assert_eq!(after["reference"]["iterations"], 7);
+    assert!(!out.join("sample-000001.json").is_file());
+    let _ = std::fs::remove_dir_all(&out);
+}

@@ -2,7 +2,7 @@
 //! solver: `cargo run --release --example small_probe -- SOLVER` (`default`: the
 //! relaxation with the fallback solver for the frames whose contact it cannot carry, as a
 //! coarse sensor that names no solver). `PROBE_FRICTION=MU` sets the friction (default
-//! 0), `PROBE_DEBUG=1` prints each frame's solve, force and time. Spheres of radius 0.25
+//! 0), `PROBE_POISSON=NU` Poisson's ratio (default 0.43), `PROBE_DEBUG=1` prints each frame's solve, force and time. Spheres of radius 0.25
 //! to 2 mm and a 45-degree cone, at the gel's centre and offset by a third and a half of a
 //! contact-lattice spacing, each pressed through 0.05 to 0.4 mm in one sequence.
 
@@ -15,8 +15,10 @@ use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 fn main() {
     let solver = std::env::args().nth(1).unwrap_or_else(|| "linear".into());
     let friction = std::env::var("PROBE_FRICTION").map_or(0.0, |v| v.parse().unwrap());
+    let poisson = std::env::var("PROBE_POISSON").map_or(0.43, |v| v.parse().unwrap());
     let p = GelParams {
         friction,
+        poisson,
         ..GelParams::default()
     };
     let depths = [0.05e-3, 0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3];

@@ -379,7 +379,7 @@ fn the_linear_solver_gets_its_own_shipped_model() {
 /// frictionless spheres of radius 2 and 5 mm pressed 0.1 to 0.5 mm on gels of Poisson's
 /// ratio 0.3, 0.43 and 0.48 (the range it serves) and friction 0 and 1, its mean error
 /// against Hertz on the bonded layer is at most 12 % for each at 0.3 and 0.43 (measured 3
-/// to 8 %) and 14 % at 0.48 (measured 11.5 and 12.7 %: the linear gel itself is within 6 %
+/// to 8 %) and 14 % at 0.48 (measured 11.5 to 12.9 %: the linear gel itself is within 6 %
 /// of Hertz there, and the table's 1.20, the median of the training presses, is fitted to
 /// presses whose small contacts the linear solver makes too soft; README "Known
 /// limitation: long narrow contacts on the linear solver"). One factor for every Poisson's

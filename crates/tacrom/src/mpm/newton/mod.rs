@@ -20,7 +20,7 @@
 //! coarse grid far too soft: the cell points miss volume changes that the particles see,
 //! and those were held by the shear modulus only (frictionless spheres at Poisson 0.48
 //! and 0.499, dx = 1.4 mm: 0.50 to 0.82 of Hertz on the bonded layer, against 0.83 to
-//! 1.05 at 0.449; split as here, 0.83 to 1.06 at every ratio from 0.45 to 0.499). The
+//! 1.05 at 0.449; split as here, 0.83 to 1.05 at every ratio from 0.45 to 0.499). The
 //! particles keeping more (the `lambda` of 0.47 or 0.49) locked a small contact: 1.7 to
 //! 2.1 times Hertz at a 0.1 mm press of a 2 mm sphere.
 //!

@@ -102,7 +102,9 @@
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix2, Matrix3, Point3, Vector2, Vector3};
+use nalgebra::{
+    DMatrix, DVector, Isometry3, Matrix2, Matrix3, Point3, SymmetricEigen, Vector2, Vector3,
+};
 use rayon::prelude::*;
 
 use super::super::contact::StepIndenter;
@@ -657,9 +659,8 @@ impl Compliance {
             self.vertical_gap_to(x, one, FOOTPRINT_BISECTIONS)
                 .map_or(0.0, |g| -g)
         };
-        let (at, share, d, fullness) =
-            footprint(tip_samples(centre, centre, self.spacing), own, depth)?;
-        Some((at, share.min(1.0), d, fullness))
+        let f = footprint(tip_samples(centre, centre, self.spacing), own, depth)?;
+        Some((f.at, f.share.min(1.0), f.distance, f.fullness))
     }
 
     /// The grid's own compliance at the surface point `at` (cells): its sinking under a
@@ -683,12 +684,20 @@ impl Compliance {
 
     /// The compliance `delta / F` on the layer of a small contact whose rigid footprint
     /// covers `share` lattice points' faces with fullness `fullness` (see
-    /// [`FULLNESS_SLOPE`]).
-    fn patch_compliance(&self, share: f64, fullness: f64) -> f64 {
+    /// [`FULLNESS_SLOPE`]) and is `rho` times as long as it is wide ([`aspect`]; 1 for a
+    /// compact one). An elongated footprint is stiffer than the disc of its area: on the
+    /// half-space by the elliptical punch's factor ([`elliptic_stiffness`]), and the
+    /// bonded layer stiffens it by its semi-major axis `a sqrt(rho)` over the thickness
+    /// rather than by the disc's radius `a` (measured, not derived: a ridge lying on the
+    /// coarse gel came out 0.38 to 0.64 of the 0.7 mm reference's force as a disc; see
+    /// README "Long narrow contacts on the linear solver").
+    fn patch_compliance(&self, share: f64, fullness: f64, rho: f64) -> f64 {
         let radius = (share * self.spacing[0] * self.spacing[1] / std::f64::consts::PI).sqrt();
         let [e_star, slope, thickness] = self.layer;
         let k = (FULLNESS_SLOPE * fullness + FULLNESS_OFFSET).max(MIN_FULLNESS_STIFFNESS);
-        1.0 / (k * e_star * radius * (1.0 + slope * radius / thickness))
+        let rho = rho.max(1.0);
+        let layer = 1.0 + slope * radius * rho.sqrt() / thickness;
+        1.0 / (k * elliptic_stiffness(rho) * e_star * radius * layer)
     }
 
     /// Surface samples over the box from `lo` to `hi` (cells) grown by a lattice spacing,
@@ -775,7 +784,7 @@ impl Compliance {
             // point load (the lattice points' count measures a large footprint well).
             let grid = self.point_compliance(&rest[start]);
             let n = list.len() as f64;
-            if self.patch_compliance(n / (1.5f64).powi(2), CONE_FULLNESS) < grid {
+            if self.patch_compliance(n / (1.5f64).powi(2), CONE_FULLNESS, 1.0) < grid {
                 continue;
             }
             let lo = list
@@ -789,14 +798,13 @@ impl Compliance {
                 self.vertical_gap_to(x, indenters, FOOTPRINT_BISECTIONS)
                     .map_or(0.0, |g| -g)
             };
-            let Some((at, share, d, fullness)) =
-                footprint(self.footprint_samples(lo, hi), distance, depth)
-            else {
+            let Some(f) = footprint(self.footprint_samples(lo, hi), distance, depth) else {
                 continue;
             };
-            let missing = self.patch_compliance(share, fullness) - self.point_compliance(&at);
+            let missing =
+                self.patch_compliance(f.share, f.fullness, f.aspect) - self.point_compliance(&f.at);
             if missing > 0.0 {
-                points.push((list, at, d, self.softness / share + missing));
+                points.push((list, f.at, f.distance, self.softness / f.share + missing));
             }
         }
         let mut replaced = Vec::new();
@@ -870,7 +878,8 @@ impl Compliance {
             if let Some((at, share, c, fullness)) = self.tip(indenter, &rest, &clear) {
                 // Its penalty over its share of the face, in series with what the grid
                 // misses of the patch's compliance.
-                let missing = self.patch_compliance(share, fullness) - self.point_compliance(&at);
+                let missing =
+                    self.patch_compliance(share, fullness, 1.0) - self.point_compliance(&at);
                 near.push(count + m as u32);
                 rest.push(at);
                 clear.push(c);
@@ -1190,14 +1199,18 @@ impl Compliance {
 /// share in lattice points that each stands for) under indenters of signed distance
 /// `distance` and vertical depth `depth` (below their lower surface, positive inside
 /// them): its deepest sample, the penetrating samples' share of the face, the deepest
-/// sample's signed distance and the footprint's fullness (its mean depth over the
-/// deepest; see [`FULLNESS_SLOPE`]). `None` where no sample penetrates.
+/// sample's signed distance, the footprint's fullness (its mean depth over the deepest;
+/// see [`FULLNESS_SLOPE`]) and its length over its width (from the second moments of the
+/// penetrating samples in the plane: a strip's are `L^2 / 12` and `W^2 / 12`, a disc's are
+/// equal however coarsely it is sampled; 1 for a single sample). `None` where no sample
+/// penetrates.
 fn footprint(
     (samples, share): (Vec<Vector3<f64>>, f64),
     distance: impl Fn(&Vector3<f64>) -> f64,
     depth: impl Fn(&Vector3<f64>) -> f64,
-) -> Option<(Vector3<f64>, f64, f64, f64)> {
+) -> Option<Footprint> {
     let (mut inside, mut sum) = (0usize, 0.0);
+    let (mut first, mut second) = (Vector2::zeros(), Matrix2::zeros());
     let mut deepest: Option<(f64, f64, Vector3<f64>)> = None;
     for x in samples {
         let d = distance(&x);
@@ -1205,18 +1218,58 @@ fn footprint(
             let h = depth(&x).max(0.0);
             inside += 1;
             sum += h;
+            first += x.xy();
+            second += x.xy() * x.xy().transpose();
             if deepest.map_or(true, |(b, _, _)| h > b) {
                 deepest = Some((h, d, x));
             }
         }
     }
     let (h, d, at) = deepest?;
-    let fullness = if h > 0.0 {
-        sum / (inside as f64 * h)
+    let n = inside as f64;
+    let fullness = if h > 0.0 { sum / (n * h) } else { 1.0 };
+    let mean = first / n;
+    let moments = SymmetricEigen::new(second / n - mean * mean.transpose()).eigenvalues;
+    let (long, short) = (moments.max(), moments.min().max(0.0));
+    let aspect = if inside > 1 && long > 0.0 {
+        (long / short.max(1e-12 * long)).sqrt()
     } else {
         1.0
     };
-    Some((at, inside as f64 * share, d, fullness))
+    Some(Footprint {
+        at,
+        share: n * share,
+        distance: d,
+        fullness,
+        aspect,
+    })
+}
+
+/// A small contact's rigid footprint ([`footprint`]).
+struct Footprint {
+    /// The deepest sample (cells).
+    at: Vector3<f64>,
+    /// The penetrating samples' share of the face (lattice points).
+    share: f64,
+    /// The deepest sample's signed distance (cells).
+    distance: f64,
+    /// Mean depth over the deepest.
+    fullness: f64,
+    /// Length over width.
+    aspect: f64,
+}
+
+/// The stiffness of a rigid flat elliptical punch of axis ratio `rho` over that of the disc
+/// of its area, on a half-space: `pi E* a / K(e)` (semi-major axis `a`, `K` the complete
+/// elliptic integral of the first kind, `e^2 = 1 - 1 / rho^2`) over `2 E* sqrt(a b)`,
+/// which is `sqrt(rho) AGM(1, 1 / rho)` (1 for a disc, 1.12 at `rho = 4`).
+fn elliptic_stiffness(rho: f64) -> f64 {
+    let rho = rho.max(1.0);
+    let (mut a, mut g) = (1.0f64, 1.0 / rho);
+    for _ in 0..8 {
+        (a, g) = (0.5 * (a + g), (a * g).sqrt());
+    }
+    rho.sqrt() * a
 }
 
 /// The inverse of the symmetric positive definite `a` (faer's Cholesky, in the calling

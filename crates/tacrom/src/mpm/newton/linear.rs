@@ -60,7 +60,9 @@
 //! the layer, `1 / (k E* a)` with `a` the radius of the rigid footprint and `k` from the
 //! footprint's fullness (its mean depth over its deepest; [`FULLNESS_SLOPE`], exact for a
 //! cone, a sphere and a flat punch to 2.5 %, with the bonded layer's first-order
-//! stiffening), less the grid's own at the point (`w^T G w`, exact here). Patches that a
+//! stiffening; an elongated footprint, a ridge lying on the gel, stiffer by the elliptical
+//! punch's factor and with the layer's stiffening by its semi-major axis, see
+//! `patch_compliance`), less the grid's own at the point (`w^T G w`, exact here). Patches that a
 //! point load on the grid already covers keep their lattice points. Tip points carry no
 //! friction.
 //!

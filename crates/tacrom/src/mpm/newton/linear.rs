@@ -62,8 +62,8 @@
 //! cone, a sphere and a flat punch to 2.5 %, with the bonded layer's first-order
 //! stiffening; an elongated footprint, a ridge lying on the gel, stiffer by the elliptical
 //! punch's factor and with the layer's stiffening by its semi-major axis, see
-//! `patch_compliance`), less the grid's own at the point (`w^T G w`, exact here). Patches that a
-//! point load on the grid already covers keep their lattice points. Tip points carry no
+//! `patch_compliance`), less the grid's own at the point (`w^T G w`, exact here). Patches
+//! that a point load on the grid already covers keep their lattice points. Tip points carry no
 //! friction.
 //!
 //! # Friction
@@ -661,7 +661,9 @@ impl Compliance {
             self.vertical_gap_to(x, one, FOOTPRINT_BISECTIONS)
                 .map_or(0.0, |g| -g)
         };
-        let f = footprint(tip_samples(centre, centre, self.spacing), own, depth)?;
+        let (samples, share) = tip_samples(centre, centre, self.spacing);
+        let area = share * self.spacing[0] * self.spacing[1];
+        let f = footprint((samples, share), area, own, depth)?;
         Some((f.at, f.share.min(1.0), f.distance, f.fullness))
     }
 
@@ -686,8 +688,8 @@ impl Compliance {
 
     /// The compliance `delta / F` on the layer of a small contact whose rigid footprint
     /// covers `share` lattice points' faces with fullness `fullness` (see
-    /// [`FULLNESS_SLOPE`]) and is `rho` times as long as it is wide ([`aspect`]; 1 for a
-    /// compact one). An elongated footprint is stiffer than the disc of its area: on the
+    /// [`FULLNESS_SLOPE`]) and is `rho` times as long as it is wide ([`Footprint::aspect`];
+    /// about 1 for a compact one). An elongated footprint is stiffer than the disc of its area: on the
     /// half-space by the elliptical punch's factor ([`elliptic_stiffness`]), and the
     /// bonded layer stiffens it by its semi-major axis `a sqrt(rho)` over the thickness
     /// rather than by the disc's radius `a` (measured, not derived: a ridge lying on the
@@ -800,7 +802,9 @@ impl Compliance {
                 self.vertical_gap_to(x, indenters, FOOTPRINT_BISECTIONS)
                     .map_or(0.0, |g| -g)
             };
-            let Some(f) = footprint(self.footprint_samples(lo, hi), distance, depth) else {
+            let (samples, share) = self.footprint_samples(lo, hi);
+            let area = share * self.spacing[0] * self.spacing[1];
+            let Some(f) = footprint((samples, share), area, distance, depth) else {
                 continue;
             };
             let missing =
@@ -1202,12 +1206,14 @@ impl Compliance {
 /// `distance` and vertical depth `depth` (below their lower surface, positive inside
 /// them): its deepest sample, the penetrating samples' share of the face, the deepest
 /// sample's signed distance, the footprint's fullness (its mean depth over the deepest;
-/// see [`FULLNESS_SLOPE`]) and its length over its width (from the second moments of the
-/// penetrating samples in the plane: a strip's are `L^2 / 12` and `W^2 / 12`, a disc's are
-/// equal however coarsely it is sampled; 1 for a single sample). `None` where no sample
-/// penetrates.
+/// see [`FULLNESS_SLOPE`]) and its length over its width: from the second moments of the
+/// penetrating samples in the plane, each a square of `area` (cells^2) whose own moment
+/// `area / 12` is added (a strip's are `L^2 / 12` and `W^2 / 12`, a disc's are equal however
+/// coarsely it is sampled, and a footprint one sample wide is as wide as a sample). `None`
+/// where no sample penetrates.
 fn footprint(
     (samples, share): (Vec<Vector3<f64>>, f64),
+    area: f64,
     distance: impl Fn(&Vector3<f64>) -> f64,
     depth: impl Fn(&Vector3<f64>) -> f64,
 ) -> Option<Footprint> {
@@ -1231,10 +1237,11 @@ fn footprint(
     let n = inside as f64;
     let fullness = if h > 0.0 { sum / (n * h) } else { 1.0 };
     let mean = first / n;
-    let moments = SymmetricEigen::new(second / n - mean * mean.transpose()).eigenvalues;
-    let (long, short) = (moments.max(), moments.min().max(0.0));
-    let aspect = if inside > 1 && long > 0.0 {
-        (long / short.max(1e-12 * long)).sqrt()
+    let own = Matrix2::identity() * (area / 12.0);
+    let moments = SymmetricEigen::new(second / n - mean * mean.transpose() + own).eigenvalues;
+    let (long, short) = (moments.max(), moments.min());
+    let aspect = if short > 0.0 {
+        (long / short).sqrt()
     } else {
         1.0
     };

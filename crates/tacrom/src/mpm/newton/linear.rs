@@ -661,9 +661,8 @@ impl Compliance {
             self.vertical_gap_to(x, one, FOOTPRINT_BISECTIONS)
                 .map_or(0.0, |g| -g)
         };
-        let (samples, share) = tip_samples(centre, centre, self.spacing);
-        let area = share * self.spacing[0] * self.spacing[1];
-        let f = footprint((samples, share), area, own, depth)?;
+        let face = self.spacing[0] * self.spacing[1];
+        let f = footprint(tip_samples(centre, centre, self.spacing), face, own, depth)?;
         Some((f.at, f.share.min(1.0), f.distance, f.fullness))
     }
 
@@ -802,9 +801,8 @@ impl Compliance {
                 self.vertical_gap_to(x, indenters, FOOTPRINT_BISECTIONS)
                     .map_or(0.0, |g| -g)
             };
-            let (samples, share) = self.footprint_samples(lo, hi);
-            let area = share * self.spacing[0] * self.spacing[1];
-            let Some(f) = footprint((samples, share), area, distance, depth) else {
+            let face = self.spacing[0] * self.spacing[1];
+            let Some(f) = footprint(self.footprint_samples(lo, hi), face, distance, depth) else {
                 continue;
             };
             let missing =
@@ -883,7 +881,8 @@ impl Compliance {
         for (m, indenter) in indenters.iter().enumerate() {
             if let Some((at, share, c, fullness)) = self.tip(indenter, &rest, &clear) {
                 // Its penalty over its share of the face, in series with what the grid
-                // misses of the patch's compliance.
+                // misses of the patch's compliance. A tip's footprint is sampled around
+                // one lattice point only, so its length is unknown: taken as compact.
                 let missing =
                     self.patch_compliance(share, fullness, 1.0) - self.point_compliance(&at);
                 near.push(count + m as u32);
@@ -1207,13 +1206,13 @@ impl Compliance {
 /// them): its deepest sample, the penetrating samples' share of the face, the deepest
 /// sample's signed distance, the footprint's fullness (its mean depth over the deepest;
 /// see [`FULLNESS_SLOPE`]) and its length over its width: from the second moments of the
-/// penetrating samples in the plane, each a square of `area` (cells^2) whose own moment
-/// `area / 12` is added (a strip's are `L^2 / 12` and `W^2 / 12`, a disc's are equal however
+/// penetrating samples in the plane, each a square of `share` lattice points' faces of
+/// `face` (cells^2) whose own moment is added (a strip's are `L^2 / 12` and `W^2 / 12`, a disc's are equal however
 /// coarsely it is sampled, and a footprint one sample wide is as wide as a sample). `None`
 /// where no sample penetrates.
 fn footprint(
     (samples, share): (Vec<Vector3<f64>>, f64),
-    area: f64,
+    face: f64,
     distance: impl Fn(&Vector3<f64>) -> f64,
     depth: impl Fn(&Vector3<f64>) -> f64,
 ) -> Option<Footprint> {
@@ -1237,7 +1236,7 @@ fn footprint(
     let n = inside as f64;
     let fullness = if h > 0.0 { sum / (n * h) } else { 1.0 };
     let mean = first / n;
-    let own = Matrix2::identity() * (area / 12.0);
+    let own = Matrix2::identity() * (share * face / 12.0);
     let moments = SymmetricEigen::new(second / n - mean * mean.transpose() + own).eigenvalues;
     let (long, short) = (moments.max(), moments.min());
     let aspect = if short > 0.0 {

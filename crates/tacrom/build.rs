@@ -63,6 +63,12 @@ fn main() {
 /// `src/sensor*`, `src/render*`), in path order, exported as `TACROM_PHYSICS_FINGERPRINT`:
 /// the benchmark's reference cache and the reduced-order model's recipe name the solver
 /// by it, so a change to the solver invalidates what was computed with the old one.
+///
+/// `TACROM_RELAXATION_FINGERPRINT` is the same hash over the files a gel solved by dynamic
+/// relaxation alone runs: all of them but the other solvers' (`mpm/newton/`,
+/// `mpm/total.rs`) and the unit tests. A relaxation reference (the benchmark's fine
+/// presses, hours of solver time) then stays valid through a change to Newton's method
+/// or the linear solver.
 fn physics_fingerprint(crate_dir: &Path) {
     fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
         let Ok(entries) = fs::read_dir(dir) else {
@@ -76,6 +82,22 @@ fn physics_fingerprint(crate_dir: &Path) {
                 out.push(p);
             }
         }
+    }
+    fn fnv<'a>(src: &Path, files: impl Iterator<Item = &'a PathBuf>) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        for f in files {
+            let rel = f
+                .strip_prefix(src)
+                .unwrap_or(f)
+                .to_string_lossy()
+                .into_owned();
+            let text = fs::read(f).unwrap_or_default();
+            for b in rel.bytes().chain([0]).chain(text).chain([0]) {
+                h ^= u64::from(b);
+                h = h.wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        }
+        h
     }
     let src = crate_dir.join("src");
     let mut files = Vec::new();
@@ -96,20 +118,18 @@ fn physics_fingerprint(crate_dir: &Path) {
         }
     }
     files.sort();
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for f in &files {
-        let rel = f
-            .strip_prefix(&src)
-            .unwrap_or(f)
-            .to_string_lossy()
-            .into_owned();
-        let text = fs::read(f).unwrap_or_default();
-        for b in rel.bytes().chain([0]).chain(text).chain([0]) {
-            h ^= u64::from(b);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-    println!("cargo:rustc-env=TACROM_PHYSICS_FINGERPRINT={h:016x}");
+    let all = fnv(&src, files.iter());
+    println!("cargo:rustc-env=TACROM_PHYSICS_FINGERPRINT={all:016x}");
+    let relaxation_runs = |f: &&PathBuf| {
+        let rel = f.strip_prefix(&src).unwrap_or(f);
+        let name = rel.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        !(rel.starts_with("mpm/newton")
+            || rel == Path::new("mpm/total.rs")
+            || name == "tests.rs"
+            || name.ends_with("_tests.rs"))
+    };
+    let relaxation = fnv(&src, files.iter().filter(relaxation_runs));
+    println!("cargo:rustc-env=TACROM_RELAXATION_FINGERPRINT={relaxation:016x}");
 }
 
 /// The folder with `libmujoco.so.<version>` and `include/mujoco`.

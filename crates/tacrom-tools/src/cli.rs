@@ -16,9 +16,21 @@ use crate::calibrate::{self, fit::FitOptions};
 const UNITS: &str = "Lengths are in millimetres everywhere (MM in the option lists); \
                      files and reports are in SI units (metres).";
 
+/// `tacrom --version`: the version and the physics' fingerprints, which name the solver in
+/// the benchmark's reference cache (`tacrom bench --adopt-physics`).
+static LONG_VERSION: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
+    format!(
+        "{}\nphysics {}\nrelaxation {}",
+        env!("CARGO_PKG_VERSION"),
+        tacrom::PHYSICS_FINGERPRINT,
+        tacrom::RELAXATION_FINGERPRINT
+    )
+});
+
 /// tacrom: tools for the tacrom tactile sensor.
 #[derive(Debug, Parser)]
-#[command(name = "tacrom", version, after_help = UNITS, propagate_version = true)]
+#[command(name = "tacrom", version, long_version = LONG_VERSION.as_str(), after_help = UNITS,
+    propagate_version = true)]
 pub struct Cli {
     /// The subcommand.
     #[command(subcommand)]
@@ -200,6 +212,12 @@ pub struct BenchArgs {
     /// of a batch job with it, then the whole benchmark finds every press in the cache.
     #[arg(long, conflicts_with_all = ["check", "check_full", "write_baseline", "no_cache"])]
     pub reference_only: bool,
+    /// Take over the cached reference presses of a build whose physics fingerprint was HEX
+    /// (`tacrom --version` prints a build's) under today's keys, where today's have none:
+    /// for a cache written before a change its presses do not depend on. Check a few
+    /// presses recomputed (--cache elsewhere) against the adopted ones before trusting it.
+    #[arg(long, value_name = "HEX", conflicts_with = "no_cache")]
+    pub adopt_physics: Option<String>,
 }
 
 /// Options of `tacrom render`.

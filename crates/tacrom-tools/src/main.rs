@@ -101,6 +101,7 @@ fn bench(a: BenchArgs) -> Result<(), BenchError> {
     o.progress = !a.quiet;
     o.shard = a.shard;
     o.reference_only = a.reference_only;
+    o.adopt_physics = a.adopt_physics;
     let r = tacrom_tools::bench::run(&o)?;
     if o.reference_only {
         let reference = &r.rows[0];

@@ -354,6 +354,29 @@ pub mod defaults {
 }
 
 impl Config {
+    /// The equilibrium solver of this configuration's gel on a grid of spacing `dx` (m),
+    /// and whether frames whose contact its particles cannot resolve fall back to the
+    /// linear solver: the solver the configuration names, or the gel's own choice
+    /// ([`Solver::automatic`]) with the fallback for `coarse` and `rom`.
+    pub fn solver_choice(&self, dx: f64) -> (Solver, bool) {
+        let solver = self
+            .solver
+            .unwrap_or_else(|| Solver::automatic(&self.gel_params(dx)));
+        let fallback =
+            self.solver.is_none() && matches!(self.physics, Physics::Coarse | Physics::Rom);
+        (solver, fallback)
+    }
+
+    /// The fingerprint of the sources this configuration's results depend on: the
+    /// relaxation's ([`crate::RELAXATION_FINGERPRINT`]) for a gel that dynamic relaxation
+    /// alone solves, all of the physics ([`crate::PHYSICS_FINGERPRINT`]) otherwise.
+    pub fn physics_fingerprint(&self) -> &'static str {
+        match self.dx.map(|dx| self.solver_choice(dx)) {
+            Some((Solver::Relaxation, false)) => crate::RELAXATION_FINGERPRINT,
+            _ => crate::PHYSICS_FINGERPRINT,
+        }
+    }
+
     /// The gel of this configuration on a grid of spacing `dx` (m).
     pub fn gel_params(&self, dx: f64) -> GelParams {
         GelParams {
@@ -1049,6 +1072,36 @@ mod tests {
         assert_eq!(Solver::automatic(&gel(0.499, 0.7e-3)), Solver::Newton);
         assert_eq!(Solver::automatic(&gel(0.499, 0.5e-3)), Solver::Relaxation);
         assert_eq!(Solver::automatic(&gel(0.499, 0.3e-3)), Solver::Relaxation);
+    }
+
+    /// A gel that dynamic relaxation alone solves (the fine reference) is named by the
+    /// relaxation's sources; one that runs another solver, named or automatic, or falls
+    /// back to the linear solver, by all of the physics. The two differ: the other solvers'
+    /// sources are left out of the first.
+    #[test]
+    fn a_configuration_is_fingerprinted_by_the_sources_it_runs() {
+        use crate::{PHYSICS_FINGERPRINT as ALL, RELAXATION_FINGERPRINT as RELAXATION};
+        assert_ne!(ALL, RELAXATION);
+        let print = |pairs: &[(&str, &str)]| parse(pairs).unwrap().physics_fingerprint();
+        assert_eq!(print(&[(ATTR_PHYSICS, "fine")]), RELAXATION);
+        assert_eq!(
+            print(&[(ATTR_PHYSICS, "coarse"), (ATTR_SOLVER, "relaxation")]),
+            RELAXATION
+        );
+        // The automatic fallback of coarse and rom to the linear solver.
+        assert_eq!(print(&[(ATTR_PHYSICS, "coarse")]), ALL);
+        assert_eq!(
+            print(&[(ATTR_PHYSICS, "fine"), (ATTR_SOLVER, "newton")]),
+            ALL
+        );
+        assert_eq!(
+            print(&[(ATTR_PHYSICS, "coarse"), (ATTR_SOLVER, "linear")]),
+            ALL
+        );
+        // Newton's method chosen for a near-incompressible gel.
+        let auto_newton = parse(&[(ATTR_PHYSICS, "coarse"), (ATTR_POISSON, "0.49")]).unwrap();
+        assert_eq!(auto_newton.solver_choice(1.4e-3), (Solver::Newton, true));
+        assert_eq!(auto_newton.physics_fingerprint(), ALL);
     }
 
     #[test]

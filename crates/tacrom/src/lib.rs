@@ -54,3 +54,8 @@ pub fn vendored_patterns() -> std::path::PathBuf {
 /// results cached or trained with one build are recognised as stale by another whose
 /// physics differs.
 pub const PHYSICS_FINGERPRINT: &str = env!("TACROM_PHYSICS_FINGERPRINT");
+
+/// The fingerprint of the sources a gel solved by dynamic relaxation alone runs (all of
+/// the physics but the other solvers and the unit tests): what a relaxation result
+/// depends on ([`config::Config::physics_fingerprint`]).
+pub const RELAXATION_FINGERPRINT: &str = env!("TACROM_RELAXATION_FINGERPRINT");

@@ -139,6 +139,28 @@ impl Cache {
         Ok(Some(press))
     }
 
+    /// Copies the entry `old` to `new` where `new` has none and `old` exists (image first,
+    /// the JSON last, as [`Cache::store`]); whether it copied. For entries whose inputs
+    /// are unchanged under a new key (`tacrom bench --adopt-physics`).
+    pub fn adopt(&self, old: &str, new: &str) -> Result<bool, CacheError> {
+        let (from, to) = (self.path(old), self.path(new));
+        if to.exists() || !from.exists() {
+            return Ok(false);
+        }
+        let io = |path: &Path| {
+            let path = path.to_path_buf();
+            move |source| CacheError::Io { path, source }
+        };
+        for (a, b) in [
+            (from.with_extension("npy.gz"), to.with_extension("npy.gz")),
+            (from.clone(), to.clone()),
+        ] {
+            let bytes = std::fs::read(&a).map_err(io(&a))?;
+            npy::write_atomic(&b, &bytes).map_err(io(&b))?;
+        }
+        Ok(true)
+    }
+
     /// Stores `press` under `key`: the depth image, then the JSON, each atomically.
     pub fn store(&self, key: &str, press: &CachedPress) -> Result<(), CacheError> {
         let io = |path: &Path| {
@@ -227,6 +249,29 @@ mod tests {
             .unwrap()
             .len();
         assert!(bytes < (8 * w * h / 5) as u64, "{bytes} bytes");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// An entry is copied to its new key whole (same image, same fields); an existing entry
+    /// under the new key is kept, and a missing old one copies nothing.
+    #[test]
+    fn an_adopted_entry_is_the_old_one_under_its_new_key() {
+        let dir = std::env::temp_dir().join(format!("tacrom-cache-adopt-{}", std::process::id()));
+        let cache = Cache::new(&dir);
+        let (old, new, other) = (digest("old"), digest("new"), digest("other"));
+        assert!(!cache.adopt(&old, &new).unwrap(), "nothing to adopt");
+        let press = sample();
+        cache.store(&old, &press).unwrap();
+        assert!(cache.adopt(&old, &new).unwrap());
+        assert_eq!(cache.load(&new).unwrap(), cache.load(&old).unwrap());
+        let mut kept = sample();
+        kept.force = [9.0; 3];
+        cache.store(&other, &kept).unwrap();
+        assert!(
+            !cache.adopt(&old, &other).unwrap(),
+            "an existing entry is not overwritten"
+        );
+        assert_eq!(cache.load(&other).unwrap().unwrap().force, [9.0; 3]);
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -144,6 +144,10 @@ pub struct BenchOptions {
     pub shard: (usize, usize),
     /// Compute and cache the reference only: no mode runs, no report.
     pub reference_only: bool,
+    /// Reference presses cached under this older physics fingerprint are taken over under
+    /// today's key where today's has none (see [`BenchOptions::adopt_physics`]'s use in
+    /// [`run`]); for a cache written before a change that its presses do not depend on.
+    pub adopt_physics: Option<String>,
 }
 
 impl BenchOptions {
@@ -174,6 +178,7 @@ impl BenchOptions {
             progress: true,
             shard: (0, 1),
             reference_only: false,
+            adopt_physics: None,
         }
     }
 
@@ -248,13 +253,15 @@ pub fn status_bytes(field: &str) -> Option<u64> {
     Some(kib * 1024)
 }
 
-/// A hash of the cache format, the crate version, the physics sources and the solver's
-/// defaults, so that the cache notices their changes.
-fn code_version() -> String {
+/// A hash of the cache format, the crate version, the fingerprint `physics` of the sources
+/// a reference depends on ([`tacrom::config::Config::physics_fingerprint`]: a relaxation
+/// reference, the relaxation's alone) and the solver's defaults, so that the cache notices
+/// their changes.
+fn code_version(physics: &str) -> String {
     digest(&[
         ("version", CACHE_VERSION),
         ("crate", env!("CARGO_PKG_VERSION")),
-        ("physics", tacrom::PHYSICS_FINGERPRINT),
+        ("physics", physics),
         ("solver", &format!("{:?}", SolverOptions::default())),
     ])
 }
@@ -708,7 +715,8 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
         fov_x: ref_config.fov[0],
         fov_y: ref_config.fov[1],
     };
-    let version = code_version();
+    let version = code_version(ref_config.physics_fingerprint());
+    let adopted_version = opts.adopt_physics.as_deref().map(code_version);
     // Everything of the configuration but the thread count (results do not depend on it).
     let config_text = {
         let mut c = ref_config.clone();
@@ -724,12 +732,17 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     let mut todo = Vec::new();
     let mut cached = 0;
     let mut cached_peak: Option<u64> = None;
+    let mut adopted = 0;
     for (i, ind) in indenters.iter().enumerate() {
         for (p, &pos) in positions.iter().enumerate() {
             let mut frames = Vec::new();
             if let Some(cache) = &cache {
                 for k in 0..nd {
                     let key = reference_key(&version, &config_text, ind, pos, &opts.depths[..=k]);
+                    if let Some(old) = &adopted_version {
+                        let old = reference_key(old, &config_text, ind, pos, &opts.depths[..=k]);
+                        adopted += usize::from(cache.adopt(&old, &key)?);
+                    }
                     match cache.load(&key)? {
                         Some(c) => {
                             cached_peak = cached_peak.max(c.peak_rss);
@@ -746,6 +759,9 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
                 todo.push((i, p));
             }
         }
+    }
+    if let (Some(hex), true) = (&opts.adopt_physics, opts.progress) {
+        eprintln!("reference presses adopted from physics {hex}: {adopted}");
     }
     // A reference-only run (one shard of a batch job, say) runs no mode.
     let modes: &[ModeSpec] = if opts.reference_only {

@@ -145,17 +145,16 @@ struct Mpm {
 impl Mpm {
     fn new(config: &Config, dx: f64) -> Result<Self, SensorError> {
         let params = config.gel_params(dx);
+        // The solver the configuration names, or the gel's own choice (a reduced-order
+        // model checks its recipe against this one); a coarse gel (under rom too) whose
+        // configuration names no solver does not lose a contact smaller than its particles
+        // resolve: the linear solver solves such frames.
+        let (solver, fallback) = config.solver_choice(dx);
         let options = SolverOptions {
             threads: config.threads,
             tolerance: config.tolerance,
-            // The solver the configuration names, or the gel's own choice; a
-            // reduced-order model checks its recipe against this one.
-            solver: config.solver.unwrap_or_else(|| Solver::automatic(&params)),
-            // A coarse gel (under rom too) whose configuration names no solver does not
-            // lose a contact smaller than its particles resolve: the linear solver solves
-            // such frames.
-            fallback: config.solver.is_none()
-                && matches!(config.physics, Physics::Coarse | Physics::Rom),
+            solver,
+            fallback,
             ..SolverOptions::default()
         };
         Gel::validate(&params, &options).map_err(|e| SensorError::Physics {

@@ -2,7 +2,7 @@
 //!
 //! The relaxation of `relax.rs` is updated-Lagrangian: each particle advances its own `F`
 //! by the grid's velocity gradient, so a converged state's `F` keeps a memory of the path
-//! the explicit steps took, and its equilibrium depends on that path (README, "What the
+//! the explicit steps took, and its equilibrium depends on that path (docs/solvers.md, "What the
 //! relaxation's answer depends on"). Here the unknowns are the grid nodes' displacements
 //! `u_i` from the undeformed gel, and every particle is a fixed quadrature point at its
 //! rest position `X_p`:

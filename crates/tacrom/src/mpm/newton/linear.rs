@@ -693,7 +693,7 @@ impl Compliance {
     /// bonded layer stiffens it by its semi-major axis `a sqrt(rho)` over the thickness
     /// rather than by the disc's radius `a` (measured, not derived: a ridge lying on the
     /// coarse gel came out 0.38 to 0.64 of the 0.7 mm reference's force as a disc; see
-    /// README "Long narrow contacts on the linear solver").
+    /// docs/solvers.md, "Long narrow contacts on the linear solver").
     fn patch_compliance(&self, share: f64, fullness: f64, rho: f64) -> f64 {
         let radius = (share * self.spacing[0] * self.spacing[1] / std::f64::consts::PI).sqrt();
         let [e_star, slope, thickness] = self.layer;

@@ -30,7 +30,7 @@
 //! [`SERIES_SHARE`] is measured, not derived: the full deficit `C - C_g` made the 0.5 mm
 //! sphere and the cone both come out at 0.5 to 0.75 of their analytic forces (the grid's
 //! response to a curved indenter is softer than to the disc load it is calibrated with),
-//! half of it brings both within 20 % (README, "Small contacts"). It was chosen on the
+//! half of it brings both within 20 % (docs/solvers.md, "Small contacts"). It was chosen on the
 //! 0.5 mm sphere and holds for the cone, a 2 mm sphere and four placements on the lattice.
 //!
 //! A contact too small to reach any lattice point at all (a sharp tip pressed less than

@@ -124,7 +124,7 @@ fn the_two_grid_path_agrees_with_the_factorisation() {
 /// 0.8 mm, the force agrees within 0.2 % and the surface within 0.5 % of its deepest
 /// point (measured on the default 30 mm gel: 0.10560, 0.10560, 0.10560 and, back from
 /// 1.0 mm, 0.10551 N; the relaxation solver's answers spread by 7 % over the same paths,
-/// see README, "What the relaxation's answer depends on").
+/// see docs/solvers.md, "What the relaxation's answer depends on").
 #[test]
 fn a_frictionless_equilibrium_does_not_depend_on_the_loading_path() {
     let s = ball(3e-3);

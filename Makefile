@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-linear gen-data-linear-material train-linear train-linear-seeds gen-data-fine gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -153,6 +153,17 @@ gen-data-linear-material: build
 	  target/release/tacrom gen-data --out $(ROM_LINEAR_MAT_DATA) --samples $(ROM_LINEAR_MAT_SAMPLES) \
 	    --seed 1 --fine-dx 0.7 --fine-max-iterations 1000 --coarse-solver linear \
 	    --poisson $(ROM_POISSON) --friction $(ROM_FRICTION) --shard $$k/$(ROM_SHARDS) & \
+	done; wait
+# Presses of shapes outside the default families (`blob`, `stone` and, held out, `brick`:
+# `tacrom gen-data --families`), the same gel and solvers as ROM_LINEAR_DATA; about 8
+# minutes on two shards. `docs/rom.md`, "Shapes outside the training families".
+ROM_SHAPES_DATA ?= data/rom-linear-shapes
+ROM_SHAPES_SAMPLES ?= 480
+gen-data-linear-shapes: build
+	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
+	  target/release/tacrom gen-data --out $(ROM_SHAPES_DATA) --samples $(ROM_SHAPES_SAMPLES) --seed 1 \
+	    --fine-dx 0.7 --fine-max-iterations 1000 --coarse-solver linear --families blob,stone,brick \
+	    --shard $$k/$(ROM_SHARDS) & \
 	done; wait
 $(ROM_LINEAR_MERGED)/dataset.json:
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge $(ROM_LINEAR_MERGED) $(ROM_LINEAR_MAT_DATA) $(ROM_LINEAR_DATA)

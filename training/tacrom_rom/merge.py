@@ -8,7 +8,10 @@ RANGED is a data set that draws each sample's Poisson's ratio and friction from 
 `merged_from` listing the inputs. Each
 FIXED data set (one material, such as `make gen-data`'s) adds its samples with indices
 offset by 100000 * k and its material written into each sample's JSON; its material must
-lie inside RANGED's ranges. Files are copied; OUT is created if needed.
+lie inside RANGED's ranges. RANGED may be a data set of one material too (other indenter
+families of the same gel, `tacrom gen-data --families blob,stone,brick`): the FIXED ones
+must then have its material. OUT's held-out families are those of every input. Files are
+copied; OUT is created if needed.
 """
 from __future__ import annotations
 
@@ -32,11 +35,14 @@ def main(argv=None):
         raise SystemExit(__doc__)
     out, ranged, fixed = argv[0], argv[1], argv[2:]
     ds = json.load(open(os.path.join(ranged, "dataset.json")))
-    if "poisson_range" not in ds and "friction_range" not in ds:
-        raise SystemExit(f"{ranged}: its dataset.json has no material ranges")
+    held_out = list(ds.get("held_out", []))
+    for path in fixed:
+        for fam in json.load(open(os.path.join(path, "dataset.json"))).get("held_out", []):
+            if fam not in held_out:
+                held_out.append(fam)
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "dataset.json"), "w") as f:
-        json.dump(dict(ds, merged_from=[ranged] + fixed), f, indent=1)
+        json.dump(dict(ds, merged_from=[ranged] + fixed, held_out=held_out), f, indent=1)
     n = 0
     for k, path in enumerate([ranged] + fixed):
         other = json.load(open(os.path.join(path, "dataset.json")))

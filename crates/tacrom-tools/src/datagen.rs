@@ -27,8 +27,10 @@
 //! `bumps` (random clusters of small spheres), `ridges` (parallel capsules),
 //! `heightfield` (a block with a sinusoidal textured face) and `mesh:<name>`, one per
 //! pattern of `../shared/indenters/patterns`, flipped to press with its patterned face,
-//! randomly scaled and turned. Positions over the gel, depths up to 1 mm, tilts up to
-//! 8 degrees, slides up to 0.6 mm. [`HELD_OUT`] families are for validation only.
+//! randomly scaled and turned; and, only when `--families` names them, the
+//! [`EXTRA_FAMILIES`] `blob`, `stone` and `brick`. Positions over the gel, depths up to
+//! 1 mm, tilts up to 8 degrees, slides up to 0.6 mm. [`HELD_OUT`] families are for
+//! validation only.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -47,8 +49,14 @@ use tacrom::rom::features::{penetration, LatticeSpec, Observation};
 use crate::npy;
 use crate::progress::Progress;
 
+/// Families drawn only when `--families` names them: `blob` (a sphere whose radius is
+/// modulated by a few random waves over its directions), `stone` (a random convex
+/// polyhedron, stretched) and `brick` (a toy brick pressed with its studs).
+pub const EXTRA_FAMILIES: &[&str] = &["blob", "stone", "brick"];
+
 /// Families kept out of training, for validation (and the held-out test).
 pub const HELD_OUT: &[&str] = &[
+    "brick",
     "ridges",
     "mesh:dots",
     "mesh:hexagon",
@@ -303,6 +311,82 @@ impl Sdf for HeightField {
             Point3::new(self.half[0], self.half[1], self.top),
         )
     }
+}
+
+/// A star-shaped blob about its origin: along each direction `u` its radius is
+/// `radius (1 + sum a cos(k . u + phase))` over its `modes`. The distance is the radial
+/// one divided by its Lipschitz bound near the surface: exact sign, a lower bound of the
+/// magnitude (enough for sphere tracing and contact), as [`HeightField`]'s.
+#[derive(Debug)]
+pub struct Blob {
+    /// Mean radius (m).
+    pub radius: f64,
+    /// `(a, k, phase)` of each mode (`sum a` below 1).
+    pub modes: Vec<(f64, Vector3<f64>, f64)>,
+}
+
+impl Blob {
+    fn swing(&self) -> f64 {
+        self.modes.iter().map(|m| m.0).sum()
+    }
+    fn lipschitz(&self) -> f64 {
+        let g: f64 = self.modes.iter().map(|(a, k, _)| a * k.norm()).sum();
+        (1.0 + (g / (1.0 - self.swing())).powi(2)).sqrt()
+    }
+}
+
+impl Sdf for Blob {
+    fn distance(&self, p: &Point3<f64>) -> f64 {
+        let n = p.coords.norm();
+        if n < 1e-12 * self.radius {
+            return -self.radius * (1.0 - self.swing());
+        }
+        let u = p.coords / n;
+        let r = self.radius
+            * (1.0
+                + self
+                    .modes
+                    .iter()
+                    .map(|(a, k, ph)| a * (k.dot(&u) + ph).cos())
+                    .sum::<f64>());
+        (n - r) / self.lipschitz()
+    }
+    fn aabb(&self) -> Aabb {
+        let r = self.radius * (1.0 + self.swing());
+        Aabb::new(Point3::new(-r, -r, -r), Point3::new(r, r, r))
+    }
+}
+
+/// A convex polyhedron, the intersection of the half-spaces `n . p <= d` (unit `n`): a
+/// stone with flat faces, sharp edges and corners. The distance is the largest of the
+/// planes': exact inside and on the faces, a lower bound outside.
+#[derive(Debug)]
+pub struct Polyhedron {
+    /// `(n, d)` of each face.
+    pub planes: Vec<(Vector3<f64>, f64)>,
+    /// Half extent of a cube about the origin that holds it (m).
+    pub bound: f64,
+}
+
+impl Sdf for Polyhedron {
+    fn distance(&self, p: &Point3<f64>) -> f64 {
+        self.planes
+            .iter()
+            .map(|(n, d)| n.dot(&p.coords) - d)
+            .fold(f64::NEG_INFINITY, f64::max)
+    }
+    fn aabb(&self) -> Aabb {
+        let b = self.bound;
+        Aabb::new(Point3::new(-b, -b, -b), Point3::new(b, b, b))
+    }
+}
+
+/// A uniformly random unit vector.
+fn unit_vector(rng: &mut Rng) -> Vector3<f64> {
+    let z = rng.uniform(-1.0, 1.0);
+    let a = rng.uniform(0.0, 2.0 * std::f64::consts::PI);
+    let s = (1.0 - z * z).sqrt();
+    Vector3::new(s * a.cos(), s * a.sin(), z)
 }
 
 /// Pattern meshes, loaded once (metres, flipped so the patterned face is lowest).
@@ -577,6 +661,73 @@ fn draw_shape(
                 id,
             )
         }
+        "blob" => {
+            let r = rng.uniform(1.5, 5.0) * mm;
+            let n = 2 + rng.below(4);
+            let modes = (0..n)
+                .map(|_| {
+                    let k = unit_vector(rng) * rng.uniform(1.0, 4.0);
+                    (rng.uniform(0.02, 0.3 / n as f64), k, rng.uniform(0.0, 6.3))
+                })
+                .collect();
+            (params.radius, params.count) = (Some(r), Some(n));
+            (Arc::new(Blob { radius: r, modes }), id)
+        }
+        "stone" => {
+            let r = rng.uniform(1.5, 5.0) * mm;
+            let stretch = Vector3::new(
+                rng.uniform(0.6, 1.0),
+                rng.uniform(0.6, 1.0),
+                rng.uniform(0.5, 1.0),
+            );
+            let n = 8 + rng.below(13);
+            // Random faces, and the octahedron's eight at the full radius so that the
+            // intersection is bounded; the stretch maps each plane `n . q <= d` of the
+            // round stone to `(n / s) . p <= d` of the stretched one.
+            let mut faces: Vec<(Vector3<f64>, f64)> = (0..n)
+                .map(|_| (unit_vector(rng), r * rng.uniform(0.75, 1.0)))
+                .collect();
+            for k in 0..8 {
+                let sign = |b: usize| if k & b == 0 { 1.0 } else { -1.0 };
+                let v = Vector3::new(sign(1), sign(2), sign(4)) / 3f64.sqrt();
+                faces.push((v, r));
+            }
+            let planes = faces
+                .into_iter()
+                .map(|(n, d)| {
+                    let m = n.component_div(&stretch);
+                    (m / m.norm(), d / m.norm())
+                })
+                .collect();
+            let bound = r * 3f64.sqrt() * stretch.max();
+            (params.radius, params.count) = (Some(r), Some(n));
+            (Arc::new(Polyhedron { planes, bound }), id)
+        }
+        "brick" => {
+            // A toy brick pressed with its studs: a block whose lower face carries a grid
+            // of short cylinders.
+            let he = Vector3::new(rng.uniform(2.0, 6.0), rng.uniform(2.0, 6.0), 2.0) * mm;
+            let r = rng.uniform(0.5, 1.0) * mm;
+            let hs = rng.uniform(0.25, 0.6) * mm;
+            let gap = 2.0 * r + rng.uniform(0.6, 2.0) * mm;
+            let count = |h: f64| (((2.0 * h - 2.0 * r) / gap).floor() as usize + 1).max(1);
+            let (nx, ny) = (count(he.x), count(he.y));
+            let mut parts: Vec<(Arc<dyn Sdf>, Isometry3<f64>)> = vec![(
+                Arc::new(Cuboid::new(he)),
+                Isometry3::translation(0.0, 0.0, he.z),
+            )];
+            let stud: Arc<dyn Sdf> = Arc::new(Cylinder::new(r, hs));
+            for i in 0..nx {
+                for j in 0..ny {
+                    let x = (i as f64 - 0.5 * (nx - 1) as f64) * gap;
+                    let y = (j as f64 - 0.5 * (ny - 1) as f64) * gap;
+                    parts.push((stud.clone(), Isometry3::translation(x, y, -hs)));
+                }
+            }
+            params.half_extents = Some(he.into());
+            (params.radius, params.count, params.gap) = (Some(r), Some(nx * ny), Some(gap));
+            (Arc::new(Union { parts }), id)
+        }
         f if f.starts_with("mesh:") => {
             let name = &f[5..];
             let mesh = meshes.get(name)?;
@@ -628,6 +779,13 @@ pub fn draw_press(
 ) -> Result<Press, String> {
     let mut rng = Rng::new(seed, index);
     let mut fams = families(meshes);
+    // Families outside the default set join only when named (the presses of a seed
+    // without them stay what they were).
+    for extra in EXTRA_FAMILIES {
+        if only.iter().any(|o| o == extra) {
+            fams.push((extra.to_string(), 1.0));
+        }
+    }
     if !only.is_empty() {
         fams.retain(|(n, _)| {
             only.iter()

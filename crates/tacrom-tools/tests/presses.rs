@@ -128,3 +128,57 @@ fn seed_1_draws_the_presses_it_always_drew() {
         assert_eq!([c.x, c.y, c.z, c.w], q, "sample {i}");
     }
 }
+
+/// The families drawn only when named (`--families blob,stone,brick`): each is drawn when
+/// named alone, none joins the default set, and each shape is a signed distance that the
+/// contact and the sphere tracing can use: never steeper than 1 (a lower bound of the
+/// true distance), negative somewhere inside its box and positive outside it.
+#[test]
+fn the_extra_families_are_drawn_only_when_named_and_are_signed_distances() {
+    use nalgebra::Point3;
+    for i in 0..40 {
+        let p = draw_press(1, i, &mut MeshLibrary::default(), &[], SIZE).unwrap();
+        assert!(
+            !tacrom_tools::datagen::EXTRA_FAMILIES.contains(&p.family.as_str()),
+            "sample {i}: {}",
+            p.family
+        );
+    }
+    let mut r = Rng::new(5, 0);
+    for family in tacrom_tools::datagen::EXTRA_FAMILIES {
+        for i in 0..12 {
+            let only = [family.to_string()];
+            let p = draw_press(1, i, &mut MeshLibrary::default(), &only, SIZE).unwrap();
+            assert_eq!(p.family, *family);
+            let b = p.shape.aabb();
+            let pad = 1e-3;
+            let mut point = || {
+                Point3::new(
+                    r.uniform(b.min.x - pad, b.max.x + pad),
+                    r.uniform(b.min.y - pad, b.max.y + pad),
+                    r.uniform(b.min.z - pad, b.max.z + pad),
+                )
+            };
+            let mut inside = false;
+            for _ in 0..2000 {
+                let (a, c) = (point(), point());
+                let (da, dc) = (p.shape.distance(&a), p.shape.distance(&c));
+                assert!(
+                    (da - dc).abs() <= (a - c).norm() * (1.0 + 1e-9),
+                    "{family} {i}: steeper than 1"
+                );
+                inside |= da < 0.0;
+                let outside = a.x < b.min.x
+                    || a.x > b.max.x
+                    || a.y < b.min.y
+                    || a.y > b.max.y
+                    || a.z < b.min.z
+                    || a.z > b.max.z;
+                if outside {
+                    assert!(da > 0.0, "{family} {i}: negative outside its box");
+                }
+            }
+            assert!(inside, "{family} {i}: no point inside");
+        }
+    }
+}

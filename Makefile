@@ -131,7 +131,8 @@ train: train-env
 	$(TRAIN) --out models/rom-no-multiscale --no-multiscale
 
 # The model of the linear solver's coarse solve (`solver="linear"`, models/rom-linear): the
-# presses of ROM_DATA with the linear coarse channel, against the 0.7 mm reference; its
+# presses of ROM_DATA with the linear coarse channel and those of ROM_SHAPES_DATA (blobs,
+# stones; bricks held out), against the 0.7 mm reference (trained in 681 s on two threads); its
 # force factor per Poisson's ratio from those presses and ROM_LINEAR_MAT_SAMPLES more whose
 # Poisson's ratio and friction are drawn per press from ROM_POISSON and ROM_FRICTION
 # (merged), and its decoder in 8 bits. `train-linear-seeds` trains, on the merged presses,
@@ -167,9 +168,12 @@ gen-data-linear-shapes: build
 	done; wait
 $(ROM_LINEAR_MERGED)/dataset.json:
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge $(ROM_LINEAR_MERGED) $(ROM_LINEAR_MAT_DATA) $(ROM_LINEAR_DATA)
-train-linear: train-env $(ROM_LINEAR_MERGED)/dataset.json
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_DATA) --steps $(ROM_STEPS) \
-		--device $(ROM_DEVICE) --region-eps-mm 0.01 --out models/rom-linear
+ROM_LINEAR_SHAPES_MERGED := data/rom-linear-shapes-merged
+$(ROM_LINEAR_SHAPES_MERGED)/dataset.json:
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge $(ROM_LINEAR_SHAPES_MERGED) $(ROM_SHAPES_DATA) $(ROM_LINEAR_DATA)
+train-linear: train-env $(ROM_LINEAR_MERGED)/dataset.json $(ROM_LINEAR_SHAPES_MERGED)/dataset.json
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_SHAPES_MERGED) --steps $(ROM_STEPS) \
+		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --out models/rom-linear
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear
 train-linear-seeds: train-env $(ROM_LINEAR_MERGED)/dataset.json

@@ -144,9 +144,10 @@ pub struct BenchOptions {
     pub shard: (usize, usize),
     /// Compute and cache the reference only: no mode runs, no report.
     pub reference_only: bool,
-    /// Reference presses cached under this older physics fingerprint are taken over under
-    /// today's key where today's has none (see [`BenchOptions::adopt_physics`]'s use in
-    /// [`run`]); for a cache written before a change that its presses do not depend on.
+    /// The physics fingerprint of an older build (`tacrom --version`): [`run`] copies the
+    /// reference presses it cached to today's keys where today's have none. For a cache
+    /// written before a change its presses do not depend on; the caller vouches for that,
+    /// best by recomputing a few presses elsewhere and comparing.
     pub adopt_physics: Option<String>,
 }
 

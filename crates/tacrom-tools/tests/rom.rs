@@ -427,7 +427,10 @@ fn held_out_gate(dir: &Path, reference_dx: f64) {
     // Every held-out family of the default set has pairs; a model trained with more
     // families (rom-linear: `brick`) has theirs too, gated alike.
     for family in HELD_OUT_FAMILIES {
-        assert!(families.contains_key(family), "no held-out pairs of {family}");
+        assert!(
+            families.contains_key(family),
+            "no held-out pairs of {family}"
+        );
     }
     let mut total = Mae::default();
     let mut failed = Vec::new();

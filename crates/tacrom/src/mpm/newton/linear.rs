@@ -1014,7 +1014,10 @@ impl Compliance {
                     .binary_search_by_key(c, |&(col, _)| col)
                     .map_or(Vector3::zeros(), |i| present[i].1)
             };
-            if friction && solved {
+            if !solved {
+                // The first lagged normal forces failed: the frame ends unconverged (the
+                // frictionless solve below is on the vertical block alone).
+            } else if friction {
                 let mut l = DVector::from_iterator(
                     3 * local.len(),
                     local.iter().flat_map(|c| load(c).data.0[0]),
@@ -1381,6 +1384,18 @@ const FRICTION_RESIDUAL: f64 = 1e-10;
 /// Line search halvings at most per iteration.
 const MAX_HALVINGS: usize = 40;
 
+/// Whether a line search takes a trial point of energy `trial` at `alpha` along a step of
+/// slope `slope` from energy `e`: on Armijo's decrease, or, where the energy's change is
+/// below its round-off (near the answer, where it changes by the residual squared), when
+/// `lowers` finds the residual smaller there. (By the energy alone such a step is taken or
+/// refused by the round-off: a pad pressed by a box face refused its exact last step by a
+/// unit in the last place, took steps of 2^-26 that changed nothing, and ran out of
+/// iterations.)
+fn takes(e: f64, trial: f64, alpha: f64, slope: f64, lowers: impl FnOnce() -> bool) -> bool {
+    let unresolved = (trial - e).abs() <= 16.0 * f64::EPSILON * e.abs();
+    trial <= e + 1e-4 * alpha * slope || (unresolved && lowers())
+}
+
 /// The penalty contact in the node columns' loads `l`: the columns sink `v = G l` (`G`
 /// their sinking under their loads: symmetric, positive definite), the points `s = W v`
 /// (`W` their column weights, rows of `(column, weight)`), and press with forces
@@ -1454,7 +1469,9 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
         for _ in 0..MAX_HALVINGS {
             let trial = &*l + &step * alpha;
             let (ft, et) = evaluate(&trial);
-            if et <= e + 1e-4 * alpha * slope {
+            if takes(e, et, alpha, slope, || {
+                (&trial - loads(&ft)).amax() < r.amax()
+            }) {
                 (*l, f, e) = (trial, ft, et);
                 accepted = true;
                 break;
@@ -1629,12 +1646,9 @@ fn minimise(
         for _ in 0..MAX_HALVINGS {
             let trial = &*l + &step * alpha;
             let (st, ft, et) = evaluate(&trial);
-            // Armijo's decrease; where the energy's change is below its round-off (near
-            // the answer, where it changes by the residual squared), a smaller residual.
-            let unresolved = (et - e).abs() <= 16.0 * f64::EPSILON * e.abs();
-            if et <= e + 1e-4 * alpha * slope
-                || (unresolved && (&trial - loads(&ft)).amax() < r.amax())
-            {
+            if takes(e, et, alpha, slope, || {
+                (&trial - loads(&ft)).amax() < r.amax()
+            }) {
                 (*l, s, f, e) = (trial, st, ft, et);
                 accepted = true;
                 break;

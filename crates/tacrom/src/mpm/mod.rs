@@ -748,7 +748,6 @@ impl Gel {
             self.loads.clear();
             return report;
         }
-        let sweep = self.plan_sweep(used, &matched);
         let solver = if self.options.fallback
             && touching
             && self.footprint_points(indenters, UNRESOLVED_POINTS) <= UNRESOLVED_POINTS
@@ -771,6 +770,16 @@ impl Gel {
             }
         } else {
             self.options.solver
+        };
+        let sweep = if matches!(solver, Solver::Linear | Solver::Newton) || self.relaxed {
+            self.plan_sweep(used, &matched)
+        } else {
+            // The relaxation's state is the gel at rest (a fresh gel, or one whose last
+            // frames the fallback carried): its indenters come in from above the gel, as
+            // into a fresh gel, not from poses it never saw. (Swept from the fallback's
+            // last poses, a capsule 1.3 mm deep slid 0.65 mm started 1.3 mm inside the
+            // undeformed gel and stopped at the iteration cap with no vertical force.)
+            self.plan_sweep(used, &vec![None; matched.len()])
         };
         if matches!(solver, Solver::Linear | Solver::Newton) {
             if solver == Solver::Linear {

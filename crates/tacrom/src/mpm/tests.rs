@@ -4,7 +4,7 @@
 use super::*;
 use crate::geometry::{Aabb, Sdf, Sphere};
 use crate::mpm::hertz::hertz_bonded;
-use nalgebra::Point3;
+use nalgebra::{Point3, Translation3, UnitQuaternion};
 use std::sync::Arc;
 
 const R: f64 = 5e-3;
@@ -1062,6 +1062,45 @@ fn a_fallback_frame_leaves_the_relaxation_at_rest() {
     let (a, b) = (g.force().z, fresh.force().z);
     assert!(
         (a / b - 1.0).abs() < 0.01,
+        "after the fallback {a} N, from rest {b} N"
+    );
+}
+
+/// After the fallback carried a deep press, the relaxation's first frame starts from the
+/// gel at rest with its indenters coming in from above, as a fresh gel's does: a standing
+/// capsule (radius 1 mm, tilted 0.13 rad) pressed 0.3 and then 1.3 mm deep (footprints the
+/// fallback carries), then slid 0.6 mm at that depth (the relaxation's frame), gives the
+/// fresh gel's force within 1 %. Swept from the fallback's last pose, the relaxation
+/// started with the capsule 1.3 mm inside the undeformed gel, stopped at its iteration cap
+/// and reported no vertical force (-0.002 N against 0.35 N).
+#[test]
+fn the_relaxation_after_a_deep_fallback_press_starts_as_a_fresh_gel() {
+    let options = SolverOptions {
+        fallback: true,
+        ..Default::default()
+    };
+    let params = frictionless(GelParams::default().dx);
+    let capsule: Arc<dyn Sdf> = Arc::new(crate::geometry::Capsule::new(1e-3, 6e-3));
+    let tilt = UnitQuaternion::from_euler_angles(0.008, -0.131, -1.24);
+    // The capsule's lowest point lies its radius below its lower end's centre.
+    let low = (tilt * Vector3::new(0.0, 0.0, -6e-3)).z - 1e-3;
+    let at = |x: f64, y: f64, d: f64| Placed {
+        shape: capsule.clone(),
+        pose: Isometry3::from_parts(Translation3::new(x, y, -low - d), tilt),
+    };
+    let mut g = gel(params, options);
+    for d in [0.3e-3, 1.3e-3] {
+        let rep = g.solve(&[at(-10.9e-3, 7.2e-3, d)]);
+        assert!(rep.fallback && rep.converged, "{d}: {rep:?}");
+    }
+    let slid = at(-10.7e-3, 7.8e-3, 1.3e-3);
+    let rep = g.solve(&[slid.clone()]);
+    assert!(!rep.fallback && rep.converged, "{rep:?}");
+    let mut fresh = gel(params, options);
+    fresh.solve(&[slid]);
+    let (a, b) = (g.force().z, fresh.force().z);
+    assert!(
+        b > 0.1 && (a / b - 1.0).abs() < 0.01,
         "after the fallback {a} N, from rest {b} N"
     );
 }

@@ -506,7 +506,9 @@ impl Gel {
 
     /// How deep (m, a lower bound) `indenters` reach into the undeformed top face, sampled
     /// at a quarter of [`Gel::contact_spacing`] of the gel's solver (coarser over large
-    /// footprints, at most [`MISSED_SAMPLES`] points per indenter); 0 if nowhere.
+    /// footprints, at most [`MISSED_SAMPLES`] points per indenter); an indenter wholly
+    /// below the face, as deep as its lower surface under the sample nearest to it; 0 if
+    /// nowhere.
     pub(crate) fn reached_depth<'a>(&self, indenters: impl Iterator<Item = &'a Placed>) -> f64 {
         let [lx, ly, _] = self.params.size;
         let fine = 0.25 * self.contact_spacing(self.options.solver);
@@ -569,7 +571,31 @@ impl Gel {
                     }
                 }
             }
-            if best.0.is_finite() {
+            let under_the_face = b.min.x > -0.5 * lx
+                && b.max.x < 0.5 * lx
+                && b.min.y > -0.5 * ly
+                && b.max.y < 0.5 * ly;
+            if best.0 > 0.0 && best.0.is_finite() && under_the_face {
+                // Outside at the face everywhere sampled: a body wholly below it (swept in
+                // through it) lies under the nearest sample. Marched down to it and
+                // through it, it reaches as deep as its lower surface there. (One beside
+                // the gel, pressing its side, is the relaxation's.)
+                let (_, x, y) = best;
+                let at = |z: f64| p.shape.distance(&(inverse * Point3::new(x, y, -z)));
+                let (mut z, mut d) = (0.0, best.0);
+                let (step, limit) = (fine / 16.0, self.params.size[2]);
+                while d >= 0.0 && z <= limit {
+                    z += d.max(step);
+                    d = at(z);
+                }
+                while d < 0.0 && z <= limit {
+                    z += (-d).max(step);
+                    d = at(z);
+                }
+                if z <= limit {
+                    deepest = deepest.max(z);
+                }
+            } else if best.0.is_finite() {
                 deepest = deepest.max(-best.0);
             }
         }

@@ -541,6 +541,28 @@ impl Compliance {
         self.vertical_gap_to(x, indenters, BISECTIONS)
     }
 
+    /// The vertical gap (cells, negative) from the point at `x` (cells, outside every
+    /// indenter) down to the lower surface of an indenter that lies below it within the
+    /// gel's thickness: how far the point must sink to pass under it. `None` where the
+    /// line down meets none. (A body wholly below the undeformed face was swept in from
+    /// above through it: the surface it took with it lies under it.)
+    fn gap_under(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> Option<f64> {
+        let at = |t: f64| self.clearance(&(x - Vector3::z() * t), indenters);
+        let (mut t, mut phi) = (0.0, at(0.0));
+        for _ in 0..MARCH_STEPS {
+            if !phi.is_finite() || t > self.layer[2] {
+                return None;
+            }
+            if phi < 0.0 {
+                let below = x - Vector3::z() * t;
+                return self.vertical_gap(&below, indenters).map(|g| g - t);
+            }
+            t += phi.max(MIN_MARCH);
+            phi = at(t);
+        }
+        None
+    }
+
     /// [`Self::vertical_gap`] with `bisections` of the way out from inside.
     fn vertical_gap_to(
         &self,
@@ -917,7 +939,17 @@ impl Compliance {
         for i in (0..near.len()).filter(|&i| clear[i] < 0.0) {
             (delta[i], known[i]) = (depth(self, &rest[i]), true);
         }
-        let deepest = delta.iter().copied().fold(0.0, f64::max);
+        let mut deepest = delta.iter().copied().fold(0.0, f64::max);
+        if deepest <= 0.0 {
+            // No point inside an indenter at rest, but one may lie wholly below the face
+            // (swept in through it): the points over it sink to its lower surface.
+            for i in 0..near.len() {
+                if let Some(gap) = self.gap_under(&rest[i], indenters) {
+                    (delta[i], known[i]) = (-gap, true);
+                }
+            }
+            deepest = delta.iter().copied().fold(0.0, f64::max);
+        }
         let mut reach = CANDIDATE_FRACTION * deepest;
         for i in 0..near.len() {
             if !known[i] && clear[i] < reach {

@@ -582,17 +582,18 @@ impl Gel {
                 // the gel, pressing its side, is the relaxation's.)
                 let (_, x, y) = best;
                 let at = |z: f64| p.shape.distance(&(inverse * Point3::new(x, y, -z)));
-                let (mut z, mut d) = (0.0, best.0);
+                let (mut z, mut d, mut entered) = (0.0, best.0, false);
                 let (step, limit) = (fine / 16.0, self.params.size[2]);
                 while d >= 0.0 && z <= limit {
                     z += d.max(step);
                     d = at(z);
                 }
                 while d < 0.0 && z <= limit {
+                    entered = true;
                     z += (-d).max(step);
                     d = at(z);
                 }
-                if z <= limit {
+                if entered && d >= 0.0 && z <= limit {
                     deepest = deepest.max(z);
                 }
             } else if best.0.is_finite() {

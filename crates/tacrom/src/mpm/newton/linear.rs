@@ -857,6 +857,27 @@ impl Compliance {
     /// symmetrised (reciprocal up to the solves' round-off): their sinking under their
     /// downward loads, or with `lateral` all three components (+x, +y, sinking) under all
     /// three loads (+x, +y, downward), 3 per column.
+    /// The node columns that the points of `stencils` load (their responses computed),
+    /// less those whose nodes are all fixed (beyond the gel's edge: they do not move, and
+    /// their weights are left out with them), and the points' rows of weights over them.
+    fn columns_under(&mut self, stencils: &[Columns]) -> (Vec<u32>, Vec<Columns>) {
+        let mut local: Vec<u32> = stencils.iter().flat_map(|s| s.map(|(c, _)| c)).collect();
+        local.sort_unstable();
+        local.dedup();
+        self.ensure(&local);
+        local.retain(|&c| self.levels[c as usize].iter().any(|&d| d != u32::MAX));
+        let rows = stencils
+            .iter()
+            .map(|s| {
+                s.map(|(c, w)| match local.binary_search(&c) {
+                    Ok(k) => (k as u32, w),
+                    Err(_) => (0, 0.0),
+                })
+            })
+            .collect();
+        (local, rows)
+    }
+
     fn local_compliance(&self, local: &[u32], lateral: bool) -> DMatrix<f64> {
         let down: Vec<&[f64]> = local.iter().map(|c| &self.columns[c][..]).collect();
         let g = if lateral {
@@ -975,28 +996,11 @@ impl Compliance {
                 .filter(|&i| delta[i] > -reach || forces[i].z > 0.0)
                 .collect();
             // The node columns the candidates touch, and their compliance.
-            let mut local: Vec<u32> = cand
-                .iter()
-                .flat_map(|&i| stencils[i].map(|(c, _)| c))
-                .collect();
-            local.sort_unstable();
-            local.dedup();
-            self.ensure(&local);
-            // Columns whose nodes are all fixed (beyond the gel's edge) do not move: they
-            // are left out of the system, and their weights with them.
-            local.retain(|&c| self.levels[c as usize].iter().any(|&d| d != u32::MAX));
+            let chosen: Vec<Columns> = cand.iter().map(|&i| stencils[i]).collect();
+            let (local, rows) = self.columns_under(&chosen);
             if local.is_empty() {
                 break;
             }
-            let rows: Vec<Columns> = cand
-                .iter()
-                .map(|&i| {
-                    stencils[i].map(|(c, w)| match local.binary_search(&c) {
-                        Ok(k) => (k as u32, w),
-                        Err(_) => (0, 0.0),
-                    })
-                })
-                .collect();
             let g = self.local_compliance(&local, friction);
             let Some(stiffness) = spd_inverse(&g) else {
                 break;

@@ -735,24 +735,8 @@ fn a_whole_pad_pressed_by_a_box_face_converges() {
     let gel = Gel::new(GelParams::default(), options(1)).unwrap();
     let mut c = Compliance::new(&gel).unwrap();
     let stencils: Vec<Columns> = ids.iter().map(|&k| c.columns_at(&c.point(k))).collect();
-    let mut local: Vec<u32> = stencils
-        .iter()
-        .flat_map(|s| s.map(|(col, _)| col))
-        .collect();
-    local.sort_unstable();
-    local.dedup();
-    c.ensure(&local);
-    local.retain(|&col| c.levels[col as usize].iter().any(|&d| d != u32::MAX));
+    let (local, rows) = c.columns_under(&stencils);
     assert_eq!(local.len(), 398);
-    let rows: Vec<Columns> = stencils
-        .iter()
-        .map(|s| {
-            s.map(|(col, w)| match local.binary_search(&col) {
-                Ok(k) => (k as u32, w),
-                Err(_) => (0, 0.0),
-            })
-        })
-        .collect();
     let g = c.local_compliance(&local, false);
     let inverse = spd_inverse(&g).expect("positive definite");
     let eps = vec![c.softness; m];

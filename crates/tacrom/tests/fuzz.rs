@@ -77,17 +77,8 @@ fn shapes() -> Vec<(String, Arc<dyn Sdf>)> {
 
 /// The lowest corner of `shape`'s bounding box turned by `rotation`, below its origin (m).
 fn lowest(shape: &dyn Sdf, rotation: &UnitQuaternion<f64>) -> f64 {
-    let b = shape.aabb();
-    (0..8)
-        .map(|i| {
-            let c = Vector3::new(
-                if i & 1 == 0 { b.min.x } else { b.max.x },
-                if i & 2 == 0 { b.min.y } else { b.max.y },
-                if i & 4 == 0 { b.min.z } else { b.max.z },
-            );
-            (rotation * c).z
-        })
-        .fold(f64::INFINITY, f64::min)
+    let turned = Isometry3::from_parts(Translation3::identity(), *rotation);
+    shape.aabb().transformed(&turned).min.z
 }
 
 /// One indenter of a sequence: its shape, rotation, position on the gel and press depth

@@ -848,19 +848,19 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
     for &(i, p) in &todo {
         let ind = &indenters[i];
         let pos = positions[p];
-        let frames = protocol::run_sequence(&ref_config, ind, pos, &opts.depths, |k, _| {
+        // Each press is stored as soon as it is solved, so that a run cut short (a batch
+        // job's time limit) keeps every press it finished.
+        let mut stored: Result<(), cache::CacheError> = Ok(());
+        let frames = protocol::run_sequence(&ref_config, ind, pos, &opts.depths, |k, f| {
             step(
                 &progress,
                 "reference",
                 (&ind.name, pos, opts.depths[k]),
                 k + 1 == nd,
             );
-        })?;
-        let peak = status_bytes("VmHWM");
-        if let Some(cache) = &cache {
-            for (k, f) in frames.iter().enumerate() {
+            if let (Some(cache), Ok(())) = (&cache, &stored) {
                 let key = reference_key(&version, &config_text, ind, pos, &opts.depths[..=k]);
-                cache.store(
+                stored = cache.store(
                     &key,
                     &CachedPress {
                         width: grid.width,
@@ -875,11 +875,12 @@ pub fn run(options: &BenchOptions) -> Result<BenchResult, BenchError> {
                             .collect(),
                         iterations: f.iterations,
                         converged: f.converged,
-                        peak_rss: peak,
+                        peak_rss: status_bytes("VmHWM"),
                     },
-                )?;
+                );
             }
-        }
+        })?;
+        stored?;
         ref_frames[i][p] = frames;
     }
     let ref_timed = Timed {

@@ -65,8 +65,9 @@
 //! equilibrium, moved on along the gel's last change when the indenters move on along
 //! their last path (a secant predictor, kept only if it lowers the energy); an indenter
 //! that moves more than [`SUBSTEP_CELLS`] cells (a body smaller than [`SMALL_BODY_CELLS`]
-//! in every direction: more than [`SOFT_EXTENT`] of its size) is moved in equal substeps,
-//! each solved, so friction follows the path.
+//! in every direction: more than [`SOFT_EXTENT`] of its size; any other body: more than
+//! half its smallest extent, though never less than half a cell) is moved in equal
+//! substeps, each solved, so friction follows the path.
 //!
 //! Contact acts on the top surface only: a body pressed deeper than its own radius can
 //! take surface points around itself (they are pushed out along the nearest distance,
@@ -1748,7 +1749,11 @@ impl Gel {
         // A body smaller than a couple of cells in every direction moves by at most
         // [`SOFT_EXTENT`] of its size per substep: moved past its radius in one go, it
         // would carry the surface points it met past its centre, where the distance
-        // pushes them out through its far side.
+        // pushes them out through its far side. A larger body but a thin one (a standing
+        // capsule, a pin) moves by at most half its smallest extent, its radius, for the
+        // same reason (past its end cap the distance pushes the points out sideways);
+        // never by less than half a cell, which a thin plate on its edge (the stability
+        // suite's knife) does not need.
         let step = sweep
             .indenters
             .iter()
@@ -1757,7 +1762,7 @@ impl Gel {
                 if extent.max() < SMALL_BODY_CELLS {
                     SOFT_EXTENT * extent.min()
                 } else {
-                    SUBSTEP_CELLS
+                    (0.5 * extent.min()).clamp(0.5 * SUBSTEP_CELLS, SUBSTEP_CELLS)
                 }
             })
             .fold(SUBSTEP_CELLS, f64::min);

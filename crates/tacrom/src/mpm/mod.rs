@@ -392,6 +392,9 @@ pub struct Gel {
     total: Option<Box<total::Total>>,
     /// Whether the relaxation ran since its state was last put back to rest.
     relaxed: bool,
+    /// The contact multipliers' gain in this relaxation, as a fraction of
+    /// [`contact::multiplier_gain`]'s (see [`Gel::iterate`]).
+    gain_scale: f32,
     /// The linear solver's factorisation and surface compliance ([`Solver::Linear`]).
     linear: Option<Box<newton::linear::Compliance>>,
 }
@@ -462,6 +465,7 @@ impl Gel {
             last_change: Vec::new(),
             last_motion: Vec::new(),
             relaxed: false,
+            gain_scale: 1.0,
             newton: None,
             loads: Vec::new(),
             total: None,

@@ -302,6 +302,9 @@ pub struct SolveReport {
     /// Whether the relaxation did not resolve the contact and another solver solved the
     /// frame ([`SolverOptions::fallback`]).
     pub fallback: bool,
+    /// Relaxation: how often the contact multipliers' gain was halved because their loop
+    /// oscillated (see `mpm/relax.rs`).
+    pub gain_halvings: usize,
 }
 impl SolveReport {
     /// The report of a solve with `indenters` usable indenters that has not stepped yet.
@@ -322,6 +325,7 @@ impl SolveReport {
             cg_iterations: 0,
             columns: 0,
             fallback: false,
+            gain_halvings: 0,
         }
     }
 }

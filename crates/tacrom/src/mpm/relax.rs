@@ -48,7 +48,7 @@ const PREDICT_ABOVE: f64 = 10.0;
 /// stiffer loop: at dx = 0.7 mm the pattern `flat_slab` (a 16 mm square face) pressed
 /// 0.1 mm oscillated with the residual between 0.2 and 0.9 for all 5,357 steps of the
 /// cap and ended at 0.40 N frictionless and 3.54 N with friction 0.5, where Newton's
-/// method gives 1.46 N; at 0.3 mm it stopped at the cap too. Halving the gain whenever a
+/// method gives 1.46 N. Halving the gain whenever a
 /// window of steps brings no progress ends the oscillation; a solve whose residual at
 /// least halves from one window to the next, or stays within [`STALLED`] times the
 /// tolerance, is untouched (and the gain plays no part in the equilibrium).

@@ -779,9 +779,14 @@ impl Gel {
             self.loads.clear();
             return report;
         }
+        let footprint = if touching {
+            self.footprint_points(indenters, UNRESOLVED_POINTS)
+        } else {
+            0
+        };
         let solver = if self.options.fallback
             && touching
-            && self.footprint_points(indenters, UNRESOLVED_POINTS) <= UNRESOLVED_POINTS
+            && footprint <= UNRESOLVED_POINTS
             && self.reached_depth(indenters::usable(indenters).into_iter())
                 > MISSED_FRACTION * self.contact_spacing(Solver::Relaxation)
         {
@@ -802,6 +807,20 @@ impl Gel {
         } else {
             self.options.solver
         };
+        if matches!(solver, Solver::Relaxation | Solver::Total) && footprint == 0 {
+            // No contact point of the undeformed gel lies inside an indenter: the
+            // undeformed gel is at equilibrium (no stress, no contact force), and without
+            // friction it is the only equilibrium (the least energy, zero, among the
+            // states that do not penetrate). Relaxing towards it from the last frame's
+            // deformation took steps for nothing, and a lift-off to a pose that leaves
+            // the gel almost free could run to the iteration cap: its residual is measured
+            // against the vanishing load.
+            if !self.resting {
+                self.reset();
+            }
+            self.prev = current;
+            return report;
+        }
         let sweep = if matches!(solver, Solver::Linear | Solver::Newton) || self.relaxed {
             self.plan_sweep(used, &matched)
         } else {
@@ -827,12 +846,7 @@ impl Gel {
             return report;
         }
         report.sweep_steps = sweep.steps;
-        self.ctx.region = if touching {
-            self.active_region(&sweep)
-        } else {
-            // Unloading: the whole gel relaxes.
-            Region::whole(self.layout.lattice, self.layout.dims)
-        };
+        self.ctx.region = self.active_region(&sweep);
         report.active_particles = self.ctx.region.particles(self.ctx.column_len);
         self.relaxed = true;
         self.relax_material(&sweep, &mut report);

@@ -239,6 +239,40 @@ fn equilibrium_and_unloading() {
     assert!(g.force().norm() < 1e-9);
 }
 
+// A press lifted just clear of the gel, its bounding box still within reach of the
+// surface: no contact point of the undeformed gel lies inside the sphere, so the
+// undeformed gel is the equilibrium, and the solve returns it exactly, without a step.
+// The relaxation used to relax towards it from the press, judged against the vanishing
+// load: in random press sequences such frames ran to the iteration cap.
+#[test]
+fn a_press_lifted_clear_returns_the_undeformed_gel_without_a_step() {
+    let grid = PixelGrid {
+        width: 64,
+        height: 48,
+        fov_x: 0.024,
+        fov_y: 0.018,
+    };
+    for friction in [0.0, 0.5] {
+        let p = GelParams {
+            friction,
+            ..Default::default()
+        };
+        let mut g = gel(p, SolverOptions::default());
+        let rep = g.solve(&[press(0.0, 0.0, 0.4e-3)]);
+        assert!(rep.converged && g.force().z > 0.0, "{rep:?}");
+        for lifted in [press(0.3e-3, 0.0, -0.05e-3), press(0.6e-3, 0.0, -0.01e-3)] {
+            let rep = g.solve(&[lifted]);
+            assert!(rep.converged && rep.iterations == 0, "{rep:?}");
+            assert_eq!(g.force(), Vector3::zeros());
+            let deepest = depth_image(&g, &grid).iter().cloned().fold(0.0, f64::max);
+            assert_eq!(deepest, 0.0, "friction {friction}");
+        }
+        // Pressed again, it carries the press as before.
+        let rep = g.solve(&[press(0.0, 0.0, 0.4e-3)]);
+        assert!(rep.converged && g.force().z > 0.0, "{rep:?}");
+    }
+}
+
 /// Depth images of two gels driven through the same presses, one solving only its active
 /// region (the default margin) and one the whole gel: (largest image difference over the
 /// peak depth, force ratio, active particles of the last solve).

@@ -305,6 +305,11 @@ pub struct SolveReport {
     /// Relaxation: how often the contact multipliers' gain was halved because their loop
     /// oscillated (see `mpm/relax.rs`).
     pub gain_halvings: usize,
+    /// Newton: how often a substep that ended far from equilibrium was taken again as two
+    /// halves (see `mpm/newton/mod.rs`, [`SPLIT_ABOVE`]).
+    ///
+    /// [`SPLIT_ABOVE`]: super::newton::SPLIT_ABOVE
+    pub substep_splits: usize,
 }
 impl SolveReport {
     /// The report of a solve with `indenters` usable indenters that has not stepped yet.
@@ -326,6 +331,7 @@ impl SolveReport {
             columns: 0,
             fallback: false,
             gain_halvings: 0,
+            substep_splits: 0,
         }
     }
 }

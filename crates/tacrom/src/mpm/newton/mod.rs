@@ -88,7 +88,7 @@ use std::collections::BTreeMap;
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
-use super::contact::StepIndenter;
+use super::contact::{StepIndenter, CONTACT_BAND};
 use super::indenters::Sweep;
 use super::{
     Gel, Layout, Linear, Material, SolveReport, FBAR_POISSON, J_MAX, J_MIN, MULTIGRID_UNKNOWNS,
@@ -128,6 +128,15 @@ const SMALL_BODY_CELLS: f64 = 2.0;
 
 /// Newton steps per minimisation at most.
 const MAX_NEWTON: usize = 60;
+
+/// A substep whose minimisation ends with a relative residual above this many times the
+/// tolerance (or in an undefined state) has not found an equilibrium but stalled: it is
+/// taken again from its start as two substeps of half the motion, at most
+/// [`MAX_SPLITS`] times in a row.
+pub(crate) const SPLIT_ABOVE: f64 = 10.0;
+
+/// Halvings of one substep at most (down to an eighth of its motion).
+const MAX_SPLITS: usize = 3;
 
 /// Refreshes of the lagged friction at most.
 const MAX_OUTER: usize = 6;
@@ -1503,7 +1512,7 @@ impl Newton {
         starts: &[Isometry3<f64>],
         tolerance: f64,
         report: &mut SolveReport,
-    ) -> Option<Vector3<f64>> {
+    ) -> Option<(Vector3<f64>, f64)> {
         self.gather_contact_points(indenters);
         let motion: Vec<Vector3<f64>> = indenters
             .iter()
@@ -1553,7 +1562,62 @@ impl Newton {
         self.last_change
             .extend(self.u.iter().zip(&start).map(|(u, s)| u - s));
         self.last_motion = motion;
-        Some(force)
+        Some((force, residual))
+    }
+
+    /// [`Newton::substep`] from the indenters' poses `starts` to `indenters`, taken again
+    /// as two halves (each split in turn, up to `splits` times) when it stalls far from
+    /// equilibrium: a press of a ridged mesh 1 mm into the coarse gel in one substep
+    /// carried its lattice points deep into the ridges, where the distance pushes them
+    /// out sideways, and ended with 87 N and `det F` at its clamp where the relaxation
+    /// and two half substeps give 4.6 N. The tried substep's work stays counted in
+    /// `report`; its state and its verdict on convergence are undone.
+    fn substep_split(
+        &mut self,
+        indenters: &[StepIndenter],
+        starts: &[Isometry3<f64>],
+        tolerance: f64,
+        splits: usize,
+        report: &mut SolveReport,
+    ) -> Option<Vector3<f64>> {
+        if splits == 0 {
+            return self
+                .substep(indenters, starts, tolerance, report)
+                .map(|r| r.0);
+        }
+        let saved = Checkpoint::of(self, report);
+        match self.substep(indenters, starts, tolerance, report) {
+            Some((force, residual)) if residual <= SPLIT_ABOVE * tolerance => return Some(force),
+            _ => {}
+        }
+        saved.restore(self, report);
+        report.substep_splits += 1;
+        let half: Vec<StepIndenter> = indenters
+            .iter()
+            .zip(starts)
+            .map(|(p, start)| {
+                let now = start.try_lerp_slerp(&p.now, 0.5, 1e-9).unwrap_or(p.now);
+                let (b0, b1) = (
+                    p.shape.aabb().transformed(&now),
+                    p.shape.aabb().transformed(start),
+                );
+                let bounds = Aabb::new(b0.min.inf(&b1.min), b0.max.sup(&b1.max))
+                    .inflated((CONTACT_BAND as f64 + 1.0) * self.dx);
+                StepIndenter {
+                    shape: p.shape.clone(),
+                    now,
+                    bounds,
+                }
+            })
+            .collect();
+        self.substep_split(&half, starts, tolerance, splits - 1, report)?;
+        let middle: Vec<Isometry3<f64>> = half.iter().map(|p| p.now).collect();
+        let mut rest = indenters.to_vec();
+        for (p, h) in rest.iter_mut().zip(&half) {
+            let b = p.shape.aabb().transformed(&h.now);
+            p.bounds = Aabb::new(b.min.inf(&p.bounds.min), b.max.sup(&p.bounds.max));
+        }
+        self.substep_split(&rest, &middle, tolerance, splits - 1, report)
     }
 
     /// The secant predictor: when the indenters move on along their last path, the gel
@@ -1580,6 +1644,52 @@ impl Newton {
         if predicted < kept {
             std::mem::swap(&mut self.u, &mut self.trial);
         }
+    }
+}
+
+/// What a substep changes of the solver's state and of the report's verdict, kept to take
+/// the substep again ([`Newton::substep_split`]).
+struct Checkpoint {
+    u: Vec<f64>,
+    anchors: BTreeMap<u32, Anchor>,
+    lagged: Vec<(f64, Vector3<f64>)>,
+    loads: Vec<(Vector3<f64>, Vector3<f64>)>,
+    last_change: Vec<f64>,
+    last_motion: Vec<Vector3<f64>>,
+    last_scale: f64,
+    history: usize,
+    residual: f64,
+    converged: bool,
+}
+
+impl Checkpoint {
+    fn of(n: &Newton, report: &SolveReport) -> Self {
+        Self {
+            u: n.u.clone(),
+            anchors: n.anchors.clone(),
+            lagged: n.lagged.clone(),
+            loads: n.loads.clone(),
+            last_change: n.last_change.clone(),
+            last_motion: n.last_motion.clone(),
+            last_scale: n.last_scale,
+            history: n.history.len(),
+            residual: report.residual,
+            converged: report.converged,
+        }
+    }
+
+    fn restore(self, n: &mut Newton, report: &mut SolveReport) {
+        n.u = self.u;
+        n.trial.copy_from_slice(&n.u);
+        n.anchors = self.anchors;
+        n.lagged = self.lagged;
+        n.loads = self.loads;
+        n.last_change = self.last_change;
+        n.last_motion = self.last_motion;
+        n.last_scale = self.last_scale;
+        n.history.truncate(self.history);
+        report.residual = self.residual;
+        report.converged = self.converged;
     }
 }
 
@@ -1813,7 +1923,7 @@ impl Gel {
         let mut force = Some(Vector3::zeros());
         for s in 0..substeps {
             plan.place(s, dx, &mut placed);
-            force = newton.substep(&placed, &starts, tolerance, report);
+            force = newton.substep_split(&placed, &starts, tolerance, MAX_SPLITS, report);
             if force.is_none() {
                 break;
             }

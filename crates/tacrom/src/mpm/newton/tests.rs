@@ -596,3 +596,66 @@ fn a_capsule_pressed_past_its_radius_from_rest_loads_the_gel() {
         }
     }
 }
+
+/// A ridged mesh (`cross_lines`) pressed 1 mm into the coarse gel from rest (tilted as
+/// a random press sequence found it): one substep carried the contact lattice points deep
+/// into the ridges, where the signed distance pushes them out sideways, and the
+/// minimisation stalled with `det F` at its clamp and a force of 87 N. Taken again as
+/// two half substeps it finds the equilibrium that the same press reached through 0.3 and
+/// 0.7 mm gives (frictionless, so Newton's unique minimum: within 3 %, the spread that
+/// two paths' substeps leave at the default tolerance), and the relaxation's within 10 %
+/// (its own spread between loading paths on this grid is up to 7 %).
+#[test]
+fn a_ridged_mesh_pressed_deep_from_rest_splits_its_substep() {
+    let path = crate::vendored_patterns().join("cross_lines.stl");
+    let data = crate::geometry::load_mesh(&path, 1e-3).unwrap();
+    let mesh = TriMesh::with_options(
+        data.vertices,
+        data.faces,
+        &crate::geometry::MeshSdfOptions::default(),
+    )
+    .unwrap();
+    let shape: Arc<dyn Sdf> = Arc::new(mesh);
+    let turned = nalgebra::UnitQuaternion::from_euler_angles(
+        -3.085342758413833,
+        0.013728657889258351,
+        -3.00989485073759,
+    );
+    let lowest = shape
+        .aabb()
+        .transformed(&Isometry3::from_parts(Default::default(), turned))
+        .min
+        .z;
+    let placed = |d: f64| {
+        let at = nalgebra::Translation3::new(0.0, 1.648e-3, -lowest - d);
+        [Placed {
+            shape: shape.clone(),
+            pose: Isometry3::from_parts(at, turned),
+        }]
+    };
+    let p = GelParams {
+        friction: 0.0,
+        ..Default::default()
+    };
+    let mut direct = Gel::new(p.clone(), options(1e-3)).unwrap();
+    let rep = direct.solve(&placed(1e-3));
+    let mut stepped = Gel::new(p.clone(), options(1e-3)).unwrap();
+    for d in [0.3e-3, 0.7e-3, 1e-3] {
+        assert!(stepped.solve(&placed(d)).converged);
+    }
+    let relaxation = SolverOptions {
+        solver: Solver::Relaxation,
+        ..options(1e-3)
+    };
+    let mut relaxed = Gel::new(p, relaxation).unwrap();
+    assert!(relaxed.solve(&placed(1e-3)).converged);
+    let (f, g, h) = (direct.force().z, stepped.force().z, relaxed.force().z);
+    println!("{rep:?}: {f} N in one press, {g} N through 0.3 and 0.7 mm, relaxation {h} N");
+    assert!(rep.converged && rep.substep_splits > 0, "{rep:?}");
+    assert!(rep.det_f_min > 0.5, "{rep:?}");
+    assert!(
+        (f - g).abs() <= 0.03 * g,
+        "{f} N in one press, {g} N through 0.3 and 0.7 mm"
+    );
+    assert!((f - h).abs() <= 0.1 * h, "Newton {f} N, relaxation {h} N");
+}

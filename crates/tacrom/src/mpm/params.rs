@@ -305,10 +305,8 @@ pub struct SolveReport {
     /// Relaxation: how often the contact multipliers' gain was halved because their loop
     /// oscillated (see `mpm/relax.rs`).
     pub gain_halvings: usize,
-    /// Newton: how often a substep that ended far from equilibrium was taken again as two
-    /// halves (see `mpm/newton/mod.rs`, [`SPLIT_ABOVE`]).
-    ///
-    /// [`SPLIT_ABOVE`]: super::newton::SPLIT_ABOVE
+    /// Newton: how often a substep that stalled far from equilibrium (its residual above
+    /// ten times the tolerance) was taken again as two halves (see `mpm/newton/mod.rs`).
     pub substep_splits: usize,
 }
 impl SolveReport {

@@ -8,8 +8,9 @@
 //! every side and widened to every point indented by more than 1 % of the largest
 //! indentation (so that where an indenter was, the gel relaxes). The rest of the gel
 //! keeps its state and is not scattered; the grid nodes that have one of its particles
-//! in their support are held fixed, a rigid wall around the active box. A solve with no
-//! indenter near the gel (unloading) moves the whole gel. Measured on the coarse grid
+//! in their support are held fixed, a rigid wall around the active box. A solve whose
+//! indenters reach no contact point of the undeformed gel does not run: the undeformed
+//! gel is its equilibrium ([`Gel::solve`]). Measured on the coarse grid
 //! (`tests.rs`): images within 0.6 % of the peak depth and forces within 0.8 % of the
 //! whole gel's, with 45 % of the particles; at dx = 0.7 mm, 35 % of the particles and
 //! Hertz force errors 0.3 to 0.9 points higher. `f64::INFINITY` solves the whole gel
@@ -60,8 +61,7 @@ impl Gel {
     /// on every side, and widened to every slot whose indentation is above [`DEFORMED`]
     /// of the largest (so that a region an indenter leaves relaxes); and the nodes that
     /// stay free within it. Without a slot in contact now or at the end of the last solve,
-    /// the whole gel (and [`Gel::solve`] takes the whole gel when no indenter reaches it:
-    /// unloading).
+    /// the whole gel.
     pub(super) fn active_region(&self, sweep: &Sweep) -> Region {
         let layout = &self.layout;
         let whole = Region::whole(layout.lattice, layout.dims);

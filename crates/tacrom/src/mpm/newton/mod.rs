@@ -1503,6 +1503,22 @@ impl Newton {
         loads
     }
 
+    /// The vertical part of the contact points' normal forces on the indenters (internal
+    /// units): positive, the gel pushing them up, for any press of the top face. A
+    /// negative sum means that surface points were carried past the middle of a body,
+    /// where the distance pushes them out through its upper side and they pull it down.
+    fn normal_lift(&self, indenters: &[StepIndenter]) -> f64 {
+        let mut lift = 0.0;
+        for c in &self.contact {
+            let x = c.rest + self.displacement(&c.stencil, &self.u);
+            if let Some(t) = self.touch(&x, indenters) {
+                let (_, f, _) = self.normal_penalty(c, &t);
+                lift -= t.slope.z * self.area * c.weight * f;
+            }
+        }
+        lift
+    }
+
     /// Solves one substep with the indenters at `indenters` (moved from `starts`).
     /// Returns the force on the indenters (internal units), or `None` if the state became
     /// undefined.
@@ -1570,8 +1586,13 @@ impl Newton {
     /// equilibrium: a press of a ridged mesh 1 mm into the coarse gel in one substep
     /// carried its lattice points deep into the ridges, where the distance pushes them
     /// out sideways, and ended with 87 N and `det F` at its clamp where the relaxation
-    /// and two half substeps give 4.6 N. The tried substep's work stays counted in
+    /// and two half substeps give 4.6 N. A tried substep's work stays counted in
     /// `report`; its state and its verdict on convergence are undone.
+    ///
+    /// `Err(residual)` when a substep stalls at the last split: the state is then that of
+    /// its start, the last equilibrium found, and the caller goes no further (the same
+    /// ridged mesh pressed 1.9 mm deep near the gel's edge, the grid crushed under its
+    /// ridges, had ended at 743 N).
     fn substep_split(
         &mut self,
         indenters: &[StepIndenter],
@@ -1579,18 +1600,21 @@ impl Newton {
         tolerance: f64,
         splits: usize,
         report: &mut SolveReport,
-    ) -> Option<Vector3<f64>> {
-        if splits == 0 {
-            return self
-                .substep(indenters, starts, tolerance, report)
-                .map(|r| r.0);
-        }
+    ) -> Result<Vector3<f64>, f64> {
         let saved = Checkpoint::of(self, report);
-        match self.substep(indenters, starts, tolerance, report) {
-            Some((force, residual)) if residual <= SPLIT_ABOVE * tolerance => return Some(force),
-            _ => {}
-        }
+        let stalled = match self.substep(indenters, starts, tolerance, report) {
+            Some((force, residual))
+                if residual <= SPLIT_ABOVE * tolerance && self.normal_lift(indenters) >= 0.0 =>
+            {
+                return Ok(force)
+            }
+            Some((_, residual)) => residual.max(SPLIT_ABOVE * tolerance),
+            None => f64::INFINITY,
+        };
         saved.restore(self, report);
+        if splits == 0 {
+            return Err(stalled);
+        }
         report.substep_splits += 1;
         let half: Vec<StepIndenter> = indenters
             .iter()
@@ -1923,9 +1947,20 @@ impl Gel {
         let mut force = Some(Vector3::zeros());
         for s in 0..substeps {
             plan.place(s, dx, &mut placed);
-            force = newton.substep_split(&placed, &starts, tolerance, MAX_SPLITS, report);
-            if force.is_none() {
-                break;
+            match newton.substep_split(&placed, &starts, tolerance, MAX_SPLITS, report) {
+                Ok(f) => force = Some(f),
+                Err(residual) if residual.is_finite() => {
+                    // Stalled: the gel stays at the last equilibrium it found, short of
+                    // the indenters' pose, and the report says so.
+                    report.converged = false;
+                    report.residual = report.residual.max(residual);
+                    force = Some(newton.loads.iter().map(|l| l.1).sum());
+                    break;
+                }
+                Err(_) => {
+                    force = None;
+                    break;
+                }
             }
             starts = placed.iter().map(|p| p.now).collect();
         }

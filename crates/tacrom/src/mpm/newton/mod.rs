@@ -1602,13 +1602,17 @@ impl Newton {
         report: &mut SolveReport,
     ) -> Result<Vector3<f64>, f64> {
         let saved = Checkpoint::of(self, report);
+        // A pull on the indenters asks for a split but does not stall a substep at the last
+        // one: a body pressed deeper than its own size (a 0.2 mm sphere 0.6 mm deep) has
+        // the top surface closing over it, and no split changes that.
         let stalled = match self.substep(indenters, starts, tolerance, report) {
             Some((force, residual))
-                if residual <= SPLIT_ABOVE * tolerance && self.normal_lift(indenters) >= 0.0 =>
+                if residual <= SPLIT_ABOVE * tolerance
+                    && (splits == 0 || self.normal_lift(indenters) >= 0.0) =>
             {
                 return Ok(force)
             }
-            Some((_, residual)) => residual.max(SPLIT_ABOVE * tolerance),
+            Some((_, residual)) => residual,
             None => f64::INFINITY,
         };
         saved.restore(self, report);

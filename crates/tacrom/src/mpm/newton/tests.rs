@@ -597,6 +597,23 @@ fn a_capsule_pressed_past_its_radius_from_rest_loads_the_gel() {
     }
 }
 
+/// `shape` turned by Euler angles `(roll, pitch, yaw)` over `(x, y)`, the lowest corner of
+/// its turned bounding box `d` below the undeformed surface (as `tests/fuzz.rs` places
+/// its bodies).
+fn turned_press(shape: &Arc<dyn Sdf>, angles: [f64; 3], x: f64, y: f64, d: f64) -> [Placed; 1] {
+    let turned = nalgebra::UnitQuaternion::from_euler_angles(angles[0], angles[1], angles[2]);
+    let lowest = shape
+        .aabb()
+        .transformed(&Isometry3::from_parts(Default::default(), turned))
+        .min
+        .z;
+    let at = nalgebra::Translation3::new(x, y, -lowest - d);
+    [Placed {
+        shape: shape.clone(),
+        pose: Isometry3::from_parts(at, turned),
+    }]
+}
+
 /// A ridged mesh (`cross_lines`) pressed 1 mm into the coarse gel from rest (tilted as
 /// a random press sequence found it): one substep carried the contact lattice points deep
 /// into the ridges, where the signed distance pushes them out sideways, and the
@@ -616,23 +633,8 @@ fn a_ridged_mesh_pressed_deep_from_rest_splits_its_substep() {
     )
     .unwrap();
     let shape: Arc<dyn Sdf> = Arc::new(mesh);
-    let turned = nalgebra::UnitQuaternion::from_euler_angles(
-        -3.085342758413833,
-        0.013728657889258351,
-        -3.00989485073759,
-    );
-    let lowest = shape
-        .aabb()
-        .transformed(&Isometry3::from_parts(Default::default(), turned))
-        .min
-        .z;
-    let placed = |d: f64| {
-        let at = nalgebra::Translation3::new(0.0, 1.648e-3, -lowest - d);
-        [Placed {
-            shape: shape.clone(),
-            pose: Isometry3::from_parts(at, turned),
-        }]
-    };
+    let angles = [-3.085342758413833, 0.013728657889258351, -3.00989485073759];
+    let placed = |d: f64| turned_press(&shape, angles, 0.0, 1.648e-3, d);
     let p = GelParams {
         friction: 0.0,
         ..Default::default()
@@ -669,19 +671,8 @@ fn a_ridged_mesh_pressed_deep_from_rest_splits_its_substep() {
 #[test]
 fn a_thin_body_pressed_deeper_in_one_frame_pushes_the_gel() {
     let capsule: Arc<dyn Sdf> = Arc::new(crate::geometry::Capsule::new(1e-3, 6e-3));
-    let placed = |d: f64, yaw: f64| {
-        let turned = nalgebra::UnitQuaternion::from_euler_angles(-6.2e-5, -0.2958, yaw);
-        let lowest = capsule
-            .aabb()
-            .transformed(&Isometry3::from_parts(Default::default(), turned))
-            .min
-            .z;
-        let at = nalgebra::Translation3::new(8.474e-3, -6.615e-3, -lowest - d);
-        [Placed {
-            shape: capsule.clone(),
-            pose: Isometry3::from_parts(at, turned),
-        }]
-    };
+    let placed =
+        |d: f64, yaw: f64| turned_press(&capsule, [-6.2e-5, -0.2958, yaw], 8.474e-3, -6.615e-3, d);
     let p = GelParams {
         friction: 0.0,
         ..Default::default()

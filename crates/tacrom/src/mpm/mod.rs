@@ -369,7 +369,8 @@ pub struct Gel {
     surface_u: Vec<Vector3<f64>>,
     /// Lattice index range `[ix0, ix1) x [iy0, iy1)` where the surface moved.
     surface_box: Option<[usize; 4]>,
-    /// Whether the gel is undeformed and no indenter touched it in the last solve.
+    /// Whether the gel is undeformed and no indenter held a contact point of it in the
+    /// last solve.
     resting: bool,
     /// Largest nodal reaction (internal units) at the end of the previous solve.
     last_reaction: f32,
@@ -811,7 +812,8 @@ impl Gel {
             // No contact point of the undeformed gel lies inside an indenter: the
             // undeformed gel is at equilibrium (no stress, no contact force), and without
             // friction it is the only equilibrium (the least energy, zero, among the
-            // states that do not penetrate). Relaxing towards it from the last frame's
+            // states that do not penetrate); friction holds nothing where no normal force
+            // acts. Relaxing towards it from the last frame's
             // deformation took steps for nothing, and a lift-off to a pose that leaves
             // the gel almost free could run to the iteration cap: its residual is measured
             // against the vanishing load.

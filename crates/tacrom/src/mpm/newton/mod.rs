@@ -132,8 +132,9 @@ const MAX_NEWTON: usize = 60;
 /// A substep whose minimisation ends with a relative residual above this many times the
 /// tolerance (or in an undefined state) has not found an equilibrium but stalled: it is
 /// taken again from its start as two substeps of half the motion, at most
-/// [`MAX_SPLITS`] times in a row.
-pub(crate) const SPLIT_ABOVE: f64 = 10.0;
+/// [`MAX_SPLITS`] times in a row (so is one whose contact pulls the indenters down,
+/// [`Newton::normal_lift`]).
+const SPLIT_ABOVE: f64 = 10.0;
 
 /// Halvings of one substep at most (down to an eighth of its motion).
 const MAX_SPLITS: usize = 3;

@@ -281,7 +281,8 @@ fn env<T: std::str::FromStr>(name: &str) -> Option<T> {
     std::env::var(name).ok().and_then(|v| v.parse().ok())
 }
 
-/// The default modes and the linear solver, with the default friction and without.
+/// The default modes, the linear solver and Newton's method, with the default friction
+/// and without.
 #[test]
 fn random_press_sequences_keep_every_output_sound() {
     let sequences = env("TACROM_FUZZ_SEQUENCES").unwrap_or(4);
@@ -289,7 +290,8 @@ fn random_press_sequences_keep_every_output_sound() {
     let only = env("TACROM_FUZZ_ONLY");
     let specs = std::env::var("TACROM_FUZZ_CONFIGS").unwrap_or_else(|_| {
         "physics=rom;physics=coarse;physics=coarse,friction=0;\
-         physics=rom,solver=linear;physics=coarse,solver=linear,friction=0"
+         physics=rom,solver=linear;physics=coarse,solver=linear,friction=0;\
+         physics=coarse,solver=newton;physics=coarse,solver=newton,friction=0"
             .into()
     });
     let mut failures = Vec::new();

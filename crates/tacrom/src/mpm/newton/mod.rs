@@ -1520,13 +1520,15 @@ impl Newton {
         lift
     }
 
-    /// Solves one substep with the indenters at `indenters` (moved from `starts`).
-    /// Returns the force on the indenters (internal units), or `None` if the state became
-    /// undefined.
+    /// Solves one substep with the indenters at `indenters` (moved from `starts`), from the
+    /// displacements `start` (the current ones, as [`Checkpoint`] keeps them). Returns the
+    /// force on the indenters (internal units) and the final relative residual, or `None`
+    /// if the state became undefined.
     fn substep(
         &mut self,
         indenters: &[StepIndenter],
         starts: &[Isometry3<f64>],
+        start: &[f64],
         tolerance: f64,
         report: &mut SolveReport,
     ) -> Option<(Vector3<f64>, f64)> {
@@ -1536,7 +1538,6 @@ impl Newton {
             .zip(starts)
             .map(|(i, s)| (i.now.translation.vector - s.translation.vector) / self.dx)
             .collect();
-        let start = self.u.clone();
         self.predict(&motion, indenters);
         self.soft_depth = indenters
             .iter()
@@ -1553,7 +1554,7 @@ impl Newton {
         for _ in 0..MAX_OUTER {
             let tips = self.update_tips(indenters);
             let friction = if self.friction > 0.0 {
-                self.lag_friction(indenters, starts, &start)
+                self.lag_friction(indenters, starts, start)
             } else {
                 0.0
             };
@@ -1577,7 +1578,7 @@ impl Newton {
         }
         self.last_change.clear();
         self.last_change
-            .extend(self.u.iter().zip(&start).map(|(u, s)| u - s));
+            .extend(self.u.iter().zip(start).map(|(u, s)| u - s));
         self.last_motion = motion;
         Some((force, residual))
     }
@@ -1606,7 +1607,7 @@ impl Newton {
         // A pull on the indenters asks for a split but does not stall a substep at the last
         // one: a body pressed deeper than its own size (a 0.2 mm sphere 0.6 mm deep) has
         // the top surface closing over it, and no split changes that.
-        let stalled = match self.substep(indenters, starts, tolerance, report) {
+        let stalled = match self.substep(indenters, starts, &saved.u, tolerance, report) {
             Some((force, residual))
                 if residual <= SPLIT_ABOVE * tolerance
                     && (splits == 0 || self.normal_lift(indenters) >= 0.0) =>

@@ -16,6 +16,16 @@ use nalgebra::Matrix3;
 
 /// The offset of a neighbour `(ox, oy, oz)`, each in `-2..=2`, as an index in `0..125`.
 #[inline(always)]
+/// faer's parallelism for a factorisation: the threads of the pool it is called in (the
+/// gel's), one at a time outside any. The blocked factorisations split their products by
+/// output blocks, so the bits do not depend on the count (`threads_give_identical_results`).
+pub(crate) fn par() -> Par {
+    match rayon::current_num_threads() {
+        0 | 1 => Par::Seq,
+        n => Par::rayon(n),
+    }
+}
+
 pub(crate) fn offset_slot(o: [i32; 3]) -> usize {
     (((o[0] + 2) * 5 + o[1] + 2) * 5 + o[2] + 2) as usize
 }
@@ -207,7 +217,7 @@ impl System {
         };
         let mut mem = MemBuffer::new(
             self.symbolic
-                .factorize_numeric_llt_scratch::<f64>(Par::Seq, Spec::default()),
+                .factorize_numeric_llt_scratch::<f64>(par(), Spec::default()),
         );
         self.symbolic
             .factorize_numeric_llt(
@@ -215,7 +225,7 @@ impl System {
                 a,
                 Side::Lower,
                 regularization,
-                Par::Seq,
+                par(),
                 MemStack::new(&mut mem),
                 Spec::default(),
             )

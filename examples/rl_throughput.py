@@ -46,27 +46,28 @@ def action(env_id: str, step: int, rng: np.random.Generator, policy: str) -> np.
     return np.array([rng.uniform(-1, 1), rng.uniform(0, 1)], np.float32)
 
 
-def make(env_id: str, physics: str, resolution):
+def make(env_id: str, physics: str, resolution, threads: int = 1):
     """A picklable maker of the environment: ``tacrom.envs:`` in the id makes Gymnasium
     import (and so register) tacrom in a fresh worker process. ``coarse-linear`` is the
-    coarse gel with ``solver="linear"``."""
-    kwargs = {"physics": physics}
+    coarse gel with ``solver="linear"``; ``threads`` the sensors' own threads."""
+    config = {"threads": threads} if threads != 1 else {}
     if physics.endswith("-linear"):
-        kwargs = {"physics": physics.removesuffix("-linear"), "sensor_config": {"solver": "linear"}}
+        physics, config = physics.removesuffix("-linear"), {**config, "solver": "linear"}
+    kwargs = {"physics": physics, "sensor_config": config} if config else {"physics": physics}
     if resolution:
         kwargs["resolution"] = tuple(resolution)
     return functools.partial(gym.make, f"tacrom.envs:{env_id}", **kwargs)
 
 
 def measure(
-    env_id: str, physics: str, procs: int, steps: int, resolution, policy: str
+    env_id: str, physics: str, procs: int, steps: int, resolution, policy: str, threads: int = 1
 ) -> tuple[float, float | None]:
     """Environment steps per second of wall time over ``steps`` steps of each process, and
     (one process only) CPU milliseconds per step, which other jobs on the machine do not
     inflate."""
     rng = np.random.default_rng(0)
     if procs == 1:
-        env = make(env_id, physics, resolution)()
+        env = make(env_id, physics, resolution, threads)()
         env.reset(seed=0)
         t0, c0 = time.perf_counter(), time.process_time()
         for i in range(steps):
@@ -79,7 +80,7 @@ def measure(
     # Workers start from a fresh forkserver, not by forking this process: a process forked
     # after a gel sensor (coarse, rom) ran here would hang in the plugin's thread pool.
     envs = gym.vector.AsyncVectorEnv(
-        [make(env_id, physics, resolution)] * procs, context="forkserver"
+        [make(env_id, physics, resolution, threads)] * procs, context="forkserver"
     )
     try:
         envs.reset(seed=0)
@@ -114,6 +115,9 @@ def main() -> None:
         "--resolution", type=int, nargs=2, metavar=("W", "H"), help="default: each env's own"
     )
     parser.add_argument("--policy", default="random", choices=["random", "sweep"])
+    parser.add_argument(
+        "--threads", type=int, default=1, help="each sensor's threads (its `threads` attribute)"
+    )
     args = parser.parse_args()
     print("| environment | policy | physics | processes | steps/s | ms/step | CPU ms/step |")
     print("|---|---|---|---:|---:|---:|---:|")
@@ -121,7 +125,9 @@ def main() -> None:
         for physics in args.physics:
             steps = args.steps[0] if physics == "rigid" else args.steps[1]
             for procs in args.procs:
-                rate, cpu = measure(env_id, physics, procs, steps, args.resolution, args.policy)
+                rate, cpu = measure(
+                    env_id, physics, procs, steps, args.resolution, args.policy, args.threads
+                )
                 policy = "grasp cycle" if env_id.startswith("tacrom/GripperLift") else args.policy
                 print(
                     f"| {env_id} | {policy} | {physics} | {procs} | {rate:.1f} | "

@@ -1409,9 +1409,9 @@ const MAX_NEWTON: usize = 60;
 /// Newton steps of a warm frictional solve before it starts again through the larger
 /// stick radii, and the residual (relative to the loads) at which those stages stop. A
 /// warm solve that runs long is still cheaper than the stages (about 40 steps): in the
-/// gripper's grasp cycle (a box face on a whole pad) 48 of 239 refreshes of the lagged
-/// forces took 16 to 41 steps, and with a budget of 15 each of them had started the
-/// stages again after its 15.
+/// gripper's grasp cycle (the hexagonal prism's face on a pad) 48 of 239 refreshes of
+/// the lagged forces took 16 to 41 steps, and with a budget of 15 each of them had
+/// started the stages again after its 15.
 const WARM_NEWTON: usize = MAX_NEWTON;
 const STAGE_RESIDUAL: f64 = 1e-4;
 

@@ -101,7 +101,9 @@ def test_gripper_lifts_and_holds_the_object(obj):
     run([0, -1, -1], 15)  # down to the working height, open: around the object
     assert not obs["tactile_depth"].any(), "touch before contact"
     assert info["object_height"] == pytest.approx(0, abs=5e-4)
-    run([0, -1, 1], 10)  # close
+    for _ in range(10):  # close; the first contact must not slam through the 4 mm gel
+        run([0, -1, 1], 1)
+        assert obs["tactile_depth"].max() < 2e-3, obs["tactile_depth"].max()
     depth = obs["tactile_depth"].reshape(2, -1).max(axis=1)
     assert (depth > 3e-4).all() and (depth < 2e-3).all(), depth
     assert (obs["tactile_rgb"] != obs["tactile_rgb"][:, :1, :1]).any(axis=(1, 2, 3)).all()

@@ -1284,8 +1284,13 @@ impl Newton {
         self.trial.copy_from_slice(&self.u);
         let mut first = true;
         let (mut last_residual, mut eta) = (f64::NAN, LOOSEST_FORCING);
+        // The evaluation of the state the line search accepted, if it was evaluated whole.
+        let mut evaluated = None;
         for step in 0..MAX_NEWTON {
-            let (energy, jmin, jmax) = self.evaluate(indenters)?;
+            let (energy, jmin, jmax) = match evaluated.take() {
+                Some(e) => e,
+                None => self.evaluate(indenters)?,
+            };
             report.det_f_min = jmin;
             report.det_f_max = jmax;
             let scale = Self::max_node_norm(&self.load)
@@ -1395,15 +1400,25 @@ impl Newton {
                         self.trial[i] = self.u[i] + alpha * self.direction[3 * k + c];
                     }
                 }
-                let e = self.energy(&self.trial, indenters);
-                if e.is_finite() && e <= energy + 1e-4 * alpha * slope {
-                    std::mem::swap(&mut self.u, &mut self.trial);
-                    self.trial.copy_from_slice(&self.u);
-                    if let Some(h) = self.history.last_mut() {
-                        h.push(e);
+                // The trial is evaluated whole (stress and tangent with the energy): most
+                // steps take the first trial, whose evaluation then starts the next step.
+                std::mem::swap(&mut self.u, &mut self.trial);
+                let trial = self
+                    .evaluate(indenters)
+                    .filter(|&(_, jmin, jmax)| jmin >= J_MIN && jmax <= J_MAX);
+                match trial {
+                    Some((e, jmin, jmax))
+                        if e.is_finite() && e <= energy + 1e-4 * alpha * slope =>
+                    {
+                        self.trial.copy_from_slice(&self.u);
+                        if let Some(h) = self.history.last_mut() {
+                            h.push(e);
+                        }
+                        evaluated = Some((e, jmin, jmax));
+                        accepted = true;
+                        break;
                     }
-                    accepted = true;
-                    break;
+                    _ => std::mem::swap(&mut self.u, &mut self.trial),
                 }
                 alpha *= 0.5;
             }

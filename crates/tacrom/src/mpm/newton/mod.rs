@@ -51,13 +51,16 @@
 //! region). A factorisation is kept: later steps solve by conjugate gradients
 //! preconditioned with it, the Hessian's products taken point by point from the tangents
 //! of the evaluation (no assembly), and the matrix is assembled and factored afresh only
-//! when that does not converge within [`REUSE_ITERATIONS`]. Regions of more than
+//! when that does not converge within [`REUSE_ITERATIONS`] to the step's forcing term
+//! (loose while the residual falls slowly, as far from the minimum, where the contact set
+//! still changes; [`forcing`]). Regions of more than
 //! [`MULTIGRID_UNKNOWNS`] unknowns are not factored: each step is solved by conjugate
 //! gradients preconditioned with a two-grid cycle built for it (`multigrid.rs`; see
 //! [`super::Linear`]). The points are evaluated in
 //! parallel and their forces added in a fixed order, so threads do not change the result.
 //! Then a backtracking line search that accepts a step only if the energy does not
-//! increase (Armijo). It stops when the largest out-of-balance nodal force is below
+//! increase (Armijo); its trials are evaluated whole, so the accepted one's evaluation
+//! starts the next step. It stops when the largest out-of-balance nodal force is below
 //! [`super::SolverOptions::tolerance`] times the load scale (the largest nodal contact
 //! force, at least a strain of 1e-4 over a cell). With friction the lagged normal forces
 //! start from those of the last substep and are refreshed (with the tip points), and the

@@ -18,7 +18,8 @@
 //! (the nodes of one coarse cell, 24 unknowns solved together) on the Hessian assembled
 //! at the same evaluation. One application is a symmetric V-cycle from zero (a forward and
 //! a backward sweep, the coarse correction, the same two sweeps), so conjugate gradients
-//! stay valid with it. Newton builds it afresh at every step.
+//! stay valid with it, at three sweeps' cost (see [`TwoGrid::apply`]). Newton builds it
+//! afresh at every step (the gel's part at a minimisation's first).
 //!
 //! Smoothers tried on `the_two_grid_cycle_cuts_the_iterations` (conjugate gradients to
 //! 1e-6; the block diagonal alone: 326 iterations): damped Jacobi and Chebyshev on the

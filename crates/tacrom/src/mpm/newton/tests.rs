@@ -691,3 +691,22 @@ fn a_thin_body_pressed_deeper_in_one_frame_pushes_the_gel() {
         "{f} N after the twist, {g} N from rest"
     );
 }
+
+/// The forcing term (Eisenstat and Walker's second choice): `0.9 ratio^2` within its
+/// bounds, held up by the last step's term while that was loose, and the loosest where
+/// the ratio is undefined.
+#[test]
+fn the_forcing_term_follows_the_fall_of_the_residual() {
+    use super::{forcing, FORCING, LOOSEST_FORCING};
+    // A residual that barely falls: the loosest solve.
+    assert_eq!(forcing(0.99, LOOSEST_FORCING), LOOSEST_FORCING);
+    // 0.9 * 0.5^2, the last term (0.1) too tight to hold it up.
+    assert!((forcing(0.5, 0.1) - 0.225).abs() < 1e-15);
+    // A sudden fall after a loose step: held at 0.9 * 0.5^2 (above 0.1), not 0.9e-4.
+    assert!((forcing(0.01, 0.5) - 0.225).abs() < 1e-15);
+    // Fast convergence after tight steps: the tightest term.
+    assert_eq!(forcing(0.01, FORCING), FORCING);
+    // A residual that grew, or is undefined.
+    assert_eq!(forcing(3.0, FORCING), LOOSEST_FORCING);
+    assert_eq!(forcing(f64::NAN, FORCING), LOOSEST_FORCING);
+}

@@ -540,13 +540,10 @@ impl TwoGrid {
         self.forward_sweep(r, z, true, &mut lower);
         self.backward_sweep(r, z, &lower);
         // The residual, into `lower`.
-        for b in 0..self.patch_nodes.len() {
-            for &k in self.patch_nodes[b].iter().filter(|&&k| k != u32::MAX) {
-                let k = k as usize;
-                let backward = self.part_sum(k, z, true);
-                for c in 0..3 {
-                    lower[3 * k + c] -= backward[c];
-                }
+        for k in 0..self.bounds.len() {
+            let backward = self.part_sum(k, z, true);
+            for c in 0..3 {
+                lower[3 * k + c] -= backward[c];
             }
         }
         // Coarse correction: restrict the residual, solve, prolong.

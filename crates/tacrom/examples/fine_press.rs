@@ -6,7 +6,7 @@
 //! Keys (defaults): `dx` (0.3e-3 m), `depths` ("0.1,0.2,0.3" mm, pressed in order, each
 //! solve warm-started from the last), `threads` (1), `friction` (0.5), `tolerance` (1e-3),
 //! `solver` (relaxation), `cfl` (0.5), `damping` (1), `linear` (auto; Newton's linear solves:
-//! auto, factor or multigrid). Prints each step's time, iterations,
+//! auto, factor or multigrid), `coarse_start` (1; 0 turns Newton's coarse start off). Prints each step's time, iterations,
 //! convergence and normal force.
 
 use nalgebra::Isometry3;
@@ -38,6 +38,11 @@ fn main() {
             "tolerance" => options.tolerance = number(),
             "cfl" => options.cfl = number(),
             "damping" => options.damping = number(),
+            "coarse_start" => {
+                if number() == 0.0 {
+                    options.coarse_start_above = usize::MAX
+                }
+            }
             "linear" => {
                 options.linear = match value {
                     "auto" => Linear::Automatic,
@@ -69,10 +74,11 @@ fn main() {
             pose: Isometry3::translation(0.0, 0.0, 5e-3 - d),
         }]);
         println!(
-            "depth {:.2} mm: {:.2} s, {} iterations ({} factorisations or two-grid builds, {} CG), converged {}, residual {:.2e}, active {}, force {:.5} N",
+            "depth {:.2} mm: {:.2} s, {} iterations (and {} on the coarse start's gels; {} factorisations or two-grid builds, {} CG), converged {}, residual {:.2e}, active {}, force {:.5} N",
             d * 1e3,
             t0.elapsed().as_secs_f64(),
             r.iterations,
+            r.coarse_iterations,
             r.factorisations,
             r.cg_iterations,
             r.converged,

@@ -387,6 +387,9 @@ pub struct Gel {
     last_footprint: Option<[usize; 4]>,
     /// The Newton solver's state, built at the first solve that needs it.
     newton: Option<Box<newton::Newton>>,
+    /// The gel on a grid twice as coarse whose solve starts Newton's on this one
+    /// ([`SolverOptions::coarse_start`]), built at the first solve that needs it.
+    companion: Option<Box<Gel>>,
     /// The last solve's contact loads, for [`Gel::contact_pressure`].
     loads: Vec<pressure::ContactLoad>,
     /// The total-Lagrangian relaxation's nodal state ([`Solver::Total`]).
@@ -468,6 +471,7 @@ impl Gel {
             relaxed: false,
             gain_scale: 1.0,
             newton: None,
+            companion: None,
             loads: Vec::new(),
             total: None,
             linear: None,
@@ -667,6 +671,9 @@ impl Gel {
         if let Some(n) = self.newton.as_mut() {
             n.reset();
         }
+        if let Some(c) = self.companion.as_mut() {
+            c.reset();
+        }
         if let Some(l) = self.linear.as_mut() {
             l.reset();
         }
@@ -837,7 +844,7 @@ impl Gel {
             if solver == Solver::Linear {
                 self.solve_linear(&sweep, &matched, &mut report);
             } else {
-                self.solve_newton(&sweep, &matched, &mut report);
+                self.solve_newton(indenters, &sweep, &matched, &mut report);
             }
             self.prev = if report.nonfinite_recovered {
                 Vec::new()

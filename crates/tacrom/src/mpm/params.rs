@@ -125,6 +125,11 @@ pub struct SolverOptions {
     pub fallback: bool,
     /// How Newton's method solves its linear systems.
     pub linear: Linear,
+    /// Newton's method on a gel of more unknowns than this first solves each frame on a
+    /// gel twice as coarse (the same rule again there), and starts from that gel's change
+    /// carried onto its own grid (see `mpm/newton/mod.rs`, "Coarse start"). Default
+    /// [`MULTIGRID_UNKNOWNS`] (the default gel at 0.7 mm and finer); `usize::MAX`: never.
+    pub coarse_start_above: usize,
 }
 
 /// How Newton's method ([`Solver::Newton`]) solves the linear system of a step.
@@ -242,6 +247,7 @@ impl Default for SolverOptions {
             solver: Solver::Relaxation,
             fallback: false,
             linear: Linear::Automatic,
+            coarse_start_above: MULTIGRID_UNKNOWNS,
         }
     }
 }
@@ -308,6 +314,9 @@ pub struct SolveReport {
     /// Newton: how often a substep that stalled far from equilibrium (its residual above
     /// ten times the tolerance) was taken again as two halves (see `mpm/newton/mod.rs`).
     pub substep_splits: usize,
+    /// Newton steps of the coarse start's gels ([`SolverOptions::coarse_start_above`]),
+    /// not counted in `iterations`.
+    pub coarse_iterations: usize,
 }
 impl SolveReport {
     /// The report of a solve with `indenters` usable indenters that has not stepped yet.
@@ -330,6 +339,7 @@ impl SolveReport {
             fallback: false,
             gain_halvings: 0,
             substep_splits: 0,
+            coarse_iterations: 0,
         }
     }
 }

@@ -96,10 +96,10 @@ use rayon::prelude::*;
 use super::contact::{StepIndenter, CONTACT_BAND};
 use super::indenters::Sweep;
 use super::{
-    Gel, Layout, Linear, Material, SolveReport, FBAR_POISSON, J_MAX, J_MIN, MULTIGRID_UNKNOWNS,
-    PAD_BOTTOM,
+    Gel, GelParams, Layout, Linear, Material, SolveReport, Solver, SolverOptions, FBAR_POISSON,
+    J_MAX, J_MIN, MULTIGRID_UNKNOWNS, PAD_BOTTOM,
 };
-use crate::geometry::{Aabb, Sdf};
+use crate::geometry::{Aabb, Placed, Sdf};
 use energy::{Density, Kind};
 use multigrid::TwoGrid;
 use std::sync::Arc;
@@ -426,6 +426,10 @@ pub(crate) struct Newton {
     /// Per run of Newton steps with the same lagged terms in the last solve: the energy at
     /// its start and after each accepted step.
     pub history: Vec<Vec<f64>>,
+    /// The coarse start's displacement change per substep (empty when there is none) and
+    /// the substeps left to use it ([`Gel::coarse_start`]).
+    coarse_step: Vec<f64>,
+    coarse_uses: usize,
     /// The displacement change over the last substep and the indenters' translations
     /// (cells) in it, for the secant predictor.
     last_change: Vec<f64>,
@@ -577,6 +581,8 @@ impl Newton {
             last_scale: 0.0,
             min_scale: 1e-4 * mu,
             history: Vec::new(),
+            coarse_step: Vec::new(),
+            coarse_uses: 0,
             last_change: Vec::new(),
             last_motion: Vec::new(),
             e_star: 2.0 * mu / (1.0 - params.poisson),
@@ -1740,6 +1746,16 @@ impl Newton {
     /// contact at the solution, and Newton's method then sheds the extra contact points
     /// a ring per step; the prediction starts it near the solution's contact patch.
     fn predict(&mut self, motion: &[Vector3<f64>], indenters: &[StepIndenter]) {
+        if self.coarse_uses > 0 && self.coarse_step.len() == self.u.len() {
+            self.coarse_uses -= 1;
+            for ((t, u), d) in self.trial.iter_mut().zip(&self.u).zip(&self.coarse_step) {
+                *t = u + d;
+            }
+            if self.lowers_energy(indenters) {
+                std::mem::swap(&mut self.u, &mut self.trial);
+                return;
+            }
+        }
         if self.last_change.len() != self.u.len() {
             return;
         }
@@ -1749,14 +1765,19 @@ impl Newton {
         for ((t, u), d) in self.trial.iter_mut().zip(&self.u).zip(&self.last_change) {
             *t = u + s * d;
         }
+        if self.lowers_energy(indenters) {
+            std::mem::swap(&mut self.u, &mut self.trial);
+        }
+    }
+
+    /// Whether the state in `trial` has less energy than `u`, friction left out.
+    fn lowers_energy(&mut self, indenters: &[StepIndenter]) -> bool {
         let no_friction = self.friction;
         self.friction = 0.0;
         let predicted = self.energy(&self.trial, indenters);
         let kept = self.energy(&self.u, indenters);
         self.friction = no_friction;
-        if predicted < kept {
-            std::mem::swap(&mut self.u, &mut self.trial);
-        }
+        predicted < kept
     }
 }
 
@@ -1960,9 +1981,66 @@ fn smooth_slip(y: f64, r: f64) -> f64 {
 }
 
 impl Gel {
+    /// The coarse start of a Newton solve on this gel ([`SolverOptions::coarse_start`]):
+    /// the gel twice as coarse solves the frame's `indenters` first, and the change of its
+    /// displacement field over that solve, at each node of `fine`'s region (cells of this
+    /// grid; zero elsewhere), is returned. `None` where the grid is small enough to go
+    /// without, or the coarse solve did not converge.
+    fn coarse_start(
+        &mut self,
+        indenters: &[Placed],
+        fine: &Newton,
+        report: &mut SolveReport,
+    ) -> Option<Vec<f64>> {
+        if fine.u.len() <= self.options.coarse_start_above {
+            return None;
+        }
+        if self.companion.is_none() {
+            let params = GelParams {
+                dx: 2.0 * self.params.dx,
+                ..self.params
+            };
+            let options = SolverOptions {
+                solver: Solver::Newton,
+                fallback: false,
+                ..self.options
+            };
+            self.companion = Some(Box::new(Gel::new(params, options).ok()?));
+        }
+        let gel = self.companion.as_mut()?;
+        let before = gel.newton.as_ref().map(|n| n.u.clone());
+        let solved = gel.solve(indenters);
+        report.coarse_iterations += solved.iterations + solved.coarse_iterations;
+        if !solved.converged {
+            return None;
+        }
+        let coarse = gel.newton.as_ref()?;
+        let mut step = vec![0.0; fine.u.len()];
+        let [_, d1, d2] = fine.dims;
+        for &g in &fine.region_nodes {
+            let node = fine.free_nodes[g as usize] as usize;
+            let grid = Vector3::new(
+                (node / (d1 * d2)) as f64,
+                ((node / d2) % d1) as f64,
+                (node % d2) as f64,
+            );
+            let x = (fine.origin + grid * fine.dx - coarse.origin) / coarse.dx;
+            let s = Stencil::at(&x);
+            let mut d = coarse.displacement(&s, &coarse.u);
+            if let Some(b) = &before {
+                d -= coarse.displacement(&s, b);
+            }
+            let d = d * (coarse.dx / fine.dx);
+            let g = 3 * g as usize;
+            step[g..g + 3].copy_from_slice(d.as_slice());
+        }
+        Some(step)
+    }
+
     /// The Newton solve of `sweep` (see the module docs); fills `report`.
     pub(super) fn solve_newton(
         &mut self,
+        indenters: &[Placed],
         sweep: &Sweep,
         matched: &[Option<usize>],
         report: &mut SolveReport,
@@ -2030,6 +2108,9 @@ impl Gel {
         let Some(bx) = newton.region_box(&poses) else {
             // Nothing reaches the gel: without a load the undeformed gel is the minimum.
             newton.reset();
+            if let Some(c) = self.companion.as_mut() {
+                c.reset();
+            }
             report.sweep_steps = 0;
             report.residual = 0.0;
             self.force = Vector3::zeros();
@@ -2045,6 +2126,13 @@ impl Gel {
             return;
         }
         report.active_particles = newton.region_points.len();
+        newton.coarse_step = self
+            .coarse_start(indenters, &newton, report)
+            .unwrap_or_default();
+        for v in newton.coarse_step.iter_mut() {
+            *v /= substeps as f64;
+        }
+        newton.coarse_uses = substeps;
         let saved = newton.u.clone();
         report.sweep_steps = substeps;
         report.residual = 0.0;

@@ -710,3 +710,73 @@ fn the_forcing_term_follows_the_fall_of_the_residual() {
     assert_eq!(forcing(3.0, FORCING), LOOSEST_FORCING);
     assert_eq!(forcing(f64::NAN, FORCING), LOOSEST_FORCING);
 }
+
+/// The coarse start (the gel twice as coarse solved first, its change carried onto the
+/// grid as Newton's first iterate) changes where Newton's method starts, not where it
+/// ends, and the fine grid takes fewer Newton steps. A press from rest and a deeper one
+/// moved aside, at a tight tolerance. Frictionless, the equilibrium is unique: forces and
+/// surface agree with the cold start's within 1e-4. With friction the answer also rests on
+/// the lagged normal forces, refreshed a bounded number of times, so a different path
+/// ends a little elsewhere: the force within 1e-2, as between the active region and the
+/// whole gel (`the_active_region_agrees_with_the_whole_gel`), the surface within 2e-2 of
+/// its peak (the sideways displacement under the slide differed by 1.2e-2).
+#[test]
+fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
+    let s = ball(2.5e-3);
+    let run = |friction: f64, above: usize| {
+        let p = GelParams {
+            size: [0.01, 0.01, 0.0025],
+            dx: 0.5e-3,
+            friction,
+            ..Default::default()
+        };
+        let mut g = Gel::new(
+            p,
+            SolverOptions {
+                coarse_start_above: above,
+                ..options(1e-5)
+            },
+        )
+        .unwrap();
+        let mut out = Vec::new();
+        for (x, d) in [(0.0, 0.15e-3), (0.2e-3, 0.3e-3)] {
+            let rep = g.solve(&[at(&s, 2.5e-3, x, d)]);
+            assert!(rep.converged, "{rep:?}");
+            let n = g.newton.as_ref().unwrap();
+            let surface: Vec<Vector3<f64>> = g
+                .top_ref
+                .iter()
+                .map(|r| n.surface_displacement(&r.cast::<f64>()))
+                .collect();
+            out.push((g.force(), surface, rep.iterations, rep.coarse_iterations));
+        }
+        out
+    };
+    let (mut steps, mut cold_steps) = (0, 0);
+    for (friction, bound, surface) in [(0.0, 1e-4, 1e-4), (0.5, 1e-2, 2e-2)] {
+        let (coarse, cold) = (run(friction, 0), run(friction, usize::MAX));
+        for (k, ((fa, sa, na, ca), (fb, sb, nb, cb))) in coarse.iter().zip(&cold).enumerate() {
+            assert!(*ca > 0 && *cb == 0, "frame {k}: coarse steps {ca}, {cb}");
+            assert!(
+                (fa - fb).norm() <= bound * fb.norm(),
+                "friction {friction}, frame {k}: {fa} against {fb}"
+            );
+            let peak = sb.iter().map(|v| v.norm()).fold(0.0, f64::max);
+            let worst = sa
+                .iter()
+                .zip(sb)
+                .map(|(a, b)| (a - b).norm())
+                .fold(0.0, f64::max);
+            assert!(
+                worst <= surface * peak,
+                "friction {friction}, frame {k}: {worst} of {peak}"
+            );
+            steps += na;
+            cold_steps += nb;
+        }
+    }
+    assert!(
+        steps < cold_steps,
+        "{steps} Newton steps against {cold_steps}"
+    );
+}

@@ -4,7 +4,7 @@
 //! `cargo run --release --example fine_press -- [key=value ...]`
 //!
 //! Keys (defaults): `dx` (0.3e-3 m), `depths` ("0.1,0.2,0.3" mm, pressed in order, each
-//! solve warm-started from the last), `threads` (1), `friction` (0.5), `tolerance` (1e-3),
+//! solve warm-started from the last), `threads` (1), `friction` (0.5), `poisson` (0.43), `tolerance` (1e-3),
 //! `solver` (relaxation), `cfl` (0.5), `damping` (1), `linear` (auto; Newton's linear solves:
 //! auto, factor or multigrid), `coarse_start` (1; 0 turns Newton's coarse start off). Prints each step's time, iterations,
 //! convergence and normal force.
@@ -34,6 +34,7 @@ fn main() {
         match key {
             "dx" => params.dx = number(),
             "friction" => params.friction = number(),
+            "poisson" => params.poisson = number(),
             "threads" => options.threads = number() as usize,
             "tolerance" => options.tolerance = number(),
             "cfl" => options.cfl = number(),

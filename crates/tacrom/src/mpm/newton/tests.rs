@@ -37,6 +37,42 @@ fn small_gel(friction: f64, poisson: f64) -> GelParams {
     }
 }
 
+/// Each frame of a sphere of radius `r` pressed along `path` (`(x, depth)`) into a fresh
+/// gel: the force, the top surface's displacement and the solve's report.
+fn press_path(
+    p: GelParams,
+    options: SolverOptions,
+    r: f64,
+    path: &[(f64, f64)],
+) -> Vec<(Vector3<f64>, Vec<Vector3<f64>>, SolveReport)> {
+    let s = ball(r);
+    let mut g = Gel::new(p, options).unwrap();
+    let mut out = Vec::new();
+    for &(x, d) in path {
+        let rep = g.solve(&[at(&s, r, x, d)]);
+        assert!(rep.converged, "{rep:?}");
+        let n = g.newton.as_ref().unwrap();
+        let surface = g
+            .top_ref
+            .iter()
+            .map(|r| n.surface_displacement(&r.cast::<f64>()))
+            .collect();
+        out.push((g.force(), surface, rep));
+    }
+    out
+}
+
+/// The largest distance between two surfaces' displacements and the largest of `b`'s.
+fn surface_gap(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> (f64, f64) {
+    let peak = b.iter().map(|v| v.norm()).fold(0.0, f64::max);
+    let worst = a
+        .iter()
+        .zip(b)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    (worst, peak)
+}
+
 /// Every accepted Newton step lowers the energy (within each minimisation: between them
 /// the lagged sub-grid compliance may change the energy), and the solve stops with the
 /// out-of-balance force below the tolerance.
@@ -302,7 +338,6 @@ fn the_active_region_agrees_with_the_whole_gel() {
         friction: 0.5,
         ..Default::default()
     };
-    let s = ball(1.5e-3);
     let path = [
         (-3e-3, 0.2e-3),
         (-1.5e-3, 0.3e-3),
@@ -312,25 +347,14 @@ fn the_active_region_agrees_with_the_whole_gel() {
         (3e-3, -0.5e-3),
     ];
     let run = |margin: f64| {
-        let mut g = Gel::new(
-            p,
-            SolverOptions {
-                active_margin: margin,
-                ..options(1e-5)
-            },
-        )
-        .unwrap();
-        let mut out = Vec::new();
-        for &(x, d) in &path {
-            let rep = g.solve(&[at(&s, 1.5e-3, x, d)]);
-            assert!(rep.converged, "{rep:?}");
-            let n = g.newton.as_ref().unwrap();
-            let rests: Vec<Vector3<f64>> = g.top_ref.iter().map(|r| r.cast::<f64>()).collect();
-            let surface: Vec<Vector3<f64>> =
-                rests.iter().map(|r| n.surface_displacement(r)).collect();
-            out.push((g.force(), surface, rep.active_particles));
-        }
-        out
+        let options = SolverOptions {
+            active_margin: margin,
+            ..options(1e-5)
+        };
+        press_path(p, options, 1.5e-3, &path)
+            .into_iter()
+            .map(|(f, s, rep)| (f, s, rep.active_particles))
+            .collect::<Vec<_>>()
     };
     let (part, whole) = (run(ACTIVE_MARGIN), run(f64::INFINITY));
     for (k, ((fa, sa, na), (fb, sb, nb))) in part.iter().zip(&whole).enumerate() {
@@ -342,12 +366,7 @@ fn the_active_region_agrees_with_the_whole_gel() {
                 "frame {k}: {fa} against {fb}"
             );
         }
-        let peak = sb.iter().map(|v| v.norm()).fold(0.0, f64::max);
-        let worst = sa
-            .iter()
-            .zip(sb)
-            .map(|(a, b)| (a - b).norm())
-            .fold(0.0, f64::max);
+        let (worst, peak) = surface_gap(sa, sb);
         assert!(
             worst <= 1e-2 * peak.max(1e-9),
             "frame {k}: {worst} of {peak}"
@@ -722,7 +741,6 @@ fn the_forcing_term_follows_the_fall_of_the_residual() {
 /// its peak (the sideways displacement under the slide differed by 1.2e-2).
 #[test]
 fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
-    let s = ball(2.5e-3);
     let run = |friction: f64, above: usize| {
         let p = GelParams {
             size: [0.01, 0.01, 0.0025],
@@ -730,49 +748,29 @@ fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
             friction,
             ..Default::default()
         };
-        let mut g = Gel::new(
-            p,
-            SolverOptions {
-                coarse_start_above: above,
-                ..options(1e-5)
-            },
-        )
-        .unwrap();
-        let mut out = Vec::new();
-        for (x, d) in [(0.0, 0.15e-3), (0.2e-3, 0.3e-3)] {
-            let rep = g.solve(&[at(&s, 2.5e-3, x, d)]);
-            assert!(rep.converged, "{rep:?}");
-            let n = g.newton.as_ref().unwrap();
-            let surface: Vec<Vector3<f64>> = g
-                .top_ref
-                .iter()
-                .map(|r| n.surface_displacement(&r.cast::<f64>()))
-                .collect();
-            out.push((g.force(), surface, rep.iterations, rep.coarse_iterations));
-        }
-        out
+        let options = SolverOptions {
+            coarse_start_above: above,
+            ..options(1e-5)
+        };
+        press_path(p, options, 2.5e-3, &[(0.0, 0.15e-3), (0.2e-3, 0.3e-3)])
     };
     let (mut steps, mut cold_steps) = (0, 0);
     for (friction, bound, surface) in [(0.0, 1e-4, 1e-4), (0.5, 1e-2, 2e-2)] {
         let (coarse, cold) = (run(friction, 0), run(friction, usize::MAX));
-        for (k, ((fa, sa, na, ca), (fb, sb, nb, cb))) in coarse.iter().zip(&cold).enumerate() {
-            assert!(*ca > 0 && *cb == 0, "frame {k}: coarse steps {ca}, {cb}");
+        for (k, ((fa, sa, ra), (fb, sb, rb))) in coarse.iter().zip(&cold).enumerate() {
+            let (ca, cb) = (ra.coarse_iterations, rb.coarse_iterations);
+            assert!(ca > 0 && cb == 0, "frame {k}: coarse steps {ca}, {cb}");
             assert!(
                 (fa - fb).norm() <= bound * fb.norm(),
                 "friction {friction}, frame {k}: {fa} against {fb}"
             );
-            let peak = sb.iter().map(|v| v.norm()).fold(0.0, f64::max);
-            let worst = sa
-                .iter()
-                .zip(sb)
-                .map(|(a, b)| (a - b).norm())
-                .fold(0.0, f64::max);
+            let (worst, peak) = surface_gap(sa, sb);
             assert!(
                 worst <= surface * peak,
                 "friction {friction}, frame {k}: {worst} of {peak}"
             );
-            steps += na;
-            cold_steps += nb;
+            steps += ra.iterations;
+            cold_steps += rb.iterations;
         }
     }
     assert!(

@@ -388,7 +388,7 @@ pub struct Gel {
     /// The Newton solver's state, built at the first solve that needs it.
     newton: Option<Box<newton::Newton>>,
     /// The gel on a grid twice as coarse whose solve starts Newton's on this one
-    /// ([`SolverOptions::coarse_start`]), built at the first solve that needs it.
+    /// ([`SolverOptions::coarse_start_above`]), built at the first solve that needs it.
     companion: Option<Box<Gel>>,
     /// The last solve's contact loads, for [`Gel::contact_pressure`].
     loads: Vec<pressure::ContactLoad>,

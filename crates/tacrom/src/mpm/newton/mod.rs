@@ -1327,7 +1327,8 @@ impl Newton {
     /// [`LAG_BELOW`], friction's lagged normal forces are refreshed at the state it reaches
     /// (`starts`, `start`: the substep's start, for the anchors of new contacts), and the
     /// minimisation goes on with them, as long as each refresh changes them less than the
-    /// one before; otherwise they stay as they are, for the outer loop of
+    /// one before (and at most [`MAX_OUTER`] times; never on a near-incompressible gel,
+    /// see below); otherwise they stay as they are, for the outer loop of
     /// [`Self::substep`]. So the lag converges with the minimisation, not after it: on the
     /// moving press of `tacrom mpm` one minimisation to a state the first lag left 60 to
     /// 120 % off, and three to five more after it, took 12 to 23 Newton steps a frame. A
@@ -1998,7 +1999,8 @@ fn smooth_slip(y: f64, r: f64) -> f64 {
 }
 
 impl Gel {
-    /// The coarse start of a Newton solve on this gel ([`SolverOptions::coarse_start`]):
+    /// The coarse start of a Newton solve on this gel
+    /// ([`SolverOptions::coarse_start_above`]):
     /// the gel twice as coarse solves the frame's `indenters` first, and the change of its
     /// displacement field over that solve, at each node of `fine`'s region (cells of this
     /// grid; zero elsewhere), is returned. `None` where the grid is small enough to go

@@ -128,7 +128,8 @@ pub struct SolverOptions {
     /// Newton's method on a gel of more unknowns than this first solves each frame on a
     /// gel twice as coarse (the same rule again there), and starts from that gel's change
     /// carried onto its own grid (see `mpm/newton/mod.rs`, "Coarse start"). Default
-    /// [`MULTIGRID_UNKNOWNS`] (the default gel at 0.7 mm and finer); `usize::MAX`: never.
+    /// [`MULTIGRID_UNKNOWNS`] (the default gel at 0.5 mm and finer); `usize::MAX`: never
+    /// (what a gel sets where the gel twice as coarse cannot be built, too thin for it).
     pub coarse_start_above: usize,
 }
 

@@ -2024,7 +2024,15 @@ impl Gel {
                 fallback: false,
                 ..self.options
             };
-            self.companion = Some(Box::new(Gel::new(params, options).ok()?));
+            match Gel::new(params, options) {
+                Ok(gel) => self.companion = Some(Box::new(gel)),
+                Err(_) => {
+                    // A gel too thin for the doubled spacing: no coarse start, and no
+                    // new attempt at every frame.
+                    self.options.coarse_start_above = usize::MAX;
+                    return None;
+                }
+            }
         }
         let gel = self.companion.as_mut()?;
         let before = gel.newton.as_ref().map(|n| n.u.clone());

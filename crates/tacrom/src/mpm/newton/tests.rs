@@ -778,3 +778,36 @@ fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
         "{steps} Newton steps against {cold_steps}"
     );
 }
+
+/// A gel too thin for twice its spacing (a 0.4 mm layer at 0.5 mm: the coarse gel's
+/// spacing would exceed twice its thickness, which `Gel::new` refuses) goes without the
+/// coarse start: the same answer as with it turned off, bit for bit, and the option set
+/// to never so that later frames do not try again.
+#[test]
+fn a_gel_too_thin_for_the_coarse_start_goes_without() {
+    let p = GelParams {
+        size: [0.01, 0.01, 0.0004],
+        dx: 0.5e-3,
+        friction: 0.0,
+        ..Default::default()
+    };
+    let run = |above: usize| {
+        let options = SolverOptions {
+            coarse_start_above: above,
+            ..options(1e-4)
+        };
+        let out = press_path(p, options, 2e-3, &[(0.0, 0.05e-3), (0.0, 0.1e-3)]);
+        let mut g = Gel::new(p, options).unwrap();
+        let s = ball(2e-3);
+        g.solve(&[at(&s, 2e-3, 0.0, 0.05e-3)]);
+        (out, g.options().coarse_start_above)
+    };
+    let ((tried, left), (off, _)) = (run(0), run(usize::MAX));
+    assert_eq!(left, usize::MAX);
+    for ((fa, sa, ra), (fb, sb, _)) in tried.iter().zip(&off) {
+        assert_eq!(ra.coarse_iterations, 0);
+        assert!(fa.z > 0.0);
+        assert_eq!(fa, fb);
+        assert_eq!(sa, sb);
+    }
+}

@@ -468,6 +468,82 @@ fn the_hessian_product_equals_the_assembled_matrix() {
     }
 }
 
+/// A sliding point's friction model (the energy, gradient and stiffness that
+/// `contact_term` adds for friction) majorizes its friction energy along every move in
+/// the tangent plane, and meets it at the mirror image of the offset through the anchor:
+/// a Newton step that takes a point back past its anchor is not cut by the line search.
+/// The exact Hessian's model (no stiffness along the slip) falls short there by twice
+/// the point's friction energy, and fails this test.
+#[test]
+fn a_sliding_point_s_friction_model_majorizes_its_energy() {
+    use super::super::contact::StepIndenter;
+    use super::STICK;
+    let r = 3e-3;
+    let mut g = Gel::new(small_gel(0.5, 0.43), options(1e-3)).unwrap();
+    let s = ball(r);
+    g.solve(&[at(&s, r, 0.0, 0.3e-3)]);
+    let last = at(&s, r, 0.5e-3, 0.35e-3);
+    g.solve(&[last.clone()]);
+    let n = g.newton.as_mut().unwrap();
+    let indenters = [StepIndenter {
+        shape: s.clone(),
+        now: last.pose,
+        bounds: s.aabb().transformed(&last.pose).inflated(1e-2),
+    }];
+    // The friction part of a point's term: the term less the same without friction.
+    let friction = |n: &mut super::Newton, k: usize, x: &Vector3<f64>| {
+        let with = n.contact_term(&n.contact[k], x, &indenters);
+        let mu = std::mem::replace(&mut n.friction, 0.0);
+        let without = n.contact_term(&n.contact[k], x, &indenters);
+        n.friction = mu;
+        (
+            with.energy - without.energy,
+            with.gradient - without.gradient,
+            with.stiffness - without.stiffness,
+        )
+    };
+    let mut checked = 0;
+    for k in 0..n.contact.len() {
+        let c = &n.contact[k];
+        let x0 = c.rest + n.displacement(&c.stencil, &n.u);
+        let Some((_, t0)) = n.slip(c, &x0, &indenters) else {
+            continue;
+        };
+        // Moved off its anchor by 20 stick radii in the tangent plane: sliding.
+        let normal = c.lag_normal;
+        let side = normal.cross(&Vector3::x()).normalize();
+        let x = x0 + side * (20.0 * STICK) - t0;
+        let (y, t) = n.slip(c, &x, &indenters).unwrap();
+        assert!(y > 10.0 * STICK, "{y}");
+        let (e, grad, stiffness) = friction(n, k, &x);
+        assert!(e > 0.0);
+        let model = |d: &Vector3<f64>| e + grad.dot(d) + 0.5 * d.dot(&(stiffness * d));
+        let mirror = -2.0 * t;
+        let exact = friction(n, k, &(x + mirror)).0;
+        assert!(
+            (model(&mirror) - exact).abs() <= 1e-9 * e,
+            "at the mirror image: model {} against {exact}",
+            model(&mirror)
+        );
+        for j in 0..16 {
+            let angle = j as f64 * std::f64::consts::PI / 8.0;
+            let along = t / y;
+            let across = normal.cross(&along);
+            for scale in [0.1, 0.5, 1.0, 3.0] {
+                let d = (along * angle.cos() + across * angle.sin()) * (scale * y);
+                let exact = friction(n, k, &(x + d)).0;
+                assert!(
+                    exact <= model(&d) + 1e-12 * e,
+                    "move {d:?}: energy {exact} above its model {}",
+                    model(&d)
+                );
+            }
+        }
+        checked += 1;
+    }
+    assert!(checked > 10, "{checked} points with an anchor");
+}
+
 /// Contacts smaller than the coarse grid (1.4 mm; surface particles 0.7 mm apart) on the
 /// default 4 mm layer, centred on gels 12, 14, 16 and 30 mm wide (four placements of the
 /// contact on the lattice), each a continuous press:

@@ -128,7 +128,7 @@ pub struct SolverOptions {
     /// Newton's method on a gel of more unknowns than this first solves each frame on a
     /// gel twice as coarse (the same rule again there), and starts from that gel's change
     /// carried onto its own grid (see `mpm/newton/mod.rs`, "Coarse start"). Default
-    /// [`MULTIGRID_UNKNOWNS`] (the default gel at 0.5 mm and finer); `usize::MAX`: never
+    /// [`COARSE_START_UNKNOWNS`] (the default gel at 0.5 mm and finer); `usize::MAX`: never
     /// (what a gel sets where the gel twice as coarse cannot be built, too thin for it).
     pub coarse_start_above: usize,
 }
@@ -148,8 +148,14 @@ pub enum Linear {
 }
 
 /// Unknowns of a Newton region above which [`Linear::Automatic`] preconditions with the
-/// two-grid cycle instead of factoring.
-pub const MULTIGRID_UNKNOWNS: usize = 60_000;
+/// two-grid cycle instead of factoring: between the default gel's regions at 0.7 mm
+/// (about 19,600 unknowns; the factorisation a little faster) and 0.6 mm (about 31,000;
+/// the two-grid cycle about twice as fast: `docs/solvers.md`, "Friction's sliding points").
+pub const MULTIGRID_UNKNOWNS: usize = 25_000;
+
+/// Unknowns of a gel above which Newton's method starts each frame from a gel twice as
+/// coarse ([`SolverOptions::coarse_start_above`]): the default gel at 0.5 mm and finer.
+pub const COARSE_START_UNKNOWNS: usize = 60_000;
 
 /// Most unknowns (three per grid node, an upper bound) [`Solver::Linear`] factors: the
 /// default gel at 1.0 mm (22,869), not at 0.7 mm (57,132), where the first contact took
@@ -248,7 +254,7 @@ impl Default for SolverOptions {
             solver: Solver::Relaxation,
             fallback: false,
             linear: Linear::Automatic,
-            coarse_start_above: MULTIGRID_UNKNOWNS,
+            coarse_start_above: COARSE_START_UNKNOWNS,
         }
     }
 }

@@ -78,8 +78,7 @@
 //! # Coarse start
 //!
 //! On a gel of more than [`super::SolverOptions::coarse_start_above`] unknowns (by
-//! default the two-grid threshold, [`MULTIGRID_UNKNOWNS`]: the default gel at 0.5 mm and
-//! finer), each frame is first solved on a companion gel twice as coarse (the same
+//! default [`super::COARSE_START_UNKNOWNS`]: the default gel at 0.5 mm and finer), each frame is first solved on a companion gel twice as coarse (the same
 //! parameters and options; the rule applies again there), and its displacement change
 //! over that solve, read at this grid's nodes through its B-splines, is the first
 //! iterate's change (shared out over the substeps) where the secant predictor has none

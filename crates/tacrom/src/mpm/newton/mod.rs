@@ -48,9 +48,9 @@
 //!
 //! Newton's method: the Hessian assembled from each point's projected stress derivative
 //! (see `energy.rs`) plus the Gauss-Newton terms of contact and friction (a sliding
-//! point's friction by the quadratic that majorizes it, see [`Newton::contact_term`]), solved by a
-//! sparse Cholesky factorisation (faer; the fill-reducing ordering is computed once per
-//! region). A factorisation is kept: later steps solve by conjugate gradients
+//! point's friction by the quadratic that majorizes it, see [`Newton::contact_term`]),
+//! solved by a sparse Cholesky factorisation (faer; the fill-reducing ordering is
+//! computed once per region). A factorisation is kept: later steps solve by conjugate gradients
 //! preconditioned with it, the Hessian's products taken point by point from the tangents
 //! of the evaluation (no assembly), and the matrix is assembled and factored afresh only
 //! when that does not converge within [`REUSE_ITERATIONS`] to the step's forcing term
@@ -78,8 +78,9 @@
 //! # Coarse start
 //!
 //! On a gel of more than [`super::SolverOptions::coarse_start_above`] unknowns (by
-//! default [`super::COARSE_START_UNKNOWNS`]: the default gel at 0.5 mm and finer), each frame is first solved on a companion gel twice as coarse (the same
-//! parameters and options; the rule applies again there), and its displacement change
+//! default [`super::COARSE_START_UNKNOWNS`]: the default gel at 0.5 mm and finer), each
+//! frame is first solved on a companion gel twice as coarse (the same parameters and
+//! options; the rule applies again there), and its displacement change
 //! over that solve, read at this grid's nodes through its B-splines, is the first
 //! iterate's change (shared out over the substeps) where the secant predictor has none
 //! to offer: a press from rest, a change of direction (see [`Newton::predict`]). The
@@ -1062,9 +1063,9 @@ impl Newton {
     /// and also along it, where the exact one is zero. The exact model is linear along
     /// the slip, so a step that took a point back towards its anchor carried it past the
     /// anchor as far as the gel's pull reached, and the line search halved the whole step
-    /// for it (a 0.1 mm press step at dx = 0.5 mm: 28 Newton steps at a step length of an
-    /// eighth, against 12 without friction). The energy and its gradient are exact, so
-    /// the minimum is the same.
+    /// for it (a 0.1 mm press step at dx = 0.5 mm: 28 Newton steps, most of them cut to
+    /// a half to an eighth, against 12 without friction). The energy and its gradient are
+    /// exact, so the minimum is the same.
     fn contact_term(
         &self,
         c: &ContactPoint,

@@ -1089,13 +1089,11 @@ impl Newton {
             term.energy += scale * smooth_slip(y, STICK);
             let n = c.lag_normal;
             let tangent = Matrix3::identity() - n * n.transpose();
-            if y < STICK {
-                term.gradient += d * (scale / STICK);
-                term.stiffness += tangent * (scale / STICK);
-            } else {
-                term.gradient += d * (scale / y);
-                term.stiffness += tangent * (scale / y);
-            }
+            // Sticking: the quadratic's own gradient and stiffness; sliding: the
+            // majorizer's at the offset.
+            let radius = y.max(STICK);
+            term.gradient += d * (scale / radius);
+            term.stiffness += tangent * (scale / radius);
         }
         term
     }

@@ -34,6 +34,7 @@ fn main() {
         match key {
             "dx" => params.dx = number(),
             "friction" => params.friction = number(),
+            "thickness" => params.size[2] = number(),
             "poisson" => params.poisson = number(),
             "threads" => options.threads = number() as usize,
             "tolerance" => options.tolerance = number(),

@@ -30,8 +30,8 @@
 //! * contact on a lattice of surface points [`CONTACT_SUBDIVISION`] times finer than the
 //!   particles, each standing for its share `A` of the top face: a penalty
 //!   `k A g^2 / 2` on the signed distance `g < 0` to the nearest indenter
-//!   ([`PENALTY`]; the penetration it leaves is about `p / k`, 1e-3 cells at a pressure of
-//!   `M`). An indenter that reaches between particles still meets surface points, and
+//!   (`k = dx / PENETRATION` per cell, see [`PENETRATION`]; the penetration it leaves is
+//!   `p / k`, 1.4 um at a pressure of `M` on every grid). An indenter that reaches between particles still meets surface points, and
 //!   one that reaches between the lattice's points gets a tip point; a patch smaller than
 //!   the grid resolves gets the compliance the grid misses in series with its penalty
 //!   (see `subgrid.rs`);
@@ -125,8 +125,18 @@ use system::{conjugate_gradients, System};
 /// Surface contact points per particle spacing along each axis.
 pub(crate) const CONTACT_SUBDIVISION: usize = 4;
 
-/// Contact penalty stiffness (internal units: `M` per cell of penetration).
+/// Contact penalty stiffness of the linear solver (internal units: `M` per cell of
+/// penetration).
 pub(crate) const PENALTY: f64 = 1e3;
+
+/// The penetration (m) that Newton's contact penalty leaves under a pressure of the
+/// shear modulus `M`, on every grid: its stiffness is `dx / PENETRATION` in internal
+/// units (`M` per cell), 1,000 on the 1.4 mm grid as before and 214 at 0.3 mm
+/// ([`Newton::penalty`]). Held at 1,000 per cell on every grid, the penalty was
+/// physically stiffer the finer the grid, and at 0.3 mm its springs made Newton's
+/// contact set chatter and the two-grid cycle weak (see `docs/solvers.md`, "The contact
+/// penalty in physical units").
+const PENETRATION: f64 = 1.4e-6;
 
 /// Tangential offset (cells) at which friction reaches its sliding value.
 pub(crate) const STICK: f64 = 1e-3;
@@ -453,6 +463,9 @@ pub(crate) struct Newton {
     last_motion: Vec<Vector3<f64>>,
     /// Plane-strain modulus `E* = 2 mu / (1 - nu)` (internal units).
     e_star: f64,
+    /// Contact penalty stiffness (internal units: `M` per cell of penetration; see
+    /// [`PENETRATION`]).
+    penalty: f64,
     /// The gel's thickness (cells) and the first-order stiffening of a bonded layer of its
     /// Poisson's ratio ([`super::hertz::bonded_layer_slope`]).
     thickness: f64,
@@ -603,6 +616,7 @@ impl Newton {
             last_change: Vec::new(),
             last_motion: Vec::new(),
             e_star: 2.0 * mu / (1.0 - params.poisson),
+            penalty: dx / PENETRATION,
             thickness: t / dx,
             layer_slope: super::hertz::bonded_layer_slope(params.poisson),
             resolved_radius: 0.0,
@@ -1108,7 +1122,7 @@ impl Newton {
     /// side).
     fn normal_penalty(&self, c: &ContactPoint, t: &Touch) -> (f64, f64, f64) {
         if c.soft >= 1.0 {
-            return penalty(t.gap);
+            return penalty(t.gap, self.penalty);
         }
         let s = c.soft;
         let cap = self
@@ -1117,12 +1131,12 @@ impl Newton {
             .copied()
             .unwrap_or(f64::INFINITY);
         if t.gap <= cap {
-            let (e, f, k) = penalty(t.gap);
+            let (e, f, k) = penalty(t.gap, self.penalty);
             (s * e, s * f, s * k)
         } else {
             let h = t.gap - cap;
-            let (e, f, _) = penalty(cap);
-            let (eh, fh, k) = penalty(h);
+            let (e, f, _) = penalty(cap, self.penalty);
+            let (eh, fh, k) = penalty(h, self.penalty);
             (s * (e + f * h) + eh, s * f + fh, k)
         }
     }
@@ -1973,8 +1987,10 @@ fn extent_cells(shape: &dyn Sdf, dx: f64) -> Vector3<f64> {
     (b.max - b.min) / dx
 }
 
-fn penalty(g: f64) -> (f64, f64, f64) {
-    (0.5 * PENALTY * g * g, PENALTY * g, PENALTY)
+/// The penalty's energy, force and stiffness per unit area at penetration `g` (cells),
+/// with stiffness `k`.
+fn penalty(g: f64, k: f64) -> (f64, f64, f64) {
+    (0.5 * k * g * g, k * g, k)
 }
 
 /// The forcing term of a Newton step whose residual is `ratio` times the last step's,

@@ -44,7 +44,7 @@
 
 use nalgebra::Vector3;
 
-use super::{ContactPoint, Newton, Stencil, PENALTY};
+use super::{ContactPoint, Newton, Stencil};
 
 use crate::mpm::contact::StepIndenter;
 
@@ -523,6 +523,6 @@ impl Newton {
     pub(super) fn patch_softness(&self, n: f64, share: f64) -> f64 {
         let radius = (n * self.area / std::f64::consts::PI).sqrt();
         let compliance = SERIES_SHARE * self.missing_compliance(radius);
-        1.0 / (1.0 + PENALTY * self.area * share * compliance)
+        1.0 / (1.0 + self.penalty * self.area * share * compliance)
     }
 }

@@ -131,11 +131,11 @@ pub(crate) const PENALTY: f64 = 1e3;
 
 /// The penetration (m) that Newton's contact penalty leaves under a pressure of the
 /// shear modulus `M`, on every grid: its stiffness is `dx / PENETRATION` in internal
-/// units (`M` per cell), 1,000 on the 1.4 mm grid as before and 214 at 0.3 mm
-/// ([`Newton::penalty`]). Held at 1,000 per cell on every grid, the penalty was
-/// physically stiffer the finer the grid, and at 0.3 mm its springs made Newton's
-/// contact set chatter and the two-grid cycle weak (see `docs/solvers.md`, "The contact
-/// penalty in physical units").
+/// units (`M` per cell), 1,000 on the 1.4 mm grid and 214 at 0.3 mm
+/// ([`Newton::penalty`]). A penalty of 1,000 per cell on every grid is physically
+/// stiffer the finer the grid, and at 0.3 mm its springs made Newton's contact set
+/// chatter and the two-grid cycle weak (see `docs/solvers.md`, "The contact penalty in
+/// physical units").
 const PENETRATION: f64 = 1.4e-6;
 
 /// Tangential offset (cells) at which friction reaches its sliding value.
@@ -210,6 +210,13 @@ const MAX_HALVINGS: usize = 30;
 
 /// Conjugate gradient iterations with the two-grid preconditioner at most.
 const MULTIGRID_ITERATIONS: usize = 200;
+
+/// The two-grid cycle's coarse level is factored afresh at a minimisation's first step
+/// and after a solve that took more conjugate gradient iterations than this; otherwise
+/// only the smoother's contact is refreshed ([`TwoGrid::build`]). At dx = 0.3 mm the
+/// coarse factorisation costs about eight iterations, at 0.5 mm about one, where solves
+/// take 4 to 8 iterations and its contact a few steps old costs about as much as it saves.
+const REFACTOR_COARSE_ABOVE: usize = 12;
 
 /// Quadratic B-spline weights and derivatives along each axis at a point (cells).
 #[derive(Clone, Copy, Debug)]
@@ -1378,6 +1385,8 @@ impl Newton {
         // no longer converged.
         let mut lagging = self.friction > 0.0 && self.densities.len() == 1;
         let (mut last_lag, mut refreshes) = (f64::INFINITY, 0);
+        // Conjugate gradient iterations of the last two-grid solve.
+        let mut last_iterations = 0;
         for step in 0..MAX_NEWTON {
             let (energy, jmin, jmax) = match evaluated.take() {
                 Some(e) => e,
@@ -1409,12 +1418,13 @@ impl Newton {
             rhs.extend(self.grad.iter().map(|g| -g));
             let mut failed = false;
             if let Some(mut grid) = self.two_grid.take() {
-                // The contact's part is built afresh every step (the previous step's
-                // whole cycle converged within four iterations in none of 35 steps at dx
-                // = 0.7 mm: points enter and leave the contact), the gel's at a
-                // minimisation's first.
+                // The contact's part is built afresh every step in the smoother (the
+                // previous step's whole cycle converged within four iterations in none of
+                // 35 steps at dx = 0.7 mm: points enter and leave the contact), in the
+                // coarse level after a slow solve, the gel's at a minimisation's first.
                 report.factorisations += 1;
-                if grid.build(self, step == 0).is_err() {
+                let coarse = step == 0 || last_iterations > REFACTOR_COARSE_ABOVE;
+                if grid.build(self, step == 0, coarse).is_err() {
                     failed = true;
                 } else {
                     // The last iterate is a descent direction even short of the forcing
@@ -1429,6 +1439,7 @@ impl Newton {
                         |r, z| grid.apply(r, z),
                     );
                     report.cg_iterations += steps;
+                    last_iterations = steps;
                 }
                 self.two_grid = Some(grid);
             } else {

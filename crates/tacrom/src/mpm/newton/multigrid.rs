@@ -19,7 +19,9 @@
 //! at the same evaluation. One application is a symmetric V-cycle from zero (a forward and
 //! a backward sweep, the coarse correction, the same two sweeps), so conjugate gradients
 //! stay valid with it, at three sweeps' cost (see [`TwoGrid::apply`]). Newton builds it
-//! afresh at every step (the gel's part at a minimisation's first).
+//! afresh at every step: the gel's part at a minimisation's first, the contact's in the
+//! smoother at every step and in the coarse level when the last solve took many
+//! iterations (see `REFACTOR_COARSE_ABOVE` in `mod.rs`).
 //!
 //! Smoothers tried on `the_two_grid_cycle_cuts_the_iterations` (conjugate gradients to
 //! 1e-6; the block diagonal alone: 326 iterations): damped Jacobi and Chebyshev on the
@@ -102,6 +104,9 @@ pub(super) struct TwoGrid {
     /// The contact terms in `coarse` and `blocks` (taken out again when only the contact
     /// is refreshed, see [`TwoGrid::build`]).
     contact: Vec<ContactStiffness>,
+    /// The contact terms in `coarse`, which may be those of an earlier build than the
+    /// fine blocks' (see [`TwoGrid::build`]).
+    coarse_contact: Vec<ContactStiffness>,
 }
 
 /// A fine point's (or contact point's) stencil mapped to the coarse grid: the base of the
@@ -245,6 +250,7 @@ impl TwoGrid {
             coarse_rhs: vec![0.0; coarse.n],
             coarse,
             contact: Vec::new(),
+            coarse_contact: Vec::new(),
         })
     }
 
@@ -277,20 +283,40 @@ impl TwoGrid {
     /// present Hessian's, so a gel's part a few Newton steps old costs iterations, not
     /// accuracy; the contact changes far more from step to step (points enter and leave,
     /// with the penalty's stiffness). The gel's part is most of the work: at dx = 0.5 mm
-    /// about 0.9 s of a 1.05 s build, on one thread.
-    pub fn build(&mut self, newton: &Newton, elastic: bool) -> Result<(), NotPositiveDefinite> {
+    /// about 0.9 s of a 1.05 s build, on one thread. With `coarse` false (and not
+    /// `elastic`) only the smoother's contact is refreshed, and the coarse operator and
+    /// its factorisation stay those of the last build that refreshed them: at dx = 0.3
+    /// mm that factorisation is about 2.8 s of a 3.3 s build.
+    pub fn build(
+        &mut self,
+        newton: &Newton,
+        elastic: bool,
+        coarse: bool,
+    ) -> Result<(), NotPositiveDefinite> {
+        let coarse = coarse || elastic;
         if elastic {
             self.build_elastic(newton);
         } else {
             for k in std::mem::take(&mut self.contact) {
-                self.add_contact(&k, -1.0);
+                self.add_fine_contact(&k, -1.0);
+            }
+            if coarse {
+                for k in std::mem::take(&mut self.coarse_contact) {
+                    self.add_coarse_contact(&k, -1.0);
+                }
             }
         }
         for k in &newton.contact_stiffness {
-            self.add_contact(k, 1.0);
+            self.add_fine_contact(k, 1.0);
+            if coarse {
+                self.add_coarse_contact(k, 1.0);
+            }
         }
         self.contact.clone_from(&newton.contact_stiffness);
-        self.coarse.factor()?;
+        if coarse {
+            self.coarse_contact.clone_from(&newton.contact_stiffness);
+            self.coarse.factor()?;
+        }
         self.invert_patches();
         for (k, b) in self.bounds.iter().enumerate() {
             for i in b[0] as usize..b[2] as usize {
@@ -306,6 +332,7 @@ impl TwoGrid {
     fn build_elastic(&mut self, newton: &Newton) {
         self.coarse.clear();
         self.contact.clear();
+        self.coarse_contact.clear();
         let mut blocks = std::mem::take(&mut self.blocks);
         blocks.fill(Matrix3::zeros());
         let count = newton.states.len();
@@ -348,9 +375,8 @@ impl TwoGrid {
         self.blocks = blocks;
     }
 
-    /// Adds `sign` times a contact point's stiffness to the coarse operator and the fine
-    /// blocks.
-    fn add_contact(&mut self, k: &ContactStiffness, sign: f64) {
+    /// Adds `sign` times a contact point's stiffness to the coarse operator.
+    fn add_coarse_contact(&mut self, k: &ContactStiffness, sign: f64) {
         let base = k.base;
         let map = CoarseMap::new(&base);
         let mut w = [0.0; 27];
@@ -362,6 +388,11 @@ impl TwoGrid {
         let h = k.h * sign;
         let dofs = self.coarse_dofs(&map);
         add_pairs(&mut self.coarse, &dofs, |a, b| h * (w[a] * w[b]));
+    }
+
+    /// Adds `sign` times a contact point's stiffness to the fine blocks.
+    fn add_fine_contact(&mut self, k: &ContactStiffness, sign: f64) {
+        let h = k.h * sign;
         let local = k
             .dofs
             .map(|d| if d == usize::MAX { u32::MAX } else { d as u32 });
@@ -665,7 +696,7 @@ mod tests {
         // The solver keeps the tangents and contact stiffnesses of its last evaluation.
         let mut n = *gel.newton.take().unwrap();
         let mut grid = n.two_grid.take().unwrap();
-        grid.build(&n, true).unwrap();
+        grid.build(&n, true, true).unwrap();
         (n, grid)
     }
 
@@ -728,25 +759,49 @@ mod tests {
         let half: Vec<ContactStiffness> = all.iter().step_by(2).copied().collect();
         for contact in [half, all] {
             n.contact_stiffness = contact;
-            grid.build(&n, false).unwrap();
+            grid.build(&n, false, true).unwrap();
             let mut whole = grid.clone();
-            whole.build(&n, true).unwrap();
-            let close = |a: &[f64], b: &[f64], rel: f64| {
-                let largest = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                let worst = a
-                    .iter()
-                    .zip(b)
-                    .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-                assert!(worst <= rel * largest, "{worst} against {largest}");
-            };
-            close(&grid.coarse.values, &whole.coarse.values, 1e-12);
-            let flat = |b: &[Matrix3<f64>]| -> Vec<f64> {
-                b.iter().flat_map(|m| m.iter().copied()).collect()
-            };
-            close(&flat(&grid.blocks), &flat(&whole.blocks), 1e-12);
+            whole.build(&n, true, true).unwrap();
+            assert!(close(&grid.coarse.values, &whole.coarse.values, 1e-12));
+            assert!(close(&flat(&grid.blocks), &flat(&whole.blocks), 1e-12));
             // The patches' inverses, through their conditioning.
-            close(&grid.patch_inv, &whole.patch_inv, 1e-8);
+            assert!(close(&grid.patch_inv, &whole.patch_inv, 1e-8));
         }
+    }
+
+    /// Whether `a` is within `rel` of `b`'s largest magnitude everywhere.
+    fn close(a: &[f64], b: &[f64], rel: f64) -> bool {
+        let largest = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let worst = a
+            .iter()
+            .zip(b)
+            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        worst <= rel * largest
+    }
+
+    fn flat(b: &[Matrix3<f64>]) -> Vec<f64> {
+        b.iter().flat_map(|m| m.iter().copied()).collect()
+    }
+
+    /// A refresh of the smoother alone leaves the coarse operator bit for bit as the last
+    /// build that refreshed it (here the whole press's contact) and the fine blocks as a
+    /// whole build of the present contact gives them (every other point of it); the next
+    /// refresh of the coarse level takes out the terms of the last one that reached it.
+    #[test]
+    fn the_smoother_s_contact_is_refreshed_without_the_coarse_level() {
+        let (mut n, mut grid) = pressed(1e-3);
+        let coarse_all = grid.coarse.values.clone();
+        n.contact_stiffness = n.contact_stiffness.iter().step_by(2).copied().collect();
+        grid.build(&n, false, false).unwrap();
+        assert_eq!(grid.coarse.values, coarse_all);
+        let mut whole = grid.clone();
+        whole.build(&n, true, true).unwrap();
+        assert!(close(&flat(&grid.blocks), &flat(&whole.blocks), 1e-12));
+        assert!(close(&grid.patch_inv, &whole.patch_inv, 1e-8));
+        // Half the contact's penalty is a change the coarse operator shows.
+        assert!(!close(&coarse_all, &whole.coarse.values, 1e-3));
+        grid.build(&n, false, true).unwrap();
+        assert!(close(&grid.coarse.values, &whole.coarse.values, 1e-12));
     }
 
     /// The cycle at three sweeps' cost is the textbook one: four whole Gauss-Seidel sweeps

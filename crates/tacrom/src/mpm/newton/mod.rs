@@ -31,7 +31,8 @@
 //!   particles, each standing for its share `A` of the top face: a penalty
 //!   `k A g^2 / 2` on the signed distance `g < 0` to the nearest indenter
 //!   (`k = dx / PENETRATION` per cell, see [`PENETRATION`]; the penetration it leaves is
-//!   `p / k`, 1.4 um at a pressure of `M` on every grid). An indenter that reaches between particles still meets surface points, and
+//!   `p / k`, 1.4 um at a pressure of `M` on every grid). An indenter that reaches
+//!   between particles still meets surface points, and
 //!   one that reaches between the lattice's points gets a tip point; a patch smaller than
 //!   the grid resolves gets the compliance the grid misses in series with its penalty
 //!   (see `subgrid.rs`);

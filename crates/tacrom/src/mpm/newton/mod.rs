@@ -32,8 +32,8 @@
 //!   `k A g^2 / 2` on the signed distance `g < 0` to the nearest indenter
 //!   (`k = dx / PENETRATION` per cell, see [`PENETRATION`]; the penetration it leaves is
 //!   `p / k`, 1.4 um at a pressure of `M` on every grid). An indenter that reaches
-//!   between particles still meets surface points, and
-//!   one that reaches between the lattice's points gets a tip point; a patch smaller than
+//!   between particles still meets surface points, and one that reaches between the
+//!   lattice's points gets a tip point; a patch smaller than
 //!   the grid resolves gets the compliance the grid misses in series with its penalty
 //!   (see `subgrid.rs`);
 //! * Coulomb friction as a lagged dissipation potential (as IPC does, Li et al. 2020):
@@ -51,9 +51,9 @@
 //! (see `energy.rs`) plus the Gauss-Newton terms of contact and friction (a sliding
 //! point's friction by the quadratic that majorizes it, see [`Newton::contact_term`]),
 //! solved by a sparse Cholesky factorisation (faer; the fill-reducing ordering is
-//! computed once per region). A factorisation is kept: later steps solve by conjugate gradients
-//! preconditioned with it, the Hessian's products taken point by point from the tangents
-//! of the evaluation (no assembly), and the matrix is assembled and factored afresh only
+//! computed once per region). A factorisation is kept: later steps solve by conjugate
+//! gradients preconditioned with it, the Hessian's products taken point by point from the
+//! tangents of the evaluation (no assembly), and the matrix is assembled and factored afresh only
 //! when that does not converge within [`REUSE_ITERATIONS`] to the step's forcing term
 //! (loose while the residual falls slowly, as far from the minimum, where the contact set
 //! still changes; [`forcing`]). Regions of more than
@@ -215,8 +215,8 @@ const MULTIGRID_ITERATIONS: usize = 200;
 /// The two-grid cycle's coarse level is factored afresh at a minimisation's first step
 /// and after a solve that took more conjugate gradient iterations than this; otherwise
 /// only the smoother's contact is refreshed ([`TwoGrid::build`]). At dx = 0.3 mm the
-/// coarse factorisation costs about eight iterations, at 0.5 mm about one, where solves
-/// take 4 to 8 iterations and its contact a few steps old costs about as much as it saves.
+/// coarse factorisation costs about eight iterations, at 0.5 mm about one; solves take
+/// 4 to 8 iterations with a fresh one and a few more with one some steps old.
 const REFACTOR_COARSE_ABOVE: usize = 12;
 
 /// Quadratic B-spline weights and derivatives along each axis at a point (cells).
@@ -1424,7 +1424,7 @@ impl Newton {
                 // 35 steps at dx = 0.7 mm: points enter and leave the contact), in the
                 // coarse level after a slow solve, the gel's at a minimisation's first.
                 report.factorisations += 1;
-                let coarse = step == 0 || last_iterations > REFACTOR_COARSE_ABOVE;
+                let coarse = last_iterations > REFACTOR_COARSE_ABOVE;
                 if grid.build(self, step == 0, coarse).is_err() {
                     failed = true;
                 } else {

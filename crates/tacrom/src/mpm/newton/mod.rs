@@ -79,13 +79,14 @@
 //! # Coarse start
 //!
 //! On a gel of more than [`super::SolverOptions::coarse_start_above`] unknowns (by
-//! default [`super::COARSE_START_UNKNOWNS`]: the default gel at 0.5 mm and finer), each
-//! frame is first solved on a companion gel twice as coarse (the same parameters and
-//! options; the rule applies again there), and its displacement change
-//! over that solve, read at this grid's nodes through its B-splines, is the first
-//! iterate's change (shared out over the substeps) where the secant predictor has none
-//! to offer: a press from rest, a change of direction (see [`Newton::predict`]). The
-//! companion is solved every frame, so that its change is at hand when needed. A Newton step sheds or gains contact
+//! default [`super::COARSE_START_UNKNOWNS`]: the default gel at 0.5 mm and finer), a
+//! frame where the secant predictor has nothing to offer (a press from rest, a change of
+//! direction; see [`Newton::predict`]) is first solved, substep by substep, on a
+//! companion gel twice as coarse (the same parameters and options; the rule applies
+//! again there), and its displacement change over each substep, read at this grid's
+//! nodes through its B-splines, is the first iterate's change of the same substep here.
+//! The companion follows every other frame in one solve, so that its change is at hand
+//! when needed. A Newton step sheds or gains contact
 //! points about a ring at a time, so a fine press from the previous equilibrium takes
 //! many steps to find its contact patch; the coarse gel finds it at an eighth of the
 //! cost per step, and the fine one starts within a coarse lattice spacing of it. The
@@ -461,10 +462,9 @@ pub(crate) struct Newton {
     /// Per run of Newton steps with the same lagged terms in the last solve: the energy at
     /// its start and after each accepted step.
     pub history: Vec<Vec<f64>>,
-    /// The coarse start's displacement change per substep (empty when there is none) and
-    /// the substeps left to use it ([`Gel::coarse_start`]).
+    /// The coarse start's displacement change over the next substep (empty when there
+    /// is none; [`Gel::coarse_start`]), taken by [`Newton::predict`].
     coarse_step: Vec<f64>,
-    coarse_uses: usize,
     /// The displacement change over the last substep and the indenters' translations
     /// (cells) in it, for the secant predictor.
     last_change: Vec<f64>,
@@ -620,7 +620,6 @@ impl Newton {
             min_scale: 1e-4 * mu,
             history: Vec::new(),
             coarse_step: Vec::new(),
-            coarse_uses: 0,
             last_change: Vec::new(),
             last_motion: Vec::new(),
             e_star: 2.0 * mu / (1.0 - params.poisson),
@@ -1795,27 +1794,34 @@ impl Newton {
         self.substep_split(&rest, &middle, tolerance, splits - 1, report)
     }
 
-    /// The predictor: where the indenters move on along their last path, the secant one
-    /// (the gel moved on by the same multiple of its last change); elsewhere (a press from
-    /// rest, a change of direction) the coarse start's share of its change
-    /// ([`Gel::coarse_start`]), if there is one. Kept only if that lowers the energy
-    /// (friction left out). A warm start from the last equilibrium alone meets the
-    /// indenters deeper than the solution does, over a wider patch than the one in
+    /// The secant predictor's multiple of the last substep's change for indenters moving
+    /// by `motion` (cells): `None` unless they move on along their last path.
+    fn secant(&self, motion: &[Vector3<f64>]) -> Option<f64> {
+        (self.last_change.len() == self.u.len())
+            .then(|| super::secant_scale(motion, &self.last_motion))
+            .flatten()
+    }
+
+    /// The predictor: the coarse start's change over this substep where there is one (a
+    /// frame that does not move on along the last one's path, see [`Gel::solve_newton`]);
+    /// elsewhere, where the indenters move on along their last path, the secant one (the
+    /// gel moved on by the same multiple of its last change). Kept only if that lowers
+    /// the energy (friction left out). A warm start from the last equilibrium alone meets
+    /// the indenters deeper than the solution does, over a wider patch than the one in
     /// contact at the solution, and Newton's method then sheds the extra contact points
     /// a ring per step; a prediction starts it near the solution's contact patch. On a
     /// steady moving press the secant prediction is the better one: at 0.5 mm the coarse
     /// start's, taken wherever its energy was the lower (always), made a median frame 38
     /// s (24 Newton steps) against 21 s (19).
     fn predict(&mut self, motion: &[Vector3<f64>], indenters: &[StepIndenter]) {
-        let coarse = self.coarse_uses > 0 && self.coarse_step.len() == self.u.len();
-        self.coarse_uses = self.coarse_uses.saturating_sub(1);
-        let secant = (self.last_change.len() == self.u.len())
-            .then(|| super::secant_scale(motion, &self.last_motion))
-            .flatten();
-        let (s, change) = match secant {
-            Some(s) => (s, &self.last_change),
-            None if coarse => (1.0, &self.coarse_step),
-            None => return,
+        let coarse = std::mem::take(&mut self.coarse_step);
+        let (s, change) = if coarse.len() == self.u.len() {
+            (1.0, &coarse)
+        } else {
+            match self.secant(motion) {
+                Some(s) => (s, &self.last_change),
+                None => return,
+            }
         };
         for ((t, u), d) in self.trial.iter_mut().zip(&self.u).zip(change) {
             *t = u + s * d;
@@ -2035,10 +2041,10 @@ fn smooth_slip(y: f64, r: f64) -> f64 {
 impl Gel {
     /// The coarse start of a Newton solve on this gel
     /// ([`SolverOptions::coarse_start_above`]):
-    /// the gel twice as coarse solves the frame's `indenters` first, and the change of its
-    /// displacement field over that solve, at each node of `fine`'s region (cells of this
-    /// grid; zero elsewhere), is returned. `None` where the grid is small enough to go
-    /// without, or the coarse solve did not converge.
+    /// the gel twice as coarse solves for `indenters` (a frame's poses or a substep's),
+    /// and the change of its displacement field over that solve, at each node of
+    /// `fine`'s region (cells of this grid; zero elsewhere), is returned. `None` where the
+    /// grid is small enough to go without, or the coarse solve did not converge.
     fn coarse_start(
         &mut self,
         indenters: &[Placed],
@@ -2187,13 +2193,24 @@ impl Gel {
             return;
         }
         report.active_particles = newton.region_points.len();
-        newton.coarse_step = self
-            .coarse_start(indenters, &newton, report)
-            .unwrap_or_default();
-        for v in newton.coarse_step.iter_mut() {
-            *v /= substeps as f64;
+        // A frame that moves on along the last one's path is predicted by the secant.
+        // Any other (a press from rest, a change of direction) solves the coarse start's
+        // gel through the same substeps, and each substep starts from its change over
+        // that substep: a deep press from rest took 31 and 39 Newton steps in its two
+        // substeps at 0.5 mm when the first started from half the coarse gel's change
+        // over the whole frame and the second from the secant, 27 and 34 so.
+        plan.place(0, dx, &mut placed);
+        let motion: Vec<Vector3<f64>> = placed
+            .iter()
+            .zip(&sweep.starts)
+            .map(|(p, s)| (p.now.translation.vector - s.translation.vector) / dx)
+            .collect();
+        let steady = newton.secant(&motion).is_some();
+        if steady {
+            // The coarse gel follows every frame, so that its change is at hand when
+            // needed.
+            self.coarse_start(indenters, &newton, report);
         }
-        newton.coarse_uses = substeps;
         let saved = newton.u.clone();
         report.sweep_steps = substeps;
         report.residual = 0.0;
@@ -2202,6 +2219,18 @@ impl Gel {
         let mut force = Some(Vector3::zeros());
         for s in 0..substeps {
             plan.place(s, dx, &mut placed);
+            if !steady {
+                let poses: Vec<Placed> = placed
+                    .iter()
+                    .map(|p| Placed {
+                        shape: p.shape.clone(),
+                        pose: p.now,
+                    })
+                    .collect();
+                newton.coarse_step = self
+                    .coarse_start(&poses, &newton, report)
+                    .unwrap_or_default();
+            }
             match newton.substep_split(&placed, &starts, tolerance, MAX_SPLITS, report) {
                 Ok(f) => force = Some(f),
                 Err(residual) if residual.is_finite() => {

@@ -894,6 +894,48 @@ fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
     );
 }
 
+/// A press from rest deeper than a cell is taken in substeps, each started from the
+/// coarse gel's change over that substep (it solves the same substeps first): the answer
+/// is that of a cold start (the bounds of the test above: the start changes which
+/// tolerance-sized step ends the solve, with friction the contact's path within it), and
+/// the fine gel takes fewer Newton steps.
+#[test]
+fn a_press_from_rest_starts_each_substep_from_the_coarse_gel() {
+    let run = |friction: f64, above: usize| {
+        let p = GelParams {
+            size: [0.01, 0.01, 0.0025],
+            dx: 0.5e-3,
+            friction,
+            ..Default::default()
+        };
+        let options = SolverOptions {
+            coarse_start_above: above,
+            ..options(1e-5)
+        };
+        press_path(p, options, 2.5e-3, &[(0.0, 0.6e-3)]).remove(0)
+    };
+    for (friction, bound, surface) in [(0.0, 1e-4, 1e-4), (0.5, 1e-2, 2e-2)] {
+        let ((fa, sa, ra), (fb, sb, rb)) = (run(friction, 0), run(friction, usize::MAX));
+        assert_eq!(ra.sweep_steps, 2, "{ra:?}");
+        assert!(ra.coarse_iterations > 0 && rb.coarse_iterations == 0);
+        assert!(
+            (fa - fb).norm() <= bound * fb.norm(),
+            "friction {friction}: {fa} against {fb}"
+        );
+        let (worst, peak) = surface_gap(&sa, &sb);
+        assert!(
+            worst <= surface * peak,
+            "friction {friction}: {worst} of {peak}"
+        );
+        assert!(
+            ra.iterations < rb.iterations,
+            "friction {friction}: {} Newton steps against {}",
+            ra.iterations,
+            rb.iterations
+        );
+    }
+}
+
 /// A gel too thin for twice its spacing (a 0.4 mm layer at 0.5 mm: the coarse gel's
 /// spacing would exceed twice its thickness, which `Gel::new` refuses) goes without the
 /// coarse start: the same answer as with it turned off, bit for bit, and the option set

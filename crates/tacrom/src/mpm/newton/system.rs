@@ -170,6 +170,37 @@ impl System {
         }
     }
 
+    /// Calls `f(i, j, slot, block)` for every stored block: the rows of node `i`, at
+    /// offset `slot` from node `j` (`i >= j`), and the columns of `j`; the diagonal
+    /// blocks whole.
+    pub fn each_block(&self, mut f: impl FnMut(usize, usize, usize, &Matrix3<f64>)) {
+        for (j, nb) in self.neighbour.iter().enumerate() {
+            for (slot, &pos) in nb.iter().enumerate() {
+                if pos == NONE {
+                    continue;
+                }
+                let pos = pos as usize;
+                let (mut k, mut i) = (Matrix3::zeros(), j);
+                for c in 0..3 {
+                    let start = self.col_ptr[3 * j + c] as usize;
+                    if pos == 0 {
+                        for r in c..3 {
+                            k[(r, c)] = self.values[start + r - c];
+                            k[(c, r)] = k[(r, c)];
+                        }
+                    } else {
+                        let base = start + (3 - c) + 3 * (pos - 1);
+                        i = self.row_idx[base] as usize / 3;
+                        for r in 0..3 {
+                            k[(r, c)] = self.values[base + r];
+                        }
+                    }
+                }
+                f(i, j, slot, &k);
+            }
+        }
+    }
+
     /// Largest diagonal entry.
     pub fn max_diagonal(&self) -> f64 {
         self.diagonal

@@ -218,9 +218,9 @@ const MULTIGRID_ITERATIONS: usize = 200;
 /// only the smoother's contact is refreshed ([`TwoGrid::build`]). At dx = 0.3 mm the
 /// coarse factorisation cost about eight iterations, at 0.5 mm about one; solves take
 /// 4 to 8 iterations with a fresh one and a few more with one some steps old. At 0.3 mm
-/// the coarse level is now smoothed, not factored, and refreshed in about a tenth of
-/// that; refreshing it at every step there still took no less time (129.6 against 123.8
-/// s for `fine_press -- dx=0.3e-3 solver=newton depths=0.1,0.2`).
+/// the coarse level is now smoothed, not factored, and a refresh takes 0.24 s instead
+/// of 2.8; refreshing it at every step there still took no less time (129.6 against
+/// 123.8 s for `fine_press -- dx=0.3e-3 solver=newton depths=0.1,0.2`).
 const REFACTOR_COARSE_ABOVE: usize = 12;
 
 /// Quadratic B-spline weights and derivatives along each axis at a point (cells).

@@ -845,6 +845,26 @@ fn the_forcing_term_follows_the_fall_of_the_residual() {
     assert_eq!(forcing(f64::NAN, FORCING), LOOSEST_FORCING);
 }
 
+/// [`press_path`] of a 2.5 mm sphere on a small 0.5 mm gel at tolerance 1e-5, with the
+/// coarse start above `above` unknowns.
+fn coarse_start_path(
+    friction: f64,
+    above: usize,
+    path: &[(f64, f64)],
+) -> Vec<(Vector3<f64>, Vec<Vector3<f64>>, SolveReport)> {
+    let p = GelParams {
+        size: [0.01, 0.01, 0.0025],
+        dx: 0.5e-3,
+        friction,
+        ..Default::default()
+    };
+    let options = SolverOptions {
+        coarse_start_above: above,
+        ..options(1e-5)
+    };
+    press_path(p, options, 2.5e-3, path)
+}
+
 /// The coarse start (the gel twice as coarse solved first, its change carried onto the
 /// grid as Newton's first iterate) changes where Newton's method starts, not where it
 /// ends, and the fine grid takes fewer Newton steps. A press from rest and a deeper one
@@ -857,17 +877,7 @@ fn the_forcing_term_follows_the_fall_of_the_residual() {
 #[test]
 fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
     let run = |friction: f64, above: usize| {
-        let p = GelParams {
-            size: [0.01, 0.01, 0.0025],
-            dx: 0.5e-3,
-            friction,
-            ..Default::default()
-        };
-        let options = SolverOptions {
-            coarse_start_above: above,
-            ..options(1e-5)
-        };
-        press_path(p, options, 2.5e-3, &[(0.0, 0.15e-3), (0.2e-3, 0.3e-3)])
+        coarse_start_path(friction, above, &[(0.0, 0.15e-3), (0.2e-3, 0.3e-3)])
     };
     let (mut steps, mut cold_steps) = (0, 0);
     for (friction, bound, surface) in [(0.0, 1e-4, 1e-4), (0.5, 1e-2, 2e-2)] {
@@ -902,17 +912,7 @@ fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
 #[test]
 fn a_press_from_rest_starts_each_substep_from_the_coarse_gel() {
     let run = |friction: f64, above: usize| {
-        let p = GelParams {
-            size: [0.01, 0.01, 0.0025],
-            dx: 0.5e-3,
-            friction,
-            ..Default::default()
-        };
-        let options = SolverOptions {
-            coarse_start_above: above,
-            ..options(1e-5)
-        };
-        press_path(p, options, 2.5e-3, &[(0.0, 0.6e-3)]).remove(0)
+        coarse_start_path(friction, above, &[(0.0, 0.6e-3)]).remove(0)
     };
     for (friction, bound, surface) in [(0.0, 1e-4, 1e-4), (0.5, 1e-2, 2e-2)] {
         let ((fa, sa, ra), (fb, sb, rb)) = (run(friction, 0), run(friction, usize::MAX));

@@ -6,7 +6,7 @@
 //! Keys (defaults): `dx` (0.3e-3 m), `depths` ("0.1,0.2,0.3" mm, pressed in order, each
 //! solve warm-started from the last), `threads` (1), `friction` (0.5), `poisson` (0.43), `tolerance` (1e-3),
 //! `solver` (relaxation), `cfl` (0.5), `damping` (1), `linear` (auto; Newton's linear solves:
-//! auto, factor or multigrid), `coarse_start` (1; 0 turns Newton's coarse start off). Prints each step's time, iterations,
+//! auto, factor or multigrid), `coarse_start` (1; 0 turns Newton's coarse start off, a larger number sets the unknowns above which a gel takes it). Prints each step's time, iterations,
 //! convergence and normal force.
 
 use nalgebra::Isometry3;
@@ -41,8 +41,10 @@ fn main() {
             "cfl" => options.cfl = number(),
             "damping" => options.damping = number(),
             "coarse_start" => {
-                if number() == 0.0 {
-                    options.coarse_start_above = usize::MAX
+                options.coarse_start_above = match number() {
+                    0.0 => usize::MAX,
+                    1.0 => options.coarse_start_above,
+                    n => n as usize,
                 }
             }
             "linear" => {

@@ -386,19 +386,10 @@ impl Prolongation {
     /// none), its nodes (grid indices, ascending) and the prolongation.
     fn new(coords: &[[usize; 3]], dims: [usize; 3]) -> ([usize; 3], Vec<u32>, Vec<u32>, Self) {
         let cdims = dims.map(|d| d / 2 + 2);
-        let parents = |c: &[usize; 3], f: &mut dyn FnMut(usize, f64)| {
-            let p: [[(usize, f64); 2]; 3] = std::array::from_fn(|k| axis_parents(c[k]));
-            for (jx, wx) in p[0] {
-                for (jy, wy) in p[1] {
-                    for (jz, wz) in p[2] {
-                        f((jx * cdims[1] + jy) * cdims[2] + jz, wx * wy * wz);
-                    }
-                }
-            }
-        };
+        let index = |j: [usize; 3]| (j[0] * cdims[1] + j[1]) * cdims[2] + j[2];
         let mut used = vec![false; cdims.iter().product()];
         for c in coords {
-            parents(c, &mut |j, _| used[j] = true);
+            each_parent(c, |j, _| used[index(j)] = true);
         }
         let (cdof, cnodes) = number(&used);
         let mut p = Prolongation {
@@ -407,8 +398,8 @@ impl Prolongation {
             weight: Vec::new(),
         };
         for c in coords {
-            parents(c, &mut |j, w| {
-                p.coarse.push(cdof[j]);
+            each_parent(c, |j, w| {
+                p.coarse.push(cdof[index(j)]);
                 p.weight.push(w);
             });
             p.start.push(p.coarse.len() as u32);

@@ -102,6 +102,7 @@
 mod energy;
 pub(super) mod linear;
 mod multigrid;
+mod slabs;
 mod subgrid;
 mod system;
 #[cfg(test)]
@@ -121,6 +122,7 @@ use super::{
 use crate::geometry::{Aabb, Placed, Sdf};
 use energy::{Density, Kind};
 use multigrid::TwoGrid;
+use slabs::Slabs;
 use std::sync::Arc;
 use system::{conjugate_gradients, System};
 
@@ -415,6 +417,8 @@ pub(crate) struct Newton {
     /// fixed) and its region index (into `grad`; `u32::MAX` where fixed or held).
     point_free: Vec<[u32; 27]>,
     point_local: Vec<[u32; 27]>,
+    /// The region points by slab, for their sums onto the nodes (see `slabs.rs`).
+    slabs: Slabs,
     /// Per region point: its state at the last evaluation.
     states: Vec<PointState>,
     /// The contact points with a stiffness at the last evaluation.
@@ -592,6 +596,7 @@ impl Newton {
             region_points: Vec::new(),
             point_free: Vec::new(),
             point_local: Vec::new(),
+            slabs: Slabs::default(),
             states: Vec::new(),
             contact_stiffness: Vec::new(),
             system: None,
@@ -871,6 +876,16 @@ impl Newton {
         }
         self.point_free = free;
         self.point_local = local;
+        let base_x: Vec<i32> = self
+            .region_points
+            .iter()
+            .map(|&i| self.points[i as usize].stencil.base[0])
+            .collect();
+        let node_x: Vec<i32> = grid_nodes
+            .iter()
+            .map(|&n| (n as usize / (ny * nz)) as i32)
+            .collect();
+        self.slabs = Slabs::new(&base_x, &node_x);
         self.states
             .resize(self.region_points.len(), PointState::default());
         let n = 3 * self.region_nodes.len();
@@ -1203,28 +1218,28 @@ impl Newton {
             });
         let mut energy = 0.0;
         let (mut jmin, mut jmax) = (f64::INFINITY, f64::NEG_INFINITY);
-        for ((state, &i), dofs) in self
-            .states
-            .iter()
-            .zip(&self.region_points)
-            .zip(&self.point_local)
-        {
+        for state in &self.states {
             if !state.defined {
                 return None;
             }
             jmin = jmin.min(state.j);
             jmax = jmax.max(state.j);
             energy += state.energy;
-            let stencil = &self.points[i as usize].stencil;
-            for (l, &d) in dofs.iter().enumerate() {
+        }
+        let (states, region_points, point_local) =
+            (&self.states, &self.region_points, &self.point_local);
+        self.slabs.add(&mut self.grad, 3, |r, rows, first| {
+            let (state, stencil) = (&states[r], &points[region_points[r] as usize].stencil);
+            for (l, &d) in point_local[r].iter().enumerate() {
                 if d != u32::MAX {
                     let force = state.stress * stencil.gradient(l);
+                    let at = 3 * (d as usize - first);
                     for k in 0..3 {
-                        self.grad[3 * d as usize + k] += force[k];
+                        rows[at + k] += force[k];
                     }
                 }
             }
-        }
+        });
         self.elastic_energy = energy;
         self.elastic_grad.copy_from_slice(&self.grad);
         Some((energy + self.evaluate_contact(indenters), jmin, jmax))
@@ -1271,38 +1286,27 @@ impl Newton {
     /// numbering).
     fn hessian_product(&self, x: &[f64], y: &mut [f64]) {
         let points = &self.points;
-        // Each point's stress change `dP = T dF(x)`, in parallel; added up in order.
-        let changes: Vec<Matrix3<f64>> = self
-            .states
-            .par_iter()
-            .zip(self.region_points.par_iter())
-            .zip(self.point_local.par_iter())
-            .with_min_len(CHUNK)
-            .map(|((state, &i), dofs)| {
-                let df = deformation(&points[i as usize].stencil, dofs, x) - Matrix3::identity();
-                let v: [f64; 9] = std::array::from_fn(|e| df[(e / 3, e % 3)]);
-                Matrix3::from_fn(|a, b| {
-                    let row = &state.tangent[3 * a + b];
-                    row.iter().zip(&v).map(|(t, v)| t * v).sum()
-                })
-            })
-            .collect();
+        // Each point's stress change `dP = T dF(x)`, added to its nodes by slabs.
         y.fill(0.0);
-        for ((dp, &i), dofs) in changes
-            .iter()
-            .zip(&self.region_points)
-            .zip(&self.point_local)
-        {
-            let stencil = &points[i as usize].stencil;
+        self.slabs.add(y, 3, |r, rows, first| {
+            let (state, dofs) = (&self.states[r], &self.point_local[r]);
+            let stencil = &points[self.region_points[r] as usize].stencil;
+            let df = deformation(stencil, dofs, x) - Matrix3::identity();
+            let v: [f64; 9] = std::array::from_fn(|e| df[(e / 3, e % 3)]);
+            let dp = Matrix3::from_fn(|a, b| {
+                let row = &state.tangent[3 * a + b];
+                row.iter().zip(&v).map(|(t, v)| t * v).sum::<f64>()
+            });
             for (l, &d) in dofs.iter().enumerate() {
                 if d != u32::MAX {
                     let f = dp * stencil.gradient(l);
+                    let at = 3 * (d as usize - first);
                     for k in 0..3 {
-                        y[3 * d as usize + k] += f[k];
+                        rows[at + k] += f[k];
                     }
                 }
             }
-        }
+        });
         for k in &self.contact_stiffness {
             let mut v = Vector3::zeros();
             for (&d, &w) in k.dofs.iter().zip(&k.w) {

@@ -804,44 +804,48 @@ impl TwoGrid {
         self.coarse_contact.clear();
         let mut blocks = std::mem::take(&mut self.fine.blocks);
         blocks.fill(Matrix3::zeros());
+        newton.slabs.add(&mut blocks, SLOTS, |r, rows, first| {
+            let stencil = &newton.points[newton.region_points[r] as usize].stencil;
+            let local = &newton.point_local[r];
+            let fine: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
+            let tl = contract(&fine, &newton.states[r].tangent, |l| local[l] != u32::MAX);
+            add_fine(rows, first, local, |l1, l2| {
+                let g2 = &fine[l2];
+                Matrix3::from_fn(|a, c| {
+                    tl[l1][a][3 * c] * g2[0]
+                        + tl[l1][a][3 * c + 1] * g2[1]
+                        + tl[l1][a][3 * c + 2] * g2[2]
+                })
+            });
+        });
+        self.fine.blocks = blocks;
         let count = newton.states.len();
         for start in (0..count).step_by(BATCH) {
             let end = (start + BATCH).min(count);
-            // Per point: its gradients, and mapped to the coarse grid.
-            let mapped: Vec<([Vector3<f64>; 27], [Vector3<f64>; 27])> = (start..end)
+            // Per point: its gradients mapped to the coarse grid.
+            let mapped: Vec<[Vector3<f64>; 27]> = (start..end)
                 .into_par_iter()
                 .with_min_len(CHUNK)
                 .map(|r| {
                     let stencil = &newton.points[newton.region_points[r] as usize].stencil;
                     let map = CoarseMap::new(&stencil.base);
-                    let fine: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
                     let mut coarse = [Vector3::zeros(); 27];
                     for (l, &d) in newton.point_local[r].iter().enumerate() {
                         if d != u32::MAX {
-                            map.each(&stencil.base, l, |a, w| coarse[a] += fine[l] * w);
+                            map.each(&stencil.base, l, |a, w| {
+                                coarse[a] += stencil.gradient(l) * w
+                            });
                         }
                     }
-                    (fine, coarse)
+                    coarse
                 })
                 .collect();
-            for (r, (fine, grads)) in (start..end).zip(&mapped) {
+            for (r, grads) in (start..end).zip(&mapped) {
                 let stencil = &newton.points[newton.region_points[r] as usize].stencil;
-                let tangent = &newton.states[r].tangent;
                 let dofs = self.coarse_dofs(&CoarseMap::new(&stencil.base));
-                add_point(&mut self.coarse, &dofs, grads, tangent);
-                let local = &newton.point_local[r];
-                let tl = contract(fine, tangent, |l| local[l] != u32::MAX);
-                add_fine(&mut blocks, local, |l1, l2| {
-                    let g2 = &fine[l2];
-                    Matrix3::from_fn(|a, c| {
-                        tl[l1][a][3 * c] * g2[0]
-                            + tl[l1][a][3 * c + 1] * g2[1]
-                            + tl[l1][a][3 * c + 2] * g2[2]
-                    })
-                });
+                add_point(&mut self.coarse, &dofs, grads, &newton.states[r].tangent);
             }
         }
-        self.fine.blocks = blocks;
     }
 
     /// Adds `sign` times a contact point's stiffness to the coarse operator.
@@ -865,7 +869,7 @@ impl TwoGrid {
         let local = k
             .dofs
             .map(|d| if d == usize::MAX { u32::MAX } else { d as u32 });
-        add_fine(&mut self.fine.blocks, &local, |l1, l2| {
+        add_fine(&mut self.fine.blocks, 0, &local, |l1, l2| {
             h * (k.w[l1] * k.w[l2])
         });
     }
@@ -900,6 +904,7 @@ impl TwoGrid {
 /// `l2 <= l1` and mirrored.
 fn add_fine(
     blocks: &mut [Matrix3<f64>],
+    first: usize,
     local: &[u32; 27],
     block: impl Fn(usize, usize) -> Matrix3<f64>,
 ) {
@@ -915,9 +920,10 @@ fn add_fine(
             let o2 = Stencil::local(l2);
             let o = [o2[0] - o1[0], o2[1] - o1[1], o2[2] - o1[2]];
             let k = block(l1, l2);
-            blocks[SLOTS * local[l1] as usize + offset_slot(o)] += k;
+            blocks[SLOTS * (local[l1] as usize - first) + offset_slot(o)] += k;
             if l2 != l1 {
-                blocks[SLOTS * local[l2] as usize + offset_slot(o.map(|v| -v))] += k.transpose();
+                blocks[SLOTS * (local[l2] as usize - first) + offset_slot(o.map(|v| -v))] +=
+                    k.transpose();
             }
         }
     }

@@ -1228,14 +1228,17 @@ impl Newton {
         }
         let (states, region_points, point_local) =
             (&self.states, &self.region_points, &self.point_local);
-        self.slabs.add(&mut self.grad, 3, |r, rows, first| {
-            let (state, stencil) = (&states[r], &points[region_points[r] as usize].stencil);
-            for (l, &d) in point_local[r].iter().enumerate() {
-                if d != u32::MAX {
-                    let force = state.stress * stencil.gradient(l);
-                    let at = 3 * (d as usize - first);
-                    for k in 0..3 {
-                        rows[at + k] += force[k];
+        self.slabs.add(&mut self.grad, 3, |slab, rows, first| {
+            for &r in slab {
+                let r = r as usize;
+                let (state, stencil) = (&states[r], &points[region_points[r] as usize].stencil);
+                for (l, &d) in point_local[r].iter().enumerate() {
+                    if d != u32::MAX {
+                        let force = state.stress * stencil.gradient(l);
+                        let at = 3 * (d as usize - first);
+                        for k in 0..3 {
+                            rows[at + k] += force[k];
+                        }
                     }
                 }
             }
@@ -1286,23 +1289,35 @@ impl Newton {
     /// numbering).
     fn hessian_product(&self, x: &[f64], y: &mut [f64]) {
         let points = &self.points;
-        // Each point's stress change `dP = T dF(x)`, added to its nodes by slabs.
+        // Each point's stress change `dP = T dF(x)`, added to its nodes by slabs; a slab's
+        // changes first, then their sums (in one loop the product took half as long again).
         y.fill(0.0);
-        self.slabs.add(y, 3, |r, rows, first| {
-            let (state, dofs) = (&self.states[r], &self.point_local[r]);
-            let stencil = &points[self.region_points[r] as usize].stencil;
-            let df = deformation(stencil, dofs, x) - Matrix3::identity();
-            let v: [f64; 9] = std::array::from_fn(|e| df[(e / 3, e % 3)]);
-            let dp = Matrix3::from_fn(|a, b| {
-                let row = &state.tangent[3 * a + b];
-                row.iter().zip(&v).map(|(t, v)| t * v).sum::<f64>()
-            });
-            for (l, &d) in dofs.iter().enumerate() {
-                if d != u32::MAX {
-                    let f = dp * stencil.gradient(l);
-                    let at = 3 * (d as usize - first);
-                    for k in 0..3 {
-                        rows[at + k] += f[k];
+        self.slabs.add(y, 3, |slab, rows, first| {
+            let changes: Vec<Matrix3<f64>> = slab
+                .iter()
+                .map(|&r| {
+                    let r = r as usize;
+                    let (state, dofs) = (&self.states[r], &self.point_local[r]);
+                    let stencil = &points[self.region_points[r] as usize].stencil;
+                    let df = deformation(stencil, dofs, x) - Matrix3::identity();
+                    let v: [f64; 9] = std::array::from_fn(|e| df[(e / 3, e % 3)]);
+                    Matrix3::from_fn(|a, b| {
+                        let row = &state.tangent[3 * a + b];
+                        row.iter().zip(&v).map(|(t, v)| t * v).sum::<f64>()
+                    })
+                })
+                .collect();
+            for (&r, dp) in slab.iter().zip(&changes) {
+                let r = r as usize;
+                let dofs = &self.point_local[r];
+                let stencil = &points[self.region_points[r] as usize].stencil;
+                for (l, &d) in dofs.iter().enumerate() {
+                    if d != u32::MAX {
+                        let f = dp * stencil.gradient(l);
+                        let at = 3 * (d as usize - first);
+                        for k in 0..3 {
+                            rows[at + k] += f[k];
+                        }
                     }
                 }
             }

@@ -209,51 +209,70 @@ impl Smoother {
     /// The patches' inverses and the sweeps' blocks from the blocks.
     fn prepare(&mut self) {
         self.invert_patches();
-        for (k, b) in self.bounds.iter().enumerate() {
-            for i in b[0] as usize..b[2] as usize {
-                let slot = self.others[i].0 as usize;
-                self.sweep_blocks[i] = self.blocks[SLOTS * k + slot].cast::<f32>();
-            }
+        // Each node's run of the sweeps' blocks, filled in parallel.
+        let mut runs = Vec::with_capacity(self.bounds.len());
+        let mut rest = &mut self.sweep_blocks[..];
+        for b in &self.bounds {
+            let (run, tail) = std::mem::take(&mut rest).split_at_mut((b[2] - b[0]) as usize);
+            runs.push(run);
+            rest = tail;
         }
+        let (blocks, others, bounds) = (&self.blocks, &self.others, &self.bounds);
+        runs.into_par_iter()
+            .with_min_len(256)
+            .enumerate()
+            .for_each(|(k, run)| {
+                let from = bounds[k][0] as usize;
+                for (i, m) in run.iter_mut().enumerate() {
+                    *m = blocks[SLOTS * k + others[from + i].0 as usize].cast::<f32>();
+                }
+            });
     }
 
     /// The patches' inverses from the blocks.
     fn invert_patches(&mut self) {
-        let blocks = &self.blocks;
-        for (b, nodes) in self.patch_nodes.iter().enumerate() {
-            let mut m = nalgebra::DMatrix::<f64>::identity(PATCH, PATCH);
-            for (p, &k) in nodes.iter().enumerate() {
-                if k == u32::MAX {
-                    continue;
-                }
-                let row = &blocks[SLOTS * k as usize..SLOTS * (k as usize + 1)];
-                let nb = &self.neighbours[SLOTS * k as usize..SLOTS * (k as usize + 1)];
-                for (block, &j) in row.iter().zip(nb) {
-                    if j == u32::MAX || self.patch_of[j as usize].0 as usize != b {
+        let (blocks, neighbours, patch_of) = (&self.blocks, &self.neighbours, &self.patch_of);
+        let patches = self
+            .patch_inv
+            .par_chunks_exact_mut(PATCH * PATCH)
+            .with_min_len(16);
+        patches
+            .zip(&self.patch_nodes)
+            .enumerate()
+            .for_each(|(b, (out, nodes))| {
+                let mut m = nalgebra::DMatrix::<f64>::identity(PATCH, PATCH);
+                for (p, &k) in nodes.iter().enumerate() {
+                    if k == u32::MAX {
                         continue;
                     }
-                    let q = self.patch_of[j as usize].1 as usize;
-                    for a in 0..3 {
-                        for c in 0..3 {
-                            m[(3 * p + a, 3 * q + c)] = block[(a, c)];
+                    let row = &blocks[SLOTS * k as usize..SLOTS * (k as usize + 1)];
+                    let nb = &neighbours[SLOTS * k as usize..SLOTS * (k as usize + 1)];
+                    for (block, &j) in row.iter().zip(nb) {
+                        if j == u32::MAX || patch_of[j as usize].0 as usize != b {
+                            continue;
+                        }
+                        let q = patch_of[j as usize].1 as usize;
+                        for a in 0..3 {
+                            for c in 0..3 {
+                                m[(3 * p + a, 3 * q + c)] = block[(a, c)];
+                            }
                         }
                     }
                 }
-            }
-            let inv = m
-                .clone()
-                .cholesky()
-                .map(|c| c.inverse())
-                .unwrap_or_else(|| {
-                    m.try_inverse()
-                        .unwrap_or_else(|| nalgebra::DMatrix::zeros(PATCH, PATCH))
-                });
-            for i in 0..PATCH {
-                for j in 0..PATCH {
-                    self.patch_inv[b * PATCH * PATCH + i * PATCH + j] = inv[(i, j)];
+                let inv = m
+                    .clone()
+                    .cholesky()
+                    .map(|c| c.inverse())
+                    .unwrap_or_else(|| {
+                        m.try_inverse()
+                            .unwrap_or_else(|| nalgebra::DMatrix::zeros(PATCH, PATCH))
+                    });
+                for i in 0..PATCH {
+                    for j in 0..PATCH {
+                        out[i * PATCH + j] = inv[(i, j)];
+                    }
                 }
-            }
-        }
+            });
     }
 
     /// `y = K x` with the assembled blocks.
@@ -804,19 +823,22 @@ impl TwoGrid {
         self.coarse_contact.clear();
         let mut blocks = std::mem::take(&mut self.fine.blocks);
         blocks.fill(Matrix3::zeros());
-        newton.slabs.add(&mut blocks, SLOTS, |r, rows, first| {
-            let stencil = &newton.points[newton.region_points[r] as usize].stencil;
-            let local = &newton.point_local[r];
-            let fine: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
-            let tl = contract(&fine, &newton.states[r].tangent, |l| local[l] != u32::MAX);
-            add_fine(rows, first, local, |l1, l2| {
-                let g2 = &fine[l2];
-                Matrix3::from_fn(|a, c| {
-                    tl[l1][a][3 * c] * g2[0]
-                        + tl[l1][a][3 * c + 1] * g2[1]
-                        + tl[l1][a][3 * c + 2] * g2[2]
-                })
-            });
+        newton.slabs.add(&mut blocks, SLOTS, |slab, rows, first| {
+            for &r in slab {
+                let r = r as usize;
+                let stencil = &newton.points[newton.region_points[r] as usize].stencil;
+                let local = &newton.point_local[r];
+                let fine: [Vector3<f64>; 27] = std::array::from_fn(|l| stencil.gradient(l));
+                let tl = contract(&fine, &newton.states[r].tangent, |l| local[l] != u32::MAX);
+                add_fine(rows, first, local, |l1, l2| {
+                    let g2 = &fine[l2];
+                    Matrix3::from_fn(|a, c| {
+                        tl[l1][a][3 * c] * g2[0]
+                            + tl[l1][a][3 * c + 1] * g2[1]
+                            + tl[l1][a][3 * c + 2] * g2[2]
+                    })
+                });
+            }
         });
         self.fine.blocks = blocks;
         let count = newton.states.len();
@@ -832,9 +854,8 @@ impl TwoGrid {
                     let mut coarse = [Vector3::zeros(); 27];
                     for (l, &d) in newton.point_local[r].iter().enumerate() {
                         if d != u32::MAX {
-                            map.each(&stencil.base, l, |a, w| {
-                                coarse[a] += stencil.gradient(l) * w
-                            });
+                            let g = stencil.gradient(l);
+                            map.each(&stencil.base, l, |a, w| coarse[a] += g * w);
                         }
                     }
                     coarse

@@ -80,7 +80,7 @@ impl Slabs {
         &self,
         out: &mut [T],
         width: usize,
-        add: impl Fn(usize, &mut [T], usize) + Sync,
+        add: impl Fn(&[u32], &mut [T], usize) + Sync,
     ) {
         for parity in 0..2 {
             let mut parts = Vec::new();
@@ -93,9 +93,11 @@ impl Slabs {
                 (rest, at) = (tail, end);
             }
             parts.into_par_iter().for_each(|(s, rows, first)| {
-                for &r in &self.points[self.starts[s]..self.starts[s + 1]] {
-                    add(r as usize, rows, first);
-                }
+                add(
+                    &self.points[self.starts[s]..self.starts[s + 1]],
+                    rows,
+                    first,
+                );
             });
         }
     }
@@ -141,11 +143,13 @@ mod tests {
                     .build()
                     .unwrap();
                 pool.install(|| {
-                    slabs.add(&mut out, 2, |r, rows, first| {
-                        for d in reached(r) {
-                            assert!(d >= first && 2 * (d - first) < rows.len(), "point {r}");
-                            rows[2 * (d - first)] += value[r];
-                            rows[2 * (d - first) + 1] += 1.0;
+                    slabs.add(&mut out, 2, |slab, rows, first| {
+                        for &r in slab {
+                            for d in reached(r as usize) {
+                                assert!(d >= first && 2 * (d - first) < rows.len(), "point {r}");
+                                rows[2 * (d - first)] += value[r as usize];
+                                rows[2 * (d - first) + 1] += 1.0;
+                            }
                         }
                     })
                 });

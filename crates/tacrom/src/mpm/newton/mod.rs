@@ -60,7 +60,8 @@
 //! [`MULTIGRID_UNKNOWNS`] unknowns are not factored: each step is solved by conjugate
 //! gradients preconditioned with a two-grid cycle built for it (`multigrid.rs`; see
 //! [`super::Linear`]). The points are evaluated in
-//! parallel and their forces added in a fixed order, so threads do not change the result.
+//! parallel and their forces (and Hessian products) added in parallel in a fixed order,
+//! by slabs of points (`slabs.rs`), so threads do not change the result.
 //! Then a backtracking line search that accepts a step only if the energy does not
 //! increase (Armijo); its trials are evaluated whole, so the accepted one's evaluation
 //! starts the next step. It stops when the largest out-of-balance nodal force is below

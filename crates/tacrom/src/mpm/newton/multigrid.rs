@@ -19,7 +19,9 @@
 //!
 //! The fine level is smoothed by symmetric Gauss-Seidel over patches of 2 x 2 x 2 nodes
 //! (the nodes of one coarse cell, 24 unknowns solved together) on the Hessian assembled
-//! at the same evaluation. One application is a symmetric V-cycle from zero (a forward and
+//! at the same evaluation. The patches are taken colour by colour (the parities of their
+//! coordinates, eight colours): patches of one colour share no neighbours, so each
+//! colour's are solved in parallel, with the same bits on any number of threads. One application is a symmetric V-cycle from zero (a forward and
 //! a backward sweep, the coarse correction, the same two sweeps), so conjugate gradients
 //! stay valid with it, at three sweeps' cost (see [`Smoother::cycle`]). Newton builds it
 //! afresh at every step: the gel's part at a minimisation's first, the contact's in the

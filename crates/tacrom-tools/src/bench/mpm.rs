@@ -167,6 +167,9 @@ pub struct SpeedRow {
     /// Median Newton steps per frame on the coarse start's gels (grids twice as coarse,
     /// `SolverOptions::coarse_start_above`), not counted in `median_iterations`.
     pub median_coarse_iterations: usize,
+    /// Median conjugate-gradient iterations per frame of Newton's linear solves (0 for the
+    /// relaxation; the linear solver's contact Newton steps are its iterations).
+    pub median_cg_iterations: usize,
     /// Median particles moved per frame (the solver's active region).
     pub median_active: usize,
     /// Particle-steps per second over the measured frames.
@@ -182,7 +185,7 @@ pub struct SpeedRow {
 impl SpeedRow {
     /// The row's values in column order, for `speed.csv` (`csv`: full precision, SI) or
     /// the markdown table (rounded, dx in mm).
-    fn cells(&self, csv: bool) -> [String; 14] {
+    fn cells(&self, csv: bool) -> [String; 15] {
         let r = self;
         let (dx, ms, p90, steps, bytes) = if csv {
             (
@@ -218,6 +221,7 @@ impl SpeedRow {
             p90,
             r.median_iterations.to_string(),
             r.median_coarse_iterations.to_string(),
+            r.median_cg_iterations.to_string(),
             steps,
             r.unconverged.to_string(),
             bytes,
@@ -509,11 +513,12 @@ pub fn speed_run(
     let mut g = gel(dx, friction, threads, tolerance, solver)?;
     let n = g.num_particles();
     let (mut times, mut iters, mut active) = (Vec::new(), Vec::new(), Vec::new());
-    let (mut unconverged, mut coarse) = (0, Vec::new());
+    let (mut unconverged, mut coarse, mut cg) = (0, Vec::new(), Vec::new());
     for (seconds, rep) in moving_press(&mut g, frames) {
         times.push(seconds);
         iters.push(rep.iterations);
         coarse.push(rep.coarse_iterations);
+        cg.push(rep.cg_iterations);
         active.push(rep.active_particles);
         unconverged += usize::from(!rep.converged);
     }
@@ -528,6 +533,7 @@ pub fn speed_run(
     let mut sorted_iters = iters.clone();
     sorted_iters.sort_unstable();
     coarse.sort_unstable();
+    cg.sort_unstable();
     Ok(SpeedRow {
         solver,
         dx,
@@ -539,6 +545,7 @@ pub fn speed_run(
         p90_ms: quantile(&times, 0.9) * 1e3,
         median_iterations: sorted_iters[sorted_iters.len() / 2],
         median_coarse_iterations: coarse[coarse.len() / 2],
+        median_cg_iterations: cg[cg.len() / 2],
         median_active: active[active.len() / 2],
         particle_steps_per_s: total_steps / total_time,
         unconverged,
@@ -764,11 +771,13 @@ pub fn markdown(result: &MpmBenchResult) -> String {
              Particle-steps count active particles; iterations are explicit steps \
              (relaxation), Newton steps (newton) or linearisations of the contact \
              (linear); coarse start: Newton steps on the gels twice (and four times) as \
-             coarse that start a fine grid's Newton solve (included in the time).\n\n| \
+             coarse that start a fine grid's Newton solve (included in the time); CG: \
+             conjugate-gradient iterations of Newton's linear solves (linear: the \
+             contact's Newton steps).\n\n| \
              solver | dx (mm) | particles | active | tolerance | threads | frames | median \
-             ms | p90 ms | iterations (median) | coarse start (median) | particle-steps/s | \
-             unconverged | bytes/particle |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+             ms | p90 ms | iterations (median) | coarse start (median) | CG (median) | \
+             particle-steps/s | unconverged | bytes/particle |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
             result.speed[0].friction
         );
         for r in &result.speed {
@@ -898,7 +907,7 @@ fn write_report(out: &Path, result: &MpmBenchResult) -> Result<(), BenchError> {
     }
     write_file(out, "hertz.csv", hertz)?;
     let mut speed = String::from(
-        "solver,dx_m,particles,median_active,tolerance,threads,frames,median_ms,p90_ms,median_iterations,median_coarse_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
+        "solver,dx_m,particles,median_active,tolerance,threads,frames,median_ms,p90_ms,median_iterations,median_coarse_iterations,median_cg_iterations,particle_steps_per_s,unconverged,bytes_per_particle\n",
     );
     for r in &result.speed {
         let _ = writeln!(speed, "{}", r.cells(true).join(","));

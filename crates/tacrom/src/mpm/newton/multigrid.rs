@@ -21,9 +21,10 @@
 //! (the nodes of one coarse cell, 24 unknowns solved together) on the Hessian assembled
 //! at the same evaluation. The patches are taken colour by colour (the parities of their
 //! coordinates, eight colours): patches of one colour share no neighbours, so each
-//! colour's are solved in parallel, with the same bits on any number of threads. One application is a symmetric V-cycle from zero (a forward and
-//! a backward sweep, the coarse correction, the same two sweeps), so conjugate gradients
-//! stay valid with it, at three sweeps' cost (see [`Smoother::cycle`]). Newton builds it
+//! colour's are solved in parallel, with the same bits on any number of threads. One
+//! application is a symmetric V-cycle from zero (a forward and a backward sweep, the
+//! coarse correction, the same two sweeps), so conjugate gradients stay valid with it, at
+//! three sweeps' cost (see [`Smoother::cycle`]). Newton builds it
 //! afresh at every step: the gel's part at a minimisation's first, the contact's in the
 //! smoother at every step and in the coarse level when the last solve took many
 //! iterations (see `REFACTOR_COARSE_ABOVE` in `mod.rs`).

@@ -977,3 +977,55 @@ fn a_gel_too_thin_for_the_coarse_start_goes_without() {
         assert_eq!(sa, sb);
     }
 }
+
+/// The deformation gradient and the nodal forces summed axis by axis equal the sums node
+/// by node (`F = I + sum_l u_l grad w_l^T`, `f_l = P grad w_l`), with some stencil nodes
+/// missing (fixed or held), to round-off (1e-14 of the sums' size).
+#[test]
+fn axis_by_axis_sums_equal_the_node_by_node_ones() {
+    use super::{add_forces, deformation, Stencil};
+    use nalgebra::Matrix3;
+    for (k, x) in [[3.2, 4.7, 1.55], [0.51, 2.0, 2.99], [7.0, 0.5, 1.5]]
+        .iter()
+        .enumerate()
+    {
+        let stencil = Stencil::at(&Vector3::from(*x));
+        let dofs: [u32; 27] = std::array::from_fn(|l| {
+            if (l + k) % 5 == 0 {
+                u32::MAX
+            } else {
+                (l + 2) as u32
+            }
+        });
+        let u: Vec<f64> = (0..90)
+            .map(|i| ((i * 37 + 11) % 19) as f64 / 19.0 - 0.4)
+            .collect();
+        let mut f = Matrix3::identity();
+        for (l, &d) in dofs.iter().enumerate() {
+            if d != u32::MAX {
+                let d = 3 * d as usize;
+                f += Vector3::new(u[d], u[d + 1], u[d + 2]) * stencil.gradient(l).transpose();
+            }
+        }
+        assert!(
+            (deformation(&stencil, &dofs, &u) - f).norm() <= 1e-14 * f.norm(),
+            "{x:?}"
+        );
+        let p = Matrix3::new(1.0, -0.3, 0.2, 0.4, 2.0, -0.7, 0.1, 0.6, -1.5);
+        let (mut sums, mut expected) = (vec![0.0; 90], vec![0.0; 90]);
+        add_forces(&stencil, &dofs, &p, &mut sums[6..], 2);
+        for (l, &d) in dofs.iter().enumerate() {
+            if d != u32::MAX {
+                let force = p * stencil.gradient(l);
+                for c in 0..3 {
+                    expected[3 * d as usize + c] += force[c];
+                }
+            }
+        }
+        let size = expected.iter().map(|v| v * v).sum::<f64>().sqrt();
+        assert!(size > 0.0);
+        for (a, b) in sums.iter().zip(&expected) {
+            assert!((a - b).abs() <= 1e-14 * size, "{x:?}: {a} against {b}");
+        }
+    }
+}

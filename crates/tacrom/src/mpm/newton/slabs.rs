@@ -72,10 +72,10 @@ impl Slabs {
         }
     }
 
-    /// Adds every point's terms to `out` (`width` entries per row): `add(r, rows, first)`
-    /// adds region point `r`'s to `rows`, the rows of its slab from row `first` on
-    /// (`rows[width * (d - first)..]` is row `d`'s). The even slabs run in parallel, then
-    /// the odd ones; each slab's points in order.
+    /// Adds every point's terms to `out` (`width` entries per row): `add(points, rows,
+    /// first)` adds those of a slab's `points` (region point indices, in order) to `rows`,
+    /// the rows of the slab from row `first` on (`rows[width * (d - first)..]` is row
+    /// `d`'s). The even slabs run in parallel, then the odd ones.
     pub fn add<T: Send>(
         &self,
         out: &mut [T],

@@ -366,11 +366,8 @@ impl Smoother {
     /// values as one patch after the other, bit for bit on any number of threads.
     fn sweep(&mut self, r: &[f64], z: &mut [f64], lower: &mut [f64], pass: Pass) {
         let mut solved = std::mem::take(&mut self.solved);
-        let colours: Vec<usize> = match pass {
-            Pass::Backward => (0..8).rev().collect(),
-            _ => (0..8).collect(),
-        };
-        for c in colours {
+        for i in 0..8 {
+            let c = if pass == Pass::Backward { 7 - i } else { i };
             let (start, end) = (self.colours[c], self.colours[c + 1]);
             let this = &*self;
             let (z_now, lower_now) = (&*z, &*lower);

@@ -80,7 +80,7 @@
 //! # Coarse start
 //!
 //! On a gel of more than [`super::SolverOptions::coarse_start_above`] unknowns (by
-//! default [`super::COARSE_START_UNKNOWNS`]: the default gel at 0.5 mm and finer), a
+//! default [`super::COARSE_START_UNKNOWNS`]: the default gel at 0.7 mm and finer), a
 //! frame where the secant predictor has nothing to offer (a press from rest, a change of
 //! direction; see [`Newton::predict`]) is first solved, substep by substep, on a
 //! companion gel twice as coarse (the same parameters and options; the rule applies
@@ -93,6 +93,22 @@
 //! cost per step, and the fine one starts within a coarse lattice spacing of it. The
 //! answer does not depend on it (it is a start, not a constraint):
 //! `the_coarse_start_keeps_the_answer_and_saves_newton_steps`.
+//!
+//! # Nested solve
+//!
+//! A gel with a coarse start solves only a small region (global-local analysis, or
+//! sub-modelling): the contact footprint grown by [`super::SolverOptions::nested_margin`]
+//! thicknesses (0.5 by default) instead of the active margin (1.5), and the nodes outside
+//! it take the coarse start's displacement, read through its B-splines, instead of being
+//! held where they were: at each substep's end pose that of the coarse gel's solve of the
+//! substep (a frame without a secant prediction) or its solve of the frame shared out
+//! evenly over the substeps (one with). Away from the contact the field is smooth and
+//! the coarse grid resolves it; the fine grid is needed only where the contact is. The
+//! region's two-grid cycle is kept however few its unknowns (its Newton steps are those
+//! the fine gels are measured on; the factorisation's forcing term took twice as many
+//! here). Where the coarse gel's solve does not converge, the nodes outside stay where
+//! they were. `a_nested_solve_agrees_with_the_whole_gel`; `docs/solvers.md`, "A nested
+//! solve".
 //!
 //! Contact acts on the top surface only: a body pressed deeper than its own radius can
 //! take surface points around itself (they are pushed out along the nearest distance,
@@ -432,8 +448,18 @@ pub(crate) struct Newton {
     linear: Linear,
     two_grid: Option<TwoGrid>,
     two_grids: Vec<([usize; 4], TwoGrid)>,
-    /// Active margin (cells) around the contact, see [`super::SolverOptions::active_margin`].
+    /// Active margin (cells) around the contact, see [`super::SolverOptions::active_margin`],
+    /// and the margin of a nested solve ([`super::SolverOptions::nested_margin`]).
     margin: f64,
+    nested_margin: f64,
+    /// Whether this frame's solve is nested in the coarse start's gel: its region has the
+    /// nested margin, and the nodes outside it take that gel's displacement
+    /// ([`Self::boundary`]).
+    nested: bool,
+    /// A nested substep's displacements (cells, 3 per free node) of the nodes outside
+    /// the region at the substep's start and at its end (read from the gel twice as
+    /// coarse; zero at the region's nodes).
+    boundary: Option<[Vec<f64>; 2]>,
     /// Nodal displacements (cells), 3 per free node.
     pub u: Vec<f64>,
     grad: Vec<f64>,
@@ -581,6 +607,7 @@ impl Newton {
         let n = 3 * nodes.len();
         let t = params.size[2];
         let margin = gel.options.active_margin * t / layout.dx;
+        let nested_margin = gel.options.nested_margin * t / layout.dx;
         let (lattice, spacing, first) = contact_lattice(gel, CONTACT_SUBDIVISION);
         let origin = layout.origin;
         Ok(Newton {
@@ -606,6 +633,9 @@ impl Newton {
             two_grid: None,
             two_grids: Vec::new(),
             margin,
+            nested_margin,
+            nested: false,
+            boundary: None,
             u: vec![0.0; n],
             grad: Vec::new(),
             elastic_grad: Vec::new(),
@@ -714,9 +744,10 @@ impl Newton {
     /// The node box `[x0, x1, y0, y1)` a solve of indenters through `poses` (each
     /// indenter at the start and at the end of each substep) moves: the node columns
     /// whose surface point comes within [`FOOTPRINT_CELLS`] of an indenter at one of
-    /// those poses and the stick anchors, grown by the margin and the stencil's reach,
-    /// and every node displaced by more than [`DEFORMED`] of the largest displacement. `None` if no indenter reaches the surface and no
-    /// anchor is left: then the rest state is the minimum.
+    /// those poses and the stick anchors, grown by the margin (the nested one in a nested
+    /// solve) and the stencil's reach, and (unless nested) every node displaced by more
+    /// than [`DEFORMED`] of the largest displacement. `None` if no indenter reaches the
+    /// surface and no anchor is left: then the rest state is the minimum.
     fn region_box(&self, poses: &[(Arc<dyn Sdf>, Isometry3<f64>)]) -> Option<[usize; 4]> {
         let whole = [0, self.dims[0], 0, self.dims[1]];
         let mut bx = [
@@ -774,18 +805,26 @@ impl Newton {
         if !(bx[0] <= bx[1] && bx[2] <= bx[3]) {
             return None;
         }
-        if !self.margin.is_finite() {
+        let margin = if self.nested {
+            self.nested_margin
+        } else {
+            self.margin
+        };
+        if !margin.is_finite() {
             return Some(whole);
         }
         // The stencil of a point at x reaches nodes floor(x - 0.5) .. + 2.
-        let grow = self.margin + 2.0;
+        let grow = margin + 2.0;
         let mut bx = [
             bx[0] - grow,
             bx[1] + grow + 1.0,
             bx[2] - grow,
             bx[3] + grow + 1.0,
         ];
-        if umax > 0.0 {
+        // Where an indenter was, the gel relaxes: the displaced nodes join the region,
+        // unless the solve is nested, where the gel twice as coarse moves the nodes
+        // outside it.
+        if umax > 0.0 && !self.nested {
             for (k, c) in self.u.chunks_exact(3).enumerate() {
                 if (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() > DEFORMED * umax {
                     let node = self.free_nodes[k] as usize;
@@ -850,7 +889,9 @@ impl Newton {
             }
         }
         let multigrid = match self.linear {
-            Linear::Automatic => 3 * self.region_nodes.len() > MULTIGRID_UNKNOWNS,
+            // A nested region is small, but its gel is fine: the two-grid cycle's Newton
+            // steps (its fixed forcing term) are what such a gel is measured on.
+            Linear::Automatic => 3 * self.region_nodes.len() > MULTIGRID_UNKNOWNS || self.nested,
             Linear::Factor => false,
             Linear::Multigrid => true,
         };
@@ -917,6 +958,30 @@ impl Newton {
             }
         }
         d
+    }
+
+    /// Where this (coarser) grid reads the displacement of free node `k` of `fine`, in its
+    /// cells: the node's position, or the nearest point of the gel (`size`: its width,
+    /// length and thickness, centred in x and y, the top at z = 0) for a node outside it.
+    /// Outside the gel the field comes from nodes that only the edge's particles reach,
+    /// which the minimum leaves loosely set: read there, a nested solve's surface on a
+    /// small gel was 6 % of the peak off at its corner, 0.4 % read at the gel's edge.
+    fn at_node(&self, fine: &Newton, k: u32, size: &[f64; 3]) -> Vector3<f64> {
+        let [_, d1, d2] = fine.dims;
+        let node = fine.free_nodes[k as usize] as usize;
+        let grid = Vector3::new(
+            (node / (d1 * d2)) as f64,
+            ((node / d2) % d1) as f64,
+            (node % d2) as f64,
+        );
+        let at = fine.origin + grid * fine.dx;
+        let (hx, hy) = (0.5 * size[0], 0.5 * size[1]);
+        let at = Vector3::new(
+            at.x.clamp(-hx, hx),
+            at.y.clamp(-hy, hy),
+            at.z.clamp(-size[2], 0.0),
+        );
+        (at - self.origin) / self.dx
     }
 
     /// Displacement (m) of the surface point at rest position `rest` (cells).
@@ -1679,9 +1744,21 @@ impl Newton {
         indenters: &[StepIndenter],
         starts: &[Isometry3<f64>],
         start: &[f64],
+        reach: f64,
         tolerance: f64,
         report: &mut SolveReport,
     ) -> Option<(Vector3<f64>, f64)> {
+        if let Some([from, to]) = &self.boundary {
+            // Nested: the nodes outside the region where the gel twice as coarse has
+            // them when the indenters have come `reach` of the way.
+            for (k, &l) in self.local.iter().enumerate() {
+                if l == u32::MAX {
+                    for c in 3 * k..3 * k + 3 {
+                        self.u[c] = from[c] + reach * (to[c] - from[c]);
+                    }
+                }
+            }
+        }
         self.gather_contact_points(indenters);
         let motion: Vec<Vector3<f64>> = indenters
             .iter()
@@ -1749,6 +1826,7 @@ impl Newton {
         &mut self,
         indenters: &[StepIndenter],
         starts: &[Isometry3<f64>],
+        span: [f64; 2],
         tolerance: f64,
         splits: usize,
         report: &mut SolveReport,
@@ -1757,7 +1835,7 @@ impl Newton {
         // A pull on the indenters asks for a split but does not stall a substep at the last
         // one: a body pressed deeper than its own size (a 0.2 mm sphere 0.6 mm deep) has
         // the top surface closing over it, and no split changes that.
-        let stalled = match self.substep(indenters, starts, &saved.u, tolerance, report) {
+        let stalled = match self.substep(indenters, starts, &saved.u, span[1], tolerance, report) {
             Some((force, residual))
                 if residual <= SPLIT_ABOVE * tolerance
                     && (splits == 0 || self.normal_lift(indenters) >= 0.0) =>
@@ -1790,14 +1868,22 @@ impl Newton {
                 }
             })
             .collect();
-        self.substep_split(&half, starts, tolerance, splits - 1, report)?;
+        let mid = 0.5 * (span[0] + span[1]);
+        self.substep_split(&half, starts, [span[0], mid], tolerance, splits - 1, report)?;
         let middle: Vec<Isometry3<f64>> = half.iter().map(|p| p.now).collect();
         let mut rest = indenters.to_vec();
         for (p, h) in rest.iter_mut().zip(&half) {
             let b = p.shape.aabb().transformed(&h.now);
             p.bounds = Aabb::new(b.min.inf(&p.bounds.min), b.max.sup(&p.bounds.max));
         }
-        self.substep_split(&rest, &middle, tolerance, splits - 1, report)
+        self.substep_split(
+            &rest,
+            &middle,
+            [mid, span[1]],
+            tolerance,
+            splits - 1,
+            report,
+        )
     }
 
     /// The secant predictor's multiple of the last substep's change for indenters moving
@@ -1829,8 +1915,14 @@ impl Newton {
                 None => return,
             }
         };
-        for ((t, u), d) in self.trial.iter_mut().zip(&self.u).zip(change) {
-            *t = u + s * d;
+        // The region's nodes only: the others are held (or, nested, set from the gel
+        // twice as coarse).
+        self.trial.copy_from_slice(&self.u);
+        for &k in &self.region_nodes {
+            let i = 3 * k as usize;
+            for c in i..i + 3 {
+                self.trial[c] = self.u[c] + s * change[c];
+            }
         }
         let no_friction = self.friction;
         self.friction = 0.0;
@@ -2109,8 +2201,62 @@ impl Gel {
         fine: &Newton,
         report: &mut SolveReport,
     ) -> Option<Vec<f64>> {
-        if fine.u.len() <= self.options.coarse_start_above {
+        if !self.has_companion(fine.u.len()) {
             return None;
+        }
+        let gel = self.companion.as_mut()?;
+        let before = gel.newton.as_ref().map(|n| n.u.clone());
+        let solved = gel.solve(indenters);
+        report.coarse_iterations += solved.iterations + solved.coarse_iterations;
+        if !solved.converged {
+            return None;
+        }
+        let coarse = gel.newton.as_ref()?;
+        let mut step = vec![0.0; fine.u.len()];
+        for &g in &fine.region_nodes {
+            let x = coarse.at_node(fine, g, &self.params.size);
+            let s = Stencil::at(&x);
+            let mut d = coarse.displacement(&s, &coarse.u);
+            if let Some(b) = &before {
+                d -= coarse.displacement(&s, b);
+            }
+            let d = d * (coarse.dx / fine.dx);
+            let g = 3 * g as usize;
+            step[g..g + 3].copy_from_slice(d.as_slice());
+        }
+        Some(step)
+    }
+
+    /// The coarse start's displacement at the nodes of `fine` outside its region (cells of
+    /// `fine`'s grid, 3 per free node; zero at the region's nodes), for a nested solve.
+    fn companion_field(&self, fine: &Newton) -> Option<Vec<f64>> {
+        let mut field = vec![0.0; fine.u.len()];
+        let Some(coarse) = self.companion.as_ref()?.newton.as_ref() else {
+            // Not solved yet: at rest.
+            return Some(field);
+        };
+        field
+            .par_chunks_mut(3 * CHUNK)
+            .enumerate()
+            .for_each(|(chunk, out)| {
+                for (j, v) in out.chunks_exact_mut(3).enumerate() {
+                    let k = chunk * CHUNK + j;
+                    if fine.local[k] == u32::MAX {
+                        let x = coarse.at_node(fine, k as u32, &self.params.size);
+                        let d = coarse.displacement(&Stencil::at(&x), &coarse.u)
+                            * (coarse.dx / fine.dx);
+                        v.copy_from_slice(d.as_slice());
+                    }
+                }
+            });
+        Some(field)
+    }
+
+    /// Whether a Newton solve of `unknowns` takes a coarse start; builds the gel twice as
+    /// coarse at the first that does.
+    fn has_companion(&mut self, unknowns: usize) -> bool {
+        if unknowns <= self.options.coarse_start_above {
+            return false;
         }
         if self.companion.is_none() {
             let params = GelParams {
@@ -2128,38 +2274,11 @@ impl Gel {
                     // A gel too thin for the doubled spacing: no coarse start, and no
                     // new attempt at every frame.
                     self.options.coarse_start_above = usize::MAX;
-                    return None;
+                    return false;
                 }
             }
         }
-        let gel = self.companion.as_mut()?;
-        let before = gel.newton.as_ref().map(|n| n.u.clone());
-        let solved = gel.solve(indenters);
-        report.coarse_iterations += solved.iterations + solved.coarse_iterations;
-        if !solved.converged {
-            return None;
-        }
-        let coarse = gel.newton.as_ref()?;
-        let mut step = vec![0.0; fine.u.len()];
-        let [_, d1, d2] = fine.dims;
-        for &g in &fine.region_nodes {
-            let node = fine.free_nodes[g as usize] as usize;
-            let grid = Vector3::new(
-                (node / (d1 * d2)) as f64,
-                ((node / d2) % d1) as f64,
-                (node % d2) as f64,
-            );
-            let x = (fine.origin + grid * fine.dx - coarse.origin) / coarse.dx;
-            let s = Stencil::at(&x);
-            let mut d = coarse.displacement(&s, &coarse.u);
-            if let Some(b) = &before {
-                d -= coarse.displacement(&s, b);
-            }
-            let d = d * (coarse.dx / fine.dx);
-            let g = 3 * g as usize;
-            step[g..g + 3].copy_from_slice(d.as_slice());
-        }
-        Some(step)
+        true
     }
 
     /// The Newton solve of `sweep` (see the module docs); fills `report`.
@@ -2230,6 +2349,9 @@ impl Gel {
             plan.place(s, dx, &mut placed);
             poses.extend(placed.iter().map(|p| (p.shape.clone(), p.now)));
         }
+        newton.nested = self.options.nested_margin < self.options.active_margin
+            && self.has_companion(newton.u.len());
+        newton.boundary = None;
         let Some(bx) = newton.region_box(&poses) else {
             // Nothing reaches the gel: without a load the undeformed gel is the minimum.
             newton.reset();
@@ -2264,10 +2386,18 @@ impl Gel {
             .map(|(p, s)| (p.now.translation.vector - s.translation.vector) / dx)
             .collect();
         let steady = newton.secant(&motion).is_some();
+        // A nested solve's nodes outside its region: the coarse gel's displacement before
+        // and after its solve (of the frame, or of each substep).
+        let nested = newton.nested;
+        let field =
+            |gel: &Gel, newton: &Newton| nested.then(|| gel.companion_field(newton)).flatten();
+        let mut frame_field = None;
         if steady {
             // The coarse gel follows every frame, so that its change is at hand when
             // needed.
-            self.coarse_start(indenters, &newton, report);
+            let before = field(self, &newton);
+            let solved = self.coarse_start(indenters, &newton, report).is_some();
+            frame_field = before.zip(field(self, &newton)).filter(|_| solved);
         }
         let saved = newton.u.clone();
         report.sweep_steps = substeps;
@@ -2285,11 +2415,23 @@ impl Gel {
                         pose: p.now,
                     })
                     .collect();
+                let before = field(self, &newton);
                 newton.coarse_step = self
                     .coarse_start(&poses, &newton, report)
                     .unwrap_or_default();
+                let solved = !newton.coarse_step.is_empty();
+                newton.boundary = before
+                    .zip(field(self, &newton))
+                    .filter(|_| solved)
+                    .map(|(a, b)| [a, b]);
+            } else if let Some((a, b)) = &frame_field {
+                // The frame's change shared out evenly over its substeps.
+                let share = |r: f64| a.iter().zip(b).map(|(a, b)| a + r * (b - a)).collect();
+                let n = substeps as f64;
+                newton.boundary = Some([share(s as f64 / n), share((s + 1) as f64 / n)]);
             }
-            match newton.substep_split(&placed, &starts, tolerance, MAX_SPLITS, report) {
+            match newton.substep_split(&placed, &starts, [0.0, 1.0], tolerance, MAX_SPLITS, report)
+            {
                 Ok(f) => force = Some(f),
                 Err(residual) if residual.is_finite() => {
                     // Stalled: the gel stays at the last equilibrium it found, short of

@@ -849,7 +849,8 @@ fn the_forcing_term_follows_the_fall_of_the_residual() {
 }
 
 /// [`press_path`] of a 2.5 mm sphere on a small 0.5 mm gel at tolerance 1e-5, with the
-/// coarse start above `above` unknowns.
+/// coarse start above `above` unknowns (not nested: the region and its rigid wall are
+/// those of a cold start).
 fn coarse_start_path(
     friction: f64,
     above: usize,
@@ -863,48 +864,105 @@ fn coarse_start_path(
     };
     let options = SolverOptions {
         coarse_start_above: above,
+        nested_margin: f64::INFINITY,
         ..options(1e-5)
     };
     press_path(p, options, 2.5e-3, path)
 }
 
-/// The coarse start (the gel twice as coarse solved first, its change carried onto the
-/// grid as Newton's first iterate) changes where Newton's method starts, not where it
-/// ends, and the fine grid takes fewer Newton steps. A press from rest and a deeper one
-/// moved aside, at a tight tolerance. Frictionless, the equilibrium is unique: forces and
-/// surface agree with the cold start's within 1e-4. With friction the answer also rests on
-/// the lagged normal forces, refreshed a bounded number of times, so a different path
-/// ends a little elsewhere: the force within 1e-2, as between the active region and the
-/// whole gel (`the_active_region_agrees_with_the_whole_gel`), the surface within 2e-2 of
-/// its peak (the sideways displacement under the slide differed by 1.2e-2).
+/// A nested solve (the region grown by the nested margin, the nodes outside it moved by
+/// the gel twice as coarse) agrees with the whole gel's solve, where the same small
+/// region with a rigid wall does not: a 2.5 mm sphere on a 16 mm wide, 2.5 mm thick gel
+/// at 0.5 mm, pressed 0.2 mm from rest, then moved aside and deeper twice along one path
+/// (the third frame takes the frame's coarse change shared out over its substeps), with
+/// and without friction. The force within 0.5 % of the whole gel's (measured: 0.33 % at
+/// most), the surface within 1 % of its peak where the region's own nodes carry it (0.83
+/// %; outside the region the surface is the coarse gel's, at the free edge of this small
+/// gel off by 1.6 to 4 % of the peak, as the rigid wall of the active margin is). The
+/// wall at the nested margin is off by more than twice as much in force (0.78 to 1.06 %),
+/// and the nested region moves at most half of the whole gel's points.
 #[test]
-fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
-    let run = |friction: f64, above: usize| {
-        coarse_start_path(friction, above, &[(0.0, 0.15e-3), (0.2e-3, 0.3e-3)])
+fn a_nested_solve_agrees_with_the_whole_gel() {
+    let p = |friction: f64| GelParams {
+        size: [0.016, 0.016, 0.0025],
+        dx: 0.5e-3,
+        friction,
+        ..Default::default()
     };
-    let (mut steps, mut cold_steps) = (0, 0);
-    for (friction, bound, surface) in [(0.0, 1e-4, 1e-4), (0.5, 1e-2, 2e-2)] {
-        let (coarse, cold) = (run(friction, 0), run(friction, usize::MAX));
-        for (k, ((fa, sa, ra), (fb, sb, rb))) in coarse.iter().zip(&cold).enumerate() {
-            let (ca, cb) = (ra.coarse_iterations, rb.coarse_iterations);
-            assert!(ca > 0 && cb == 0, "frame {k}: coarse steps {ca}, {cb}");
+    let r = 2.5e-3;
+    let path = [(0.0, 0.2e-3), (0.25e-3, 0.3e-3), (0.5e-3, 0.4e-3)];
+    // Per frame: the force, the surface, the report and which surface slots have every
+    // stencil node in the region.
+    // With friction the first two frames (the second takes 78 to 86 Newton steps in each
+    // of the three solves; friction's lagged normal forces on a slide).
+    let run = |friction: f64, active_margin: f64, nested_margin: f64| {
+        let options = SolverOptions {
+            coarse_start_above: 0,
+            active_margin,
+            nested_margin,
+            ..options(1e-3)
+        };
+        let s = ball(r);
+        let mut g = Gel::new(p(friction), options).unwrap();
+        let mut frames = Vec::new();
+        let frames_of = if friction > 0.0 { 2 } else { path.len() };
+        for &(x, d) in &path[..frames_of] {
+            let rep = g.solve(&[at(&s, r, x, d)]);
+            assert!(rep.converged, "{rep:?}");
+            let [x0, x1, y0, y1] = g.newton.as_ref().unwrap().region.unwrap();
+            let inside: Vec<bool> = g
+                .top_ref
+                .iter()
+                .map(|c| {
+                    let (bx, by) = ((c.x - 0.5).floor() as usize, (c.y - 0.5).floor() as usize);
+                    bx >= x0 && bx + 3 <= x1 && by >= y0 && by + 3 <= y1
+                })
+                .collect();
+            frames.push((g.force(), surface(&g), rep, inside));
+        }
+        frames
+    };
+    for friction in [0.0, 0.5] {
+        let whole = run(friction, f64::INFINITY, f64::INFINITY);
+        let nested = run(friction, 1.5, 0.5);
+        let walled = run(friction, 0.5, f64::INFINITY);
+        let force_gap = |frames: &[(Vector3<f64>, Vec<Vector3<f64>>, SolveReport, Vec<bool>)]| {
+            frames
+                .iter()
+                .zip(&whole)
+                .map(|(a, b)| (a.0 - b.0).norm() / b.0.norm())
+                .fold(0.0, f64::max)
+        };
+        for (k, ((f, s, rep, inside), (fw, sw, rw, _))) in nested.iter().zip(&whole).enumerate() {
             assert!(
-                (fa - fb).norm() <= bound * fb.norm(),
-                "friction {friction}, frame {k}: {fa} against {fb}"
+                (f - fw).norm() <= 5e-3 * fw.norm(),
+                "friction {friction}, frame {k}: {f} against {fw}"
             );
-            let (worst, peak) = surface_gap(sa, sb);
+            let peak = sw.iter().map(|v| v.norm()).fold(0.0, f64::max);
+            let worst = s
+                .iter()
+                .zip(sw)
+                .zip(inside)
+                .filter(|(_, &i)| i)
+                .map(|((a, b), _)| (a - b).norm())
+                .fold(0.0, f64::max);
             assert!(
-                worst <= surface * peak,
+                worst <= 1e-2 * peak,
                 "friction {friction}, frame {k}: {worst} of {peak}"
             );
-            steps += ra.iterations;
-            cold_steps += rb.iterations;
+            assert!(
+                2 * rep.active_particles <= rw.active_particles,
+                "{} of {} points",
+                rep.active_particles,
+                rw.active_particles
+            );
         }
+        let (nested_force, walled_force) = (force_gap(&nested), force_gap(&walled));
+        assert!(
+            walled_force > 2.0 * nested_force,
+            "friction {friction}: walled {walled_force}, nested {nested_force}"
+        );
     }
-    assert!(
-        steps < cold_steps,
-        "{steps} Newton steps against {cold_steps}"
-    );
 }
 
 /// A press from rest deeper than a cell is taken in substeps, each started from the

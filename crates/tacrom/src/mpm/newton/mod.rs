@@ -965,7 +965,8 @@ impl Newton {
     /// length and thickness, centred in x and y, the top at z = 0) for a node outside it.
     /// Outside the gel the field comes from nodes that only the edge's particles reach,
     /// which the minimum leaves loosely set: read there, a nested solve's surface on a
-    /// small gel was 6 % of the peak off at its corner, 0.4 % read at the gel's edge.
+    /// small gel was 4 to 6 % of the peak off at its corner, read at the gel's edge 1.6 to
+    /// 2 % (the coarse gel's own error at its free edge, as large as a rigid wall's there).
     fn at_node(&self, fine: &Newton, k: u32, size: &[f64; 3]) -> Vector3<f64> {
         let [_, d1, d2] = fine.dims;
         let node = fine.free_nodes[k as usize] as usize;
@@ -1736,7 +1737,9 @@ impl Newton {
     }
 
     /// Solves one substep with the indenters at `indenters` (moved from `starts`), from the
-    /// displacements `start` (the current ones, as [`Checkpoint`] keeps them). Returns the
+    /// displacements `start` (the current ones, as [`Checkpoint`] keeps them); in a nested
+    /// solve the nodes outside the region first go where [`Self::boundary`] has them
+    /// `reach` of the way through it (below 1 in the first half of a split). Returns the
     /// force on the indenters (internal units) and the final relative residual, or `None`
     /// if the state became undefined.
     fn substep(
@@ -1816,7 +1819,9 @@ impl Newton {
     /// carried its lattice points deep into the ridges, where the distance pushes them
     /// out sideways, and ended with 87 N and `det F` at its clamp where the relaxation
     /// and two half substeps give 4.6 N. A tried substep's work stays counted in
-    /// `report`; its state and its verdict on convergence are undone.
+    /// `report`; its state and its verdict on convergence are undone. `span`: the share of
+    /// the substep's motion at its start and end (`[0, 1]`; the halves of a split take
+    /// their halves of it).
     ///
     /// `Err(residual)` when a substep stalls at the last split: the state is then that of
     /// its start, the last equilibrium found, and the caller goes no further (the same

@@ -163,7 +163,7 @@ pub const MULTIGRID_UNKNOWNS: usize = 25_000;
 /// coarse ([`SolverOptions::coarse_start_above`]) and nests its solve in it: the default
 /// gel at 0.7 mm (about 40,000 unknowns) and finer, not at 1.0 mm (about 14,000). It was
 /// 60,000 (0.5 mm and finer) before the nested solve; with it, a 5 mm sphere pressed 0.1,
-/// 0.2 and 0.3 mm at 0.7 mm takes 6.9 s against 20.4 s (`docs/solvers.md`, "A nested
+/// 0.2 and 0.3 mm at 0.7 mm takes 8.3 s against 18.3 s (`docs/solvers.md`, "A nested
 /// solve").
 pub const COARSE_START_UNKNOWNS: usize = 20_000;
 

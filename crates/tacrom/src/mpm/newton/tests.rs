@@ -965,6 +965,45 @@ fn a_nested_solve_agrees_with_the_whole_gel() {
     }
 }
 
+/// The coarse start (the gel twice as coarse solved first, its change carried onto the
+/// grid as Newton's first iterate) changes where Newton's method starts, not where it
+/// ends, and the fine grid takes fewer Newton steps. A press from rest and a deeper one
+/// moved aside, at a tight tolerance. Frictionless, the equilibrium is unique: forces and
+/// surface agree with the cold start's within 1e-4. With friction the answer also rests on
+/// the lagged normal forces, refreshed a bounded number of times, so a different path
+/// ends a little elsewhere: the force within 1e-2, as between the active region and the
+/// whole gel (`the_active_region_agrees_with_the_whole_gel`), the surface within 2e-2 of
+/// its peak (the sideways displacement under the slide differed by 1.2e-2).
+#[test]
+fn the_coarse_start_keeps_the_answer_and_saves_newton_steps() {
+    let run = |friction: f64, above: usize| {
+        coarse_start_path(friction, above, &[(0.0, 0.15e-3), (0.2e-3, 0.3e-3)])
+    };
+    let (mut steps, mut cold_steps) = (0, 0);
+    for (friction, bound, surface) in [(0.0, 1e-4, 1e-4), (0.5, 1e-2, 2e-2)] {
+        let (coarse, cold) = (run(friction, 0), run(friction, usize::MAX));
+        for (k, ((fa, sa, ra), (fb, sb, rb))) in coarse.iter().zip(&cold).enumerate() {
+            let (ca, cb) = (ra.coarse_iterations, rb.coarse_iterations);
+            assert!(ca > 0 && cb == 0, "frame {k}: coarse steps {ca}, {cb}");
+            assert!(
+                (fa - fb).norm() <= bound * fb.norm(),
+                "friction {friction}, frame {k}: {fa} against {fb}"
+            );
+            let (worst, peak) = surface_gap(sa, sb);
+            assert!(
+                worst <= surface * peak,
+                "friction {friction}, frame {k}: {worst} of {peak}"
+            );
+            steps += ra.iterations;
+            cold_steps += rb.iterations;
+        }
+    }
+    assert!(
+        steps < cold_steps,
+        "{steps} Newton steps against {cold_steps}"
+    );
+}
+
 /// A press from rest deeper than a cell is taken in substeps, each started from the
 /// coarse gel's change over that substep (it solves the same substeps first): the answer
 /// is that of a cold start (the bounds of the test above: the start changes which

@@ -2428,7 +2428,11 @@ impl Gel {
                         pose: p.now,
                     })
                     .collect();
-                let before = field(self, &newton);
+                // The coarse gel is where the last substep's solve left it.
+                let before = match newton.boundary.take() {
+                    Some([_, end]) => Some(end),
+                    None => field(self, &newton),
+                };
                 newton.coarse_step = self
                     .coarse_start(&poses, &newton, report)
                     .unwrap_or_default();

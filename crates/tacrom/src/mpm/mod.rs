@@ -100,8 +100,8 @@ use indenters::match_indenters;
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 pub use params::{
     GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
-    AUTO_NEWTON_CELLS, AUTO_NEWTON_POISSON, CAP_CELLS, COARSE_START_UNKNOWNS, FBAR_POISSON, J_MAX,
-    J_MIN, LINEAR_UNKNOWNS, MISSED_FRACTION, MULTIGRID_UNKNOWNS, NESTED_MARGIN, UNRESOLVED_POINTS,
+    AUTO_NEWTON_POISSON, CAP_CELLS, COARSE_START_UNKNOWNS, FBAR_POISSON, J_MAX, J_MIN,
+    LINEAR_UNKNOWNS, MISSED_FRACTION, MULTIGRID_UNKNOWNS, NESTED_MARGIN, UNRESOLVED_POINTS,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 

@@ -19,11 +19,6 @@ pub const FBAR_POISSON: f64 = 0.45;
 /// Poisson's ratio from which [`Solver::automatic`] chooses Newton's method.
 pub const AUTO_NEWTON_POISSON: f64 = 0.49;
 
-/// Most grid cells in a gel for which [`Solver::automatic`] chooses Newton's method: the
-/// default 30 x 30 x 4 mm gel at dx = 0.7 mm (10,500 cells; a factor of 21e6 entries,
-/// about 2 s to factor); the fill of the factor grows about as the cells to the power 4/3.
-pub const AUTO_NEWTON_CELLS: f64 = 12_000.0;
-
 /// Default [`SolverOptions::active_margin`] (gel thicknesses). The surface of a bonded
 /// layer settles within about one thickness of a contact (measured at dx = 0.7 mm, a
 /// 0.5 mm sphere press: 29 um of indentation 2 mm beyond the contact edge, 1.2 um at
@@ -244,12 +239,14 @@ impl Solver {
     /// relaxation does not reach equilibrium within its iteration cap, a Poisson's ratio
     /// of at least [`AUTO_NEWTON_POISSON`] (`tacrom mpm --only work`: at 0.49 one frame in
     /// four stops at the cap, at 0.499 every frame; Newton converges in 17 to 47 steps at
-    /// every ratio), on a grid small enough for its sparse factorisation (at most
-    /// [`AUTO_NEWTON_CELLS`] cells); relaxation everywhere else, where it is the faster.
+    /// every ratio on the coarse grid, in 28 to 38 at 0.499 and 0.5 mm), on every grid;
+    /// relaxation everywhere else. On the fine grids Newton is faster on a continued press
+    /// (two 0.1 mm steps at 0.3 mm: 48.7 against 87.7 s) and slower on one from rest
+    /// (a 1 mm press at 0.4 mm: 104.7 against 64.0 s); the benchmark's sequence of presses at
+    /// 0.3 mm takes them the same time (363.5 against 378.4 s), at 13 times the memory
+    /// (3.8 against 0.29 GB). See `docs/solvers.md`, "Which solver a gel gets".
     pub fn automatic(params: &GelParams) -> Solver {
-        let [lx, ly, t] = params.size;
-        let cells = lx * ly * t / params.dx.powi(3);
-        if params.poisson >= AUTO_NEWTON_POISSON && cells <= AUTO_NEWTON_CELLS {
+        if params.poisson >= AUTO_NEWTON_POISSON {
             Solver::Newton
         } else {
             Solver::Relaxation

@@ -243,8 +243,8 @@ impl Solver {
     /// relaxation everywhere else. On the fine grids Newton is faster on a continued press
     /// (two 0.1 mm steps at 0.3 mm: 48.7 against 87.7 s) and slower on one from rest
     /// (a 1 mm press at 0.4 mm: 104.7 against 64.0 s); the benchmark's sequence of presses at
-    /// 0.3 mm takes them the same time (363.5 against 378.4 s), at 13 times the memory
-    /// (3.8 against 0.29 GB). See `docs/solvers.md`, "Which solver a gel gets".
+    /// 0.3 mm takes them the same time (363.5 against 378.4 s), at 9 times the memory
+    /// (2.6 against 0.29 GB). See `docs/solvers.md`, "Which solver a gel gets".
     pub fn automatic(params: &GelParams) -> Solver {
         if params.poisson >= AUTO_NEWTON_POISSON {
             Solver::Newton

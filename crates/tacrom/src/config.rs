@@ -75,7 +75,7 @@ pub const ATTR_INDEX: &str = "index";
 /// (energy minimisation by Newton's method: slower, more accurate, contact below the
 /// particle spacing, near-incompressible gels; `mpm::newton`). Unset, the gel's own choice
 /// ([`crate::mpm::Solver::automatic`]: Newton for Poisson's ratios of 0.49 and more on
-/// grids up to the 0.7 mm one, relaxation elsewhere, and for `coarse` and `rom` the linear
+/// every grid, relaxation elsewhere, and for `coarse` and `rom` the linear
 /// solver in the frames whose contact the relaxation misses,
 /// [`crate::mpm::SolverOptions::fallback`]); a
 /// reduced-order model uses its recipe's.

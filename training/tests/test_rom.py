@@ -259,3 +259,45 @@ def test_material_inputs_of_a_ranged_data_set(tmp_path, flag, conditioning):
         assert np.all(arrays[:, 4] == 0) and np.ptp(arrays[:, 3]) > 0
     r, c = spec.encoder_dims()
     assert m["encoder_input"] == 2 * r * c + extra
+
+
+def test_pressure_head_trains_exports_and_matches_onnx(tiny_model, tmp_path):
+    """The pressure head (tacrom_rom.pressure) on synthetic pressure companions: it joins a
+    copy of the model with `files.pressure` and a `pressure` record, and its ONNX graph
+    follows PyTorch."""
+    from tacrom_rom.pressure import PressureHead, main as pressure_main
+
+    data = tmp_path / "data"
+    write_synthetic(str(data))
+    for npy in data.glob("sample-??????.npy"):
+        a = np.load(npy)
+        # A Hertz-like pressure where the reference presses (Pa); the coarse one smeared.
+        p = 2e4 * np.sqrt(np.clip(a[1] / max(a[1].max(), 1e-12), 0, None))
+        np.save(str(npy)[:-4] + "-pressure.npy", np.stack([0.8 * p, p]).astype(np.float32))
+    with open(data / "dataset.json") as f:
+        ds = json.load(f)
+    m0 = json.load(open(tiny_model / "manifest.json"))
+    ds.update(recipe=m0["recipe"], coarse_dx=m0["coarse_dx"], size=m0["lattice"]["size"])
+    with open(data / "dataset.json", "w") as f:
+        json.dump(ds, f)
+    out = tmp_path / "model"
+    pressure_main(["--data", str(data), "--model", str(tiny_model), "--out", str(out),
+                   "--steps", "3", "--batch", "2"])
+    m = json.load(open(out / "manifest.json"))
+    assert m["files"]["pressure"]["outputs"] == {"pressure": [-1, 1]}
+    assert m["pressure"]["units"] == "young"
+    assert "held_out" in m["pressure"]["validation"]
+    assert "pressure" not in json.load(open(tiny_model / "manifest.json"))["files"]
+    head = PressureHead(m["latent"], m["query_features"])
+    head.load_state_dict(torch.load(out / "pressure.pt"))
+    head.eval()
+    g = torch.Generator().manual_seed(4)
+    z = torch.randn(1, m["latent"], generator=g)
+    q = torch.rand(300, m["query_features"], generator=g)
+    with torch.no_grad():
+        ref = head(z, q).numpy()
+        batched = head.forward_batched(z, q[None])[0].numpy()
+    sess = ort.InferenceSession(str(out / "pressure.onnx"), providers=["CPUExecutionProvider"])
+    got = sess.run(["pressure"], {"z": z.numpy(), "query": q.numpy()})[0]
+    assert np.abs(got - ref).max() < PARITY_TOL
+    assert np.abs(batched - ref[:, 0]).max() < 1e-6

@@ -8,6 +8,10 @@
 //! * `sample-NNNNNN.npy`: float32 `[3, ny, nx]`, metres, on the model's surface lattice
 //!   ([`tacrom::rom::features`]): channel 0 the coarse depth (`max(mpm, p)`), 1 the rigid
 //!   penetration `p`, 2 the reference depth (`max(mpm, p)`, finer MPM);
+//! * `sample-NNNNNN-pressure.npy`: float32 `[2, ny, nx]`, pascals, on the same lattice:
+//!   the normal contact pressure of the coarse gel (channel 0) and of the reference
+//!   (channel 1), each spread by its own grid's kernel ([`Gel::contact_pressure`]);
+//!   absent in data sets written before it was recorded;
 //! * `sample-NNNNNN.json`: family, shape parameters, poses, solver reports, timings;
 //!   written last (by rename), so a sample counts as done only when both exist.
 //!
@@ -877,6 +881,26 @@ pub fn sample_array(obs: &Observation, reference: &[f64]) -> Vec<f32> {
     data
 }
 
+/// The pressure companion of the sample whose files share `stem` (`sample-NNNNNN`).
+pub fn pressure_path(stem: &Path) -> PathBuf {
+    let mut name = stem.file_name().unwrap_or_default().to_os_string();
+    name.push("-pressure.npy");
+    stem.with_file_name(name)
+}
+
+/// A sample's pressure array, float32 `[2, ny, nx]` (Pa), row-major: the normal contact
+/// pressure of the solved `coarse` gel, then of the solved `reference` gel, on `lattice`.
+pub fn pressure_array(coarse: &Gel, reference: &Gel, lattice: &PixelGrid) -> Vec<f32> {
+    let n = lattice.width * lattice.height;
+    let mut p = vec![0.0; n];
+    let mut data = Vec::with_capacity(2 * n);
+    for gel in [coarse, reference] {
+        gel.contact_pressure(lattice, &mut p);
+        data.extend(p.iter().map(|&v| v as f32));
+    }
+    data
+}
+
 /// Writes a float32 array as `.npy` (C order), atomically.
 pub fn write_npy(path: &Path, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
     npy::write(path, shape, data)
@@ -1202,6 +1226,13 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         let data = sample_array(&obs, &reference);
         write_npy(&npy, &[3, spec.ny, spec.nx], &data)
             .map_err(|e| format!("{}: {e}", npy.display()))?;
+        let pressure_npy = pressure_path(&stem);
+        write_npy(
+            &pressure_npy,
+            &[2, spec.ny, spec.nx],
+            &pressure_array(&coarse, fine, &spec.grid()),
+        )
+        .map_err(|e| format!("{}: {e}", pressure_npy.display()))?;
         let meta = SampleMeta {
             index,
             family: press.family.clone(),

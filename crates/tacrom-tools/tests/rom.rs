@@ -572,9 +572,21 @@ fn gen_data_writes_numpy_pairs_and_resumes() {
     assert!(meta.contains("\"family\": \"sphere\""), "{meta}");
     // Both solves' forces are recorded: a sphere pressed into the gel pushes it down.
     let meta: serde_json::Value = serde_json::from_str(&meta).unwrap();
-    for solve in ["coarse", "reference"] {
+    // The pressure companion holds both solves' normal contact pressure, which integrates
+    // over the lattice (1 mm pitch) to the solve's normal force: the kernel integrates to
+    // one and the contact lies inside the lattice, so up to float32 round-off.
+    let (shape, pressure) = read_npy(&out.join("sample-000001-pressure.npy"));
+    assert_eq!(shape, vec![2, 30, 30]);
+    for (k, solve) in ["coarse", "reference"].into_iter().enumerate() {
         let fz = meta[solve]["force"][2].as_f64().unwrap();
         assert!(fz > 0.0 && fz.is_finite(), "{solve}: {meta}");
+        let channel = &pressure[k * 900..(k + 1) * 900];
+        assert!(channel.iter().all(|p| p.is_finite() && *p >= 0.0));
+        let integral: f64 = channel.iter().map(|&p| p as f64 * 1e-6).sum();
+        assert!(
+            (integral - fz).abs() <= 1e-5 * fz,
+            "{solve}: pressure integrates to {integral} N, force {fz} N"
+        );
     }
     // Resumable: nothing left to do.
     let summary = datagen::generate(&config, |_| {}).unwrap();

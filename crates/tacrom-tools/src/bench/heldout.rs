@@ -69,8 +69,9 @@ pub struct MethodRow {
     pub below_reach: f64,
     /// Median and 90th percentile of the relative error, against the reference's, of the
     /// normal force the model reports ([`tacrom::rom::Rom::force_factor_on`]: the coarse
-    /// force scaled by the decoded surface for a model with a `force` factor, the coarse
-    /// force itself otherwise; models only, where the samples record forces).
+    /// force scaled by the pressure head's force or by the decoded surface's volume for a
+    /// model with a head or a `force` factor, the coarse force itself otherwise; models
+    /// only, where the samples record forces).
     pub reported_force_error: Option<[f64; 2]>,
     /// Per press with both forces recorded: the press's file, the reference and the
     /// reported normal force (N), and the coarse, decoded and reference displaced volumes
@@ -126,6 +127,8 @@ struct Sample {
     force: Option<[f64; 2]>,
     /// Poisson's ratio and friction of the sample's gel.
     material: [f64; 2],
+    /// Young's modulus of the sample's gel (Pa).
+    young: f64,
 }
 
 fn bad(path: &Path, what: impl std::fmt::Display) -> BenchError {
@@ -241,6 +244,7 @@ fn load_samples(
                 meta.poisson.unwrap_or(dataset.poisson),
                 meta.friction.unwrap_or(dataset.friction),
             ],
+            young: dataset.young,
             reference: chan(2),
             solve_s: [meta.coarse.seconds, meta.reference.seconds],
             force: meta
@@ -358,8 +362,15 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
         return Err(BenchError::Usage("eval-rom: no model given".to_owned()));
     };
     let load = |dir: &Path, refine: Option<bool>| {
-        Rom::load(dir, RomOptions { refine, threads: 1 })
-            .map_err(|e| BenchError::Config(e.to_string()))
+        Rom::load(
+            dir,
+            RomOptions {
+                refine,
+                threads: 1,
+                pressure: true,
+            },
+        )
+        .map_err(|e| BenchError::Config(e.to_string()))
     };
     let manifests = options
         .models
@@ -459,7 +470,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             acc.row.into_indenter += report.penetration_excess;
             acc.row.below_reach += report.bound_excess.max(0.0);
             if let Some([fc, fr]) = s.force.filter(|f| f[1] > 1e-3) {
-                let reported = fc * rom.force_factor_on(&s.obs);
+                let reported = fc * rom.force_factor_on(&s.obs, fc, s.young);
                 force_errors.push((reported / fr - 1.0).abs());
                 forces.push(ForceRow {
                     file: s.file.to_string_lossy().into_owned(),

@@ -262,7 +262,12 @@ pub struct Manifest {
     /// Refinement settings.
     pub refinement: Refinement,
     /// `(path, inputs, outputs)` of encoder, decoder, Jacobian.
-    pub files: [(PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>); 3],
+    pub files: [GraphFile; 3],
+    /// The contact pressure head (manifest `files.pressure`; `None`: `rom`'s force and
+    /// pressure are the coarse gel's, scaled by [`Manifest::force_volume_factor`]). Its
+    /// output is the normal contact pressure in units of the gel's Young's modulus at each
+    /// query point; see [`Rom::lattice_pressure`].
+    pub pressure: Option<GraphFile>,
     /// The coarse solve the model was trained on and accepts.
     pub recipe: Recipe,
     /// The gel materials a conditioned model serves (`None`: the gel's only).
@@ -278,6 +283,9 @@ pub struct Manifest {
     /// The whole document (training, data, validation records).
     pub json: serde_json::Value,
 }
+
+/// `(path, inputs, outputs)` of one ONNX graph of a model, as its manifest lists them.
+pub type GraphFile = (PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>);
 
 /// `manifest.json` as written by the training's export, read with serde; [`Manifest::load`]
 /// checks it and turns it into a [`Manifest`].
@@ -508,7 +516,7 @@ impl Manifest {
         let region = (doc.region.eps_mm, doc.region.grow);
         // Expected graph signatures, from the lattice and the latent size; the manifest's
         // own listing must agree.
-        let want: [(&str, Vec<(&str, Vec<i64>)>, Vec<(&str, Vec<i64>)>); 3] = [
+        let want: [(&str, Vec<(&str, Vec<i64>)>, Vec<(&str, Vec<i64>)>); 4] = [
             (
                 "encoder",
                 vec![("observation", vec![1, e])],
@@ -524,13 +532,21 @@ impl Manifest {
                 vec![("z", vec![1, r]), ("query", vec![-1, f])],
                 vec![("depth", vec![-1, 1]), ("jacobian", vec![-1, r])],
             ),
+            (
+                "pressure",
+                vec![("z", vec![1, r]), ("query", vec![-1, f])],
+                vec![("pressure", vec![-1, 1])],
+            ),
         ];
         let mut files = Vec::new();
+        let mut pressure = None;
         for (key, ins, outs) in want {
-            let fj = doc
-                .files
-                .get(key)
-                .ok_or_else(|| bad(format!("missing 'files.{key}'")))?;
+            let fj = match doc.files.get(key) {
+                Some(fj) => fj,
+                // The pressure head is optional.
+                None if key == "pressure" => continue,
+                None => return Err(bad(format!("missing 'files.{key}'"))),
+            };
             for (section, listed, wanted) in [
                 ("inputs", &fj.inputs, &ins),
                 ("outputs", &fj.outputs, &outs),
@@ -547,7 +563,12 @@ impl Manifest {
             }
             let own =
                 |l: Vec<(&str, Vec<i64>)>| l.into_iter().map(|(n, s)| (n.to_owned(), s)).collect();
-            files.push((dir.join(&fj.path), own(ins), own(outs)));
+            let graph = (dir.join(&fj.path), own(ins), own(outs));
+            if key == "pressure" {
+                pressure = Some(graph);
+            } else {
+                files.push(graph);
+            }
         }
         let files: [_; 3] = files.try_into().expect("three graphs");
         let recipe = doc.recipe.ok_or_else(|| {
@@ -572,6 +593,7 @@ impl Manifest {
             materials: doc.materials,
             force_volume_factor: doc.force.map(VolumeFactor::new).transpose().map_err(bad)?,
             files,
+            pressure,
             json,
         })
     }
@@ -693,6 +715,9 @@ pub struct RomOptions {
     pub refine: Option<bool>,
     /// ONNX Runtime intra-op threads (default 1).
     pub threads: usize,
+    /// Whether the force or the pressure is wanted (a sensor output or the coupling): only
+    /// then is the manifest's pressure head loaded and run.
+    pub pressure: bool,
 }
 
 /// What one inference did.
@@ -759,6 +784,12 @@ pub struct Rom {
     decoder: Graph,
     /// The Jacobian graph, loaded only where the latent refinement runs.
     jacobian: Option<Graph>,
+    /// The pressure head, loaded only where the model has one and the force or the
+    /// pressure is wanted ([`RomOptions::pressure`]).
+    pressure: Option<Graph>,
+    /// Its output on the lattice after the last inference (units of Young's modulus, at
+    /// least 0; 0 outside the deformable region).
+    lattice_pressure: Vec<f64>,
     obs: Observation,
     zmin: Vec<f64>,
     enc_in: Vec<f32>,
@@ -803,6 +834,10 @@ impl Rom {
         } else {
             None
         };
+        let pressure = match &manifest.pressure {
+            Some(p) if options.pressure => Some(load_graph(&p.0, &p.1, &p.2, threads)?),
+            _ => None,
+        };
         Ok(Rom {
             z: vec![0.0; manifest.latent],
             manifest,
@@ -810,6 +845,8 @@ impl Rom {
             encoder,
             decoder,
             jacobian,
+            pressure,
+            lattice_pressure: Vec::new(),
             obs: Observation::default(),
             zmin: Vec::new(),
             enc_in: Vec::new(),
@@ -844,36 +881,44 @@ impl Rom {
         &self.lattice_depth
     }
 
-    /// The factor of the coarse gel's normal force for the last inference, on the
-    /// observation `obs` (the last [`Rom::evaluate`]'s for [`Rom::force_factor`]): the
-    /// decoded surface's displaced volume over the coarse one's (on the lattice, over the
-    /// whole face) times the manifest's [`VolumeFactor`] at the gel's Poisson's ratio; 1 for a model without one, or
-    /// where the ratio falls outside [`VOLUME_RATIO`] (a surface it does not describe).
+    /// The factor of the coarse gel's normal force `coarse_force` (N) for the last
+    /// inference, on the observation `obs` (the last [`Rom::evaluate`]'s for
+    /// [`Rom::force_factor`]), on a gel of Young's modulus `young` (Pa):
     ///
-    /// On a bonded layer the total normal force is close to proportional to the surface's
-    /// displaced volume, with a constant of the gel and its grid that barely depends on
-    /// the indenter (1.65 to 1.79 in units of `M / h` over spheres, a punch and a bar on
-    /// the coarse grid); the manifest's factor, measured on the training presses, takes
-    /// out the coarse grid's own constant.
-    pub fn force_factor_on(&self, obs: &Observation) -> f64 {
+    /// * for a model with a pressure head that ran ([`Rom::lattice_pressure`]): the head's
+    ///   force ([`Rom::pressure_force`]) over the coarse one;
+    /// * else for a model with a `force` factor: the decoded surface's displaced volume over
+    ///   the coarse one's (on the lattice, over the whole face) times the manifest's
+    ///   [`VolumeFactor`] at the gel's Poisson's ratio. On a bonded layer the total normal
+    ///   force is close to proportional to the surface's displaced volume, with a constant
+    ///   of the gel and its grid that barely depends on the indenter (1.65 to 1.79 in units
+    ///   of `M / h` over spheres, a punch and a bar on the coarse grid); the manifest's
+    ///   factor, measured on the training presses, takes out the coarse grid's own
+    ///   constant;
+    /// * 1 for a model with neither, or where the ratio falls outside [`VOLUME_RATIO`]: the
+    ///   decoder corrects the coarse solution, it does not replace it.
+    pub fn force_factor_on(&self, obs: &Observation, coarse_force: f64, young: f64) -> f64 {
+        let within = |r: f64| r.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&r);
+        if let Some(head) = self.pressure_force(young) {
+            let ratio = head / coarse_force;
+            return if within(ratio) { ratio } else { 1.0 };
+        }
         let Some(k) = &self.manifest.force_volume_factor else {
             return 1.0;
         };
-        let k = k.at(obs.poisson);
         let decoded: f64 = self.lattice_depth.iter().sum();
         let coarse: f64 = obs.coarse.iter().sum();
         let ratio = decoded / coarse;
-        if coarse > 0.0 && ratio.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&ratio)
-        {
-            ratio * k
+        if coarse > 0.0 && within(ratio) {
+            ratio * k.at(obs.poisson)
         } else {
             1.0
         }
     }
 
     /// [`Rom::force_factor_on`] the last [`Rom::evaluate`]'s observation.
-    pub fn force_factor(&self) -> f64 {
-        self.force_factor_on(&self.obs)
+    pub fn force_factor(&self, coarse_force: f64, young: f64) -> f64 {
+        self.force_factor_on(&self.obs, coarse_force, young)
     }
 
     fn refine_enabled(&self) -> bool {
@@ -1158,33 +1203,82 @@ impl Rom {
             .fold(0.0, |m, (&d, &p)| m.max(p - d));
         report.bound_excess = obs.rule.apply(&mut self.lattice_depth, &obs.pen);
         report.decoded = points.len();
+        if self.pressure.is_some() {
+            self.infer_pressure(&points)?;
+        }
         report.decode_s = t2.elapsed().as_secs_f64();
         Ok(report)
+    }
+
+    /// Runs the pressure head on the query rows of `points` (lattice indices, the region's,
+    /// in the order of `self.query`): [`Rom::lattice_pressure`].
+    fn infer_pressure(&mut self, points: &[usize]) -> Result<(), RomError> {
+        let Some(graph) = self.pressure.as_mut() else {
+            return Ok(());
+        };
+        self.lattice_pressure.clear();
+        self.lattice_pressure.resize(self.lattice_depth.len(), 0.0);
+        if points.is_empty() {
+            return Ok(());
+        }
+        let f = self.manifest.lattice.query_len();
+        let zt = TensorRef::from_array_view(([1usize, self.z.len()], &self.z[..]))
+            .map_err(|e| run_err("pressure", e))?;
+        let qt = TensorRef::from_array_view(([points.len(), f], &self.query[..]))
+            .map_err(|e| run_err("pressure", e))?;
+        let out = graph
+            .session
+            .run(ort::inputs!["z" => zt, "query" => qt])
+            .map_err(|e| run_err("pressure", e))?;
+        let (_, p) = out["pressure"]
+            .try_extract_tensor::<f32>()
+            .map_err(|e| run_err("pressure", e))?;
+        for (&i, &v) in points.iter().zip(p) {
+            // No tension in a contact; a non-finite output carries no load.
+            self.lattice_pressure[i] = if v.is_finite() {
+                (v as f64).max(0.0)
+            } else {
+                0.0
+            };
+        }
+        Ok(())
+    }
+
+    /// The pressure head's normal contact pressure on the lattice after the last inference
+    /// (units of Young's modulus, row-major `ny x nx`); `None` where the head did not run
+    /// (no head in the model, or [`RomOptions::pressure`] off).
+    pub fn lattice_pressure(&self) -> Option<&[f64]> {
+        self.pressure.as_ref().map(|_| &self.lattice_pressure[..])
+    }
+
+    /// The normal force (N) of the pressure head's field for a gel of Young's modulus
+    /// `young` (Pa): its sum over the lattice points times their area; `None` where the head
+    /// did not run.
+    pub fn pressure_force(&self, young: f64) -> Option<f64> {
+        let spec = &self.manifest.lattice;
+        let area = spec.size[0] / spec.nx as f64 * spec.size[1] / spec.ny as f64;
+        self.lattice_pressure()
+            .map(|p| young * area * p.iter().sum::<f64>())
+    }
+
+    /// Renders the pressure head's field onto `grid` (Pa, for a gel of Young's modulus
+    /// `young`) by bilinear interpolation, as [`Rom::render`] the depth; `false` (and `out`
+    /// untouched) where the head did not run.
+    pub fn render_pressure(&self, grid: &PixelGrid, young: f64, out: &mut [f64]) -> bool {
+        let Some(p) = self.lattice_pressure() else {
+            return false;
+        };
+        render_lattice(&self.manifest.lattice, p, grid, out);
+        out[..grid.width * grid.height]
+            .iter_mut()
+            .for_each(|v| *v *= young);
+        true
     }
 
     /// Renders the last inference's lattice onto `grid` by bilinear interpolation; the
     /// caller applies the depth rule with the full-resolution rigid surface.
     pub fn render(&self, grid: &PixelGrid, out: &mut [f64]) {
-        let spec = &self.manifest.lattice;
-        let (nx, ny) = (spec.nx, spec.ny);
-        let [lx, ly, _] = spec.size;
-        let (px, py) = (lx / nx as f64, ly / ny as f64);
-        let lat = &self.lattice_depth;
-        for row in 0..grid.height {
-            let fy = ((0.5 * ly - grid.y(row)) / py - 0.5).clamp(0.0, (ny - 1) as f64);
-            let r0 = (fy.floor() as usize).min(ny.saturating_sub(2));
-            let wy = fy - r0 as f64;
-            let r1 = (r0 + 1).min(ny - 1);
-            for col in 0..grid.width {
-                let fx = ((grid.x(col) + 0.5 * lx) / px - 0.5).clamp(0.0, (nx - 1) as f64);
-                let c0 = (fx.floor() as usize).min(nx.saturating_sub(2));
-                let wx = fx - c0 as f64;
-                let c1 = (c0 + 1).min(nx - 1);
-                let v = (1.0 - wy) * ((1.0 - wx) * lat[r0 * nx + c0] + wx * lat[r0 * nx + c1])
-                    + wy * ((1.0 - wx) * lat[r1 * nx + c0] + wx * lat[r1 * nx + c1]);
-                out[row * grid.width + col] = v;
-            }
-        }
+        render_lattice(&self.manifest.lattice, &self.lattice_depth, grid, out);
     }
 
     /// One sensor evaluation: observation of the solved coarse `gel` under `indenters`,
@@ -1220,6 +1314,7 @@ impl Rom {
         let mut copy = Rom::load(&self.manifest.dir, self.options)?;
         copy.z.clone_from(&self.z);
         copy.lattice_depth.clone_from(&self.lattice_depth);
+        copy.lattice_pressure.clone_from(&self.lattice_pressure);
         Ok(copy)
     }
 }
@@ -1228,6 +1323,28 @@ const _: fn() = || {
     fn assert_send<T: Send>() {}
     assert_send::<Rom>();
 };
+
+/// Bilinear interpolation of the lattice field `lat` (row-major `ny x nx`) onto `grid`.
+fn render_lattice(spec: &LatticeSpec, lat: &[f64], grid: &PixelGrid, out: &mut [f64]) {
+    let (nx, ny) = (spec.nx, spec.ny);
+    let [lx, ly, _] = spec.size;
+    let (px, py) = (lx / nx as f64, ly / ny as f64);
+    for row in 0..grid.height {
+        let fy = ((0.5 * ly - grid.y(row)) / py - 0.5).clamp(0.0, (ny - 1) as f64);
+        let r0 = (fy.floor() as usize).min(ny.saturating_sub(2));
+        let wy = fy - r0 as f64;
+        let r1 = (r0 + 1).min(ny - 1);
+        for col in 0..grid.width {
+            let fx = ((grid.x(col) + 0.5 * lx) / px - 0.5).clamp(0.0, (nx - 1) as f64);
+            let c0 = (fx.floor() as usize).min(nx.saturating_sub(2));
+            let wx = fx - c0 as f64;
+            let c1 = (c0 + 1).min(nx - 1);
+            let v = (1.0 - wy) * ((1.0 - wx) * lat[r0 * nx + c0] + wx * lat[r0 * nx + c1])
+                + wy * ((1.0 - wx) * lat[r1 * nx + c0] + wx * lat[r1 * nx + c1]);
+            out[row * grid.width + col] = v;
+        }
+    }
+}
 
 fn run_err(graph: &'static str, e: impl std::fmt::Display) -> RomError {
     RomError::Run {

@@ -92,6 +92,7 @@ pub fn build(config: &Config) -> Result<Box<dyn SurfaceModel>, SensorError> {
                 mpm,
                 rom: Box::new(rom),
                 force_factor: 1.0,
+                decoded: false,
             }))
         }
     }
@@ -320,8 +321,11 @@ impl SurfaceModel for Mpm {
 struct Reduced {
     mpm: Mpm,
     rom: Box<Rom>,
-    /// [`Rom::force_factor`] of the last evaluation (1 when the decoder did not run).
+    /// [`Rom::force_factor`] of the last evaluation (1 when the decoder did not run): the
+    /// pressure head's force over the coarse gel's, or the decoded surface's volume's.
     force_factor: f64,
+    /// Whether the last evaluation decoded (the pressure head's field is its own).
+    decoded: bool,
 }
 
 impl SurfaceModel for Reduced {
@@ -341,10 +345,12 @@ impl SurfaceModel for Reduced {
                     // follows the contact mechanics already; the factor is fitted to the
                     // relaxation's surface.
                     let fallback = eval.solve.as_ref().is_some_and(|r| r.fallback);
+                    self.decoded = !fallback;
                     self.force_factor = if fallback {
                         1.0
                     } else {
-                        self.rom.force_factor()
+                        self.rom
+                            .force_factor(self.mpm.force().z, self.mpm.params.young)
                     };
                     eval.bound_excess = report.bound_excess;
                     eval.rom = Some(report);
@@ -358,6 +364,7 @@ impl SurfaceModel for Reduced {
             }
         }
         self.force_factor = 1.0;
+        self.decoded = false;
         self.mpm.depth(scene, out, eval);
     }
 
@@ -368,7 +375,7 @@ impl SurfaceModel for Reduced {
     }
 
     fn force_needs_depth(&self) -> bool {
-        self.rom.manifest().force_volume_factor.is_some()
+        self.rom.manifest().force_volume_factor.is_some() || self.rom.lattice_pressure().is_some()
     }
 
     /// The coarse gel's, with the normal force scaled as [`SurfaceModel::force`] (and the
@@ -385,8 +392,12 @@ impl SurfaceModel for Reduced {
         w
     }
 
-    /// The coarse gel's pressure, scaled as the normal force.
+    /// The pressure head's field where it ran on the last evaluation's decoded surface,
+    /// else the coarse gel's pressure scaled as the normal force.
     fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
+        if self.decoded && self.rom.render_pressure(grid, self.mpm.params.young, out) {
+            return;
+        }
         self.mpm.pressure(grid, out);
         out.iter_mut().for_each(|p| *p *= self.force_factor);
     }
@@ -404,6 +415,7 @@ impl SurfaceModel for Reduced {
     fn reset(&mut self) {
         self.mpm.reset();
         self.force_factor = 1.0;
+        self.decoded = false;
     }
 
     fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError> {
@@ -415,6 +427,7 @@ impl SurfaceModel for Reduced {
             mpm: self.mpm.clone(),
             rom: Box::new(rom),
             force_factor: self.force_factor,
+            decoded: self.decoded,
         }))
     }
 }
@@ -440,6 +453,11 @@ fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
         RomOptions {
             refine: config.refine,
             threads: config.threads,
+            pressure: config.coupling
+                || config.outputs.iter().any(|o| {
+                    let needs = o.spec().needs;
+                    needs.force || needs.pressure
+                }),
         },
     )
     .map_err(in_dir)?;

@@ -1,0 +1,267 @@
+"""The contact pressure head of a trained model: the reference's normal contact pressure
+from the decoder's own inputs, so that rom's force and pressure come from the fine level.
+
+    python -m tacrom_rom.pressure --data data/rom-p0.5 --model models/rom-default [--steps N]
+        [--seed 0] [--threads 2] [--out DIR]
+
+The head is g_p(z, q): the same latent `z` (the model's encoder, frozen) and the same query
+features `q` as the decoder (data.QueryBuilder; src/rom/features.rs), hidden [256, 128]
+with LayerNorm and ReLU, one output: the pressure in units of the gel's Young's modulus
+(p / E; the solve runs in units scaled by E, so one head serves every modulus). At run
+time the pressure is max(0, g_p), and the normal force its sum over the lattice points
+times their area.
+
+Trained on the pressure companions `sample-NNNNNN-pressure.npy` of a `tacrom gen-data`
+data set (channel 1: the reference's pressure; see src/datagen.rs), on every lattice point
+of each press's deformable region (where the reference carries its load; the head is not
+run elsewhere). Losses, in p / E:
+* per point: squared error of the output where the reference presses, of max(0, output)
+  where it does not (zero pressure there; a negative output costs nothing);
+* per press: the relative error of the summed pressure (the normal force) squared, with
+  a floor of FORCE_FLOOR_N in the denominator, weight FORCE_WEIGHT.
+The 8 lattice symmetries augment the presses, as for the autoencoder.
+
+Writes `pressure.onnx` (z [1, r], query [N, F] -> pressure [N, 1]) and the head's weights
+into the model's directory (or --out, a copy of it), and adds `files.pressure` and a
+`pressure` record (data, training, held-out force errors) to its manifest.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import shutil
+import sys
+import time
+
+import numpy as np
+import torch
+from torch import nn
+
+from . import data as D
+from .export import OPSET, _export
+from .model import Autoencoder, Mlp
+from .train import REGION_EPS_MM, REGION_GROW, augment, gen_command, split
+
+HIDDEN = (256, 128)
+FORCE_WEIGHT = 1.0
+FORCE_FLOOR_N = 1e-3
+
+
+class PressureHead(nn.Module):
+    """(z [1, r], query [N, F]) -> p / E [N, 1]."""
+
+    def __init__(self, latent: int, n_query: int):
+        super().__init__()
+        self.latent = latent
+        self.mlp = Mlp(latent + n_query, 1, HIDDEN)
+        # Start from no pressure anywhere.
+        nn.init.zeros_(self.mlp.out.weight)
+        nn.init.zeros_(self.mlp.out.bias)
+
+    def forward_batched(self, z, q):
+        """z [B, r], q [B, N, F] -> [B, N]."""
+        zz = z[:, None, :].expand(-1, q.shape[1], -1)
+        return self.mlp(torch.cat([zz, q], dim=-1))[..., 0]
+
+    def forward(self, z, query):
+        return self.mlp(torch.cat([z.expand(query.shape[0], -1), query], dim=-1))
+
+
+def load_pressure(path, metas, young):
+    """[S, ny, nx] reference pressure / E of each sample in `metas` (channel 1 of its
+    companion)."""
+    out = []
+    for m in metas:
+        f = os.path.join(path, f"sample-{m['index']:06d}-pressure.npy")
+        if not os.path.exists(f):
+            raise SystemExit(f"{f}: missing; data sets written before the pressure was recorded "
+                             "have none (tacrom gen-data writes it now)")
+        out.append(np.load(f)[1].astype(np.float32) / np.float32(young))
+    return np.stack(out)
+
+
+def load_model(model_dir):
+    with open(os.path.join(model_dir, "manifest.json")) as f:
+        manifest = json.load(f)
+    lat = manifest["lattice"]
+    spec = D.Spec(size=tuple(lat["size"]), nx=lat["nx"], ny=lat["ny"], encoder_stride=lat["encoder_stride"],
+                  patch=lat["patch"], patch_step=lat["patch_step"], depth_scale=lat["depth_scale"],
+                  conditioning=manifest.get("conditioning"))
+    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, manifest["latent"])
+    model.load_state_dict(torch.load(os.path.join(model_dir, "weights.pt"), weights_only=True))
+    model.eval()
+    return manifest, spec, model
+
+
+class Presses:
+    """Every press's region points, their query features and reference pressure, with z."""
+
+    def __init__(self, spec, model, arrays, pressure):
+        region = D.region_mask(arrays, REGION_GROW, REGION_EPS_MM)
+        qb = D.QueryBuilder(spec)
+        lat = torch.from_numpy(arrays)
+        with torch.no_grad():
+            self.z = model.encoder(D.encoder_input(spec, lat))
+        padded = qb.pad(lat)
+        self.q, self.p = [], []
+        for s in range(len(arrays)):
+            flat = torch.from_numpy(np.flatnonzero(region[s]))
+            rows, cols = flat // spec.nx, flat % spec.nx
+            self.q.append(qb(padded, torch.full_like(rows, s), rows, cols))
+            self.p.append(torch.from_numpy(pressure[s].reshape(-1)[flat.numpy()]))
+        # Load outside the region (the head is not run there): should be none.
+        self.outside = [float(pressure[s][~region[s]].sum()) for s in range(len(arrays))]
+
+    def batch(self, idx):
+        """Padded [B, N, F] queries, [B, N] targets and a [B, N] mask of real points."""
+        n = max(len(self.p[i]) for i in idx)
+        F = self.q[idx[0]].shape[-1]
+        q = torch.zeros(len(idx), n, F)
+        p = torch.zeros(len(idx), n)
+        mask = torch.zeros(len(idx), n)
+        for k, i in enumerate(idx):
+            m = len(self.p[i])
+            q[k, :m], p[k, :m], mask[k, :m] = self.q[i], self.p[i], 1.0
+        return self.z[idx], q, p, mask
+
+
+def force_scale(spec, young):
+    """Newtons per unit of summed p / E: E times a lattice point's area."""
+    return young * (spec.size[0] / spec.nx) * (spec.size[1] / spec.ny)
+
+
+def losses(head, presses, idx, floor):
+    z, q, p, mask = presses.batch(idx)
+    out = head.forward_batched(z, q)
+    pos = (p > 0).float()
+    err = pos * (out - p) ** 2 + (1 - pos) * torch.relu(out) ** 2
+    n = mask.sum()
+    point = (err * mask).sum() / n
+    f_hat = (torch.relu(out) * mask).sum(1)
+    f = (p * mask).sum(1)
+    force = (((f_hat - f) / (f + floor)) ** 2).mean()
+    return point, force
+
+
+@torch.no_grad()
+def forces(head, presses, idx, scale):
+    """(predicted, reference) normal force (N) of each press in idx."""
+    pred, ref = [], []
+    for i in idx:
+        out = head(presses.z[i : i + 1], presses.q[i])[:, 0]
+        pred.append(float(torch.relu(out).sum()) * scale)
+        ref.append(float(presses.p[i].sum()) * scale)
+    return np.array(pred), np.array(ref)
+
+
+def force_errors(pred, ref, min_force=FORCE_FLOOR_N):
+    """Median, 90th percentile and mean of the relative force error (%) over presses above
+    min_force."""
+    keep = ref > min_force
+    e = 100 * np.abs(pred[keep] - ref[keep]) / ref[keep]
+    if not len(e):
+        return {}
+    return {"presses": int(keep.sum()), "median_pct": float(np.median(e)),
+            "p90_pct": float(np.percentile(e, 90)), "mean_pct": float(e.mean())}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", required=True, help="a gen-data set with pressure companions")
+    p.add_argument("--model", required=True, help="the trained model the head joins")
+    p.add_argument("--out", default=None, help="write into a copy of --model here (default: --model itself)")
+    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--batch", type=int, default=8)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=1)
+    a = p.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    torch.manual_seed(a.seed)
+    rng = np.random.default_rng(a.seed)
+
+    manifest, spec, model = load_model(a.model)
+    dspec, ds, arrays, metas = D.load_dir(a.data, conditioned=spec.conditioning is not None)
+    if (dspec.nx, dspec.ny, tuple(dspec.size)) != (spec.nx, spec.ny, tuple(spec.size)):
+        raise SystemExit(f"{a.data}: lattice {dspec.nx} x {dspec.ny} of {dspec.size}, the model's "
+                         f"{spec.nx} x {spec.ny} of {spec.size}")
+    if (ds.get("recipe") or {}).get("solver") != manifest["recipe"]["solver"] or ds["coarse_dx"] != manifest["coarse_dx"]:
+        raise SystemExit(f"{a.data}: coarse solve {ds.get('recipe')}, the model's {manifest['recipe']}")
+    young = ds["young"]
+    pressure = load_pressure(a.data, metas, young)
+    tr, va = split(metas, set(ds["held_out"]))
+    both = np.concatenate([arrays, pressure[:, None]], axis=1)
+    aug, n_aug = augment(both[tr])
+    train = Presses(spec, model, np.ascontiguousarray(aug[:, :-1]), aug[:, -1])
+    held = Presses(spec, model, arrays[va], pressure[va])
+    scale = force_scale(spec, young)
+    floor = FORCE_FLOOR_N / scale
+    print(f"{len(metas)} presses: {len(tr)} train (x{n_aug} symmetries), {len(va)} held out; "
+          f"largest load outside a region {max(train.outside + held.outside) * scale:.2e} N", flush=True)
+
+    head = PressureHead(manifest["latent"], spec.query_len)
+    opt = torch.optim.Adam(head.parameters(), lr=a.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, a.steps)
+    t0 = time.time()
+    for step in range(1, a.steps + 1):
+        idx = rng.choice(len(train.p), size=a.batch, replace=False)
+        point, force = losses(head, train, idx, floor)
+        total = point + FORCE_WEIGHT * force
+        opt.zero_grad()
+        total.backward()
+        opt.step()
+        sched.step()
+        if step % 250 == 0 or step == 1:
+            print(f"step {step} point {point.item():.3e} force {force.item():.3e} ({time.time() - t0:.0f}s)",
+                  flush=True)
+    seconds = time.time() - t0
+    head.eval()
+
+    val_pred, val_ref = forces(head, held, range(len(va)), scale)
+    tr_idx = np.arange(0, len(train.p), n_aug)[:64]
+    tr_pred, tr_ref = forces(head, train, tr_idx, scale)
+    validation = {"held_out": force_errors(val_pred, val_ref),
+                  "train_subset": force_errors(tr_pred, tr_ref)}
+    recorded = [[(metas[i].get(k) or {}).get("force") for k in ("coarse", "reference")] for i in va]
+    if recorded and all(c and r for c, r in recorded):
+        coarse, ref = (np.array([x[k][2] for x in recorded]) for k in (0, 1))
+        validation["held_out_coarse"] = force_errors(coarse, val_ref)
+        # How far the lattice's pressure integrates from the solve's recorded force.
+        validation["lattice_vs_recorded_reference_max_pct"] = float(
+            100 * np.max(np.abs(val_ref - ref) / np.maximum(ref, FORCE_FLOOR_N)))
+    print("validation", json.dumps(validation, indent=1), flush=True)
+
+    out = a.out or a.model
+    if out != a.model:
+        shutil.copytree(a.model, out, dirs_exist_ok=True)
+    r, F = manifest["latent"], spec.query_len
+    with torch.no_grad():
+        _export(head, (torch.zeros(1, r), torch.zeros(7, F)), os.path.join(out, "pressure.onnx"),
+                ["z", "query"], ["pressure"], {"query": {0: "points"}, "pressure": {0: "points"}})
+    torch.save(head.state_dict(), os.path.join(out, "pressure.pt"))
+    manifest["files"]["pressure"] = {"path": "pressure.onnx", "inputs": {"z": [1, r], "query": [-1, F]},
+                                     "outputs": {"pressure": [-1, 1]}}
+    all_idx = sorted(int(f[7:13]) for f in os.listdir(a.data)
+                     if f.startswith("sample-") and f.endswith(".json"))
+    manifest["pressure"] = {
+        "units": "young",
+        "reference_dx": ds["fine_dx"],
+        "data": {"command": gen_command(a.data, ds), "path": a.data, "generated": len(all_idx),
+                 "train": int(len(tr)), "validation": int(len(va))},
+        "training": {"command": "python -m tacrom_rom.pressure " + " ".join(
+                         shlex.quote(x) for x in (argv if argv is not None else sys.argv[1:])),
+                     "steps": a.steps, "seconds": round(seconds, 1), "threads": a.threads,
+                     "batch": a.batch, "hidden": list(HIDDEN), "lr": a.lr, "seed": a.seed,
+                     "losses": {"point": 1.0, "force": FORCE_WEIGHT, "force_floor_n": FORCE_FLOOR_N},
+                     "opset": OPSET, "torch": torch.__version__},
+        "validation": validation,
+    }
+    with open(os.path.join(out, "manifest.json"), "w") as f:
+        json.dump(manifest, f, indent=1)
+    print(f"wrote {out}/pressure.onnx in {seconds:.0f}s of training", flush=True)
+
+
+if __name__ == "__main__":
+    main()

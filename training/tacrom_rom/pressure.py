@@ -6,19 +6,27 @@ from the decoder's own inputs, so that rom's force and pressure come from the fi
 
 The head is g_p(z, q): the same latent `z` (the model's encoder, frozen) and the same query
 features `q` as the decoder (data.QueryBuilder; src/rom/features.rs), hidden [256, 128]
-with LayerNorm and ReLU, one output: the pressure in units of the gel's Young's modulus
-(p / E; the solve runs in units scaled by E, so one head serves every modulus). At run
-time the pressure is max(0, g_p), and the normal force its sum over the lattice points
-times their area.
+with LayerNorm and ReLU, one output per lattice point, in the units `--units` names:
+* `coarse_force` (default): the point's load (pressure times its area) over the coarse
+  gel's normal force shared equally among the deformable region's points (so of order 1),
+  so that the head corrects the coarse load (which carries the gel's Poisson's ratio and
+  Young's modulus) rather than replacing it; presses whose coarse force is below
+  FORCE_FLOOR_N are left out of training, and at run time such a press keeps the coarse
+  force;
+* `young`: the pressure over the gel's Young's modulus (p / E).
+At run time the output is max(0, g_p), and the normal force its sum over the lattice
+points, times their area and E or times the coarse force.
 
 Trained on the pressure companions `sample-NNNNNN-pressure.npy` of a `tacrom gen-data`
 data set (channel 1: the reference's pressure; see src/datagen.rs), on every lattice point
 of each press's deformable region (where the reference carries its load; the head is not
-run elsewhere). Losses, in p / E:
-* per point: squared error of the output where the reference presses, of max(0, output)
-  where it does not (zero pressure there; a negative output costs nothing);
-* per press: the relative error of the summed pressure (the normal force) squared, with
-  a floor of FORCE_FLOOR_N in the denominator, weight FORCE_WEIGHT.
+run elsewhere). Losses, per press, in the head's units:
+* the field: the squared error of the output where the reference presses and of
+  max(0, output) where it does not (zero pressure there; a negative output costs
+  nothing), summed over the points and divided by the reference's sum of squares (a
+  relative error, so that a small contact counts as much as a large one);
+* the force: the relative error of the summed output (the normal force) squared, with a
+  floor of FORCE_FLOOR_N in the denominator, weight FORCE_WEIGHT.
 The 8 lattice symmetries augment the presses, as for the autoencoder.
 
 Writes `pressure.onnx` (z [1, r], query [N, F] -> pressure [N, 1]) and the head's weights
@@ -69,8 +77,11 @@ class PressureHead(nn.Module):
         return self.mlp(torch.cat([z.expand(query.shape[0], -1), query], dim=-1))
 
 
-def load_pressure(path, metas, young):
-    """[S, ny, nx] reference pressure / E of each sample in `metas` (channel 1 of its
+UNITS = ("coarse_force", "young")
+
+
+def load_pressure(path, metas):
+    """[S, ny, nx] reference pressure (Pa) of each sample in `metas` (channel 1 of its
     companion)."""
     out = []
     for m in metas:
@@ -78,8 +89,14 @@ def load_pressure(path, metas, young):
         if not os.path.exists(f):
             raise SystemExit(f"{f}: missing; data sets written before the pressure was recorded "
                              "have none (tacrom gen-data writes it now)")
-        out.append(np.load(f)[1].astype(np.float32) / np.float32(young))
+        out.append(np.load(f)[1].astype(np.float32))
     return np.stack(out)
+
+
+def unit_of(units, young, area, coarse_force, points):
+    """Pascals per unit of the head's output at one lattice point of `area` (m^2), for a
+    press whose deformable region has `points` lattice points."""
+    return young if units == "young" else coarse_force / (points * area)
 
 
 def load_model(model_dir):
@@ -127,32 +144,33 @@ class Presses:
         return self.z[idx], q, p, mask
 
 
-def force_scale(spec, young):
-    """Newtons per unit of summed p / E: E times a lattice point's area."""
-    return young * (spec.size[0] / spec.nx) * (spec.size[1] / spec.ny)
-
-
 def losses(head, presses, idx, floor):
+    """The field and force losses of the presses `idx`; `floor[i]`: FORCE_FLOOR_N in
+    press i's units."""
     z, q, p, mask = presses.batch(idx)
+    floor = torch.as_tensor(floor[idx], dtype=p.dtype)
     out = head.forward_batched(z, q)
     pos = (p > 0).float()
     err = pos * (out - p) ** 2 + (1 - pos) * torch.relu(out) ** 2
-    n = mask.sum()
-    point = (err * mask).sum() / n
+    # A press's field error relative to its own field (floored: a 100-point contact
+    # carrying FORCE_FLOOR_N).
+    norm = (p**2 * mask).sum(1) + floor**2 / 100
+    field = ((err * mask).sum(1) / norm).mean()
     f_hat = (torch.relu(out) * mask).sum(1)
     f = (p * mask).sum(1)
     force = (((f_hat - f) / (f + floor)) ** 2).mean()
-    return point, force
+    return field, force
 
 
 @torch.no_grad()
 def forces(head, presses, idx, scale):
-    """(predicted, reference) normal force (N) of each press in idx."""
+    """(predicted, reference) normal force (N) of each press in idx; `scale[i]`: newtons per
+    unit of summed output of press i."""
     pred, ref = [], []
     for i in idx:
         out = head(presses.z[i : i + 1], presses.q[i])[:, 0]
-        pred.append(float(torch.relu(out).sum()) * scale)
-        ref.append(float(presses.p[i].sum()) * scale)
+        pred.append(float(torch.relu(out).sum()) * scale[i])
+        ref.append(float(presses.p[i].sum()) * scale[i])
     return np.array(pred), np.array(ref)
 
 
@@ -177,6 +195,7 @@ def main(argv=None):
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--units", choices=UNITS, default=UNITS[0], help="what the head outputs (see above)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
@@ -190,16 +209,30 @@ def main(argv=None):
     if (ds.get("recipe") or {}).get("solver") != manifest["recipe"]["solver"] or ds["coarse_dx"] != manifest["coarse_dx"]:
         raise SystemExit(f"{a.data}: coarse solve {ds.get('recipe')}, the model's {manifest['recipe']}")
     young = ds["young"]
-    pressure = load_pressure(a.data, metas, young)
+    area = (spec.size[0] / spec.nx) * (spec.size[1] / spec.ny)
+    pressure = load_pressure(a.data, metas)
+    coarse_force = np.array([((m.get("coarse") or {}).get("force") or [0, 0, np.nan])[2] for m in metas])
+    if a.units == "coarse_force" and not np.isfinite(coarse_force).all():
+        raise SystemExit(f"{a.data}: samples without a recorded coarse force; --units young needs none")
+    # Newtons per unit of summed output, per press.
+    points = D.region_mask(arrays, REGION_GROW, REGION_EPS_MM).sum(axis=(1, 2))
+    scale = np.array([unit_of(a.units, young, area, f, n) * area for f, n in zip(coarse_force, points)])
     tr, va = split(metas, set(ds["held_out"]))
-    both = np.concatenate([arrays, pressure[:, None]], axis=1)
+    n_va = len(va)
+    if a.units == "coarse_force":
+        # Where the coarse gel carries (almost) no load, the sensor keeps the coarse force.
+        tr = tr[coarse_force[tr] >= FORCE_FLOOR_N]
+        va = va[coarse_force[va] >= FORCE_FLOOR_N]
+    target = (pressure * area / scale[:, None, None]).astype(np.float32)
+    both = np.concatenate([arrays, target[:, None]], axis=1)
     aug, n_aug = augment(both[tr])
     train = Presses(spec, model, np.ascontiguousarray(aug[:, :-1]), aug[:, -1])
-    held = Presses(spec, model, arrays[va], pressure[va])
-    scale = force_scale(spec, young)
-    floor = FORCE_FLOOR_N / scale
+    held = Presses(spec, model, arrays[va], target[va])
+    tr_scale, va_scale = np.repeat(scale[tr], n_aug), scale[va]
+    floor = FORCE_FLOOR_N / tr_scale
+    outside = max([o * s for o, s in zip(train.outside, tr_scale)] + [o * s for o, s in zip(held.outside, va_scale)])
     print(f"{len(metas)} presses: {len(tr)} train (x{n_aug} symmetries), {len(va)} held out; "
-          f"largest load outside a region {max(train.outside + held.outside) * scale:.2e} N", flush=True)
+          f"largest load outside a region {outside:.2e} N", flush=True)
 
     head = PressureHead(manifest["latent"], spec.query_len)
     opt = torch.optim.Adam(head.parameters(), lr=a.lr)
@@ -207,22 +240,23 @@ def main(argv=None):
     t0 = time.time()
     for step in range(1, a.steps + 1):
         idx = rng.choice(len(train.p), size=a.batch, replace=False)
-        point, force = losses(head, train, idx, floor)
-        total = point + FORCE_WEIGHT * force
+        field, force = losses(head, train, idx, floor)
+        total = field + FORCE_WEIGHT * force
         opt.zero_grad()
         total.backward()
         opt.step()
         sched.step()
         if step % 250 == 0 or step == 1:
-            print(f"step {step} point {point.item():.3e} force {force.item():.3e} ({time.time() - t0:.0f}s)",
+            print(f"step {step} field {field.item():.3e} force {force.item():.3e} ({time.time() - t0:.0f}s)",
                   flush=True)
     seconds = time.time() - t0
     head.eval()
 
-    val_pred, val_ref = forces(head, held, range(len(va)), scale)
+    val_pred, val_ref = forces(head, held, range(len(va)), va_scale)
     tr_idx = np.arange(0, len(train.p), n_aug)[:64]
-    tr_pred, tr_ref = forces(head, train, tr_idx, scale)
+    tr_pred, tr_ref = forces(head, train, tr_idx, tr_scale)
     validation = {"held_out": force_errors(val_pred, val_ref),
+                  "held_out_left_out": n_va - len(va),
                   "train_subset": force_errors(tr_pred, tr_ref)}
     recorded = [[(metas[i].get(k) or {}).get("force") for k in ("coarse", "reference")] for i in va]
     if recorded and all(c and r for c, r in recorded):
@@ -246,15 +280,15 @@ def main(argv=None):
     all_idx = sorted(int(f[7:13]) for f in os.listdir(a.data)
                      if f.startswith("sample-") and f.endswith(".json"))
     manifest["pressure"] = {
-        "units": "young",
+        "units": a.units,
         "reference_dx": ds["fine_dx"],
         "data": {"command": gen_command(a.data, ds), "path": a.data, "generated": len(all_idx),
-                 "train": int(len(tr)), "validation": int(len(va))},
+                 "train": int(len(tr)), "validation": int(len(va)), "units": a.units},
         "training": {"command": "python -m tacrom_rom.pressure " + " ".join(
                          shlex.quote(x) for x in (argv if argv is not None else sys.argv[1:])),
                      "steps": a.steps, "seconds": round(seconds, 1), "threads": a.threads,
                      "batch": a.batch, "hidden": list(HIDDEN), "lr": a.lr, "seed": a.seed,
-                     "losses": {"point": 1.0, "force": FORCE_WEIGHT, "force_floor_n": FORCE_FLOOR_N},
+                     "losses": {"field": 1.0, "force": FORCE_WEIGHT, "force_floor_n": FORCE_FLOOR_N},
                      "opset": OPSET, "torch": torch.__version__},
         "validation": validation,
     }

@@ -274,6 +274,12 @@ def test_pressure_head_trains_exports_and_matches_onnx(tiny_model, tmp_path):
         # A Hertz-like pressure where the reference presses (Pa); the coarse one smeared.
         p = 2e4 * np.sqrt(np.clip(a[1] / max(a[1].max(), 1e-12), 0, None))
         np.save(str(npy)[:-4] + "-pressure.npy", np.stack([0.8 * p, p]).astype(np.float32))
+        js = str(npy)[:-4] + ".json"
+        meta = json.load(open(js))
+        fz = float(p.sum()) * 3e-4**2
+        meta["coarse"] = {"force": [0.0, 0.0, 0.8 * fz]}
+        meta["reference"]["force"] = [0.0, 0.0, fz]
+        json.dump(meta, open(js, "w"))
     with open(data / "dataset.json") as f:
         ds = json.load(f)
     m0 = json.load(open(tiny_model / "manifest.json"))
@@ -285,7 +291,7 @@ def test_pressure_head_trains_exports_and_matches_onnx(tiny_model, tmp_path):
                    "--steps", "3", "--batch", "2"])
     m = json.load(open(out / "manifest.json"))
     assert m["files"]["pressure"]["outputs"] == {"pressure": [-1, 1]}
-    assert m["pressure"]["units"] == "young"
+    assert m["pressure"]["units"] == "coarse_force"
     assert "held_out" in m["pressure"]["validation"]
     assert "pressure" not in json.load(open(tiny_model / "manifest.json"))["files"]
     head = PressureHead(m["latent"], m["query_features"])

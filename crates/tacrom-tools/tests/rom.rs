@@ -176,6 +176,60 @@ fn shipped_model_loads_and_outputs_have_the_manifests_shapes() {
     assert!(e.to_string().contains("friction in [0, 1]"), "{e}");
 }
 
+/// The pressure head runs only where it is asked for, leaves the depth as it is, and
+/// gives a compressive field on the deformable region alone. On the held-out pairs shipped
+/// with the model.
+#[test]
+fn the_pressure_head_runs_only_when_wanted_and_leaves_the_depth_alone() {
+    let dir = model_dir();
+    let mut plain = Rom::load(&dir, RomOptions::default()).unwrap();
+    let mut with = Rom::load(
+        &dir,
+        RomOptions {
+            pressure: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(
+        with.manifest().pressure.is_some(),
+        "the shipped model has a pressure head"
+    );
+    let young = with.manifest().gel.young;
+    let spec = with.manifest().lattice;
+    let mut pressed = 0;
+    for p in validation_pairs(&dir) {
+        let (_, data) = read_npy(&p);
+        let obs = pair_observation_for(&with, &p, &data);
+        plain.infer(&obs).unwrap();
+        with.infer(&obs).unwrap();
+        assert!(plain.lattice_pressure().is_none() && plain.pressure_force(young, 1.0).is_none());
+        assert_eq!(
+            plain.lattice_depth(),
+            with.lattice_depth(),
+            "{}",
+            p.display()
+        );
+        let field = with.lattice_pressure().unwrap();
+        assert_eq!(field.len(), spec.points());
+        let mut region = Vec::new();
+        let (eps, grow) = with.manifest().region;
+        tacrom::rom::features::region(&obs, &spec, eps, grow, &mut region);
+        for (i, (&v, &inside)) in field.iter().zip(&region).enumerate() {
+            assert!(v.is_finite() && v >= 0.0, "{}: point {i}: {v}", p.display());
+            assert!(
+                inside || v == 0.0,
+                "{}: load outside the region at {i}",
+                p.display()
+            );
+        }
+        // A nominal coarse force: the pairs do not record theirs.
+        let force = with.pressure_force(young, 1.0).unwrap();
+        pressed += usize::from(force > 0.0);
+    }
+    assert!(pressed > 0, "no held-out pair gave a load");
+}
+
 #[test]
 fn bad_model_directories_give_clear_errors() {
     // Missing directory.
@@ -201,6 +255,25 @@ fn bad_model_directories_give_clear_errors() {
         ..Default::default()
     };
     Rom::load(&d, plain).expect("without the refinement no Jacobian graph is read");
+
+    // The pressure head is loaded only where the force or the pressure is wanted.
+    let d = scratch("no-pressure");
+    copy_model(&d);
+    std::fs::remove_file(d.join("pressure.onnx")).unwrap();
+    let wanted = RomOptions {
+        pressure: true,
+        ..Default::default()
+    };
+    let e = Rom::load(&d, wanted).unwrap_err();
+    assert!(e.to_string().contains("pressure.onnx"), "{e}");
+    Rom::load(&d, RomOptions::default()).expect("without force or pressure no head is read");
+    // A head whose graph is another's: named with what it lacks.
+    std::fs::copy(d.join("decoder.onnx"), d.join("pressure.onnx")).unwrap();
+    let e = Rom::load(&d, wanted).unwrap_err();
+    assert!(
+        e.to_string().contains("pressure.onnx") && e.to_string().contains("pressure"),
+        "{e}"
+    );
 
     // Corrupt ONNX file.
     let d = scratch("corrupt");

@@ -233,6 +233,62 @@ fn rom_carries_a_contact_the_relaxation_misses() {
     );
 }
 
+/// rom's pressure image is the pressure head's field, spread as the gel spreads its
+/// loads: it integrates to the reported normal force (the contact lies inside the image;
+/// to round-off), is compressive, peaks under the sphere, and is not the coarse gel's
+/// pressure scaled (which a model without a head reports).
+#[test]
+fn rom_pressure_is_the_heads_and_integrates_to_the_force() {
+    let (w, h) = (96, 72);
+    let raw = RawConfig::default()
+        .with(ATTR_OUTPUTS, "force pressure")
+        .with(ATTR_RESOLUTION, &format!("{w} {h}"));
+    let config = Config::from_raw("touch", &raw).unwrap();
+    let mut out = vec![0.0; config.sensordata_len()];
+    let mut sensor = TactileSensor::new(config).unwrap();
+    let coarse_raw = RawConfig::default()
+        .with(ATTR_PHYSICS, "coarse")
+        .with(ATTR_SOLVER, "relaxation")
+        .with(ATTR_OUTPUTS, "force pressure")
+        .with(ATTR_RESOLUTION, &format!("{w} {h}"));
+    let coarse_config = Config::from_raw("touch", &coarse_raw).unwrap();
+    let mut coarse_out = vec![0.0; coarse_config.sensordata_len()];
+    let mut coarse = TactileSensor::new(coarse_config).unwrap();
+    let pixel = (0.024 / w as f64) * (0.018 / h as f64);
+    for d in [0.2e-3, 0.5e-3] {
+        let placed = [Placed {
+            shape: Arc::new(Sphere::new(0.005)),
+            pose: Isometry3::translation(0.0, 0.0, 0.005 - d),
+        }];
+        let eval = sensor.evaluate(&placed, &mut out);
+        assert!(eval.rom.is_some(), "{:?}", eval.warnings);
+        coarse.evaluate(&placed, &mut coarse_out);
+        let (fz, p) = (out[2], &out[3..]);
+        let integral: f64 = p.iter().sum::<f64>() * pixel;
+        assert!(
+            fz > 0.0 && (integral - fz).abs() <= 1e-9 * fz,
+            "{integral} against {fz} N"
+        );
+        assert!(p.iter().all(|v| v.is_finite() && *v >= 0.0));
+        let peak = (0..p.len()).max_by(|&a, &b| p[a].total_cmp(&p[b])).unwrap();
+        let (r, c) = (peak / w, peak % w);
+        assert!(
+            (r as f64 - h as f64 / 2.0).abs() <= 4.0 && (c as f64 - w as f64 / 2.0).abs() <= 4.0,
+            "peak at ({r}, {c})"
+        );
+        let k = fz / coarse_out[2];
+        let scaled_off = p
+            .iter()
+            .zip(&coarse_out[3..])
+            .map(|(a, b)| (a - k * b).abs())
+            .fold(0.0, f64::max);
+        assert!(
+            scaled_off > 0.05 * p[peak],
+            "d = {d}: the coarse pressure scaled ({scaled_off} Pa off at most)"
+        );
+    }
+}
+
 /// The gel pushes back with the force rom reports: its wrenches' normal force sums to the
 /// `force` output.
 #[test]
@@ -280,7 +336,12 @@ fn model_with(name: &str, edit: impl Fn(&mut serde_json::Value)) -> std::path::P
     let src = tacrom::rom::default_model_dir().expect("shipped model");
     let dir = std::env::temp_dir().join(format!("tacrom-recipe-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    for f in ["encoder.onnx", "decoder.onnx", "decoder_jacobian.onnx"] {
+    for f in [
+        "encoder.onnx",
+        "decoder.onnx",
+        "decoder_jacobian.onnx",
+        "pressure.onnx",
+    ] {
         std::fs::copy(src.join(f), dir.join(f)).unwrap();
     }
     let text = std::fs::read_to_string(src.join("manifest.json")).unwrap();

@@ -80,6 +80,7 @@ mod material;
 mod newton;
 mod params;
 mod pressure;
+pub use pressure::spread_loads;
 mod region;
 mod relax;
 mod surface;

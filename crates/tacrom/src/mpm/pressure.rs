@@ -69,55 +69,54 @@ fn spread(c: f64, h: f64, n: usize, start: f64, p: f64, sign: f64, out: &mut Vec
     }
 }
 
+/// Spreads normal loads over the pixels of `grid` as pressure (Pa), row-major into `out`
+/// (zeroed first): each load `(x, y, fz)` (sensor frame m, N) with the quadratic B-spline
+/// kernel of width `h` along each axis, integrated exactly over each pixel, divided by the
+/// pixel area. The kernel integrates to one, so the image integrates to the loads' sum
+/// wherever they lie a kernel's reach inside the image.
+///
+/// # Panics
+/// If `out` is shorter than `grid.width * grid.height`.
+pub fn spread_loads(
+    loads: impl IntoIterator<Item = (f64, f64, f64)>,
+    h: f64,
+    grid: &PixelGrid,
+    out: &mut [f64],
+) {
+    let out = &mut out[..grid.width * grid.height];
+    out.fill(0.0);
+    let (pw, ph) = (
+        grid.fov_x / grid.width as f64,
+        grid.fov_y / grid.height as f64,
+    );
+    let (mut cols, mut rows) = (Vec::new(), Vec::new());
+    for (x, y, fz) in loads {
+        let value = fz / (pw * ph);
+        if value == 0.0 || !value.is_finite() {
+            continue;
+        }
+        spread(x, h, grid.width, -0.5 * grid.fov_x, pw, 1.0, &mut cols);
+        spread(y, h, grid.height, 0.5 * grid.fov_y, ph, -1.0, &mut rows);
+        for &(r, wr) in &rows {
+            let row = &mut out[r * grid.width..(r + 1) * grid.width];
+            for &(c, wc) in &cols {
+                row[c] += value * wr * wc;
+            }
+        }
+    }
+}
+
 impl Gel {
     /// Normal contact pressure (Pa, positive where the indenters press the gel) at each
     /// pixel of `grid`, row-major into `out`, from the last solve's contact loads (see
-    /// `pressure.rs`). Zero without contact.
+    /// `pressure.rs`), spread with the grid's own kernel ([`spread_loads`]). Zero without
+    /// contact.
     ///
     /// # Panics
     /// If `out` is shorter than `grid.width * grid.height`.
     pub fn contact_pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
-        let out = &mut out[..grid.width * grid.height];
-        out.fill(0.0);
-        if self.loads.is_empty() {
-            return;
-        }
-        let (pw, ph) = (
-            grid.fov_x / grid.width as f64,
-            grid.fov_y / grid.height as f64,
-        );
-        let h = self.layout.dx;
-        let (mut cols, mut rows) = (Vec::new(), Vec::new());
-        for load in &self.loads {
-            let value = load.force.z / (pw * ph);
-            if value == 0.0 || !value.is_finite() {
-                continue;
-            }
-            spread(
-                load.at[0],
-                h,
-                grid.width,
-                -0.5 * grid.fov_x,
-                pw,
-                1.0,
-                &mut cols,
-            );
-            spread(
-                load.at[1],
-                h,
-                grid.height,
-                0.5 * grid.fov_y,
-                ph,
-                -1.0,
-                &mut rows,
-            );
-            for &(r, wr) in &rows {
-                let row = &mut out[r * grid.width..(r + 1) * grid.width];
-                for &(c, wc) in &cols {
-                    row[c] += value * wr * wc;
-                }
-            }
-        }
+        let loads = self.loads.iter().map(|l| (l.at[0], l.at[1], l.force.z));
+        spread_loads(loads, self.layout.dx, grid, out);
     }
 }
 

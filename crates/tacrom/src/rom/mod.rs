@@ -263,11 +263,10 @@ pub struct Manifest {
     pub refinement: Refinement,
     /// `(path, inputs, outputs)` of encoder, decoder, Jacobian.
     pub files: [GraphFile; 3],
-    /// The contact pressure head (manifest `files.pressure`; `None`: `rom`'s force and
-    /// pressure are the coarse gel's, scaled by [`Manifest::force_volume_factor`]). Its
-    /// output is the normal contact pressure in units of the gel's Young's modulus at each
-    /// query point; see [`Rom::lattice_pressure`].
-    pub pressure: Option<GraphFile>,
+    /// The contact pressure head (manifest `files.pressure` and `pressure.units`; `None`:
+    /// `rom`'s force and pressure are the coarse gel's, scaled by
+    /// [`Manifest::force_volume_factor`]); see [`Rom::lattice_pressure`].
+    pub pressure: Option<(GraphFile, PressureUnits)>,
     /// The coarse solve the model was trained on and accepts.
     pub recipe: Recipe,
     /// The gel materials a conditioned model serves (`None`: the gel's only).
@@ -286,6 +285,17 @@ pub struct Manifest {
 
 /// `(path, inputs, outputs)` of one ONNX graph of a model, as its manifest lists them.
 pub type GraphFile = (PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>);
+
+/// What a pressure head's output at a lattice point is (manifest `pressure.units`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PressureUnits {
+    /// The point's load (its pressure times its area) over the coarse gel's normal force
+    /// shared equally among the deformable region's points (`coarse_force`; of order 1):
+    /// the head corrects the coarse load, which carries the gel's material.
+    CoarseForce,
+    /// The pressure over the gel's Young's modulus (`young`).
+    Young,
+}
 
 /// `manifest.json` as written by the training's export, read with serde; [`Manifest::load`]
 /// checks it and turns it into a [`Manifest`].
@@ -319,6 +329,14 @@ mod document {
         /// The force from the decoded surface's displaced volume.
         #[serde(default)]
         pub force: Option<Force>,
+        /// The pressure head's record (with `files.pressure`).
+        #[serde(default)]
+        pub pressure: Option<Pressure>,
+    }
+
+    #[derive(Deserialize)]
+    pub(super) struct Pressure {
+        pub units: String,
     }
 
     #[derive(Deserialize)]
@@ -565,7 +583,17 @@ impl Manifest {
                 |l: Vec<(&str, Vec<i64>)>| l.into_iter().map(|(n, s)| (n.to_owned(), s)).collect();
             let graph = (dir.join(&fj.path), own(ins), own(outs));
             if key == "pressure" {
-                pressure = Some(graph);
+                let units = match doc.pressure.as_ref().map(|p| p.units.as_str()) {
+                    Some("coarse_force") => PressureUnits::CoarseForce,
+                    Some("young") => PressureUnits::Young,
+                    other => {
+                        return Err(bad(format!(
+                            "'pressure.units' is {other:?}, expected \"coarse_force\" or \
+                             \"young\" with 'files.pressure'"
+                        )))
+                    }
+                };
+                pressure = Some((graph, units));
             } else {
                 files.push(graph);
             }
@@ -835,7 +863,7 @@ impl Rom {
             None
         };
         let pressure = match &manifest.pressure {
-            Some(p) if options.pressure => Some(load_graph(&p.0, &p.1, &p.2, threads)?),
+            Some((p, _)) if options.pressure => Some(load_graph(&p.0, &p.1, &p.2, threads)?),
             _ => None,
         };
         Ok(Rom {
@@ -886,7 +914,7 @@ impl Rom {
     /// [`Rom::force_factor`]), on a gel of Young's modulus `young` (Pa):
     ///
     /// * for a model with a pressure head that ran ([`Rom::lattice_pressure`]): the head's
-    ///   force ([`Rom::pressure_force`]) over the coarse one;
+    ///   force ([`Rom::pressure_force`]) over the coarse one ([`Rom::head_factor`]);
     /// * else for a model with a `force` factor: the decoded surface's displaced volume over
     ///   the coarse one's (on the lattice, over the whole face) times the manifest's
     ///   [`VolumeFactor`] at the gel's Poisson's ratio. On a bonded layer the total normal
@@ -898,10 +926,8 @@ impl Rom {
     /// * 1 for a model with neither, or where the ratio falls outside [`VOLUME_RATIO`]: the
     ///   decoder corrects the coarse solution, it does not replace it.
     pub fn force_factor_on(&self, obs: &Observation, coarse_force: f64, young: f64) -> f64 {
-        let within = |r: f64| r.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&r);
-        if let Some(head) = self.pressure_force(young) {
-            let ratio = head / coarse_force;
-            return if within(ratio) { ratio } else { 1.0 };
+        if self.lattice_pressure().is_some() {
+            return self.head_factor(coarse_force, young).unwrap_or(1.0);
         }
         let Some(k) = &self.manifest.force_volume_factor else {
             return 1.0;
@@ -909,11 +935,20 @@ impl Rom {
         let decoded: f64 = self.lattice_depth.iter().sum();
         let coarse: f64 = obs.coarse.iter().sum();
         let ratio = decoded / coarse;
-        if coarse > 0.0 && within(ratio) {
+        if coarse > 0.0 && ratio.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&ratio)
+        {
             ratio * k.at(obs.poisson)
         } else {
             1.0
         }
+    }
+
+    /// The pressure head's normal force over the coarse gel's `coarse_force` (N), on a gel
+    /// of Young's modulus `young` (Pa), where the head ran and the ratio lies within
+    /// [`VOLUME_RATIO`] (the head corrects the coarse load, it does not replace it).
+    pub fn head_factor(&self, coarse_force: f64, young: f64) -> Option<f64> {
+        let ratio = self.pressure_force(young, coarse_force)? / coarse_force;
+        (ratio.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&ratio)).then_some(ratio)
     }
 
     /// [`Rom::force_factor_on`] the last [`Rom::evaluate`]'s observation.
@@ -1244,34 +1279,66 @@ impl Rom {
         Ok(())
     }
 
-    /// The pressure head's normal contact pressure on the lattice after the last inference
-    /// (units of Young's modulus, row-major `ny x nx`); `None` where the head did not run
-    /// (no head in the model, or [`RomOptions::pressure`] off).
+    /// The pressure head's output on the lattice after the last inference (row-major
+    /// `ny x nx`, at least 0, 0 outside the deformable region), in the manifest's
+    /// [`PressureUnits`]; `None` where the head did not run (no head in the model, or
+    /// [`RomOptions::pressure`] off).
     pub fn lattice_pressure(&self) -> Option<&[f64]> {
         self.pressure.as_ref().map(|_| &self.lattice_pressure[..])
     }
 
-    /// The normal force (N) of the pressure head's field for a gel of Young's modulus
-    /// `young` (Pa): its sum over the lattice points times their area; `None` where the head
-    /// did not run.
-    pub fn pressure_force(&self, young: f64) -> Option<f64> {
+    /// Newtons per unit of the head's output at one lattice point, for a gel of Young's
+    /// modulus `young` (Pa) whose coarse solve carries the normal force `coarse_force` (N).
+    fn pressure_unit(&self, young: f64, coarse_force: f64) -> f64 {
         let spec = &self.manifest.lattice;
         let area = spec.size[0] / spec.nx as f64 * spec.size[1] / spec.ny as f64;
-        self.lattice_pressure()
-            .map(|p| young * area * p.iter().sum::<f64>())
+        match self.manifest.pressure.as_ref().map(|p| p.1) {
+            Some(PressureUnits::CoarseForce) => {
+                let points = self.region.iter().filter(|&&inside| inside).count();
+                coarse_force / points.max(1) as f64
+            }
+            Some(PressureUnits::Young) | None => young * area,
+        }
     }
 
-    /// Renders the pressure head's field onto `grid` (Pa, for a gel of Young's modulus
-    /// `young`) by bilinear interpolation, as [`Rom::render`] the depth; `false` (and `out`
+    /// The normal force (N) of the pressure head's field on a gel of Young's modulus
+    /// `young` (Pa) whose coarse solve carries `coarse_force` (N); `None` where the head did
+    /// not run.
+    pub fn pressure_force(&self, young: f64, coarse_force: f64) -> Option<f64> {
+        let unit = self.pressure_unit(young, coarse_force);
+        self.lattice_pressure()
+            .map(|p| unit * p.iter().sum::<f64>())
+    }
+
+    /// The pressure head's field on `grid` (Pa; the gel and its coarse force as in
+    /// [`Rom::pressure_force`]): each lattice point's load spread with the quadratic
+    /// B-spline kernel one lattice pitch wide ([`crate::mpm::spread_loads`], as the gel
+    /// spreads its contact loads), so that the image integrates to
+    /// [`Rom::pressure_force`] wherever the contact lies inside it. `false` (and `out`
     /// untouched) where the head did not run.
-    pub fn render_pressure(&self, grid: &PixelGrid, young: f64, out: &mut [f64]) -> bool {
+    pub fn render_pressure(
+        &self,
+        grid: &PixelGrid,
+        young: f64,
+        coarse_force: f64,
+        out: &mut [f64],
+    ) -> bool {
         let Some(p) = self.lattice_pressure() else {
             return false;
         };
-        render_lattice(&self.manifest.lattice, p, grid, out);
-        out[..grid.width * grid.height]
-            .iter_mut()
-            .for_each(|v| *v *= young);
+        let spec = &self.manifest.lattice;
+        let lattice = spec.grid();
+        let unit = self.pressure_unit(young, coarse_force);
+        let pitch = (spec.size[0] / spec.nx as f64).max(spec.size[1] / spec.ny as f64);
+        let loads = p
+            .iter()
+            .enumerate()
+            .filter(|(_, &v)| v > 0.0)
+            .map(|(i, &v)| {
+                let (row, col) = (i / spec.nx, i % spec.nx);
+                (lattice.x(col), lattice.y(row), v * unit)
+            });
+        crate::mpm::spread_loads(loads, pitch, grid, out);
         true
     }
 
@@ -1315,6 +1382,7 @@ impl Rom {
         copy.z.clone_from(&self.z);
         copy.lattice_depth.clone_from(&self.lattice_depth);
         copy.lattice_pressure.clone_from(&self.lattice_pressure);
+        copy.region.clone_from(&self.region);
         Ok(copy)
     }
 }

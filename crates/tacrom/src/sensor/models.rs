@@ -392,10 +392,14 @@ impl SurfaceModel for Reduced {
         w
     }
 
-    /// The pressure head's field where it ran on the last evaluation's decoded surface,
-    /// else the coarse gel's pressure scaled as the normal force.
+    /// The pressure head's field where it gave the last decoded evaluation's force, else
+    /// the coarse gel's pressure scaled as the normal force.
     fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
-        if self.decoded && self.rom.render_pressure(grid, self.mpm.params.young, out) {
+        let (young, coarse) = (self.mpm.params.young, self.mpm.force().z);
+        if self.decoded
+            && self.rom.head_factor(coarse, young).is_some()
+            && self.rom.render_pressure(grid, young, coarse, out)
+        {
             return;
         }
         self.mpm.pressure(grid, out);

@@ -4,9 +4,12 @@ from the decoder's own inputs, so that rom's force and pressure come from the fi
     python -m tacrom_rom.pressure --data data/rom-p0.5 --model models/rom-default [--steps N]
         [--seed 0] [--threads 2] [--out DIR]
 
-The head is g_p(z, q): the same latent `z` (the model's encoder, frozen) and the same query
-features `q` as the decoder (data.QueryBuilder; src/rom/features.rs), hidden [256, 128]
-with LayerNorm and ReLU, one output per lattice point, in the units `--units` names:
+The head is g_p(z, q, w): the same latent `z` (the model's encoder, frozen) and the same
+query features `q` as the decoder (data.QueryBuilder; src/rom/features.rs), then `w`, the
+coarse gel's contact load at the point's window (the decoder's window offsets, zero
+outside the lattice; `load_window` in src/rom/features.rs) in the head's own units;
+hidden [256, 128] with LayerNorm and ReLU, one output per lattice point, in the units
+`--units` names:
 * `coarse_force` (default): the point's load (pressure times its area) over the coarse
   gel's normal force shared equally among the deformable region's points (so of order 1),
   so that the head corrects the coarse load (which carries the gel's Poisson's ratio and
@@ -18,7 +21,8 @@ At run time the output is max(0, g_p), and the normal force its sum over the lat
 points, times their area and E or times the coarse force.
 
 Trained on the pressure companions `sample-NNNNNN-pressure.npy` of a `tacrom gen-data`
-data set (channel 1: the reference's pressure; see src/datagen.rs), on every lattice point
+data set (channel 0 the coarse gel's pressure, channel 1 the reference's; see
+src/datagen.rs), on every lattice point
 of each press's deformable region (where the reference carries its load; the head is not
 run elsewhere). Losses, per press, in the head's units:
 * the field: the squared error of the output where the reference presses and of
@@ -29,7 +33,7 @@ run elsewhere). Losses, per press, in the head's units:
   floor of FORCE_FLOOR_N in the denominator, weight FORCE_WEIGHT.
 The 8 lattice symmetries augment the presses, as for the autoencoder.
 
-Writes `pressure.onnx` (z [1, r], query [N, F] -> pressure [N, 1]) and the head's weights
+Writes `pressure.onnx` (z [1, r], query [N, F + patch^2] -> pressure [N, 1]) and the head's weights
 into the model's directory (or --out, a copy of it), and adds `files.pressure` and a
 `pressure` record (data, training, held-out force errors) to its manifest.
 """
@@ -81,15 +85,14 @@ UNITS = ("coarse_force", "young")
 
 
 def load_pressure(path, metas):
-    """[S, ny, nx] reference pressure (Pa) of each sample in `metas` (channel 1 of its
-    companion)."""
+    """[S, 2, ny, nx] coarse and reference pressure (Pa) of each sample in `metas`."""
     out = []
     for m in metas:
         f = os.path.join(path, f"sample-{m['index']:06d}-pressure.npy")
         if not os.path.exists(f):
             raise SystemExit(f"{f}: missing; data sets written before the pressure was recorded "
                              "have none (tacrom gen-data writes it now)")
-        out.append(np.load(f)[1].astype(np.float32))
+        out.append(np.load(f).astype(np.float32))
     return np.stack(out)
 
 
@@ -112,13 +115,23 @@ def load_model(model_dir):
     return manifest, spec, model
 
 
-class Presses:
-    """Every press's region points, their query features and reference pressure, with z."""
+def load_windows(qb, load, s, rows, cols):
+    """The window of `load` [S, ny, nx] (zero outside) at each (rows, cols) of sample s:
+    [N, patch^2], row offset outer (as QueryBuilder's windows)."""
+    padded = torch.nn.functional.pad(load[s], (qb.R, qb.R, qb.R, qb.R))
+    return padded[rows[:, None] + qb.R + qb.dr, cols[:, None] + qb.R + qb.dc]
 
-    def __init__(self, spec, model, arrays, pressure):
+
+class Presses:
+    """Every press's region points, their head queries (the decoder's query, then the
+    coarse load window) and reference pressure, with z. `load` and `pressure` [S, ny, nx]
+    in the head's units."""
+
+    def __init__(self, spec, model, arrays, load, pressure):
         region = D.region_mask(arrays, REGION_GROW, REGION_EPS_MM)
         qb = D.QueryBuilder(spec)
         lat = torch.from_numpy(arrays)
+        load = torch.from_numpy(np.ascontiguousarray(load))
         with torch.no_grad():
             self.z = model.encoder(D.encoder_input(spec, lat))
         padded = qb.pad(lat)
@@ -126,7 +139,8 @@ class Presses:
         for s in range(len(arrays)):
             flat = torch.from_numpy(np.flatnonzero(region[s]))
             rows, cols = flat // spec.nx, flat % spec.nx
-            self.q.append(qb(padded, torch.full_like(rows, s), rows, cols))
+            q = qb(padded, torch.full_like(rows, s), rows, cols)
+            self.q.append(torch.cat([q, load_windows(qb, load, s, rows, cols)], dim=-1))
             self.p.append(torch.from_numpy(pressure[s].reshape(-1)[flat.numpy()]))
         # Load outside the region (the head is not run there): should be none.
         self.outside = [float(pressure[s][~region[s]].sum()) for s in range(len(arrays))]
@@ -210,7 +224,7 @@ def main(argv=None):
         raise SystemExit(f"{a.data}: coarse solve {ds.get('recipe')}, the model's {manifest['recipe']}")
     young = ds["young"]
     area = (spec.size[0] / spec.nx) * (spec.size[1] / spec.ny)
-    pressure = load_pressure(a.data, metas)
+    both_pressures = load_pressure(a.data, metas)
     coarse_force = np.array([((m.get("coarse") or {}).get("force") or [0, 0, np.nan])[2] for m in metas])
     if a.units == "coarse_force" and not np.isfinite(coarse_force).all():
         raise SystemExit(f"{a.data}: samples without a recorded coarse force; --units young needs none")
@@ -223,18 +237,20 @@ def main(argv=None):
         # Where the coarse gel carries (almost) no load, the sensor keeps the coarse force.
         tr = tr[coarse_force[tr] >= FORCE_FLOOR_N]
         va = va[coarse_force[va] >= FORCE_FLOOR_N]
-    target = (pressure * area / scale[:, None, None]).astype(np.float32)
-    both = np.concatenate([arrays, target[:, None]], axis=1)
+    # Coarse load and reference pressure in the head's units.
+    both_units = (both_pressures * area / scale[:, None, None, None]).astype(np.float32)
+    both = np.concatenate([arrays, both_units], axis=1)
     aug, n_aug = augment(both[tr])
-    train = Presses(spec, model, np.ascontiguousarray(aug[:, :-1]), aug[:, -1])
-    held = Presses(spec, model, arrays[va], target[va])
+    train = Presses(spec, model, np.ascontiguousarray(aug[:, :-2]), aug[:, -2], aug[:, -1])
+    held = Presses(spec, model, arrays[va], both_units[va, 0], both_units[va, 1])
     tr_scale, va_scale = np.repeat(scale[tr], n_aug), scale[va]
     floor = FORCE_FLOOR_N / tr_scale
     outside = max([o * s for o, s in zip(train.outside, tr_scale)] + [o * s for o, s in zip(held.outside, va_scale)])
     print(f"{len(metas)} presses: {len(tr)} train (x{n_aug} symmetries), {len(va)} held out; "
           f"largest load outside a region {outside:.2e} N", flush=True)
 
-    head = PressureHead(manifest["latent"], spec.query_len)
+    n_query = spec.query_len + spec.patch * spec.patch
+    head = PressureHead(manifest["latent"], n_query)
     opt = torch.optim.Adam(head.parameters(), lr=a.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, a.steps)
     t0 = time.time()
@@ -270,7 +286,7 @@ def main(argv=None):
     out = a.out or a.model
     if out != a.model:
         shutil.copytree(a.model, out, dirs_exist_ok=True)
-    r, F = manifest["latent"], spec.query_len
+    r, F = manifest["latent"], n_query
     with torch.no_grad():
         _export(head, (torch.zeros(1, r), torch.zeros(7, F)), os.path.join(out, "pressure.onnx"),
                 ["z", "query"], ["pressure"], {"query": {0: "points"}, "pressure": {0: "points"}})
@@ -281,6 +297,7 @@ def main(argv=None):
                      if f.startswith("sample-") and f.endswith(".json"))
     manifest["pressure"] = {
         "units": a.units,
+        "query": "the decoder's query, then the coarse load's window in the head's units",
         "reference_dx": ds["fine_dx"],
         "data": {"command": gen_command(a.data, ds), "path": a.data, "generated": len(all_idx),
                  "train": int(len(tr)), "validation": int(len(va)), "units": a.units},

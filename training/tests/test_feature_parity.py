@@ -90,7 +90,7 @@ def rust(request, tmp_path_factory):
     spec, _, arrays, metas = D.load_dir(str(out), drop_unconverged=False)
     assert [m["index"] for m in metas] == [p["index"] for p in meta["presses"]]
     load = lambda what, i: np.load(out / f"{what}-{i:06d}.npy")  # noqa: E731
-    presses = [{k: load(k, p["index"]) for k in ("observation", "encoder", "query", "region")}
+    presses = [{k: load(k, p["index"]) for k in ("observation", "encoder", "query", "region", "pressure", "load")}
                for p in meta["presses"]]
     return meta, spec, arrays, presses
 
@@ -187,3 +187,21 @@ def test_region_parity(rust):
         diff = np.argwhere(region[k] != rs)
         assert len(diff) == 0, (f"press {k}: the region differs at {len(diff)} points, first "
                                 f"(row, col) {diff[0].tolist()}")
+
+
+def test_pressure_head_load_window_parity(rust):
+    """The pressure head's window of the coarse load (tacrom_rom.pressure.load_windows, from
+    the load rounded to float32 as the training data stores it) is the run time's
+    (features::load_window) bit for bit: both gather the same float32 values, with zeros
+    outside the lattice; and it holds a load where the presses touch."""
+    from tacrom_rom.pressure import load_windows
+
+    meta, spec, arrays, presses = rust
+    qb = D.QueryBuilder(spec)
+    flat = torch.arange(spec.ny * spec.nx)
+    rows, cols = flat // spec.nx, flat % spec.nx
+    for k, p in enumerate(presses):
+        load = torch.from_numpy(p["pressure"].astype(np.float32)[None])
+        w = load_windows(qb, load, 0, rows, cols).numpy()
+        np.testing.assert_array_equal(w, p["load"], err_msg=f"load window of press {k}")
+        assert p["pressure"].max() > 0, f"press {k} carries no load"

@@ -294,12 +294,13 @@ def test_pressure_head_trains_exports_and_matches_onnx(tiny_model, tmp_path):
     assert m["pressure"]["units"] == "coarse_force"
     assert "held_out" in m["pressure"]["validation"]
     assert "pressure" not in json.load(open(tiny_model / "manifest.json"))["files"]
-    head = PressureHead(m["latent"], m["query_features"])
+    F = m["query_features"] + m["lattice"]["patch"] ** 2
+    head = PressureHead(m["latent"], F)
     head.load_state_dict(torch.load(out / "pressure.pt"))
     head.eval()
     g = torch.Generator().manual_seed(4)
     z = torch.randn(1, m["latent"], generator=g)
-    q = torch.rand(300, m["query_features"], generator=g)
+    q = torch.rand(300, F, generator=g)
     with torch.no_grad():
         ref = head(z, q).numpy()
         batched = head.forward_batched(z, q[None])[0].numpy()

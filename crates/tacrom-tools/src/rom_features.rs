@@ -18,6 +18,10 @@
 //! * `query-NNNNNN.npy`: float32 `[ny * nx, query_len]`, [`query_features`] at every
 //!   lattice point, row-major;
 //! * `region-NNNNNN.npy`: uint8 `[ny, nx]`, [`region`] with the manifest's settings;
+//! * `pressure-NNNNNN.npy`: float64 `[ny, nx]` (Pa), the coarse gel's contact pressure
+//!   ([`Observation::update_load`]), and `load-NNNNNN.npy`: float32
+//!   `[ny * nx, patch * patch]`, its [`load_window`] at every lattice point (a pressure
+//!   head's window, here in pascals: the head's units scale it alike on both sides);
 //! * `features.json`: the model, its lattice and region settings, and the presses
 //!   (indenters, poses, coarse solve).
 //!
@@ -33,7 +37,7 @@ use serde::Serialize;
 
 use tacrom::geometry::{Cuboid, Placed, Sphere};
 use tacrom::mpm::{Gel, GelParams, SolverOptions};
-use tacrom::rom::features::{query_features, region, LatticeSpec, Observation};
+use tacrom::rom::features::{load_window, query_features, region, LatticeSpec, Observation};
 use tacrom::rom::Manifest;
 
 use crate::datagen::{sample_array, SolveMeta};
@@ -243,6 +247,7 @@ pub fn write(config: &FeaturesConfig) -> Result<String, String> {
     let (ny, nx) = (spec.ny, spec.nx);
     let mut obs = Observation::default();
     let (mut zmin, mut enc, mut query, mut mask) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut load = Vec::new();
     for (index, (name, indenters)) in presses(g.size).into_iter().enumerate() {
         let (placed, imeta): (Vec<Placed>, Vec<IndenterMeta>) = indenters.into_iter().unzip();
         gel.reset();
@@ -254,10 +259,13 @@ pub fn write(config: &FeaturesConfig) -> Result<String, String> {
             obs.material = c.inputs(params.poisson, params.friction).to_vec();
         }
         obs.encoder_input(&spec, &mut enc);
+        obs.update_load(&gel, &spec);
         query.clear();
+        load.clear();
         for row in 0..ny {
             for col in 0..nx {
                 query_features(&obs, &spec, row, col, &mut query);
+                load_window(&obs.pressure, &spec, row, col, &mut load);
             }
         }
         region(&obs, &spec, eps, grow, &mut mask);
@@ -271,6 +279,8 @@ pub fn write(config: &FeaturesConfig) -> Result<String, String> {
         write_array(&stem("observation"), &[2, ny, nx], &exact)?;
         write_array(&stem("encoder"), &[enc.len()], &enc)?;
         write_array(&stem("query"), &[ny * nx, spec.query_len()], &query)?;
+        write_array(&stem("pressure"), &[ny, nx], &obs.pressure)?;
+        write_array(&stem("load"), &[ny * nx, spec.patch * spec.patch], &load)?;
         let mask_u8: Vec<u8> = mask.iter().map(|&b| u8::from(b)).collect();
         write_array(&stem("region"), &[ny, nx], &mask_u8)?;
         let coarse = SolveMeta::new(&report, seconds);

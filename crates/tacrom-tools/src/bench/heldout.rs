@@ -19,7 +19,7 @@ use super::BenchError;
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
 
-use crate::datagen::{read_npy, Dataset};
+use crate::datagen::{self, read_npy, Dataset};
 use crate::progress::Progress;
 use tacrom::rom::features::{LatticeSpec, Observation};
 use tacrom::rom::{Manifest, Rom, RomOptions};
@@ -127,8 +127,6 @@ struct Sample {
     force: Option<[f64; 2]>,
     /// Poisson's ratio and friction of the sample's gel.
     material: [f64; 2],
-    /// Young's modulus of the sample's gel (Pa).
-    young: f64,
 }
 
 fn bad(path: &Path, what: impl std::fmt::Display) -> BenchError {
@@ -238,13 +236,17 @@ fn load_samples(
                     pen,
                     material: Vec::new(),
                     poisson: meta.poisson.unwrap_or(dataset.poisson),
+                    // The coarse load of a pressure head, where the data set records it.
+                    pressure: load_pressure(&npy, n)?,
+                    force: meta.coarse.force.map_or(0.0, |f| f[2]),
+                    young: dataset.young,
                 }
             },
             material: [
                 meta.poisson.unwrap_or(dataset.poisson),
                 meta.friction.unwrap_or(dataset.friction),
             ],
-            young: dataset.young,
+
             reference: chan(2),
             solve_s: [meta.coarse.seconds, meta.reference.seconds],
             force: meta
@@ -255,6 +257,21 @@ fn load_samples(
         });
     }
     Ok((out, dataset.fine_dx))
+}
+
+/// Channel 0 (the coarse gel's contact pressure, Pa) of the pressure companion of the
+/// sample `npy`, where it has one (`n` lattice points); empty otherwise.
+fn load_pressure(npy: &Path, n: usize) -> Result<Vec<f64>, BenchError> {
+    let stem = npy.with_extension("");
+    let path = datagen::pressure_path(&stem);
+    if !path.is_file() {
+        return Ok(Vec::new());
+    }
+    let (shape, data) = read_npy(&path).map_err(|e| bad(&path, e))?;
+    if shape.len() != 3 || shape[0] != 2 || shape[1] * shape[2] != n {
+        return Err(bad(&path, format!("shape {shape:?}, expected [2, ny, nx]")));
+    }
+    Ok(data[..n].iter().map(|&v| v as f64).collect())
 }
 
 /// The field of view's lattice window: `(x0, y0, width, height)`.
@@ -470,7 +487,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             acc.row.into_indenter += report.penetration_excess;
             acc.row.below_reach += report.bound_excess.max(0.0);
             if let Some([fc, fr]) = s.force.filter(|f| f[1] > 1e-3) {
-                let reported = fc * rom.force_factor_on(&s.obs, fc, s.young);
+                let reported = fc * rom.force_factor_on(&s.obs);
                 force_errors.push((reported / fr - 1.0).abs());
                 forces.push(ForceRow {
                     file: s.file.to_string_lossy().into_owned(),

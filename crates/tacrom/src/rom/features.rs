@@ -22,6 +22,9 @@
 //!   onto `[-1, 1]` ([`Conditioning::inputs`]), appended to the encoder input and to every
 //!   query.
 //! * **Deformable region**: the lattice points the decoder is evaluated at ([`region`]).
+//! * **Pressure head query** (models with `files.pressure`): the decoder query, then a
+//!   `patch x patch` window (the same offsets) of the coarse gel's contact load at each
+//!   lattice point in the head's own units ([`load_window`]).
 //!
 //! `training/tacrom_rom/data.py` computes the same on the training data; the parity test
 //! `training/tests/test_feature_parity.py` compares the two on presses written by
@@ -157,6 +160,13 @@ pub struct Observation {
     pub material: Vec<f64>,
     /// The gel's Poisson's ratio (for the force's [`super::VolumeFactor`]).
     pub poisson: f64,
+    /// The coarse gel's normal contact pressure on the lattice (Pa; empty unless a
+    /// pressure head reads it: [`Observation::update_load`]).
+    pub pressure: Vec<f64>,
+    /// The coarse gel's normal force (N; with `pressure`).
+    pub force: f64,
+    /// The gel's Young's modulus (Pa; with `pressure`).
+    pub young: f64,
 }
 
 impl Default for Observation {
@@ -167,6 +177,9 @@ impl Default for Observation {
             rule: DepthRule::new(0.0, &[]),
             material: Vec::new(),
             poisson: 0.0,
+            pressure: Vec::new(),
+            force: 0.0,
+            young: 0.0,
         }
     }
 }
@@ -215,6 +228,15 @@ impl Observation {
         let _ = self.rule.apply(&mut self.coarse, &self.pen);
     }
 
+    /// Samples the solved coarse `gel`'s contact pressure, normal force and Young's
+    /// modulus, for a pressure head.
+    pub fn update_load(&mut self, gel: &Gel, spec: &LatticeSpec) {
+        self.pressure.resize(spec.points(), 0.0);
+        gel.contact_pressure(&spec.grid(), &mut self.pressure);
+        self.force = gel.force().z;
+        self.young = gel.params().young;
+    }
+
     /// The encoder's input (model units), appended to `out` after clearing it.
     pub fn encoder_input(&self, spec: &LatticeSpec, out: &mut Vec<f32>) {
         out.clear();
@@ -253,23 +275,44 @@ pub fn query_features(
     let grid = spec.grid();
     out.push((grid.x(col) / (0.5 * spec.size[0])) as f32);
     out.push((grid.y(row) / (0.5 * spec.size[1])) as f32);
-    let h = (spec.patch / 2) as isize;
-    let step = spec.patch_step as isize;
     for field in [&obs.coarse, &obs.pen] {
-        for dr in -h..=h {
-            for dc in -h..=h {
-                let r = row as isize + dr * step;
-                let c = col as isize + dc * step;
-                let v = if r >= 0 && c >= 0 && (r as usize) < spec.ny && (c as usize) < spec.nx {
-                    field[r as usize * spec.nx + c as usize] * spec.depth_scale
-                } else {
-                    0.0
-                };
-                out.push(v as f32);
-            }
-        }
+        window(field, spec.depth_scale, spec, row, col, out);
     }
     obs.push_material(spec, out);
+}
+
+/// Appends the `patch x patch` window of `field` (row-major `ny x nx`) times `scale` at
+/// lattice point `(row, col)` to `out`: `patch_step` lattice steps between samples, row
+/// offset outer, zero outside the gel.
+fn window(
+    field: &[f64],
+    scale: f64,
+    spec: &LatticeSpec,
+    row: usize,
+    col: usize,
+    out: &mut Vec<f32>,
+) {
+    let h = (spec.patch / 2) as isize;
+    let step = spec.patch_step as isize;
+    for dr in -h..=h {
+        for dc in -h..=h {
+            let r = row as isize + dr * step;
+            let c = col as isize + dc * step;
+            let v = if r >= 0 && c >= 0 && (r as usize) < spec.ny && (c as usize) < spec.nx {
+                field[r as usize * spec.nx + c as usize] * scale
+            } else {
+                0.0
+            };
+            out.push(v as f32);
+        }
+    }
+}
+
+/// Appends the pressure head's window at lattice point `(row, col)` to `out`: the
+/// `patch x patch` window of `load` (row-major `ny x nx`; row offset outer, zero outside the
+/// gel) with the decoder's window offsets, as `f32`.
+pub fn load_window(load: &[f64], spec: &LatticeSpec, row: usize, col: usize, out: &mut Vec<f32>) {
+    window(load, 1.0, spec, row, col, out);
 }
 
 /// The deformable region of `obs` (row-major into `out`, cleared first): the lattice points

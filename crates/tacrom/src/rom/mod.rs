@@ -81,7 +81,7 @@ use ort::value::TensorRef;
 
 use crate::geometry::{PixelGrid, Placed};
 use crate::mpm::Gel;
-use features::{query_features, Conditioning, LatticeSpec, Observation};
+use features::{load_window, query_features, Conditioning, LatticeSpec, Observation};
 use lbfgs::{LbfgsOptions, LbfgsReport};
 use runtime::{load_graph, Graph};
 
@@ -552,7 +552,13 @@ impl Manifest {
             ),
             (
                 "pressure",
-                vec![("z", vec![1, r]), ("query", vec![-1, f])],
+                vec![
+                    ("z", vec![1, r]),
+                    (
+                        "query",
+                        vec![-1, f + (lattice.patch * lattice.patch) as i64],
+                    ),
+                ],
                 vec![("pressure", vec![-1, 1])],
             ),
         ];
@@ -909,9 +915,8 @@ impl Rom {
         &self.lattice_depth
     }
 
-    /// The factor of the coarse gel's normal force `coarse_force` (N) for the last
-    /// inference, on the observation `obs` (the last [`Rom::evaluate`]'s for
-    /// [`Rom::force_factor`]), on a gel of Young's modulus `young` (Pa):
+    /// The factor of the coarse gel's normal force for the last inference, on the
+    /// observation `obs` (the last [`Rom::evaluate`]'s for [`Rom::force_factor`]):
     ///
     /// * for a model with a pressure head that ran ([`Rom::lattice_pressure`]): the head's
     ///   force ([`Rom::pressure_force`]) over the coarse one ([`Rom::head_factor`]);
@@ -925,9 +930,9 @@ impl Rom {
     ///   constant;
     /// * 1 for a model with neither, or where the ratio falls outside [`VOLUME_RATIO`]: the
     ///   decoder corrects the coarse solution, it does not replace it.
-    pub fn force_factor_on(&self, obs: &Observation, coarse_force: f64, young: f64) -> f64 {
+    pub fn force_factor_on(&self, obs: &Observation) -> f64 {
         if self.lattice_pressure().is_some() {
-            return self.head_factor(coarse_force, young).unwrap_or(1.0);
+            return self.head_factor(obs).unwrap_or(1.0);
         }
         let Some(k) = &self.manifest.force_volume_factor else {
             return 1.0;
@@ -943,17 +948,22 @@ impl Rom {
         }
     }
 
-    /// The pressure head's normal force over the coarse gel's `coarse_force` (N), on a gel
-    /// of Young's modulus `young` (Pa), where the head ran and the ratio lies within
-    /// [`VOLUME_RATIO`] (the head corrects the coarse load, it does not replace it).
-    pub fn head_factor(&self, coarse_force: f64, young: f64) -> Option<f64> {
-        let ratio = self.pressure_force(young, coarse_force)? / coarse_force;
+    /// The pressure head's normal force over the coarse gel's (`obs.force`), where the head
+    /// ran on `obs` and the ratio lies within [`VOLUME_RATIO`] (the head corrects the coarse
+    /// load, it does not replace it).
+    pub fn head_factor(&self, obs: &Observation) -> Option<f64> {
+        let ratio = self.pressure_force(obs)? / obs.force;
         (ratio.is_finite() && (VOLUME_RATIO[0]..=VOLUME_RATIO[1]).contains(&ratio)).then_some(ratio)
     }
 
     /// [`Rom::force_factor_on`] the last [`Rom::evaluate`]'s observation.
-    pub fn force_factor(&self, coarse_force: f64, young: f64) -> f64 {
-        self.force_factor_on(&self.obs, coarse_force, young)
+    pub fn force_factor(&self) -> f64 {
+        self.force_factor_on(&self.obs)
+    }
+
+    /// [`Rom::head_factor`] on the last [`Rom::evaluate`]'s observation.
+    pub fn last_head_factor(&self) -> Option<f64> {
+        self.head_factor(&self.obs)
     }
 
     fn refine_enabled(&self) -> bool {
@@ -1239,27 +1249,50 @@ impl Rom {
         report.bound_excess = obs.rule.apply(&mut self.lattice_depth, &obs.pen);
         report.decoded = points.len();
         if self.pressure.is_some() {
-            self.infer_pressure(&points)?;
+            self.infer_pressure(obs, &points)?;
         }
         report.decode_s = t2.elapsed().as_secs_f64();
         Ok(report)
     }
 
-    /// Runs the pressure head on the query rows of `points` (lattice indices, the region's,
-    /// in the order of `self.query`): [`Rom::lattice_pressure`].
-    fn infer_pressure(&mut self, points: &[usize]) -> Result<(), RomError> {
-        let Some(graph) = self.pressure.as_mut() else {
-            return Ok(());
-        };
-        self.lattice_pressure.clear();
-        self.lattice_pressure.resize(self.lattice_depth.len(), 0.0);
-        if points.is_empty() {
+    /// Runs the pressure head at the lattice points `points` (the region's, in the order of
+    /// the decoder's query rows in `self.query`), each row followed by its window of the
+    /// coarse load of `obs` in the head's units: [`Rom::lattice_pressure`].
+    fn infer_pressure(&mut self, obs: &Observation, points: &[usize]) -> Result<(), RomError> {
+        if self.pressure.is_none() {
             return Ok(());
         }
-        let f = self.manifest.lattice.query_len();
+        let n = self.lattice_depth.len();
+        self.lattice_pressure.clear();
+        self.lattice_pressure.resize(n, 0.0);
+        if points.is_empty() || obs.pressure.len() != n {
+            return Ok(());
+        }
+        let spec = self.manifest.lattice;
+        let f = spec.query_len();
+        let g = f + spec.patch * spec.patch;
+        let area = spec.size[0] / spec.nx as f64 * spec.size[1] / spec.ny as f64;
+        let per_unit = area / self.pressure_unit(obs);
+        let load: Vec<f64> = obs
+            .pressure
+            .iter()
+            .map(|&p| {
+                if per_unit.is_finite() {
+                    p * per_unit
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let mut query = Vec::with_capacity(points.len() * g);
+        for (k, &i) in points.iter().enumerate() {
+            query.extend_from_slice(&self.query[k * f..(k + 1) * f]);
+            load_window(&load, &spec, i / spec.nx, i % spec.nx, &mut query);
+        }
+        let graph = self.pressure.as_mut().expect("checked above");
         let zt = TensorRef::from_array_view(([1usize, self.z.len()], &self.z[..]))
             .map_err(|e| run_err("pressure", e))?;
-        let qt = TensorRef::from_array_view(([points.len(), f], &self.query[..]))
+        let qt = TensorRef::from_array_view(([points.len(), g], &query[..]))
             .map_err(|e| run_err("pressure", e))?;
         let out = graph
             .session
@@ -1287,48 +1320,40 @@ impl Rom {
         self.pressure.as_ref().map(|_| &self.lattice_pressure[..])
     }
 
-    /// Newtons per unit of the head's output at one lattice point, for a gel of Young's
-    /// modulus `young` (Pa) whose coarse solve carries the normal force `coarse_force` (N).
-    fn pressure_unit(&self, young: f64, coarse_force: f64) -> f64 {
+    /// Newtons per unit of the head's output (and of its load window) at one lattice point
+    /// of the observation `obs` (its coarse force and Young's modulus).
+    fn pressure_unit(&self, obs: &Observation) -> f64 {
         let spec = &self.manifest.lattice;
         let area = spec.size[0] / spec.nx as f64 * spec.size[1] / spec.ny as f64;
         match self.manifest.pressure.as_ref().map(|p| p.1) {
             Some(PressureUnits::CoarseForce) => {
                 let points = self.region.iter().filter(|&&inside| inside).count();
-                coarse_force / points.max(1) as f64
+                obs.force / points.max(1) as f64
             }
-            Some(PressureUnits::Young) | None => young * area,
+            Some(PressureUnits::Young) | None => obs.young * area,
         }
     }
 
-    /// The normal force (N) of the pressure head's field on a gel of Young's modulus
-    /// `young` (Pa) whose coarse solve carries `coarse_force` (N); `None` where the head did
-    /// not run.
-    pub fn pressure_force(&self, young: f64, coarse_force: f64) -> Option<f64> {
-        let unit = self.pressure_unit(young, coarse_force);
+    /// The normal force (N) of the pressure head's field on the observation `obs` of its
+    /// last inference; `None` where the head did not run.
+    pub fn pressure_force(&self, obs: &Observation) -> Option<f64> {
+        let unit = self.pressure_unit(obs);
         self.lattice_pressure()
             .map(|p| unit * p.iter().sum::<f64>())
     }
 
-    /// The pressure head's field on `grid` (Pa; the gel and its coarse force as in
-    /// [`Rom::pressure_force`]): each lattice point's load spread with the quadratic
-    /// B-spline kernel one lattice pitch wide ([`crate::mpm::spread_loads`], as the gel
-    /// spreads its contact loads), so that the image integrates to
-    /// [`Rom::pressure_force`] wherever the contact lies inside it. `false` (and `out`
-    /// untouched) where the head did not run.
-    pub fn render_pressure(
-        &self,
-        grid: &PixelGrid,
-        young: f64,
-        coarse_force: f64,
-        out: &mut [f64],
-    ) -> bool {
+    /// The pressure head's field of the last [`Rom::evaluate`] on `grid` (Pa): each lattice
+    /// point's load spread with the quadratic B-spline kernel one lattice pitch wide
+    /// ([`crate::mpm::spread_loads`], as the gel spreads its contact loads), so that the
+    /// image integrates to [`Rom::pressure_force`] wherever the contact lies inside it.
+    /// `false` (and `out` untouched) where the head did not run.
+    pub fn render_pressure(&self, grid: &PixelGrid, out: &mut [f64]) -> bool {
         let Some(p) = self.lattice_pressure() else {
             return false;
         };
         let spec = &self.manifest.lattice;
         let lattice = spec.grid();
-        let unit = self.pressure_unit(young, coarse_force);
+        let unit = self.pressure_unit(&self.obs);
         let pitch = (spec.size[0] / spec.nx as f64).max(spec.size[1] / spec.ny as f64);
         let loads = p
             .iter()
@@ -1361,6 +1386,9 @@ impl Rom {
         let mut obs = std::mem::take(&mut self.obs);
         let spec = self.manifest.lattice;
         obs.update(gel, indenters, &spec, &mut self.zmin);
+        if self.pressure.is_some() {
+            obs.update_load(gel, &spec);
+        }
         self.set_material(&mut obs, gel.params().poisson, gel.params().friction);
         let observe_s = t0.elapsed().as_secs_f64();
         let result = self.infer(&obs);

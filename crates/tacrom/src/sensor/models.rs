@@ -349,8 +349,7 @@ impl SurfaceModel for Reduced {
                     self.force_factor = if fallback {
                         1.0
                     } else {
-                        self.rom
-                            .force_factor(self.mpm.force().z, self.mpm.params.young)
+                        self.rom.force_factor()
                     };
                     eval.bound_excess = report.bound_excess;
                     eval.rom = Some(report);
@@ -395,10 +394,9 @@ impl SurfaceModel for Reduced {
     /// The pressure head's field where it gave the last decoded evaluation's force, else
     /// the coarse gel's pressure scaled as the normal force.
     fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
-        let (young, coarse) = (self.mpm.params.young, self.mpm.force().z);
         if self.decoded
-            && self.rom.head_factor(coarse, young).is_some()
-            && self.rom.render_pressure(grid, young, coarse, out)
+            && self.rom.last_head_factor().is_some()
+            && self.rom.render_pressure(grid, out)
         {
             return;
         }

@@ -178,8 +178,9 @@ fn shipped_model_loads_and_outputs_have_the_manifests_shapes() {
     assert!(e.to_string().contains("friction in [0, 1]"), "{e}");
 }
 
-/// The pressure head runs only where it is asked for, leaves the depth as it is, and
-/// gives a compressive field on the deformable region alone, whose force corrects the
+/// The pressure head runs only where the pressure image is asked for, leaves the depth
+/// and the force as they are (the shipped model's force comes from its volume factor), and
+/// gives a compressive field on the deformable region alone whose own force corrects the
 /// coarse gel's within the range the sensor accepts. A sphere and a cylinder pressed into
 /// the coarse gel.
 #[test]
@@ -240,11 +241,9 @@ fn the_pressure_head_runs_only_when_wanted_and_leaves_the_depth_alone() {
             assert!(v.is_finite() && v >= 0.0, "point {i}: {v}");
             assert!(inside || v == 0.0, "load outside the region at {i}");
         }
-        let k = with.last_head_factor().expect("a correction within range");
-        assert!(
-            (with.force_factor() - k).abs() == 0.0,
-            "the reported force is the head's"
-        );
+        with.last_head_factor().expect("a correction within range");
+        assert_eq!(with.force_factor(), plain.force_factor());
+        assert!(with.manifest().force_volume_factor.is_some());
     }
 }
 
@@ -284,7 +283,12 @@ fn bad_model_directories_give_clear_errors() {
     };
     let e = Rom::load(&d, wanted).unwrap_err();
     assert!(e.to_string().contains("pressure.onnx"), "{e}");
-    Rom::load(&d, RomOptions::default()).expect("without force or pressure no head is read");
+    Rom::load(&d, RomOptions::default()).expect("without the pressure no head is read");
+    let force = RomOptions {
+        force: true,
+        ..Default::default()
+    };
+    Rom::load(&d, force).expect("the force comes from the volume factor: no head is read");
     // A head whose graph is another's: named with what it lacks.
     std::fs::copy(d.join("decoder.onnx"), d.join("pressure.onnx")).unwrap();
     let e = Rom::load(&d, wanted).unwrap_err();

@@ -498,6 +498,7 @@ fn a_model_serves_its_inputs_ranges_then_its_validated_ones() {
             ("encoder", "observation"),
             ("decoder", "query"),
             ("jacobian", "query"),
+            ("pressure", "query"),
         ] {
             let shape = &mut files[graph]["inputs"][input];
             shape[1] = (shape[1].as_i64().unwrap() + 2).into();

@@ -385,6 +385,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
                 refine,
                 threads: 1,
                 pressure: true,
+                force: true,
             },
         )
         .map_err(|e| BenchError::Config(e.to_string()))

@@ -749,9 +749,13 @@ pub struct RomOptions {
     pub refine: Option<bool>,
     /// ONNX Runtime intra-op threads (default 1).
     pub threads: usize,
-    /// Whether the force or the pressure is wanted (a sensor output or the coupling): only
-    /// then is the manifest's pressure head loaded and run.
+    /// Whether the pressure image is wanted (a sensor output): the manifest's pressure
+    /// head is loaded and run for it.
     pub pressure: bool,
+    /// Whether the force is wanted (a sensor output or the coupling): the pressure head is
+    /// loaded and run for it too where the manifest has no `force` factor (the head's
+    /// force is then the reported one; see [`Rom::force_factor_on`]).
+    pub force: bool,
 }
 
 /// What one inference did.
@@ -868,8 +872,10 @@ impl Rom {
         } else {
             None
         };
+        let head_wanted =
+            options.pressure || (options.force && manifest.force_volume_factor.is_none());
         let pressure = match &manifest.pressure {
-            Some((p, _)) if options.pressure => Some(load_graph(&p.0, &p.1, &p.2, threads)?),
+            Some((p, _)) if head_wanted => Some(load_graph(&p.0, &p.1, &p.2, threads)?),
             _ => None,
         };
         Ok(Rom {
@@ -918,24 +924,26 @@ impl Rom {
     /// The factor of the coarse gel's normal force for the last inference, on the
     /// observation `obs` (the last [`Rom::evaluate`]'s for [`Rom::force_factor`]):
     ///
-    /// * for a model with a pressure head that ran ([`Rom::lattice_pressure`]): the head's
-    ///   force ([`Rom::pressure_force`]) over the coarse one ([`Rom::head_factor`]);
-    /// * else for a model with a `force` factor: the decoded surface's displaced volume over
+    /// * for a model with a `force` factor: the decoded surface's displaced volume over
     ///   the coarse one's (on the lattice, over the whole face) times the manifest's
     ///   [`VolumeFactor`] at the gel's Poisson's ratio. On a bonded layer the total normal
     ///   force is close to proportional to the surface's displaced volume, with a constant
     ///   of the gel and its grid that barely depends on the indenter (1.65 to 1.79 in units
     ///   of `M / h` over spheres, a punch and a bar on the coarse grid); the manifest's
     ///   factor, measured on the training presses, takes out the coarse grid's own
-    ///   constant;
+    ///   constant. A pressure head then shapes the pressure image only: on the held-out
+    ///   presses its own force was no closer to the reference's in the median, and further
+    ///   from Hertz on the spheres (`docs/rom.md`, "Force and pressure");
+    /// * else for a model with a pressure head that ran ([`Rom::lattice_pressure`]): the
+    ///   head's force ([`Rom::pressure_force`]) over the coarse one ([`Rom::head_factor`]);
     /// * 1 for a model with neither, or where the ratio falls outside [`VOLUME_RATIO`]: the
     ///   decoder corrects the coarse solution, it does not replace it.
     pub fn force_factor_on(&self, obs: &Observation) -> f64 {
-        if self.lattice_pressure().is_some() {
-            return self.head_factor(obs).unwrap_or(1.0);
-        }
         let Some(k) = &self.manifest.force_volume_factor else {
-            return 1.0;
+            return match self.lattice_pressure() {
+                Some(_) => self.head_factor(obs).unwrap_or(1.0),
+                None => 1.0,
+            };
         };
         let decoded: f64 = self.lattice_depth.iter().sum();
         let coarse: f64 = obs.coarse.iter().sum();
@@ -1342,18 +1350,23 @@ impl Rom {
             .map(|p| unit * p.iter().sum::<f64>())
     }
 
-    /// The pressure head's field of the last [`Rom::evaluate`] on `grid` (Pa): each lattice
-    /// point's load spread with the quadratic B-spline kernel one lattice pitch wide
-    /// ([`crate::mpm::spread_loads`], as the gel spreads its contact loads), so that the
-    /// image integrates to [`Rom::pressure_force`] wherever the contact lies inside it.
-    /// `false` (and `out` untouched) where the head did not run.
-    pub fn render_pressure(&self, grid: &PixelGrid, out: &mut [f64]) -> bool {
+    /// The pressure head's field of the last [`Rom::evaluate`] on `grid` (Pa), carrying
+    /// the normal force `force` (N): each lattice point's share of it spread with the
+    /// quadratic B-spline kernel one lattice pitch wide ([`crate::mpm::spread_loads`], as
+    /// the gel spreads its contact loads), so that the image integrates to `force` wherever
+    /// the contact lies inside it. `false` (and `out` untouched) where the head did not run
+    /// or found no load.
+    pub fn render_pressure(&self, grid: &PixelGrid, force: f64, out: &mut [f64]) -> bool {
         let Some(p) = self.lattice_pressure() else {
             return false;
         };
+        let total: f64 = p.iter().sum();
+        if !(total > 0.0 && force.is_finite()) {
+            return false;
+        }
         let spec = &self.manifest.lattice;
         let lattice = spec.grid();
-        let unit = self.pressure_unit(&self.obs);
+        let unit = force / total;
         let pitch = (spec.size[0] / spec.nx as f64).max(spec.size[1] / spec.ny as f64);
         let loads = p
             .iter()

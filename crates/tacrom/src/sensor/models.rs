@@ -321,8 +321,7 @@ impl SurfaceModel for Mpm {
 struct Reduced {
     mpm: Mpm,
     rom: Box<Rom>,
-    /// [`Rom::force_factor`] of the last evaluation (1 when the decoder did not run): the
-    /// pressure head's force over the coarse gel's, or the decoded surface's volume's.
+    /// [`Rom::force_factor`] of the last evaluation (1 when the decoder did not run).
     force_factor: f64,
     /// Whether the last evaluation decoded (the pressure head's field is its own).
     decoded: bool,
@@ -391,12 +390,13 @@ impl SurfaceModel for Reduced {
         w
     }
 
-    /// The pressure head's field where it gave the last decoded evaluation's force, else
-    /// the coarse gel's pressure scaled as the normal force.
+    /// The pressure head's field carrying the reported normal force, where the head ran on
+    /// the last decoded evaluation and its correction of the coarse load lies in range;
+    /// else the coarse gel's pressure scaled as the normal force.
     fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
         if self.decoded
             && self.rom.last_head_factor().is_some()
-            && self.rom.render_pressure(grid, out)
+            && self.rom.render_pressure(grid, self.force().z, out)
         {
             return;
         }
@@ -455,11 +455,8 @@ fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
         RomOptions {
             refine: config.refine,
             threads: config.threads,
-            pressure: config.coupling
-                || config.outputs.iter().any(|o| {
-                    let needs = o.spec().needs;
-                    needs.force || needs.pressure
-                }),
+            pressure: config.outputs.iter().any(|o| o.spec().needs.pressure),
+            force: config.coupling || config.outputs.iter().any(|o| o.spec().needs.force),
         },
     )
     .map_err(in_dir)?;

@@ -61,11 +61,24 @@
 //! `depth >= p` is applied at every pixel, so the indenter's own sharp edges come through at
 //! full image resolution. Depths are clamped to `[0, T]`.
 //!
+//! # Pressure head
+//!
+//! A model may carry a contact pressure head (manifest `files.pressure` and `pressure`):
+//! a field on the decoder's inputs, `z` and each region point's query, followed by a
+//! `patch x patch` window of the coarse gel's contact load ([`features::load_window`]),
+//! that predicts the point's share of the normal contact load ([`PressureUnits`]), trained
+//! against the reference's pressure (`training/tacrom_rom/pressure.py`). It runs after the
+//! dense decoding, on the same rows, and only where the pressure image is wanted (or, for
+//! a model without a volume factor, the force): [`RomOptions`]. Its field gives `rom`'s
+//! pressure image ([`Rom::render_pressure`]); the force is the volume factor's where the
+//! model has one ([`Rom::force_factor_on`]).
+//!
 //! # Model directory
 //!
 //! `manifest.json` (format `tacrom-rom-1`: gel size and material, lattice, latent size,
 //! ONNX files with their named inputs and outputs and shapes, refinement settings, training
-//! command, data and validation metrics) and the three ONNX files. [`Rom::load`] checks all
+//! command, data and validation metrics) and the three ONNX files (four with a pressure
+//! head). [`Rom::load`] checks all
 //! of it and says what is wrong. Ablations: [`RomOptions::refine`] switches the refinement
 //! off ("w/o physics"); latent 16 and "no multi-scale loss" are models of their own
 //! (`models/rom-latent16`, `models/rom-no-multiscale`).

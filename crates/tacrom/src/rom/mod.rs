@@ -1018,18 +1018,7 @@ impl Rom {
         if n == 0 {
             return Ok(Vec::new());
         }
-        let zt = TensorRef::from_array_view(([1usize, z.len()], z))
-            .map_err(|e| run_err("decoder", e))?;
-        let qt = TensorRef::from_array_view(([n, f], query)).map_err(|e| run_err("decoder", e))?;
-        let out = self
-            .decoder
-            .session
-            .run(ort::inputs!["z" => zt, "query" => qt])
-            .map_err(|e| run_err("decoder", e))?;
-        let (_, d) = out["depth"]
-            .try_extract_tensor::<f32>()
-            .map_err(|e| run_err("decoder", e))?;
-        Ok(d.to_vec())
+        run_field(&mut self.decoder, "decoder", "depth", z, query, n, f)
     }
 
     /// Runs the Jacobian graph: depth (`N` values) and d depth / dz (`N x latent`). An
@@ -1311,18 +1300,16 @@ impl Rom {
             load_window(&load, &spec, i / spec.nx, i % spec.nx, &mut query);
         }
         let graph = self.pressure.as_mut().expect("checked above");
-        let zt = TensorRef::from_array_view(([1usize, self.z.len()], &self.z[..]))
-            .map_err(|e| run_err("pressure", e))?;
-        let qt = TensorRef::from_array_view(([points.len(), g], &query[..]))
-            .map_err(|e| run_err("pressure", e))?;
-        let out = graph
-            .session
-            .run(ort::inputs!["z" => zt, "query" => qt])
-            .map_err(|e| run_err("pressure", e))?;
-        let (_, p) = out["pressure"]
-            .try_extract_tensor::<f32>()
-            .map_err(|e| run_err("pressure", e))?;
-        for (&i, &v) in points.iter().zip(p) {
+        let p = run_field(
+            graph,
+            "pressure",
+            "pressure",
+            &self.z,
+            &query,
+            points.len(),
+            g,
+        )?;
+        for (&i, &v) in points.iter().zip(&p) {
             // No tension in a contact; a non-finite output carries no load.
             self.lattice_pressure[i] = if v.is_finite() {
                 (v as f64).max(0.0)
@@ -1466,6 +1453,29 @@ fn render_lattice(spec: &LatticeSpec, lat: &[f64], grid: &PixelGrid, out: &mut [
             out[row * grid.width + col] = v;
         }
     }
+}
+
+/// Runs a field graph (`z [1, r]`, `query [n, f]` -> `output [n, 1]`) of the model: the
+/// decoder or the pressure head.
+fn run_field(
+    graph: &mut Graph,
+    name: &'static str,
+    output: &str,
+    z: &[f32],
+    query: &[f32],
+    n: usize,
+    f: usize,
+) -> Result<Vec<f32>, RomError> {
+    let zt = TensorRef::from_array_view(([1usize, z.len()], z)).map_err(|e| run_err(name, e))?;
+    let qt = TensorRef::from_array_view(([n, f], query)).map_err(|e| run_err(name, e))?;
+    let out = graph
+        .session
+        .run(ort::inputs!["z" => zt, "query" => qt])
+        .map_err(|e| run_err(name, e))?;
+    let (_, v) = out[output]
+        .try_extract_tensor::<f32>()
+        .map_err(|e| run_err(name, e))?;
+    Ok(v.to_vec())
 }
 
 fn run_err(graph: &'static str, e: impl std::fmt::Display) -> RomError {

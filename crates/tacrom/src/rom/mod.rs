@@ -1424,6 +1424,7 @@ impl Rom {
         copy.lattice_depth.clone_from(&self.lattice_depth);
         copy.lattice_pressure.clone_from(&self.lattice_pressure);
         copy.region.clone_from(&self.region);
+        copy.obs.clone_from(&self.obs);
         Ok(copy)
     }
 }

@@ -384,7 +384,8 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             RomOptions {
                 refine,
                 threads: 1,
-                pressure: true,
+                // The force each model reports; no pressure image.
+                pressure: false,
                 force: true,
             },
         )

@@ -8,17 +8,15 @@ The head is g_p(z, q, w): the same latent `z` (the model's encoder, frozen) and 
 query features `q` as the decoder (data.QueryBuilder; src/rom/features.rs), then `w`, the
 coarse gel's contact load at the point's window (the decoder's window offsets, zero
 outside the lattice; `load_window` in src/rom/features.rs) in the head's own units;
-hidden [256, 128] with LayerNorm and ReLU, one output per lattice point, in the units
-`--units` names:
-* `coarse_force` (default): the point's load (pressure times its area) over the coarse
-  gel's normal force shared equally among the deformable region's points (so of order 1),
-  so that the head corrects the coarse load (which carries the gel's Poisson's ratio and
-  Young's modulus) rather than replacing it; presses whose coarse force is below
-  FORCE_FLOOR_N are left out of training, and at run time such a press keeps the coarse
-  force;
-* `young`: the pressure over the gel's Young's modulus (p / E).
-At run time the output is max(0, g_p), and the normal force its sum over the lattice
-points, times their area and E or times the coarse force.
+hidden [256, 128] with LayerNorm and ReLU, one output per lattice point (manifest
+`pressure.units = coarse_force`): the point's load (pressure times its area) over the
+coarse gel's normal force shared equally among the deformable region's points (so of
+order 1), so that the head corrects the coarse load (which carries the gel's Poisson's
+ratio and Young's modulus) rather than replacing it. Presses whose coarse force is below
+FORCE_FLOOR_N are left out of training and validation. At run time the output is
+max(0, g_p), and the normal force its sum over the region times the coarse force over the
+region's points. (The pressure over Young's modulus, p / E, was tried as the output and
+could not see the gel's material: docs/rom.md.)
 
 Trained on the pressure companions `sample-NNNNNN-pressure.npy` of a `tacrom gen-data`
 data set (channel 0 the coarse gel's pressure, channel 1 the reference's; see
@@ -81,7 +79,7 @@ class PressureHead(nn.Module):
         return self.mlp(torch.cat([z.expand(query.shape[0], -1), query], dim=-1))
 
 
-UNITS = ("coarse_force", "young")
+UNITS = "coarse_force"
 
 
 def load_pressure(path, metas):
@@ -96,10 +94,10 @@ def load_pressure(path, metas):
     return np.stack(out)
 
 
-def unit_of(units, young, area, coarse_force, points):
+def unit_of(area, coarse_force, points):
     """Pascals per unit of the head's output at one lattice point of `area` (m^2), for a
     press whose deformable region has `points` lattice points."""
-    return young if units == "young" else coarse_force / (points * area)
+    return coarse_force / (points * area)
 
 
 def load_model(model_dir):
@@ -209,7 +207,6 @@ def main(argv=None):
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--units", choices=UNITS, default=UNITS[0], help="what the head outputs (see above)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
@@ -222,21 +219,19 @@ def main(argv=None):
                          f"{spec.nx} x {spec.ny} of {spec.size}")
     if (ds.get("recipe") or {}).get("solver") != manifest["recipe"]["solver"] or ds["coarse_dx"] != manifest["coarse_dx"]:
         raise SystemExit(f"{a.data}: coarse solve {ds.get('recipe')}, the model's {manifest['recipe']}")
-    young = ds["young"]
     area = (spec.size[0] / spec.nx) * (spec.size[1] / spec.ny)
     both_pressures = load_pressure(a.data, metas)
     coarse_force = np.array([((m.get("coarse") or {}).get("force") or [0, 0, np.nan])[2] for m in metas])
-    if a.units == "coarse_force" and not np.isfinite(coarse_force).all():
-        raise SystemExit(f"{a.data}: samples without a recorded coarse force; --units young needs none")
+    if not np.isfinite(coarse_force).all():
+        raise SystemExit(f"{a.data}: samples without a recorded coarse force")
     # Newtons per unit of summed output, per press.
     points = D.region_mask(arrays, REGION_GROW, REGION_EPS_MM).sum(axis=(1, 2))
-    scale = np.array([unit_of(a.units, young, area, f, n) * area for f, n in zip(coarse_force, points)])
+    scale = np.array([unit_of(area, f, n) * area for f, n in zip(coarse_force, points)])
     tr, va = split(metas, set(ds["held_out"]))
     n_va = len(va)
-    if a.units == "coarse_force":
-        # Where the coarse gel carries (almost) no load, the sensor keeps the coarse force.
-        tr = tr[coarse_force[tr] >= FORCE_FLOOR_N]
-        va = va[coarse_force[va] >= FORCE_FLOOR_N]
+    # Where the coarse gel carries (almost) no load, the sensor keeps the coarse force.
+    tr = tr[coarse_force[tr] >= FORCE_FLOOR_N]
+    va = va[coarse_force[va] >= FORCE_FLOOR_N]
     # Coarse load and reference pressure in the head's units.
     both_units = (both_pressures * area / scale[:, None, None, None]).astype(np.float32)
     both = np.concatenate([arrays, both_units], axis=1)
@@ -296,11 +291,11 @@ def main(argv=None):
     all_idx = sorted(int(f[7:13]) for f in os.listdir(a.data)
                      if f.startswith("sample-") and f.endswith(".json"))
     manifest["pressure"] = {
-        "units": a.units,
+        "units": UNITS,
         "query": "the decoder's query, then the coarse load's window in the head's units",
         "reference_dx": ds["fine_dx"],
         "data": {"command": gen_command(a.data, ds), "path": a.data, "generated": len(all_idx),
-                 "train": int(len(tr)), "validation": int(len(va)), "units": a.units},
+                 "train": int(len(tr)), "validation": int(len(va))},
         "training": {"command": "python -m tacrom_rom.pressure " + " ".join(
                          shlex.quote(x) for x in (argv if argv is not None else sys.argv[1:])),
                      "steps": a.steps, "seconds": round(seconds, 1), "threads": a.threads,

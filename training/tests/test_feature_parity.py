@@ -68,6 +68,8 @@ def _conditioned_model(path):
     m["files"]["encoder"]["inputs"]["observation"] = [1, spec.encoder_len]
     for key in ("decoder", "jacobian"):
         m["files"][key]["inputs"]["query"] = [-1, spec.query_len]
+    if "pressure" in m["files"]:  # the decoder's query, then the load window
+        m["files"]["pressure"]["inputs"]["query"] = [-1, spec.query_len + spec.patch**2]
     os.makedirs(path)
     json.dump(m, open(os.path.join(path, "manifest.json"), "w"), indent=1)
     return path

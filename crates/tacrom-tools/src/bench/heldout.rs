@@ -239,7 +239,6 @@ fn load_samples(
                     // The coarse load of a pressure head, where the data set records it.
                     pressure: load_pressure(&npy, n)?,
                     force: meta.coarse.force.map_or(0.0, |f| f[2]),
-                    young: dataset.young,
                 }
             },
             material: [

@@ -165,8 +165,6 @@ pub struct Observation {
     pub pressure: Vec<f64>,
     /// The coarse gel's normal force (N; with `pressure`).
     pub force: f64,
-    /// The gel's Young's modulus (Pa; with `pressure`).
-    pub young: f64,
 }
 
 impl Default for Observation {
@@ -179,7 +177,6 @@ impl Default for Observation {
             poisson: 0.0,
             pressure: Vec::new(),
             force: 0.0,
-            young: 0.0,
         }
     }
 }
@@ -228,13 +225,12 @@ impl Observation {
         let _ = self.rule.apply(&mut self.coarse, &self.pen);
     }
 
-    /// Samples the solved coarse `gel`'s contact pressure, normal force and Young's
-    /// modulus, for a pressure head.
+    /// Samples the solved coarse `gel`'s contact pressure and normal force, for a pressure
+    /// head.
     pub fn update_load(&mut self, gel: &Gel, spec: &LatticeSpec) {
         self.pressure.resize(spec.points(), 0.0);
         gel.contact_pressure(&spec.grid(), &mut self.pressure);
         self.force = gel.force().z;
-        self.young = gel.params().young;
     }
 
     /// The encoder's input (model units), appended to `out` after clearing it.

@@ -66,7 +66,7 @@
 //! A model may carry a contact pressure head (manifest `files.pressure` and `pressure`):
 //! a field on the decoder's inputs, `z` and each region point's query, followed by a
 //! `patch x patch` window of the coarse gel's contact load ([`features::load_window`]),
-//! that predicts the point's share of the normal contact load ([`PressureUnits`]), trained
+//! that predicts the point's share of the normal contact load ([`PRESSURE_UNITS`]), trained
 //! against the reference's pressure (`training/tacrom_rom/pressure.py`). It runs after the
 //! dense decoding, on the same rows, and only where the pressure image is wanted (or, for
 //! a model without a volume factor, the force): [`RomOptions`]. Its field gives `rom`'s
@@ -279,7 +279,7 @@ pub struct Manifest {
     /// The contact pressure head (manifest `files.pressure` and `pressure.units`; `None`:
     /// `rom`'s force and pressure are the coarse gel's, scaled by
     /// [`Manifest::force_volume_factor`]); see [`Rom::lattice_pressure`].
-    pub pressure: Option<(GraphFile, PressureUnits)>,
+    pub pressure: Option<GraphFile>,
     /// The coarse solve the model was trained on and accepts.
     pub recipe: Recipe,
     /// The gel materials a conditioned model serves (`None`: the gel's only).
@@ -299,16 +299,11 @@ pub struct Manifest {
 /// `(path, inputs, outputs)` of one ONNX graph of a model, as its manifest lists them.
 pub type GraphFile = (PathBuf, Vec<(String, Vec<i64>)>, Vec<(String, Vec<i64>)>);
 
-/// What a pressure head's output at a lattice point is (manifest `pressure.units`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PressureUnits {
-    /// The point's load (its pressure times its area) over the coarse gel's normal force
-    /// shared equally among the deformable region's points (`coarse_force`; of order 1):
-    /// the head corrects the coarse load, which carries the gel's material.
-    CoarseForce,
-    /// The pressure over the gel's Young's modulus (`young`).
-    Young,
-}
+/// What a pressure head's output at a lattice point is (manifest `pressure.units`, the
+/// one value this build reads): the point's load (its pressure times its area) over the
+/// coarse gel's normal force shared equally among the deformable region's points (of order
+/// 1), so that the head corrects the coarse load, which carries the gel's material.
+pub const PRESSURE_UNITS: &str = "coarse_force";
 
 /// `manifest.json` as written by the training's export, read with serde; [`Manifest::load`]
 /// checks it and turns it into a [`Manifest`].
@@ -602,17 +597,14 @@ impl Manifest {
                 |l: Vec<(&str, Vec<i64>)>| l.into_iter().map(|(n, s)| (n.to_owned(), s)).collect();
             let graph = (dir.join(&fj.path), own(ins), own(outs));
             if key == "pressure" {
-                let units = match doc.pressure.as_ref().map(|p| p.units.as_str()) {
-                    Some("coarse_force") => PressureUnits::CoarseForce,
-                    Some("young") => PressureUnits::Young,
-                    other => {
-                        return Err(bad(format!(
-                            "'pressure.units' is {other:?}, expected \"coarse_force\" or \
-                             \"young\" with 'files.pressure'"
-                        )))
-                    }
-                };
-                pressure = Some((graph, units));
+                let units = doc.pressure.as_ref().map(|p| p.units.as_str());
+                if units != Some(PRESSURE_UNITS) {
+                    return Err(bad(format!(
+                        "'pressure.units' is {units:?}, expected \"{PRESSURE_UNITS}\" with \
+                         'files.pressure'"
+                    )));
+                }
+                pressure = Some(graph);
             } else {
                 files.push(graph);
             }
@@ -838,8 +830,8 @@ pub struct Rom {
     /// The pressure head, loaded only where the model has one and the force or the
     /// pressure is wanted ([`RomOptions::pressure`]).
     pressure: Option<Graph>,
-    /// Its output on the lattice after the last inference (units of Young's modulus, at
-    /// least 0; 0 outside the deformable region).
+    /// Its output on the lattice after the last inference ([`PRESSURE_UNITS`], at least 0;
+    /// 0 outside the deformable region).
     lattice_pressure: Vec<f64>,
     obs: Observation,
     zmin: Vec<f64>,
@@ -888,7 +880,7 @@ impl Rom {
         let head_wanted =
             options.pressure || (options.force && manifest.force_volume_factor.is_none());
         let pressure = match &manifest.pressure {
-            Some((p, _)) if head_wanted => Some(load_graph(&p.0, &p.1, &p.2, threads)?),
+            Some(p) if head_wanted => Some(load_graph(&p.0, &p.1, &p.2, threads)?),
             _ => None,
         };
         Ok(Rom {
@@ -1321,25 +1313,18 @@ impl Rom {
     }
 
     /// The pressure head's output on the lattice after the last inference (row-major
-    /// `ny x nx`, at least 0, 0 outside the deformable region), in the manifest's
-    /// [`PressureUnits`]; `None` where the head did not run (no head in the model, or
+    /// `ny x nx`, at least 0, 0 outside the deformable region), in [`PRESSURE_UNITS`];
+    /// `None` where the head did not run (no head in the model, or
     /// [`RomOptions::pressure`] off).
     pub fn lattice_pressure(&self) -> Option<&[f64]> {
         self.pressure.as_ref().map(|_| &self.lattice_pressure[..])
     }
 
     /// Newtons per unit of the head's output (and of its load window) at one lattice point
-    /// of the observation `obs` (its coarse force and Young's modulus).
+    /// of the observation `obs`: its coarse force shared among the region's points.
     fn pressure_unit(&self, obs: &Observation) -> f64 {
-        let spec = &self.manifest.lattice;
-        let area = spec.size[0] / spec.nx as f64 * spec.size[1] / spec.ny as f64;
-        match self.manifest.pressure.as_ref().map(|p| p.1) {
-            Some(PressureUnits::CoarseForce) => {
-                let points = self.region.iter().filter(|&&inside| inside).count();
-                obs.force / points.max(1) as f64
-            }
-            Some(PressureUnits::Young) | None => obs.young * area,
-        }
+        let points = self.region.iter().filter(|&&inside| inside).count();
+        obs.force / points.max(1) as f64
     }
 
     /// The normal force (N) of the pressure head's field on the observation `obs` of its

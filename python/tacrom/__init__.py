@@ -39,6 +39,7 @@ __all__ = [
     "load",
     "library_path",
     "output_table",
+    "attribute_table",
     "layout",
     "outputs",
     "depth",
@@ -86,6 +87,8 @@ def load(path: Optional[os.PathLike] = None) -> pathlib.Path:
     ]
     _lib.tacrom_output_table.restype = ctypes.c_int
     _lib.tacrom_output_table.argtypes = [ctypes.c_char_p, ctypes.c_int]
+    _lib.tacrom_attribute_table.restype = ctypes.c_int
+    _lib.tacrom_attribute_table.argtypes = [ctypes.c_char_p, ctypes.c_int]
     return lib_path
 
 
@@ -127,6 +130,22 @@ def output_table() -> list:
     ``{"name", "doc", "unit", "shape", "needs_gel"}`` (shape ``["H", "W"]`` for images)."""
     load()
     return _json_from(_lib.tacrom_output_table, "tacrom output table")
+
+
+def attribute_table() -> list:
+    """Every configuration attribute of the sensor, from the plugin's attribute table: a
+    list of ``{"name", "meaning", "unit", "default", "valid"}`` (``default`` as written in
+    MJCF, or in words where it depends on other attributes; ``valid`` in words)."""
+    load()
+    return _json_from(_lib.tacrom_attribute_table, "tacrom attribute table")
+
+
+def attribute_default(name: str) -> str:
+    """The default of configuration attribute ``name`` as written in MJCF."""
+    for row in attribute_table():
+        if row["name"] == name:
+            return row["default"]
+    raise KeyError(f"{PLUGIN_NAME} has no attribute {name!r}")
 
 
 def layout(model, sensor) -> Dict[str, object]:

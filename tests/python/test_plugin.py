@@ -248,3 +248,27 @@ def test_rom_serves_other_gel_materials_and_refuses_others(press_xml):
         mujoco.MjModel.from_xml_string(with_config(press_xml, **rom, poisson="0.49"))
     msg = str(err.value)
     assert "'touch'" in msg and "Poisson's ratio in [0.3, 0.48]" in msg and "0.49" in msg
+
+
+def test_attribute_table_names_every_attribute_and_its_defaults_apply(press_xml):
+    """The attribute table Python reads is the plugin's: every attribute MuJoCo accepts is
+    in it once, and a sensor configured with each numeric default written out lays out and
+    evaluates exactly as one that leaves them unset."""
+    table = tacrom.attribute_table()
+    names = [row["name"] for row in table]
+    assert len(names) == len(set(names))
+    assert {"physics", "outputs", "young", "poisson", "size", "solver"} <= set(names)
+    defaults = {row["name"]: row["default"] for row in table}
+    assert [float(x) for x in defaults["size"].split()] == [0.03, 0.03, 0.004]
+    base = dict(physics="coarse", outputs="depth force", resolution="24 18")
+    written = {k: defaults[k] for k in ("young", "poisson", "density", "friction", "size", "fov")}
+    runs = []
+    for extra in ({}, written):
+        model = mujoco.MjModel.from_xml_string(with_config(press_xml, **base, **extra))
+        data = mujoco.MjData(model)
+        runs.append(evaluate(model, data, 0.4e-3))
+    assert np.array_equal(runs[0]["depth"], runs[1]["depth"])
+    assert np.array_equal(runs[0]["force"], runs[1]["force"])
+    assert runs[0]["force"][2] > 0
+    with pytest.raises(ValueError, match="'young'.*must be in \\[100, 1e10\\] Pa"):
+        mujoco.MjModel.from_xml_string(with_config(press_xml, **base, young="1"))

@@ -4,7 +4,7 @@ A data directory holds `dataset.json` and per sample `sample-NNNNNN.npy` (float3
 [3, ny, nx], metres: coarse depth, rigid penetration, reference depth on the surface
 lattice) with `sample-NNNNNN.json` (family, parameters, solver reports).
 
-The features here are computed exactly as in crates/tacrom/src/rom/features.rs: keep the two
+The features here are computed exactly as in src/rom/features.rs: keep the two
 in step. tests/test_feature_parity.py checks it on presses written by `tacrom rom-features`.
 """
 from __future__ import annotations

@@ -58,6 +58,34 @@ pub enum Command {
     /// Fit the rgb output's optics (gradient-to-colour table and background) to ball
     /// presses, or write a synthetic press set.
     Calibrate(CalibrateArgs),
+    /// Developer measurements of one solver question each (`tacrom probe --help` lists
+    /// them; each probe's module doc says its arguments).
+    Probe(ProbeArgs),
+    /// Check the README's attribute and output tables against the plugin's (or, with
+    /// `--write`, rewrite them).
+    DocTables(DocTablesArgs),
+}
+
+/// `tacrom doc-tables [--write] [--readme PATH]`.
+#[derive(Debug, Args)]
+pub struct DocTablesArgs {
+    /// Rewrite the tables in place instead of checking them.
+    #[arg(long)]
+    pub write: bool,
+    /// The file holding the tables (default: the checkout's README.md).
+    #[arg(long)]
+    pub readme: Option<std::path::PathBuf>,
+}
+
+/// `tacrom probe NAME [ARGS...]`.
+#[derive(Debug, Args)]
+pub struct ProbeArgs {
+    /// The probe.
+    #[arg(value_parser = clap::builder::PossibleValuesParser::new(crate::probe::NAMES))]
+    pub name: String,
+    /// Its arguments, passed on as they are.
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+    pub args: Vec<String>,
 }
 
 /// A length in millimetres, finite, as metres.
@@ -135,7 +163,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub full: bool,
     /// Folder of STL/OBJ meshes [../shared/indenters/patterns, or the copies in
-    /// crates/tacrom/tests/data when that folder is absent].
+    /// tests/data when that folder is absent].
     #[arg(long, value_name = "DIR")]
     pub indenters: Option<PathBuf>,
     /// Mesh coordinate scale to metres [0.001].

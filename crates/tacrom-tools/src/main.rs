@@ -28,6 +28,11 @@ fn main() -> ExitCode {
         Command::EvalRom(a) => eval_rom(a),
         Command::RomFeatures(a) => rom_features(a),
         Command::Calibrate(a) => calibrate(a),
+        Command::DocTables(a) => doc_tables(a),
+        Command::Probe(a) => {
+            tacrom_tools::probe::run(&a.name, a.args);
+            Ok(())
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -383,6 +388,31 @@ fn rom_features(a: RomFeaturesArgs) -> Result<(), BenchError> {
     };
     println!("{}", write(&config).map_err(BenchError::Usage)?);
     Ok(())
+}
+
+fn doc_tables(a: tacrom_tools::cli::DocTablesArgs) -> Result<(), BenchError> {
+    let path = a
+        .readme
+        .unwrap_or_else(|| tacrom::checkout_root().join("README.md"));
+    let io = |e: std::io::Error| BenchError::Usage(format!("{}: {e}", path.display()));
+    let text = std::fs::read_to_string(&path).map_err(io)?;
+    let spliced = tacrom_tools::doc_tables::splice(&text)
+        .map_err(|e| BenchError::Usage(format!("{}: {e}", path.display())))?;
+    if a.write {
+        if spliced != text {
+            std::fs::write(&path, spliced).map_err(io)?;
+        }
+        println!("{}: tables written", path.display());
+        Ok(())
+    } else if spliced == text {
+        println!("{}: tables up to date", path.display());
+        Ok(())
+    } else {
+        Err(BenchError::Usage(format!(
+            "{}: tables differ from the code's; run `tacrom doc-tables --write`",
+            path.display()
+        )))
+    }
 }
 
 fn calibrate(a: CalibrateArgs) -> Result<(), BenchError> {

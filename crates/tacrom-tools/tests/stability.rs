@@ -17,7 +17,7 @@ use tacrom_tools::stability::{cases, run_case, table, Row};
 ///   end at dx 1.4 mm, 561 um at 0.68 mm from it at dx 0.7 mm). The surface point is
 ///   extrapolated from each particle's F, which varies fastest at the face's edge (a stress
 ///   singularity); the error shrinks with the spacing. The Newton solver on the same press
-///   keeps them within 14 um (`examples/overshoot_probe.rs`). The image is bounded by the
+///   keeps them within 14 um (`crates/tacrom-tools/src/probe/overshoot.rs`). The image is bounded by the
 ///   depth rule, so the sensor's depth stays on the indenter; the gel's force and pressure
 ///   near those ends do not.
 /// * rom, rotating bar (73) and through the bottom (80): the decoder on a coarse input

@@ -19,9 +19,6 @@ import tacrom
 #: The physics modes an environment accepts (``fine`` is a reference, far too slow for RL).
 PHYSICS = ("rigid", "coarse", "rom")
 
-#: The sensor's default gel size, Lx Ly T (m), the ``size`` attribute when a scene leaves
-#: it out.
-DEFAULT_GEL_SIZE = "0.03 0.03 0.004"
 
 _SENSOR_BIT = int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
 
@@ -65,7 +62,7 @@ def configure_sensors(
         config.update({str(k): str(v) for k, v in (extra or {}).items()})
         config.update(physics=physics, resolution=f"{width} {height}", outputs=" ".join(outputs))
         plugin.config = config
-        size = config.get("size") or DEFAULT_GEL_SIZE
+        size = config.get("size") or tacrom.attribute_default("size")
         thickness = max(thickness, float(size.split()[2]))
     return thickness
 

@@ -1,5 +1,5 @@
 //! Force of small frictionless presses on the coarse gel against the analytic force, per
-//! solver: `cargo run --release --example small_probe -- SOLVER` (`default`: the
+//! solver: `tacrom probe small SOLVER` (`default`: the
 //! relaxation with the fallback solver for the frames whose contact it cannot carry, as a
 //! coarse sensor that names no solver). `PROBE_FRICTION=MU` sets the friction (default
 //! 0), `PROBE_POISSON=NU` Poisson's ratio (default 0.43), `PROBE_DEBUG=1` prints each frame's solve, force and time. Spheres of radius 0.25
@@ -12,8 +12,9 @@ use tacrom::geometry::{Placed, Sdf, Sphere, TriMesh};
 use tacrom::mpm::hertz::{hertz_bonded, sneddon_cone};
 use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
-fn main() {
-    let solver = std::env::args().nth(1).unwrap_or_else(|| "linear".into());
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
+    let solver = args.get(1).cloned().unwrap_or_else(|| "linear".into());
     let friction = std::env::var("PROBE_FRICTION").map_or(0.0, |v| v.parse().unwrap());
     let poisson = std::env::var("PROBE_POISSON").map_or(0.43, |v| v.parse().unwrap());
     let p = GelParams {

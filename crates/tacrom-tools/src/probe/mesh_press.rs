@@ -1,7 +1,7 @@
 //! A pattern mesh pressed into the gel, each solver side by side, for comparing their
 //! forces and costs on a shape other than a sphere:
 //!
-//! `cargo run --release --example mesh_press -- MESH DX_M FRICTION DEPTHS_MM SOLVERS`
+//! `tacrom probe mesh_press MESH DX_M FRICTION DEPTHS_MM SOLVERS`
 //!
 //! (defaults: ../shared/indenters/patterns/hexagon.stl 1.4e-3 0 "0.2,0.5,1.0"
 //! "relaxation,newton,linear"). The mesh (millimetres) is turned a half turn about x, so
@@ -13,8 +13,8 @@ use std::sync::Arc;
 use std::time::Instant;
 use tacrom::geometry::*;
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
     let path = args
         .get(1)
         .cloned()

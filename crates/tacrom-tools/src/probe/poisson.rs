@@ -1,5 +1,5 @@
 //! Force of frictionless sphere presses over the bonded-layer Hertz force, for one solver,
-//! Poisson's ratio and grid spacing: `cargo run --release --example poisson_probe --
+//! Poisson's ratio and grid spacing: `tacrom probe poisson
 //! SOLVER NU DX_MM` (defaults: linear, 0.48, 1.4). Spheres of radius 2 and 5 mm on the
 //! default 30 x 30 x 4 mm gel, each pressed through 0.1 to 0.5 mm in one sequence; a `*`
 //! marks a solve that did not converge. `default` is the relaxation with the fallback solver
@@ -10,8 +10,8 @@ use tacrom::geometry::{Placed, Sdf, Sphere};
 use tacrom::mpm::hertz::hertz_bonded;
 use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
     let solver = args.get(1).cloned().unwrap_or("linear".into());
     let nu: f64 = args.get(2).map_or(0.48, |v| v.parse().unwrap());
     let dx: f64 = args.get(3).map_or(1.4, |v| v.parse().unwrap());

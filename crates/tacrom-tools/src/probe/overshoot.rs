@@ -1,9 +1,9 @@
 //! The gel's own surface under a flat bar (8 x 2 mm face, pressed 0.5 mm from rest), row by
 //! row, and the deepest surface point with its distance below the bar's face: a rigid flat
 //! face holds an elastic layer's surface at its own depth, so any point deeper than 500 um
-//! is an error of the discretisation (see `tests/stability.rs` in tacrom-tools).
+//! is an error of the discretisation (see `tests/stability.rs`).
 //!
-//! `cargo run --release --example overshoot_probe -- [relaxation|newton] [TOLERANCE]
+//! `tacrom probe overshoot [relaxation|newton] [TOLERANCE]
 //! [dx=MM] [poisson=NU] [friction=MU]`
 
 use std::sync::Arc;
@@ -12,8 +12,9 @@ use nalgebra::{Isometry3, Vector3};
 use tacrom::geometry::{Cuboid, Placed, Sdf};
 use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
-fn main() {
-    let mut args = std::env::args().skip(1);
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
+    let mut args = args.into_iter().skip(1);
     let solver = match args.next().as_deref() {
         Some("newton") => Solver::Newton,
         _ => Solver::Relaxation,

@@ -1,7 +1,7 @@
 //! A 5 mm sphere pressed into the default gel in steps, frame by frame, for measuring a
 //! press's cost and how its answer depends on the solver's settings:
 //!
-//! `cargo run --release --example fine_press -- [key=value ...]`
+//! `tacrom probe fine_press [key=value ...]`
 //!
 //! Keys (defaults): `dx` (0.3e-3 m), `depths` ("0.1,0.2,0.3" mm, pressed in order, each
 //! solve warm-started from the last), `threads` (1), `friction` (0.5), `poisson` (0.43),
@@ -20,7 +20,8 @@ use std::time::Instant;
 use tacrom::geometry::*;
 use tacrom::mpm::*;
 
-fn main() {
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
     let mut params = GelParams {
         dx: 0.3e-3,
         ..Default::default()
@@ -28,7 +29,7 @@ fn main() {
     let mut options = SolverOptions::default();
     let mut depths = vec![0.1e-3, 0.2e-3, 0.3e-3];
     let mut surface = None;
-    for arg in std::env::args().skip(1) {
+    for arg in args.into_iter().skip(1) {
         let (key, value) = arg
             .split_once('=')
             .unwrap_or_else(|| panic!("expected key=value, got '{arg}'"));

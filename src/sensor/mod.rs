@@ -21,6 +21,7 @@ use crate::render::rgb::RgbModel;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
 
+pub mod coupling;
 pub mod models;
 pub mod outputs;
 
@@ -142,7 +143,7 @@ impl TactileSensor {
             .outputs
             .iter()
             .filter(|o| matches!(o.spec().seen, Seen::Resampled(_)))
-            .map(|o| o.spec().len(&config))
+            .map(|o| o.spec().len(&config.layout()))
             .collect();
         let refraction = match config.camera {
             Camera::Pinhole { distance } if needs.depth || !resampled.is_empty() => {
@@ -416,7 +417,7 @@ impl TactileSensor {
         let mut at = 0;
         for o in &self.config.outputs {
             let spec = o.spec();
-            let n = spec.len(&self.config);
+            let n = spec.len(&self.config.layout());
             let slot = &mut out[at..at + n];
             match (view, spec.seen, spec.shape) {
                 // Written on the orthographic grid, then sampled where each pixel's ray

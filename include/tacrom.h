@@ -42,6 +42,8 @@ void tacrom_visualize(const mjModel* m, mjData* d, const mjvOption* opt, mjvScen
 int tacrom_sensor_outputs(const mjModel* m, int sensor_id, char* buf, int len);
 /* The output table as JSON (for the Python package); see plugin.rs. */
 int tacrom_output_table(char* buf, int len);
+/* The attribute table as JSON (for the Python package); see plugin.rs. */
+int tacrom_attribute_table(char* buf, int len);
 
 #ifdef __cplusplus
 }

@@ -1,5 +1,5 @@
 //! The benchmark's moving press, frame by frame, for profiling a solver:
-//! `cargo run --release --example newton_profile -- SOLVER DX_M FRICTION FRAMES THREADS
+//! `tacrom probe newton_profile SOLVER DX_M FRICTION FRAMES THREADS
 //! POISSON TOLERANCE` (defaults: newton 1.4e-3 0.5 6 1 0.43 1e-3). Prints each frame's time, steps, factorisations,
 //! steps that reused one, convergence and force; `perf record` on it shows where a
 //! solver spends its time.
@@ -10,8 +10,8 @@ use std::time::Instant;
 use tacrom::geometry::*;
 use tacrom::mpm::*;
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
     let solver = Solver::named(args.get(1).map(|s| s.as_str()).unwrap_or("newton")).unwrap();
     let dx: f64 = args.get(2).map(|s| s.parse().unwrap()).unwrap_or(1.4e-3);
     let friction: f64 = args.get(3).map(|s| s.parse().unwrap()).unwrap_or(0.5);

@@ -8,7 +8,6 @@
 
 use nalgebra::Vector3;
 
-use crate::config::Config;
 use crate::geometry::PixelGrid;
 use crate::render::markers::Markers;
 use crate::render::refraction::Sampling;
@@ -120,20 +119,32 @@ pub struct OutputSpec {
     pub write: fn(&Frame<'_>, &mut [f64]),
 }
 
+/// What an output's size depends on: the image and the marker grid of a configuration
+/// ([`crate::config::Config::layout`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Layout {
+    /// Image width (pixels).
+    pub width: usize,
+    /// Image height (pixels).
+    pub height: usize,
+    /// Markers along x and y.
+    pub markers: [usize; 2],
+}
+
 impl OutputSpec {
-    /// Its dimensions for `config`: `[H, W]`, `[H, W, C]`, `[n]` or `[NX * NY, n]`.
-    pub fn dims(&self, config: &Config) -> Vec<usize> {
+    /// Its dimensions for `layout`: `[H, W]`, `[H, W, C]`, `[n]` or `[NX * NY, n]`.
+    pub fn dims(&self, layout: &Layout) -> Vec<usize> {
         match self.shape {
-            Shape::Image { channels: 1 } => vec![config.height, config.width],
-            Shape::Image { channels } => vec![config.height, config.width, channels],
+            Shape::Image { channels: 1 } => vec![layout.height, layout.width],
+            Shape::Image { channels } => vec![layout.height, layout.width, channels],
             Shape::Vector(n) => vec![n],
-            Shape::PerMarker(n) => vec![config.markers[0] * config.markers[1], n],
+            Shape::PerMarker(n) => vec![layout.markers[0] * layout.markers[1], n],
         }
     }
 
-    /// Number of sensordata values for `config`.
-    pub fn len(&self, config: &Config) -> usize {
-        self.dims(config).iter().product()
+    /// Number of sensordata values for `layout`.
+    pub fn len(&self, layout: &Layout) -> usize {
+        self.dims(layout).iter().product()
     }
 }
 
@@ -350,33 +361,23 @@ pub fn table_json() -> String {
     serde_json::Value::Array(rows).to_string()
 }
 
-/// The sensordata layout of `config`, as JSON for the Python package: image size and, per
-/// output in sensordata order, its name, offset, shape and unit; the marker grid `[NX, NY]`.
-pub fn layout_json(config: &Config) -> String {
-    let mut offset = 0;
-    let outputs: Vec<serde_json::Value> = config
-        .outputs
-        .iter()
-        .map(|o| {
-            let spec = o.spec();
-            let entry = serde_json::json!({
-                "name": spec.name,
-                "offset": offset,
-                "shape": spec.dims(config),
-                "unit": spec.unit,
-            });
-            offset += spec.len(config);
-            entry
-        })
-        .collect();
-    serde_json::json!({
-        "sensor": config.name,
-        "physics": config.physics.name(),
-        "width": config.width,
-        "height": config.height,
-        "markers": config.markers,
-        "size": offset,
-        "outputs": outputs,
-    })
-    .to_string()
+/// The output table as the README shows it (Markdown), between its `tacrom:outputs`
+/// markers.
+pub fn markdown_table() -> String {
+    let mut out = String::from("| output | shape | unit | content |\n|---|---|---|---|\n");
+    for o in TABLE {
+        let s = o.spec();
+        let shape = match s.shape {
+            Shape::Image { channels: 1 } => "(H, W)".to_owned(),
+            Shape::Image { channels } => format!("(H, W, {channels})"),
+            Shape::Vector(n) => format!("({n},)"),
+            Shape::PerMarker(n) => format!("(NX * NY, {n})"),
+        };
+        let gel = if s.needs_gel { " (not with `rigid`)" } else { "" };
+        out.push_str(&format!(
+            "| `{}` | {shape} | {} | {}{gel} |\n",
+            s.name, s.unit, s.doc
+        ));
+    }
+    out
 }

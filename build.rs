@@ -20,15 +20,10 @@ fn main() {
     println!("cargo:rerun-if-changed=include/tacrom.h");
     println!("cargo:rerun-if-changed=build.rs");
 
-    // The workspace root (two levels above this crate) holds the `.venv`.
+    // The crate is the workspace's root, which holds the `.venv`.
     let crate_dir =
         PathBuf::from(env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
-    let root = crate_dir
-        .ancestors()
-        .nth(2)
-        .unwrap_or(&crate_dir)
-        .to_path_buf();
-    let mujoco = find_mujoco(&root);
+    let mujoco = find_mujoco(&crate_dir);
     let include = mujoco.join("include");
     check_version(&include);
 

@@ -1,4 +1,4 @@
-//! Where a rom frame's time goes: `cargo run --release --example rom_profile -- [SOLVER]
+//! Where a rom frame's time goes: `tacrom probe rom_profile [SOLVER]
 //! [THREADS]` presses a 5 mm sphere from 0.1 to 1.0 mm while sliding 1 mm in 20 frames at
 //! 320 x 240 (the sensor benchmark's press) and prints, per frame, the whole evaluation
 //! and its stages: gel solve, observation and encoder, refinement (with its L-BFGS
@@ -11,8 +11,8 @@ use tacrom::config::{Config, RawConfig};
 use tacrom::geometry::{Placed, Sdf, Sphere};
 use tacrom::sensor::TactileSensor;
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
     let solver = args.get(1).map_or("linear", |s| s.as_str());
     let threads = args.get(2).map_or("1", |s| s.as_str());
     let raw = RawConfig::default()

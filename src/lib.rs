@@ -7,6 +7,7 @@
 #![warn(missing_docs)]
 #![warn(clippy::undocumented_unsafe_blocks)]
 
+pub mod attributes;
 pub mod config;
 pub mod geometry;
 pub mod mpm;
@@ -16,25 +17,18 @@ pub mod rom;
 pub mod sensor;
 pub mod visual;
 
-/// The root of the source checkout this library was built from (the workspace, two levels
-/// above this crate). Tests and tools find the checkout's `.venv`, `models/` and the
+/// The root of the source checkout this library was built from (this crate's folder, the
+/// workspace's root). Tests and tools find the checkout's `.venv`, `models/` and the
 /// benchmark meshes in `../shared` through it; an installed plugin looks beside itself
 /// first.
 pub fn checkout_root() -> &'static std::path::Path {
     static ROOT: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
-    ROOT.get_or_init(|| {
-        let crate_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-        crate_dir
-            .ancestors()
-            .nth(2)
-            .unwrap_or(crate_dir)
-            .to_path_buf()
-    })
+    ROOT.get_or_init(|| std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")))
 }
 
 /// The benchmark meshes (`../shared/indenters/patterns` beside the checkout) when present,
 /// otherwise the copies of the few that the tests and the quick benchmark use
-/// (`crates/tacrom/tests/data`: cone, cross_lines, dots, hexagon, moon, wave1; MIT, see
+/// (`tests/data`: cone, cross_lines, dots, hexagon, moon, wave1; MIT, see
 /// the LICENSE there).
 pub fn pattern_dir() -> std::path::PathBuf {
     let shared = checkout_root().join("../shared/indenters/patterns");
@@ -47,7 +41,7 @@ pub fn pattern_dir() -> std::path::PathBuf {
 
 /// The copies of the benchmark meshes the tests use, always present in the checkout.
 pub fn vendored_patterns() -> std::path::PathBuf {
-    checkout_root().join("crates/tacrom/tests/data")
+    checkout_root().join("tests/data")
 }
 
 /// A fingerprint of the physics' source (solver, geometry, sensor), computed at build time:

@@ -1,5 +1,5 @@
 //! Time of the gel's depth image (the inverse map from pixels to surface points) after a
-//! press: `cargo run --release --example image_time -- [SOLVER] [DEPTH_MM] [THREADS]`
+//! press: `tacrom probe image_time [SOLVER] [DEPTH_MM] [THREADS]`
 //! (defaults: linear, 0.5, 1). Prints the median of 20 images at 320 x 240 and a checksum
 //! of the image's bits.
 
@@ -9,8 +9,8 @@ use std::time::Instant;
 use tacrom::geometry::*;
 use tacrom::mpm::*;
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
     let solver = Solver::named(args.get(1).map_or("linear", |s| s.as_str())).expect("solver");
     let depth: f64 = args.get(2).map_or(0.5, |s| s.parse().unwrap()) * 1e-3;
     let threads: usize = args.get(3).map_or(1, |s| s.parse().unwrap());

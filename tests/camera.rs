@@ -69,7 +69,7 @@ fn run(config: Config) -> (TactileSensor, Vec<Vec<f64>>) {
 fn output<'a>(config: &Config, out: &'a [f64], name: &str) -> &'a [f64] {
     let mut at = 0;
     for o in &config.outputs {
-        let n = o.spec().len(config);
+        let n = o.spec().len(&config.layout());
         if o.name() == name {
             return &out[at..at + n];
         }

@@ -1,13 +1,13 @@
 //! Force (N) of a standing capsule (radius R, half-length 3 mm) pressed through and past its
 //! radius into the default gel, each press from rest and as one sequence:
-//! `cargo run --release --example deep_probe -- SOLVER [RADIUS_MM [POISSON]]`.
+//! `tacrom probe deep SOLVER [RADIUS_MM [POISSON]]`.
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use std::sync::Arc;
 use tacrom::geometry::{Capsule, Placed, Sdf};
 use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
     let arg = |i: usize, default: f64| args.get(i).map_or(default, |v| v.parse().unwrap());
     let solver = args.get(1).cloned().unwrap_or_else(|| "newton".into());
     let (r, nu) = (arg(2, 1.0) * 1e-3, arg(3, 0.43));

@@ -10,113 +10,60 @@ use std::fmt;
 use std::path::Path;
 use std::sync::Arc;
 
+use crate::attributes::{self, Attribute, Valid};
 use crate::mpm::{GelParams, Material, Solver};
 use crate::render::calibrated::CalibratedOptics;
 pub use crate::render::refraction::Camera;
 
-/// `physics`: which model of the gel computes the surface.
-pub const ATTR_PHYSICS: &str = "physics";
-/// `outputs`: space-separated list of outputs, in sensordata order.
-pub const ATTR_OUTPUTS: &str = "outputs";
-/// `resolution`: image width and height in pixels.
-pub const ATTR_RESOLUTION: &str = "resolution";
-/// `fov`: extent of the image on the gel, x and y (m); one number means a square.
-pub const ATTR_FOV: &str = "fov";
-/// `size`: gel extent Lx, Ly and thickness T (m).
-pub const ATTR_SIZE: &str = "size";
-/// `indenters`: names of the bodies whose geoms may press the gel (default: all others).
-pub const ATTR_INDENTERS: &str = "indenters";
-/// `young`: Young's modulus of the gel (Pa).
-pub const ATTR_YOUNG: &str = "young";
-/// `poisson`: Poisson's ratio of the gel.
-pub const ATTR_POISSON: &str = "poisson";
-/// `density`: density of the gel (kg/m^3).
-pub const ATTR_DENSITY: &str = "density";
-/// `friction`: Coulomb friction coefficient between gel and indenters.
-pub const ATTR_FRICTION: &str = "friction";
-/// `dx`: MPM grid spacing (m); empty means the mode's default.
-pub const ATTR_DX: &str = "dx";
-/// `threads`: worker threads of this sensor's solver.
-pub const ATTR_THREADS: &str = "threads";
-/// `model`: directory of the reduced-order model (`physics="rom"`); empty means the
-/// shipped model, found relative to the plugin library.
-pub const ATTR_MODEL: &str = "model";
-/// `refine`: latent refinement of the reduced-order model, `true` or `false` (the "w/o
-/// physics" ablation); empty means the model's manifest decides.
-pub const ATTR_REFINE: &str = "refine";
+/// `physics`: [`attributes::PHYSICS`].
+pub const ATTR_PHYSICS: &str = attributes::PHYSICS.name;
+/// `outputs`: [`attributes::OUTPUTS`].
+pub const ATTR_OUTPUTS: &str = attributes::OUTPUTS.name;
+/// `resolution`: [`attributes::RESOLUTION`].
+pub const ATTR_RESOLUTION: &str = attributes::RESOLUTION.name;
+/// `fov`: [`attributes::FOV`].
+pub const ATTR_FOV: &str = attributes::FOV.name;
+/// `size`: [`attributes::SIZE`].
+pub const ATTR_SIZE: &str = attributes::SIZE.name;
+/// `indenters`: [`attributes::INDENTERS`].
+pub const ATTR_INDENTERS: &str = attributes::INDENTERS.name;
+/// `young`: [`attributes::YOUNG`].
+pub const ATTR_YOUNG: &str = attributes::YOUNG.name;
+/// `poisson`: [`attributes::POISSON`].
+pub const ATTR_POISSON: &str = attributes::POISSON.name;
+/// `density`: [`attributes::DENSITY`].
+pub const ATTR_DENSITY: &str = attributes::DENSITY.name;
+/// `friction`: [`attributes::FRICTION`].
+pub const ATTR_FRICTION: &str = attributes::FRICTION.name;
+/// `dx`: [`attributes::DX`].
+pub const ATTR_DX: &str = attributes::DX.name;
+/// `threads`: [`attributes::THREADS`].
+pub const ATTR_THREADS: &str = attributes::THREADS.name;
+/// `model`: [`attributes::MODEL`].
+pub const ATTR_MODEL: &str = attributes::MODEL.name;
+/// `refine`: [`attributes::REFINE`].
+pub const ATTR_REFINE: &str = attributes::REFINE.name;
+/// `material`: [`attributes::MATERIAL`].
+pub const ATTR_MATERIAL: &str = attributes::MATERIAL.name;
+/// `tolerance`: [`attributes::TOLERANCE`].
+pub const ATTR_TOLERANCE: &str = attributes::TOLERANCE.name;
+/// `markers`: [`attributes::MARKERS`].
+pub const ATTR_MARKERS: &str = attributes::MARKERS.name;
+/// `optics`: [`attributes::OPTICS`].
+pub const ATTR_OPTICS: &str = attributes::OPTICS.name;
+/// `camera`: [`attributes::CAMERA`].
+pub const ATTR_CAMERA: &str = attributes::CAMERA.name;
+/// `index`: [`attributes::INDEX`].
+pub const ATTR_INDEX: &str = attributes::INDEX.name;
+/// `solver`: [`attributes::SOLVER`].
+pub const ATTR_SOLVER: &str = attributes::SOLVER.name;
+/// `coupling`: [`attributes::COUPLING`].
+pub const ATTR_COUPLING: &str = attributes::COUPLING.name;
+/// `damping`: [`attributes::DAMPING`].
+pub const ATTR_DAMPING: &str = attributes::DAMPING.name;
 
-/// `material`: the gel's constitutive model, `corotated` (fixed corotated, the default) or
-/// `neohookean`; both share the same small-strain response.
-pub const ATTR_MATERIAL: &str = "material";
-
-/// `tolerance`: convergence threshold of the quasi-static MPM solve, the largest
-/// out-of-balance nodal force relative to the load; larger is faster and less exact.
-/// Empty means the mode's default ([`Physics::default_tolerance`]).
-pub const ATTR_TOLERANCE: &str = "tolerance";
-
-/// `markers`: the grid of markers printed on the gel, `NX NY` markers along x and y,
-/// spread evenly over the image's field of view (the `markers` output).
-pub const ATTR_MARKERS: &str = "markers";
-
-/// `optics`: a calibrated optics file of the `rgb` output (`tacrom calibrate`): a JSON
-/// gradient-to-colour table and a background PNG beside it; empty means the built-in
-/// three-light shading. Read only when `rgb` is among the outputs.
-pub const ATTR_OPTICS: &str = "optics";
-/// `camera`: the camera under the gel, `orthographic` (vertical rays, the default) or
-/// `pinhole D`, a pinhole on the gel's axis `D` metres below its bottom face looking up
-/// through the refracting gel (`render::refraction`).
-pub const ATTR_CAMERA: &str = "camera";
-
-/// `index`: the gel's refractive index relative to the medium the camera sits in (1: no
-/// refraction at the gel's bottom face); only a pinhole camera sees it.
-pub const ATTR_INDEX: &str = "index";
-
-/// `solver`: the gel's equilibrium solver, `relaxation` (dynamic relaxation) or `newton`
-/// (energy minimisation by Newton's method: slower, more accurate, contact below the
-/// particle spacing, near-incompressible gels; `mpm::newton`). Unset, the gel's own choice
-/// ([`crate::mpm::Solver::automatic`]: Newton for Poisson's ratios of 0.49 and more on
-/// every grid, relaxation elsewhere, and for `coarse` and `rom` the linear
-/// solver in the frames whose contact the relaxation misses,
-/// [`crate::mpm::SolverOptions::fallback`]); a
-/// reduced-order model uses its recipe's.
-pub const ATTR_SOLVER: &str = "solver";
-
-/// `coupling`: `on` makes the gel push back: the plugin applies the gel's contact force
-/// and torque to each body pressing it and the opposite to the sensor's body, as MuJoCo
-/// passive forces (`off`, the default: the sensor only observes). Needs a gel physics.
-pub const ATTR_COUPLING: &str = "coupling";
-
-/// `damping`: the gel's retardation time (s) in the coupling, a Kelvin-Voigt solid: the
-/// force applied is `F + damping dF/dt`, `F` the gel's elastic contact force. Read with
-/// `coupling="on"`.
-pub const ATTR_DAMPING: &str = "damping";
-
-/// Every attribute the plugin declares to MuJoCo, in table order.
-pub const ATTRIBUTES: &[&str] = &[
-    ATTR_PHYSICS,
-    ATTR_OUTPUTS,
-    ATTR_RESOLUTION,
-    ATTR_FOV,
-    ATTR_SIZE,
-    ATTR_INDENTERS,
-    ATTR_YOUNG,
-    ATTR_POISSON,
-    ATTR_DENSITY,
-    ATTR_FRICTION,
-    ATTR_DX,
-    ATTR_THREADS,
-    ATTR_MODEL,
-    ATTR_REFINE,
-    ATTR_TOLERANCE,
-    ATTR_MATERIAL,
-    ATTR_MARKERS,
-    ATTR_OPTICS,
-    ATTR_CAMERA,
-    ATTR_INDEX,
-    ATTR_COUPLING,
-    ATTR_DAMPING,
-    ATTR_SOLVER,
-];
+/// Every attribute the plugin declares to MuJoCo, in table order ([`attributes::TABLE`]).
+pub const ATTRIBUTES: &[&str] = &attributes::NAMES;
 
 /// The `material` attribute's values.
 pub const MATERIALS: &[(&str, Material)] = &[
@@ -134,17 +81,19 @@ pub fn material_name(material: Material) -> &'static str {
 }
 
 /// Largest image side accepted (pixels).
-pub const MAX_RESOLUTION: usize = 4096;
+pub const MAX_RESOLUTION: usize = attributes::RESOLUTION.valid.integers().1;
 /// The `index` attribute's range: from no refraction (a camera in a medium of the gel's
 /// index) to well past any gel's (silicone in air: about 1.4).
-pub const INDEX_RANGE: [f64; 2] = [1.0, 3.0];
-/// The largest pinhole distance `D` accepted (m), as for the gel's size: `pinhole 20` is a
-/// camera 20 m away, far more likely millimetres written as metres.
-pub const MAX_CAMERA_DISTANCE: f64 = 1.0;
+pub const INDEX_RANGE: [f64; 2] = {
+    let r = attributes::INDEX.valid.range();
+    [r.lo, r.hi]
+};
+/// The largest pinhole distance `D` accepted (m) ([`attributes::CAMERA_DISTANCE`]).
+pub const MAX_CAMERA_DISTANCE: f64 = attributes::CAMERA_DISTANCE.hi;
 /// Most markers along one side of the marker grid.
-pub const MAX_MARKERS: usize = 256;
+pub const MAX_MARKERS: usize = attributes::MARKERS.valid.integers().1;
 /// Largest thread count accepted.
-pub const MAX_THREADS: usize = 256;
+pub const MAX_THREADS: usize = attributes::THREADS.valid.integers().1;
 
 /// How the gel's surface is computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -181,11 +130,9 @@ impl Physics {
     pub fn default_dx(self, t: f64) -> Option<f64> {
         match self {
             Physics::Rigid => None,
-            // ~1e4 particles for the default 30 x 30 x 4 mm gel.
             // rom: the coarse grid its model was trained with (checked against the manifest).
-            Physics::Coarse | Physics::Rom => Some(1.4e-3_f64.min(t / 2.0)),
-            // 100 x 100 x ~13 cells, ~1e6 particles for the default gel.
-            Physics::Fine => Some(0.3e-3_f64.min(t / 4.0)),
+            Physics::Coarse | Physics::Rom => Some(defaults::COARSE_DX.min(t / 2.0)),
+            Physics::Fine => Some(defaults::FINE_DX.min(t / 4.0)),
         }
     }
 
@@ -206,7 +153,7 @@ impl Physics {
     }
 }
 
-pub use crate::sensor::outputs::{Output, Seen};
+pub use crate::sensor::outputs::{Layout, Output, Seen};
 
 /// The text of each attribute, as found in the MJCF; `None` when absent or empty.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -318,39 +265,11 @@ pub struct Config {
     pub solver: Option<Solver>,
 }
 
-/// The defaults (GelSight Mini-like gel, paper's material).
+/// The defaults (GelSight Mini-like gel, paper's material), from the attribute table.
 pub mod defaults {
-    /// Physics mode.
-    pub const PHYSICS: &str = "rom";
-    /// Outputs.
-    pub const OUTPUTS: &str = "depth";
-    /// Image width and height (pixels).
-    pub const RESOLUTION: [usize; 2] = [320, 240];
-    /// Image extent (m).
-    pub const FOV: [f64; 2] = [0.024, 0.018];
-    /// Gel extent (m).
-    pub const SIZE: [f64; 3] = [0.03, 0.03, 0.004];
-    /// Young's modulus (Pa).
-    pub const YOUNG: f64 = 1.19e5;
-    /// Poisson's ratio.
-    pub const POISSON: f64 = 0.43;
-    /// Density (kg/m^3).
-    pub const DENSITY: f64 = 1050.0;
-    /// Friction coefficient.
-    pub const FRICTION: f64 = 0.5;
-    /// Threads.
-    pub const THREADS: usize = 1;
-    /// Markers along x and y: a 9 x 7 grid over the 24 x 18 mm image, about 2.6 mm apart
-    /// (GelSight Mini-like).
-    pub const MARKERS: [usize; 2] = [9, 7];
+    pub use crate::attributes::defaults::*;
     /// The camera: orthographic, the depth straight above each pixel.
     pub const CAMERA: super::Camera = super::Camera::Orthographic;
-    /// Refractive index ratio: none.
-    pub const INDEX: f64 = 1.0;
-    /// Retardation time of the coupling (s): near critical damping for a 20 g object on
-    /// the default gel (stiffness about 600 N/m at 0.4 mm, so `2 / omega` is 12 ms), and
-    /// well inside the stable range `damping k dt / m < 2` at MuJoCo's 2 ms step.
-    pub const DAMPING: f64 = 0.01;
 }
 
 impl Config {
@@ -390,8 +309,20 @@ impl Config {
         }
     }
 
-    /// Validates `raw` for the sensor called `name`.
+    /// Validates `raw` for the sensor called `name`, reading the files it names (the
+    /// `optics` file, when `rgb` is among the outputs).
     pub fn from_raw(name: &str, raw: &RawConfig) -> Result<Config, ConfigError> {
+        Self::parse(name, raw, true)
+    }
+
+    /// Validates `raw` as [`Config::from_raw`] does, without reading the files it names:
+    /// everything the sensordata's size depends on, for MuJoCo's `nsensordata` at compile
+    /// time (the sensor's `init`, which follows, reads them once).
+    pub fn without_files(name: &str, raw: &RawConfig) -> Result<Config, ConfigError> {
+        Self::parse(name, raw, false)
+    }
+
+    fn parse(name: &str, raw: &RawConfig, read_files: bool) -> Result<Config, ConfigError> {
         let p = Parser { name, raw };
 
         let physics = p.physics()?;
@@ -411,38 +342,12 @@ impl Config {
         }
         let [width, height] = p.resolution()?;
         let markers = p.markers()?;
-        let size = p.floats::<3>(ATTR_SIZE, defaults::SIZE, |v| {
-            check_all(
-                v,
-                |x| x > 0.0 && x <= 1.0,
-                "each of Lx Ly T must be in (0, 1] m",
-            )
-        })?;
+        let size = p.ranged::<3>(&attributes::SIZE, defaults::SIZE)?;
         let fov = p.fov(&size)?;
-        let young = p.float(ATTR_YOUNG, defaults::YOUNG, |x| {
-            (1e2..=1e10)
-                .contains(&x)
-                .then_some(())
-                .ok_or("must be in [1e2, 1e10] Pa")
-        })?;
-        let poisson = p.float(ATTR_POISSON, defaults::POISSON, |x| {
-            (0.0..=0.4999)
-                .contains(&x)
-                .then_some(())
-                .ok_or("must be in [0, 0.4999]")
-        })?;
-        let density = p.float(ATTR_DENSITY, defaults::DENSITY, |x| {
-            (1.0..=1e5)
-                .contains(&x)
-                .then_some(())
-                .ok_or("must be in [1, 1e5] kg/m^3")
-        })?;
-        let friction = p.float(ATTR_FRICTION, defaults::FRICTION, |x| {
-            (0.0..=10.0)
-                .contains(&x)
-                .then_some(())
-                .ok_or("must be in [0, 10]")
-        })?;
+        let young = p.ranged::<1>(&attributes::YOUNG, [defaults::YOUNG])?[0];
+        let poisson = p.ranged::<1>(&attributes::POISSON, [defaults::POISSON])?[0];
+        let density = p.ranged::<1>(&attributes::DENSITY, [defaults::DENSITY])?[0];
+        let friction = p.ranged::<1>(&attributes::FRICTION, [defaults::FRICTION])?[0];
         let dx = match raw.get(ATTR_DX) {
             None => physics.default_dx(size[2]),
             Some(_) => {
@@ -450,7 +355,7 @@ impl Config {
                 let dx = p.float(ATTR_DX, 0.0, |x| {
                     (x > 0.0 && x <= t / 2.0)
                         .then_some(())
-                        .ok_or("must be positive and at most half the gel thickness")
+                        .ok_or_else(|| "must be positive and at most half the gel thickness".into())
                 })?;
                 let cells = (size[0] / dx) * (size[1] / dx) * (t / dx);
                 if cells > 2.0e7 {
@@ -460,12 +365,7 @@ impl Config {
             }
         };
         let threads = p.int(ATTR_THREADS, defaults::THREADS, 1, MAX_THREADS)?;
-        let tolerance = p.float(ATTR_TOLERANCE, physics.default_tolerance(), |x| {
-            (1e-6..=0.5)
-                .contains(&x)
-                .then_some(())
-                .ok_or("must be in [1e-6, 0.5]")
-        })?;
+        let tolerance = p.ranged::<1>(&attributes::TOLERANCE, [physics.default_tolerance()])?[0];
         let model = raw
             .get(ATTR_MODEL)
             .map(|v| std::path::PathBuf::from(v.trim()));
@@ -489,7 +389,11 @@ impl Config {
                     )
                 })?,
         };
-        let optics = p.optics(&outputs, width, height)?;
+        let optics = if read_files {
+            p.optics(&outputs, width, height)?
+        } else {
+            None
+        };
         let camera = p.camera()?;
         if let Some(o) = outputs
             .iter()
@@ -505,13 +409,7 @@ impl Config {
                 ),
             ));
         }
-        let [lo, hi] = INDEX_RANGE;
-        let index = p.float(ATTR_INDEX, defaults::INDEX, |x| {
-            (lo..=hi)
-                .contains(&x)
-                .then_some(())
-                .ok_or("must be in [1, 3] (the gel's index over the camera medium's)")
-        })?;
+        let index = p.ranged::<1>(&attributes::INDEX, [defaults::INDEX])?[0];
         let coupling = match raw.get(ATTR_COUPLING).map(str::trim) {
             None | Some("off") => false,
             Some("on") => true,
@@ -524,12 +422,7 @@ impl Config {
                  has no contact force)",
             ));
         }
-        let damping = p.float(ATTR_DAMPING, defaults::DAMPING, |x| {
-            (0.0..=1.0)
-                .contains(&x)
-                .then_some(())
-                .ok_or("must be in [0, 1] seconds")
-        })?;
+        let damping = p.ranged::<1>(&attributes::DAMPING, [defaults::DAMPING])?[0];
         let solver = match raw.get(ATTR_SOLVER).map(str::trim) {
             None => None,
             Some(v) => Some(Solver::named(v).ok_or_else(|| {
@@ -579,26 +472,24 @@ impl Config {
         self.width * self.height
     }
 
+    /// What the outputs' sizes depend on.
+    pub fn layout(&self) -> Layout {
+        Layout {
+            width: self.width,
+            height: self.height,
+            markers: self.markers,
+        }
+    }
+
     /// Total sensordata length: the outputs' lengths added up.
     pub fn sensordata_len(&self) -> usize {
-        self.outputs.iter().map(|o| o.spec().len(self)).sum()
+        let layout = self.layout();
+        self.outputs.iter().map(|o| o.spec().len(&layout)).sum()
     }
 
     /// Whether `output` was asked for.
     pub fn wants(&self, output: Output) -> bool {
         self.outputs.contains(&output)
-    }
-}
-
-fn check_all<const N: usize>(
-    v: &[f64; N],
-    ok: impl Fn(f64) -> bool,
-    reason: &'static str,
-) -> Result<(), &'static str> {
-    if v.iter().all(|&x| ok(x)) {
-        Ok(())
-    } else {
-        Err(reason)
     }
 }
 
@@ -768,7 +659,7 @@ impl Parser<'_> {
         &self,
         attribute: &str,
         default: [f64; N],
-        check: impl Fn(&[f64; N]) -> Result<(), &'static str>,
+        check: impl Fn(&[f64; N]) -> Result<(), String>,
     ) -> Result<[f64; N], ConfigError> {
         let Some(text) = self.raw.get(attribute) else {
             return Ok(default);
@@ -780,11 +671,39 @@ impl Parser<'_> {
         Ok(v)
     }
 
+    /// The `N` numbers of `attribute` (`default` when absent), each checked against the
+    /// attribute's range in the table.
+    fn ranged<const N: usize>(
+        &self,
+        attribute: &Attribute,
+        default: [f64; N],
+    ) -> Result<[f64; N], ConfigError> {
+        let Valid::Range(range) = attribute.valid else {
+            unreachable!("{} has no numeric range", attribute.name)
+        };
+        let unit = if attribute.unit.is_empty() {
+            String::new()
+        } else {
+            format!(" {}", attribute.unit)
+        };
+        let reason = if N == 1 {
+            format!("must be in {range}{unit}")
+        } else {
+            format!("each of its {N} numbers must be in {range}{unit}")
+        };
+        self.floats::<N>(attribute.name, default, |v| {
+            v.iter()
+                .all(|&x| range.contains(x))
+                .then_some(())
+                .ok_or_else(|| reason.clone())
+        })
+    }
+
     fn float(
         &self,
         attribute: &str,
         default: f64,
-        check: impl Fn(f64) -> Result<(), &'static str>,
+        check: impl Fn(f64) -> Result<(), String>,
     ) -> Result<f64, ConfigError> {
         self.floats::<1>(attribute, [default], |v| check(v[0]))
             .map(|v| v[0])
@@ -813,6 +732,38 @@ fn parse_floats(text: &str) -> Option<Vec<f64>> {
     text.split_whitespace()
         .map(|w| w.parse::<f64>().ok().filter(|x| x.is_finite()))
         .collect()
+}
+
+/// The sensordata layout of `config`, as JSON for the Python package: image size and, per
+/// output in sensordata order, its name, offset, shape and unit; the marker grid `[NX, NY]`.
+pub fn layout_json(config: &Config) -> String {
+    let layout = config.layout();
+    let mut offset = 0;
+    let outputs: Vec<serde_json::Value> = config
+        .outputs
+        .iter()
+        .map(|o| {
+            let spec = o.spec();
+            let entry = serde_json::json!({
+                "name": spec.name,
+                "offset": offset,
+                "shape": spec.dims(&layout),
+                "unit": spec.unit,
+            });
+            offset += spec.len(&layout);
+            entry
+        })
+        .collect();
+    serde_json::json!({
+        "sensor": config.name,
+        "physics": config.physics.name(),
+        "width": config.width,
+        "height": config.height,
+        "markers": config.markers,
+        "size": offset,
+        "outputs": outputs,
+    })
+    .to_string()
 }
 
 #[cfg(test)]
@@ -1271,5 +1222,49 @@ mod tests {
             (ATTR_DX, "0.0001"),
         ]);
         assert_eq!(e.attribute, ATTR_DX);
+    }
+
+    #[test]
+    fn the_attribute_table_names_the_values_the_parser_accepts() {
+        let words = |a: &Attribute| match a.valid {
+            Valid::Words { words, .. } => words.to_vec(),
+            _ => panic!("{} lists no words", a.name),
+        };
+        let physics: Vec<_> = Physics::ALL.iter().map(|(n, _)| *n).collect();
+        assert_eq!(words(&attributes::PHYSICS), physics);
+        let outputs: Vec<_> = crate::sensor::outputs::TABLE.iter().map(|o| o.name()).collect();
+        assert_eq!(words(&attributes::OUTPUTS), outputs);
+        let materials: Vec<_> = MATERIALS.iter().map(|(n, _)| *n).collect();
+        assert_eq!(words(&attributes::MATERIAL), materials);
+        let solvers: Vec<_> = Solver::ALL.iter().map(|s| s.name()).collect();
+        assert_eq!(words(&attributes::SOLVER), solvers);
+        // Every default parses, and each numeric one is the value an unset attribute gets.
+        let c = parse(&[]).unwrap();
+        assert_eq!(c.physics.name(), defaults::PHYSICS);
+        assert_eq!(c.young, defaults::YOUNG);
+        assert_eq!(c.size, defaults::SIZE);
+        assert_eq!([c.width, c.height], defaults::RESOLUTION);
+        assert_eq!(crate::mpm::GelParams::default().young, c.young);
+        for a in attributes::TABLE {
+            if let attributes::Default::Depends(_) = a.default {
+                continue;
+            }
+            let written = parse(&[(a.name, &a.default.to_text())])
+                .unwrap_or_else(|e| panic!("{}: default does not parse: {e}", a.name));
+            assert_eq!(written, c, "{}: the written default differs from the unset one", a.name);
+        }
+    }
+
+    #[test]
+    fn a_range_violation_names_the_tables_range() {
+        for (attr, value, range) in [
+            ("young", "50", "[100, 1e10] Pa"),
+            ("poisson", "0.5", "[0, 0.4999]"),
+            ("tolerance", "1", "[1e-6, 0.5]"),
+            ("size", "0.03 0 0.004", "(0, 1] m"),
+        ] {
+            let msg = err(&[(attr, value)]).to_string();
+            assert!(msg.contains(&format!("'{attr}'")) && msg.contains(range), "{msg}");
+        }
     }
 }

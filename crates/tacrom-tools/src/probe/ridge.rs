@@ -1,14 +1,13 @@
 //! Force (N) of a frictionless capsule lying on the default gel, tilted along its axis and
-//! turned about the vertical, pressed 0.05 to 0.3 mm (deepest point): `cargo run --release
-//! --example ridge_probe -- SOLVER DX_MM [RADIUS_MM [YAW_RAD [TILT_RAD]]]` (defaults: radius
+//! turned about the vertical, pressed 0.05 to 0.3 mm (deepest point): `tacrom probe ridge SOLVER DX_MM [RADIUS_MM [YAW_RAD [TILT_RAD]]]` (defaults: radius
 //! 0.5 mm, yaw 0, tilt 0.12; half-length 3 mm). A `*` marks a solve that did not converge.
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::sync::Arc;
 use tacrom::geometry::{Capsule, Placed, Sdf};
 use tacrom::mpm::{Gel, GelParams, Solver, SolverOptions};
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
+/// Runs the probe; `args[0]` is its name, the rest its arguments.
+pub fn run(args: Vec<String>) {
     let arg = |i: usize, default: f64| args.get(i).map_or(default, |v| v.parse().unwrap());
     let solver = args.get(1).cloned().unwrap_or_else(|| "linear".into());
     let (dx, r, yaw, tilt) = (arg(2, 1.4), arg(3, 0.5) * 1e-3, arg(4, 0.0), arg(5, 0.12));

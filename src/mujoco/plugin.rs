@@ -16,9 +16,9 @@ use super::view::{pose, Data, Model};
 use crate::config::{Config, RawConfig, ATTRIBUTES};
 use crate::geometry::Placed;
 use crate::mpm::Wrench;
+use crate::sensor::coupling::{reduced_mass, Coupling, Sample, STABLE_RATIO};
 use crate::sensor::TactileSensor;
 use crate::visual::{self, ArrowStyle, Surface, GEOM_BUDGET};
-use nalgebra::Vector3;
 
 /// The name the shim registers the plugin under.
 const PLUGIN_NAME: &str = "tacrom.tactile";
@@ -47,120 +47,6 @@ struct Instance {
     coupling: Coupling,
     /// Sensordata written by an evaluation that the passive stage had to run itself.
     scratch: Vec<f64>,
-}
-
-/// What the coupling keeps between evaluations for its Kelvin-Voigt damping: the time of
-/// the last evaluation and the step before it, and, per geom, the elastic wrench and the
-/// geom's position (sensor frame) then, and their rates of change. A state evaluated again
-/// at the same time keeps the rates and the step (so the damping and its cap stay as
-/// they were).
-#[derive(Clone, Debug, Default)]
-struct Coupling {
-    time: Option<f64>,
-    step: Option<f64>,
-    last: Vec<Sample>,
-    rates: Vec<Sample>,
-}
-
-/// One geom's elastic wrench and position, or their rates of change.
-#[derive(Clone, Copy, Debug, Default)]
-struct Sample {
-    geom: usize,
-    wrench: Wrench,
-    at: Vector3<f64>,
-}
-
-impl Coupling {
-    /// Records the samples `now` (per geom) at `time` and their rates (`rates`, over the
-    /// `step` between the evaluations): the difference from the last evaluation over the
-    /// time between (a geom missing then had
-    /// no wrench and has no rate); the rates kept when the time has not moved (the same
-    /// state evaluated again); zero after a step back in time.
-    fn update(&mut self, time: f64, now: Vec<Sample>) {
-        let zero = |s: &Sample| Sample {
-            geom: s.geom,
-            ..Sample::default()
-        };
-        let rates = match self.time {
-            Some(t) if time == t => now
-                .iter()
-                .map(|s| {
-                    let kept = self.rates.iter().find(|r| r.geom == s.geom);
-                    kept.copied().unwrap_or_else(|| zero(s))
-                })
-                .collect(),
-            Some(t) if time > t => {
-                let h = time - t;
-                self.step = Some(h);
-                now.iter()
-                    .map(|s| match self.last.iter().find(|b| b.geom == s.geom) {
-                        Some(b) => Sample {
-                            geom: s.geom,
-                            wrench: Wrench {
-                                force: (s.wrench.force - b.wrench.force) / h,
-                                torque: (s.wrench.torque - b.wrench.torque) / h,
-                            },
-                            at: (s.at - b.at) / h,
-                        },
-                        None => Sample {
-                            wrench: Wrench {
-                                force: s.wrench.force / h,
-                                torque: s.wrench.torque / h,
-                            },
-                            ..zero(s)
-                        },
-                    })
-                    .collect()
-            }
-            _ => {
-                self.step = None;
-                now.iter().map(zero).collect()
-            }
-        };
-        self.rates = rates;
-        self.time = Some(time);
-        self.last = now;
-    }
-}
-
-/// Largest `stiffness * timestep^2 / mass` at which the explicit coupling is stable with
-/// a margin: the undamped limit of the integration is 4.
-const STABLE_RATIO: f64 = 2.0;
-
-/// The gel's stiffness along the motion seen in `rate` over a step `h` (N/m): the rate of
-/// the elastic force along the relative velocity over the speed, once the body moves by
-/// more than [`MOVED`] per step (below that the solver's tolerance dominates the change).
-fn stiffness(rate: &Sample, h: f64) -> Option<f64> {
-    let speed = rate.at.norm();
-    (speed * h > MOVED).then(|| (-rate.wrench.force.dot(&rate.at) / (speed * speed)).abs())
-}
-
-/// Motion per step (m) beyond which the coupling estimates the gel's stiffness.
-const MOVED: f64 = 1e-6;
-
-/// The wrench the coupling applies for elastic wrench `w` changing at `rate.wrench`, with
-/// retardation time `tau` (Kelvin-Voigt: `w + tau dw/dt`). The damping part is scaled
-/// down where it would make the gel pull the body towards it (a gel pushes only), and
-/// where it exceeds `mass * |v| / h`, the force that stops the relative velocity
-/// `v = rate.at` of the bodies (reduced mass `mass`) within the step `h`: an explicit
-/// damper stronger than that overshoots and grows (measured: a 2 g ball with 10 ms
-/// blows up at 2 ms steps without this cap).
-fn kelvin_voigt(w: &Wrench, rate: &Sample, tau: f64, mass: f64, h: Option<f64>) -> Wrench {
-    let (df, dt) = (rate.wrench.force * tau, rate.wrench.torque * tau);
-    let mut s = 1.0f64;
-    if w.force.z + df.z < 0.0 && df.z < 0.0 {
-        s = s.min((w.force.z.max(0.0) / -df.z).clamp(0.0, 1.0));
-    }
-    if let Some(h) = h {
-        let stop = mass * rate.at.norm() / h;
-        if df.norm() > stop {
-            s = s.min(stop / df.norm());
-        }
-    }
-    Wrench {
-        force: w.force + df * s,
-        torque: w.torque + dt * s,
-    }
 }
 
 impl Instance {
@@ -243,8 +129,20 @@ fn write_msg(msg: *mut c_char, len: c_int, text: &str) {
     }
 }
 
-/// Parses and validates the configuration of plugin `instance`, serving `sensor_id`.
+/// Parses and validates the configuration of plugin `instance`, serving `sensor_id`,
+/// reading the files it names.
 fn config_of(m: Model<'_>, instance: c_int, sensor_id: usize) -> Result<Config, String> {
+    config_with(m, instance, sensor_id, Config::from_raw)
+}
+
+/// The configuration of plugin `instance` through `parse` ([`Config::from_raw`], or
+/// [`Config::without_files`] where only the sensordata's size is wanted).
+fn config_with(
+    m: Model<'_>,
+    instance: c_int,
+    sensor_id: usize,
+    parse: fn(&str, &RawConfig) -> Result<Config, crate::config::ConfigError>,
+) -> Result<Config, String> {
     let name = m.sensor_name(sensor_id);
     let name = if name.is_empty() {
         format!("#{sensor_id}")
@@ -252,7 +150,7 @@ fn config_of(m: Model<'_>, instance: c_int, sensor_id: usize) -> Result<Config, 
         name.to_owned()
     };
     let raw = RawConfig::collect(|a| m.plugin_config(instance, a));
-    Config::from_raw(&name, &raw).map_err(|e| e.to_string())
+    parse(&name, &raw).map_err(|e| e.to_string())
 }
 
 /// The site the sensor is attached to, validated.
@@ -328,7 +226,8 @@ pub unsafe extern "C" fn tacrom_nsensordata(
         // SAFETY: MuJoCo passes a valid model.
         let m = Model(unsafe { m.as_ref() }.ok_or("null model")?);
         let sensor_id = usize::try_from(sensor_id).map_err(|_| "bad sensor id")?;
-        let config = config_of(m, instance, sensor_id)?;
+        // The files the configuration names are read once, by `init`.
+        let config = config_with(m, instance, sensor_id, Config::without_files)?;
         n = c_int::try_from(config.sensordata_len()).map_err(|_| "sensordata too large")?;
         Ok(None)
     });
@@ -614,59 +513,40 @@ pub unsafe extern "C" fn tacrom_passive(
                 at: p.pose.translation.vector,
             })
             .collect();
-        let tau = inst.sensor.config().damping;
-        inst.coupling.update(time, samples);
-        let (samples, rates, h) = (
-            &inst.coupling.last,
-            &inst.coupling.rates,
-            inst.coupling.step,
-        );
         let bodies = m.geom_bodyid();
         let sensor_body = m.site_bodyid()[s];
-        let welded = |b: i32| m.body_weldid().get(b as usize).map_or(true, |&w| w == 0);
         let mass = |b: i32| {
-            if welded(b) {
-                f64::INFINITY
-            } else {
-                m.body_mass()
-                    .get(b as usize)
-                    .copied()
-                    .unwrap_or(f64::INFINITY)
-            }
+            let welded = m.body_weldid().get(b as usize).map_or(true, |&w| w == 0);
+            let mass = m.body_mass().get(b as usize).copied();
+            mass.filter(|_| !welded).unwrap_or(f64::INFINITY)
         };
+        let reduced = |geom: usize| reduced_mass(mass(bodies[geom]), mass(sensor_body));
+        let tau = inst.sensor.config().damping;
+        let pushes = inst.coupling.push(time, samples, tau, reduced);
         let point = site.translation.vector;
-        for (sample, rate) in samples.iter().zip(rates.iter()) {
-            let body = bodies[sample.geom];
-            let (m1, m2) = (mass(body), mass(sensor_body));
-            let reduced = if m1.is_infinite() {
-                m2
-            } else if m2.is_infinite() {
-                m1
-            } else {
-                m1 * m2 / (m1 + m2)
-            };
-            let k = h.and_then(|h| stiffness(rate, h).map(|k| (h, k)));
-            if let (Some((h, w)), true) = (k, reduced.is_finite()) {
-                let ratio = w * h * h / reduced;
-                if ratio > STABLE_RATIO {
-                    warnings.push(format!(
-                        "tacrom.tactile sensor '{}': the coupling may be unstable: the gel's \
-                         stiffness on body '{}' is about {w:.3e} N/m, and stiffness * \
-                         timestep^2 / mass = {ratio:.2} exceeds {STABLE_RATIO} (timestep \
-                         {h:.3e} s, mass {reduced:.3e} kg); use a smaller timestep or a \
-                         heavier body",
-                        inst.sensor.config().name,
-                        m.body_name(body as usize),
-                    ));
-                }
+        for push in pushes {
+            let body = bodies[push.geom];
+            if let Some(i) = push.unstable {
+                warnings.push(format!(
+                    "tacrom.tactile sensor '{}': the coupling may be unstable: the gel's \
+                     stiffness on body '{}' is about {:.3e} N/m, and stiffness * \
+                     timestep^2 / mass = {:.2} exceeds {STABLE_RATIO} (timestep \
+                     {:.3e} s, mass {:.3e} kg); use a smaller timestep or a \
+                     heavier body",
+                    inst.sensor.config().name,
+                    m.body_name(body as usize),
+                    i.stiffness,
+                    i.ratio,
+                    i.step,
+                    i.mass,
+                ));
             }
-            let applied = kelvin_voigt(&sample.wrench, rate, tau, reduced, h);
-            if applied == Wrench::default() {
+            if push.wrench == Wrench::default() {
                 continue;
             }
             let (f, t) = (
-                site.rotation * applied.force,
-                site.rotation * applied.torque,
+                site.rotation * push.wrench.force,
+                site.rotation * push.wrench.torque,
             );
             if !(f.iter().chain(t.iter()).all(|v| v.is_finite())) {
                 continue;
@@ -815,8 +695,8 @@ pub unsafe extern "C" fn tacrom_sensor_outputs(
                 "sensor {sensor_id} is a '{plugin}' sensor, not {PLUGIN_NAME}"
             ));
         }
-        let config = config_of(m, instance, sid)?;
-        let json = crate::sensor::outputs::layout_json(&config);
+        let config = config_with(m, instance, sid, Config::without_files)?;
+        let json = crate::config::layout_json(&config);
         size = c_int::try_from(json.len()).map_err(|_| "layout too large")?;
         if json.len() < usize::try_from(len).unwrap_or(0) {
             write_msg(buf, len, &json);
@@ -838,11 +718,24 @@ pub unsafe extern "C" fn tacrom_sensor_outputs(
 /// `buf` must hold `len` bytes.
 #[no_mangle]
 pub unsafe extern "C" fn tacrom_output_table(buf: *mut c_char, len: c_int) -> c_int {
-    guarded(ERROR, || {
-        let json = crate::sensor::outputs::table_json();
-        if json.len() < usize::try_from(len).unwrap_or(0) {
-            write_msg(buf, len, &json);
-        }
-        c_int::try_from(json.len()).unwrap_or(ERROR)
-    })
+    guarded(ERROR, || json_into(buf, len, &crate::sensor::outputs::table_json()))
+}
+
+/// The attribute table as JSON (see [`crate::attributes::table_json`]), written as
+/// [`tacrom_output_table`] writes the output table.
+///
+/// # Safety
+/// `buf` must hold `len` bytes.
+#[no_mangle]
+pub unsafe extern "C" fn tacrom_attribute_table(buf: *mut c_char, len: c_int) -> c_int {
+    guarded(ERROR, || json_into(buf, len, &crate::attributes::table_json()))
+}
+
+/// Writes `json` NUL-terminated into `buf` when it fits in `len` bytes; returns its
+/// length without the NUL.
+fn json_into(buf: *mut c_char, len: c_int, json: &str) -> c_int {
+    if json.len() < usize::try_from(len).unwrap_or(0) {
+        write_msg(buf, len, json);
+    }
+    c_int::try_from(json.len()).unwrap_or(ERROR)
 }

@@ -71,7 +71,7 @@ impl Run {
         let c = self.sensor.config();
         let mut at = 0;
         for o in &c.outputs {
-            let n = o.spec().len(c);
+            let n = o.spec().len(&c.layout());
             if o.name() == name {
                 return &self.out[at..at + n];
             }

@@ -1,0 +1,64 @@
+//! Developer probes: small measurements of one solver question each, run as
+//! `tacrom probe NAME [ARGS...]` (`cargo run --release --bin tacrom -- probe ...`). Each
+//! module's doc gives its arguments; each prints a table to standard output. They use
+//! the plugin's public API only, and their numbers are quoted in `docs/solvers.md`.
+
+pub mod deep;
+pub mod fine_press;
+pub mod image_time;
+pub mod mesh_press;
+pub mod newton_profile;
+pub mod overshoot;
+pub mod poisson;
+pub mod ridge;
+pub mod rom_profile;
+pub mod small;
+
+/// A probe: its name and its entry point (`args[0]` is the name).
+type Probe = (&'static str, fn(Vec<String>));
+
+const PROBES: &[Probe] = &[
+    ("deep", deep::run),
+    ("fine_press", fine_press::run),
+    ("image_time", image_time::run),
+    ("mesh_press", mesh_press::run),
+    ("newton_profile", newton_profile::run),
+    ("overshoot", overshoot::run),
+    ("poisson", poisson::run),
+    ("ridge", ridge::run),
+    ("rom_profile", rom_profile::run),
+    ("small", small::run),
+];
+
+/// The probes' names, for the command line.
+pub const NAMES: [&str; 10] = [
+    "deep",
+    "fine_press",
+    "image_time",
+    "mesh_press",
+    "newton_profile",
+    "overshoot",
+    "poisson",
+    "ridge",
+    "rom_profile",
+    "small",
+];
+
+/// Runs the probe `name` with `args` (its own arguments, without the name).
+pub fn run(name: &str, args: Vec<String>) {
+    let probe = PROBES
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, f)| *f)
+        .unwrap_or_else(|| panic!("unknown probe '{name}'"));
+    probe(std::iter::once(name.to_owned()).chain(args).collect());
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn every_probe_is_named_once() {
+        let names: Vec<_> = super::PROBES.iter().map(|(n, _)| *n).collect();
+        assert_eq!(names, super::NAMES);
+    }
+}

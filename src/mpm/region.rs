@@ -21,7 +21,7 @@
 use nalgebra::{Isometry3, Point3};
 
 use super::indenters::Sweep;
-use super::surface::DEPTH_EPS;
+use super::surface::{add_to_box, non_empty, DEPTH_EPS, EMPTY_BOX};
 use super::transfer::Region;
 use super::Gel;
 use crate::geometry::{Aabb, Placed};
@@ -30,24 +30,6 @@ use crate::geometry::{Aabb, Placed};
 /// which a slot counts as deformed: the active region always covers the deformed slots,
 /// so that where an indenter was, the gel relaxes.
 const DEFORMED: f64 = 1e-2;
-
-/// A lattice box `[ix0, ix1, iy0, iy1)` that holds nothing yet.
-pub(super) const EMPTY_BOX: [usize; 4] = [usize::MAX, 0, usize::MAX, 0];
-
-/// Widens the lattice box `b` to hold slot `(ix, iy)`.
-pub(super) fn add_to_box(b: &mut [usize; 4], ix: usize, iy: usize) {
-    *b = [
-        b[0].min(ix),
-        b[1].max(ix + 1),
-        b[2].min(iy),
-        b[3].max(iy + 1),
-    ];
-}
-
-/// `b`, or `None` if it is still [`EMPTY_BOX`].
-pub(super) fn non_empty(b: [usize; 4]) -> Option<[usize; 4]> {
-    (b[0] != usize::MAX).then_some(b)
-}
 
 /// An indenter's poses at the start and end of the sweep, and the bounds of both,
 /// inflated by the reach.

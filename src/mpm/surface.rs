@@ -17,9 +17,26 @@
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::region::{add_to_box, non_empty, EMPTY_BOX};
 use super::Gel;
 use crate::geometry::PixelGrid;
+
+/// A lattice box `[ix0, ix1, iy0, iy1)` that holds nothing yet.
+pub(super) const EMPTY_BOX: [usize; 4] = [usize::MAX, 0, usize::MAX, 0];
+
+/// Widens the lattice box `b` to hold slot `(ix, iy)`.
+pub(super) fn add_to_box(b: &mut [usize; 4], ix: usize, iy: usize) {
+    *b = [
+        b[0].min(ix),
+        b[1].max(ix + 1),
+        b[2].min(iy),
+        b[3].max(iy + 1),
+    ];
+}
+
+/// `b`, or `None` if it is still [`EMPTY_BOX`].
+pub(super) fn non_empty(b: [usize; 4]) -> Option<[usize; 4]> {
+    (b[0] != usize::MAX).then_some(b)
+}
 
 /// Surface displacements below this (m) count as "no deformation".
 pub(super) const DEPTH_EPS: f64 = 1e-9;

@@ -55,7 +55,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::rgb::{CHANNELS, FULL_SCALE};
+use super::{CHANNELS, FULL_SCALE};
 
 /// The `format` value of an optics file.
 pub const FORMAT: &str = "tacrom.optics";

@@ -17,6 +17,13 @@ pub mod markers;
 pub mod refraction;
 pub mod rgb;
 
+/// Values per pixel of a colour image (`rgb` and the calibrated optics): red, green,
+/// blue.
+pub const CHANNELS: usize = 3;
+
+/// The top of the scale of a colour image's values (8-bit: 0 black, 255 full scale).
+pub const FULL_SCALE: f64 = 255.0;
+
 /// The contact problem's bounds on the surface indentation of a gel of thickness `T`
 /// pressed by a set of indenters, and the rule that applies them.
 ///

@@ -43,11 +43,7 @@ use nalgebra::Vector3;
 use super::calibrated::CalibratedOptics;
 use crate::geometry::PixelGrid;
 
-/// Values per pixel of the image: red, green, blue.
-pub const CHANNELS: usize = 3;
-
-/// The top of the scale of the image's values (8-bit: 0 black, 255 full scale).
-pub const FULL_SCALE: f64 = 255.0;
+pub use super::{CHANNELS, FULL_SCALE};
 
 /// A light of the sensor: where it shines from and its colour.
 #[derive(Clone, Copy, Debug, PartialEq)]

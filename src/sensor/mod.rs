@@ -97,26 +97,74 @@ pub struct TactileSensor {
     zmin: Vec<f64>,
     /// Rigid penetration per pixel (m).
     penetration: Vec<f64>,
-    depth: Vec<f64>,
-    /// Normal contact pressure (Pa); empty when no configured output needs it.
-    pressure: Vec<f64>,
-    force: Vector3<f64>,
-    /// In-plane surface displacement per pixel (H x W x 2, m), when an output needs it.
-    shear: Vec<f64>,
-    /// The markers, when an output needs them.
-    markers: Markers,
+    /// What the last evaluation computed for the outputs.
+    fields: Fields,
     /// The `rgb` output's optical model.
     optics: RgbModel,
     /// The pinhole camera's rays (`None`: orthographic, or no output needs an image).
     refraction: Option<Refraction>,
+    /// An image written on the orthographic grid before it is resampled for the pinhole
+    /// camera (empty unless an output needs it).
+    scratch: Vec<f64>,
+}
+
+/// What an evaluation computes for the outputs, one buffer per physical quantity. Each is
+/// sized at load for what the configured outputs need (empty otherwise); all of them are
+/// copied with the sensor, and cleared together ([`Fields::flatten`]) when the gel is
+/// reset and in a frame without contact. A new physical output adds its buffer here, its
+/// line in [`Fields::new`] and [`Fields::flatten`], and its field of the writers'
+/// [`Frame`].
+#[derive(Clone, Debug)]
+struct Fields {
+    /// The surface's depth straight above each pixel (m), when an output needs it.
+    depth: Vec<f64>,
     /// The depth image the pinhole camera sees (m); empty for the orthographic camera.
     seen_depth: Vec<f64>,
     /// Whether the last evaluation's surface was deformed, so that the pinhole's images
     /// differ from the orthographic ones (false: flat, every camera sees alike).
     bent: bool,
-    /// An image written on the orthographic grid before it is resampled for the pinhole
-    /// camera (empty unless an output needs it).
-    scratch: Vec<f64>,
+    /// Normal contact pressure (Pa), when an output needs it.
+    pressure: Vec<f64>,
+    /// The gel's force on the indenters (N, sensor frame); zero unless an output needs it.
+    force: Vector3<f64>,
+    /// In-plane surface displacement per pixel (H x W x 2, m), when an output needs it.
+    shear: Vec<f64>,
+    /// The markers, when an output needs them.
+    markers: Markers,
+}
+
+impl Fields {
+    /// The flat gel's fields for outputs that need `needs`, on `grid`; `seen` when a
+    /// pinhole camera sees the depth through the gel.
+    fn new(needs: Needs, grid: &PixelGrid, markers: [usize; 2], seen: bool) -> Self {
+        let pixels = grid.width * grid.height;
+        let sized = |wanted: bool, len: usize| if wanted { vec![0.0; len] } else { Vec::new() };
+        Self {
+            depth: sized(needs.depth, pixels),
+            seen_depth: sized(seen, pixels),
+            bent: false,
+            pressure: sized(needs.pressure, pixels),
+            force: Vector3::zeros(),
+            shear: sized(needs.shear, 2 * pixels),
+            markers: if needs.markers {
+                Markers::new(markers, grid)
+            } else {
+                Markers::default()
+            },
+        }
+    }
+
+    /// Back to the flat gel's values: no depth, pressure, force or shear, the markers at
+    /// rest.
+    fn flatten(&mut self) {
+        self.depth.fill(0.0);
+        self.seen_depth.fill(0.0);
+        self.bent = false;
+        self.pressure.fill(0.0);
+        self.force = Vector3::zeros();
+        self.shear.fill(0.0);
+        self.markers.settle();
+    }
 }
 
 impl TactileSensor {
@@ -161,23 +209,7 @@ impl TactileSensor {
             Some(_) => resampled.into_iter().max().unwrap_or(0),
             None => 0,
         };
-        let image = |v: f64| {
-            if needs.depth {
-                vec![v; pixels]
-            } else {
-                Vec::new()
-            }
-        };
-        let shear = if needs.shear {
-            vec![0.0; 2 * pixels]
-        } else {
-            Vec::new()
-        };
-        let markers = if needs.markers {
-            Markers::new(config.markers, &grid)
-        } else {
-            Markers::default()
-        };
+        let fields = Fields::new(needs, &grid, config.markers, refraction.is_some());
         let optics = match &config.optics {
             Some(calibrated) => RgbModel::Calibrated(Arc::clone(calibrated)),
             None => RgbModel::default(),
@@ -187,23 +219,14 @@ impl TactileSensor {
             model,
             needs,
             zmin: vec![f64::INFINITY; pixels],
-            penetration: image(0.0),
-            depth: image(0.0),
-            pressure: if needs.pressure {
+            penetration: if needs.depth {
                 vec![0.0; pixels]
             } else {
                 Vec::new()
             },
-            force: Vector3::zeros(),
-            shear,
-            markers,
+            fields,
             optics,
-            seen_depth: match refraction {
-                Some(_) => vec![0.0; pixels],
-                None => Vec::new(),
-            },
             refraction,
-            bent: false,
             scratch: vec![0.0; scratch_len],
             config,
         })
@@ -219,15 +242,9 @@ impl TactileSensor {
             needs: self.needs,
             zmin: self.zmin.clone(),
             penetration: self.penetration.clone(),
-            depth: self.depth.clone(),
-            pressure: self.pressure.clone(),
-            force: self.force,
-            shear: self.shear.clone(),
-            markers: self.markers.clone(),
+            fields: self.fields.clone(),
             optics: self.optics.clone(),
             refraction: self.refraction.clone(),
-            seen_depth: self.seen_depth.clone(),
-            bent: self.bent,
             scratch: self.scratch.clone(),
         })
     }
@@ -246,9 +263,9 @@ impl TactileSensor {
     /// the `depth` output); empty when no configured output needs it.
     pub fn depth(&self) -> &[f64] {
         if self.refraction.is_some() {
-            &self.seen_depth
+            &self.fields.seen_depth
         } else {
-            &self.depth
+            &self.fields.depth
         }
     }
 
@@ -256,24 +273,24 @@ impl TactileSensor {
     /// (H x W, row-major, m): the orthographic image, whatever the camera; empty when no
     /// configured output needs it.
     pub fn surface_depth(&self) -> &[f64] {
-        &self.depth
+        &self.fields.depth
     }
 
     /// The force of the last evaluation (N, sensor frame); zero when not asked for.
     pub fn force(&self) -> Vector3<f64> {
-        self.force
+        self.fields.force
     }
 
     /// The shear image of the last evaluation (H x W x 2, row-major, m); empty when no
     /// configured output needs it.
     pub fn shear(&self) -> &[f64] {
-        &self.shear
+        &self.fields.shear
     }
 
     /// The markers and their displacements after the last evaluation; none when no
     /// configured output needs them.
     pub fn markers(&self) -> &Markers {
-        &self.markers
+        &self.fields.markers
     }
 
     /// The force and torque (about the sensor origin; sensor frame) of the gel on each of
@@ -286,13 +303,7 @@ impl TactileSensor {
     /// Back to the undeformed gel.
     pub fn reset(&mut self) {
         self.model.reset();
-        self.depth.fill(0.0);
-        self.seen_depth.fill(0.0);
-        self.bent = false;
-        self.pressure.fill(0.0);
-        self.force = Vector3::zeros();
-        self.shear.fill(0.0);
-        self.markers.settle();
+        self.fields.flatten();
     }
 
     /// The gel's bounding box in the sensor frame.
@@ -320,14 +331,8 @@ impl TactileSensor {
         if !eval.contact && self.model.at_rest() {
             // No contact and a flat gel: the outputs of the flat surface, nothing else
             // (every camera sees it alike).
-            self.depth.fill(0.0);
-            self.seen_depth.fill(0.0);
-            self.bent = false;
-            self.pressure.fill(0.0);
+            self.fields.flatten();
             self.zmin.fill(f64::INFINITY);
-            self.force = Vector3::zeros();
-            self.shear.fill(0.0);
-            self.markers.settle();
             eval.times.geometry = t0.elapsed().as_secs_f64();
             let t1 = Instant::now();
             self.write_outputs(out);
@@ -352,14 +357,14 @@ impl TactileSensor {
         if self.needs.depth {
             if self.needs.shear {
                 self.model
-                    .depth_and_shear(&scene, &mut self.depth, &mut self.shear, &mut eval);
+                    .depth_and_shear(&scene, &mut self.fields.depth, &mut self.fields.shear, &mut eval);
             } else {
-                self.model.depth(&scene, &mut self.depth, &mut eval);
+                self.model.depth(&scene, &mut self.fields.depth, &mut eval);
             }
             for (p, &z) in self.penetration.iter_mut().zip(scene.zmin) {
                 *p = scene.rule.penetration(z);
             }
-            let excess = scene.rule.apply(&mut self.depth, &self.penetration);
+            let excess = scene.rule.apply(&mut self.fields.depth, &self.penetration);
             eval.bound_excess = eval.bound_excess.max(excess);
         }
         let force = if self.needs.force {
@@ -367,30 +372,30 @@ impl TactileSensor {
         } else {
             Vector3::zeros()
         };
-        self.force = if force.iter().all(|f| f.is_finite()) {
+        self.fields.force = if force.iter().all(|f| f.is_finite()) {
             force
         } else {
             Vector3::zeros()
         };
         if self.needs.pressure {
-            self.model.pressure(&self.grid, &mut self.pressure);
-            if !self.pressure.iter().all(|v| v.is_finite()) {
-                self.pressure.fill(0.0);
+            self.model.pressure(&self.grid, &mut self.fields.pressure);
+            if !self.fields.pressure.iter().all(|v| v.is_finite()) {
+                self.fields.pressure.fill(0.0);
             }
         }
         if self.needs.shear && !self.needs.depth {
-            self.model.shear(scene.grid, &mut self.shear);
+            self.model.shear(scene.grid, &mut self.fields.shear);
         }
         if self.needs.markers {
             let model = &self.model;
-            self.markers.update(|x| model.displacement(x));
+            self.fields.markers.update(|x| model.displacement(x));
         }
         let t2 = Instant::now();
         eval.times.physics = (t2 - t1).as_secs_f64();
         // The pinhole's rays through the bounded surface: each depth is the bilinear value
         // of bounded pixels, so it keeps the rule's bounds (within [0, reach]).
         if let Some(refraction) = &mut self.refraction {
-            self.bent = refraction.refract(&self.depth, &mut self.seen_depth);
+            self.fields.bent = refraction.refract(&self.fields.depth, &mut self.fields.seen_depth);
         }
         self.write_outputs(out);
         eval.times.render = t2.elapsed().as_secs_f64();
@@ -400,20 +405,20 @@ impl TactileSensor {
     fn write_outputs(&mut self, out: &mut [f64]) {
         let frame = Frame {
             depth: if self.refraction.is_some() {
-                &self.seen_depth
+                &self.fields.seen_depth
             } else {
-                &self.depth
+                &self.fields.depth
             },
-            surface: &self.depth,
+            surface: &self.fields.depth,
             zmin: &self.zmin,
-            force: self.force,
-            pressure: &self.pressure,
+            force: self.fields.force,
+            pressure: &self.fields.pressure,
             grid: &self.grid,
-            shear: &self.shear,
-            markers: &self.markers,
+            shear: &self.fields.shear,
+            markers: &self.fields.markers,
             optics: &self.optics,
         };
-        let view = self.refraction.as_ref().filter(|_| self.bent);
+        let view = self.refraction.as_ref().filter(|_| self.fields.bent);
         let mut at = 0;
         for o in &self.config.outputs {
             let spec = o.spec();

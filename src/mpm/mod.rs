@@ -76,6 +76,7 @@
 mod contact;
 pub mod hertz;
 mod indenters;
+mod linear;
 mod material;
 mod newton;
 mod params;
@@ -401,7 +402,7 @@ pub struct Gel {
     /// [`contact::multiplier_gain`]'s (see [`Gel::iterate`]).
     gain_scale: f32,
     /// The linear solver's factorisation and surface compliance ([`Solver::Linear`]).
-    linear: Option<Box<newton::linear::Compliance>>,
+    linear: Option<Box<linear::Compliance>>,
 }
 
 impl std::fmt::Debug for Gel {
@@ -495,7 +496,7 @@ impl Gel {
         let s = self.layout.spacing[0].max(self.layout.spacing[1]);
         match solver {
             Solver::Newton => s / newton::CONTACT_SUBDIVISION as f64,
-            Solver::Linear => s / newton::linear::SUBDIVISION as f64,
+            Solver::Linear => s / linear::SUBDIVISION as f64,
             Solver::Relaxation | Solver::Total => s,
         }
     }

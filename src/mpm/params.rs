@@ -206,7 +206,7 @@ pub enum Solver {
     /// the path.
     Total,
     /// Linear elasticity about the undeformed gel with contact and Coulomb friction,
-    /// solved on a surface compliance kept per node column (`mpm/newton/linear.rs`): a
+    /// solved on a surface compliance kept per node column (`mpm/linear.rs`): a
     /// frame costs no pass over the particles.
     Linear,
 }

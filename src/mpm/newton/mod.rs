@@ -118,13 +118,12 @@
 //! compliance as after; bodies pressed less than their radius are not affected.
 
 mod energy;
-pub(super) mod linear;
 mod multigrid;
 mod slabs;
-mod subgrid;
-mod system;
+pub(super) mod subgrid;
+pub(super) mod system;
 #[cfg(test)]
-mod tests;
+pub(in crate::mpm) mod tests;
 
 use std::collections::BTreeMap;
 
@@ -253,14 +252,14 @@ const REFACTOR_COARSE_ABOVE: usize = 12;
 
 /// Quadratic B-spline weights and derivatives along each axis at a point (cells).
 #[derive(Clone, Copy, Debug)]
-struct Stencil {
-    base: [i32; 3],
-    w: [[f64; 3]; 3],
+pub(super) struct Stencil {
+    pub(in crate::mpm) base: [i32; 3],
+    pub(in crate::mpm) w: [[f64; 3]; 3],
     dw: [[f64; 3]; 3],
 }
 
 impl Stencil {
-    fn at(x: &Vector3<f64>) -> Stencil {
+    pub(in crate::mpm) fn at(x: &Vector3<f64>) -> Stencil {
         let mut s = Stencil {
             base: [0; 3],
             w: [[0.0; 3]; 3],
@@ -386,14 +385,14 @@ struct ContactTerm {
 
 /// A stick anchor: the indenter and the anchor point in its frame (m).
 #[derive(Clone, Copy, Debug)]
-struct Anchor {
-    indenter: usize,
-    local: Point3<f64>,
+pub(super) struct Anchor {
+    pub(in crate::mpm) indenter: usize,
+    pub(in crate::mpm) local: Point3<f64>,
 }
 
 /// Renumbers the indenters of `anchors` (`matched[i]`: previous index of indenter `i`);
 /// anchors of indenters that are gone are dropped.
-fn remap_anchors(anchors: &mut BTreeMap<u32, Anchor>, matched: &[Option<usize>]) {
+pub(super) fn remap_anchors(anchors: &mut BTreeMap<u32, Anchor>, matched: &[Option<usize>]) {
     let new_index: BTreeMap<usize, usize> = matched
         .iter()
         .enumerate()
@@ -423,11 +422,11 @@ struct Touch {
 /// The Newton solver's state for one gel.
 #[derive(Clone)]
 pub(crate) struct Newton {
-    dims: [usize; 3],
-    dx: f64,
-    origin: Vector3<f64>,
+    pub(in crate::mpm) dims: [usize; 3],
+    pub(in crate::mpm) dx: f64,
+    pub(in crate::mpm) origin: Vector3<f64>,
     /// Free index of each grid node (`u32::MAX`: fixed).
-    dof: Vec<u32>,
+    pub(in crate::mpm) dof: Vec<u32>,
     /// Grid index of each free node.
     free_nodes: Vec<u32>,
     points: Vec<QPoint>,
@@ -450,11 +449,11 @@ pub(crate) struct Newton {
     /// The contact points with a stiffness at the last evaluation.
     contact_stiffness: Vec<ContactStiffness>,
     /// The stiffness system of the current region, and those of recent regions.
-    system: Option<System>,
+    pub(in crate::mpm) system: Option<System>,
     systems: Vec<([usize; 4], System)>,
     /// How the linear systems are solved, and with [`Linear::Multigrid`] the two-grid
     /// preconditioner of the current region and of recent ones.
-    linear: Linear,
+    pub(in crate::mpm) linear: Linear,
     two_grid: Option<TwoGrid>,
     two_grids: Vec<([usize; 4], TwoGrid)>,
     /// Active margin (cells) around the contact, see [`super::SolverOptions::active_margin`],
@@ -513,14 +512,14 @@ pub(crate) struct Newton {
     last_change: Vec<f64>,
     last_motion: Vec<Vector3<f64>>,
     /// Plane-strain modulus `E* = 2 mu / (1 - nu)` (internal units).
-    e_star: f64,
+    pub(in crate::mpm) e_star: f64,
     /// Contact penalty stiffness (internal units: `M` per cell of penetration; see
     /// [`PENETRATION`]).
     penalty: f64,
     /// The gel's thickness (cells) and the first-order stiffening of a bonded layer of its
     /// Poisson's ratio ([`super::hertz::bonded_layer_slope`]).
-    thickness: f64,
-    layer_slope: f64,
+    pub(in crate::mpm) thickness: f64,
+    pub(in crate::mpm) layer_slope: f64,
     /// Per indenter of the current substep: the depth (cells) up to which a softened
     /// contact point's spring acts ([`Self::normal_penalty`]).
     soft_depth: Vec<f64>,
@@ -858,7 +857,7 @@ impl Newton {
     /// Makes `bx` the region the next minimisations move: its node numbering, its
     /// quadrature points and its stiffness system (built, or kept from a recent solve
     /// over the same box).
-    fn set_region(&mut self, bx: [usize; 4]) -> Result<(), String> {
+    pub(in crate::mpm) fn set_region(&mut self, bx: [usize; 4]) -> Result<(), String> {
         if self.region == Some(bx) && (self.system.is_some() || self.two_grid.is_some()) {
             return Ok(());
         }
@@ -1266,7 +1265,7 @@ impl Newton {
     /// point's stress and tangent and each contact point's stiffness for the Hessian
     /// ([`Self::hessian_product`], [`Self::fill_matrix`]); also the smallest and largest
     /// `det F`. `None` where the material is not defined.
-    fn evaluate(&mut self, indenters: &[StepIndenter]) -> Option<(f64, f64, f64)> {
+    pub(in crate::mpm) fn evaluate(&mut self, indenters: &[StepIndenter]) -> Option<(f64, f64, f64)> {
         self.grad.fill(0.0);
         let (points, densities, u) = (&self.points, &self.densities, &self.u);
         self.states
@@ -1400,7 +1399,7 @@ impl Newton {
     }
 
     /// Assembles the Hessian of the last evaluation into `system`.
-    fn fill_matrix(&self, system: &mut System) {
+    pub(in crate::mpm) fn fill_matrix(&self, system: &mut System) {
         system.clear();
         for ((state, &i), local) in self
             .states
@@ -2063,7 +2062,7 @@ fn add_forces(
 
 /// A contact lattice `subdivision` times finer than the top particles along each axis:
 /// its counts, spacing (cells) and first point (cells, in-plane).
-fn contact_lattice(gel: &Gel, subdivision: usize) -> ([usize; 2], [f64; 2], [f64; 2]) {
+pub(super) fn contact_lattice(gel: &Gel, subdivision: usize) -> ([usize; 2], [f64; 2], [f64; 2]) {
     let [nx, ny, _] = gel.layout.lattice;
     let [lx, ly, _] = gel.params.size;
     let (dx, origin) = (gel.layout.dx, gel.layout.origin);
@@ -2156,7 +2155,7 @@ fn add_pairs(
 }
 
 /// Whether `p` lies in `b`.
-fn contains(b: &Aabb, p: &Point3<f64>) -> bool {
+pub(super) fn contains(b: &Aabb, p: &Point3<f64>) -> bool {
     (0..3).all(|k| p[k] >= b.min[k] && p[k] <= b.max[k])
 }
 
@@ -2194,7 +2193,7 @@ fn forcing(ratio: f64, last: f64) -> f64 {
 
 /// The smoothed slip magnitude at offset `y` with stick radius `r` (cells): `y^2 / (2 r)`
 /// below `r`, `y - r / 2` beyond ([`STICK`] for Newton's).
-fn smooth_slip(y: f64, r: f64) -> f64 {
+pub(super) fn smooth_slip(y: f64, r: f64) -> f64 {
     if y < r {
         0.5 * y * y / r
     } else {

@@ -52,13 +52,13 @@ use crate::mpm::contact::StepIndenter;
 pub(super) const MAX_CALIBRATION_UNKNOWNS: usize = 60_000;
 
 /// Samples per contact lattice spacing and axis in the search for a tip point.
-pub(super) const TIP_SAMPLES: usize = 8;
+pub(in crate::mpm) const TIP_SAMPLES: usize = 8;
 
 /// Surface positions [`TIP_SAMPLES`] times finer than a contact lattice of `spacing`
 /// (cells) along each axis, over the box from `lo` to `hi` (cells) grown by a spacing, at
 /// `lo`'s height; and the face share (in lattice points) that each stands for. Newton's
 /// and the linear solver's search for a tip point.
-pub(super) fn tip_samples(
+pub(in crate::mpm) fn tip_samples(
     lo: Vector3<f64>,
     hi: Vector3<f64>,
     spacing: [f64; 2],

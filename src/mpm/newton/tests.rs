@@ -233,7 +233,7 @@ fn a_frictionless_equilibrium_does_not_depend_on_the_loading_path() {
 }
 
 /// A frictionless 16 x 16 x 2 mm layer at 0.5 mm: 4 cells through its thickness.
-pub(super) fn resolved_layer() -> GelParams {
+pub(in crate::mpm) fn resolved_layer() -> GelParams {
     GelParams {
         size: [0.016, 0.016, 0.002],
         friction: 0.0,

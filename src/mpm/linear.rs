@@ -1,5 +1,5 @@
 //! Linear elasticity about the undeformed gel, with contact and Coulomb friction solved on
-//! its surface compliance ([`super::super::Solver::Linear`]).
+//! its surface compliance ([`super::Solver::Linear`]).
 //!
 //! # Model
 //!
@@ -53,7 +53,7 @@
 //! load on the grid (an indenter that reaches below the rest surface between the
 //! lattice's points, or a connected set of lattice points inside the indenters) therefore
 //! becomes one point, as a *tip point* of Newton's (`subgrid.rs`): the surface over it is
-//! sampled [`TIP_SAMPLES`](super::subgrid::TIP_SAMPLES) times finer than the lattice, and
+//! sampled [`TIP_SAMPLES`](super::newton::subgrid::TIP_SAMPLES) times finer than the lattice, and
 //! one point at the deepest sample (by vertical depth), standing for the penetrating
 //! samples' share of the face, joins the contact in place of the patch's lattice points.
 //! In series with its penalty it gets the compliance the grid misses: that of the patch on
@@ -109,16 +109,14 @@ use nalgebra::{
 };
 use rayon::prelude::*;
 
-use super::super::contact::StepIndenter;
-use super::super::indenters::Sweep;
-use super::super::{
-    pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS,
-};
-use super::subgrid::{tip_samples, TIP_SAMPLES};
-use super::system::{par, System};
-use super::{
+use super::contact::StepIndenter;
+use super::indenters::Sweep;
+use super::newton::subgrid::{tip_samples, TIP_SAMPLES};
+use super::newton::system::{par, System};
+use super::newton::{
     contact_lattice, contains, remap_anchors, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK,
 };
+use super::{pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt;
 use faer::{Conj, MatMut, MatRef, Par};
@@ -655,7 +653,7 @@ impl Compliance {
     /// A tip point for `indenter` (see the module docs, "Small contacts"): where it
     /// reaches below the rest surface and no contact lattice point (rest positions
     /// `rest`, clearances `clear`) lies inside it, the deepest of the surface samples
-    /// [`TIP_SAMPLES`](super::subgrid::TIP_SAMPLES) times finer around the lattice point nearest to it, with the share
+    /// [`TIP_SAMPLES`](super::newton::subgrid::TIP_SAMPLES) times finer around the lattice point nearest to it, with the share
     /// of a lattice point's face that the penetrating samples cover and its clearance.
     fn tip(
         &self,

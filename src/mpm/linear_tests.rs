@@ -298,7 +298,7 @@ fn the_answer_depends_on_the_pose_alone() {
 /// meets on the same layer (measured +3.0, -3.8, -1.7, -4.1 and -2.7 %).
 #[test]
 fn hertz_on_a_resolved_layer() {
-    let p = super::super::tests::resolved_layer();
+    let p = super::super::newton::tests::resolved_layer();
     let r = 3e-3;
     let mut g = Gel::new(p, options(1)).unwrap();
     for d in [0.1e-3, 0.2e-3, 0.3e-3, 0.4e-3, 0.5e-3] {
@@ -724,7 +724,7 @@ fn a_long_narrow_contact_carries_the_finer_grids_force() {
 /// conditions, as on the random problems above.
 #[test]
 fn a_whole_pad_pressed_by_a_box_face_converges() {
-    let bytes = include_bytes!("../../../tests/data/pad_press.bin");
+    let bytes = include_bytes!("../../tests/data/pad_press.bin");
     let word = |i: usize| u32::from_le_bytes(bytes[4 * i..4 * i + 4].try_into().unwrap());
     let m = word(0) as usize;
     let ids: Vec<u32> = (1..=m).map(word).collect();

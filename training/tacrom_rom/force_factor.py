@@ -18,10 +18,10 @@ median Poisson's ratio, which the sensor interpolates linearly (and holds beyond
 """
 from __future__ import annotations
 
+import argparse
 import glob
 import json
 import os
-import sys
 
 import numpy as np
 
@@ -72,10 +72,11 @@ def by_poisson(nu, r, bounds):
 
 
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 2:
-        raise SystemExit(__doc__)
-    data, model = argv
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", help="paired data set (tacrom gen-data) whose training presses give the factor")
+    p.add_argument("model", help="model directory whose manifest.json receives the `force` section")
+    a = p.parse_args(argv)
+    data, model = a.data, a.model
     k, n, p10, p90, ds, table = factor(data)
     path = os.path.join(model, "manifest.json")
     with open(path) as f:

@@ -15,10 +15,10 @@ copied; OUT is created if needed.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import shutil
-import sys
 
 KEYS = ("size", "lattice", "coarse_dx", "fine_dx", "pitch", "seed", "material", "young", "recipe")
 
@@ -30,10 +30,12 @@ def samples(path):
 
 
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) < 2:
-        raise SystemExit(__doc__)
-    out, ranged, fixed = argv[0], argv[1], argv[2:]
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("out", help="the merged data set's directory (created if needed)")
+    p.add_argument("ranged", help="the data set whose dataset.json becomes OUT's (materials drawn from ranges, or one material)")
+    p.add_argument("fixed", nargs="*", help="data sets of one material each, added with offset indices")
+    a = p.parse_args(argv)
+    out, ranged, fixed = a.out, a.ranged, a.fixed
     ds = json.load(open(os.path.join(ranged, "dataset.json")))
     held_out = list(ds.get("held_out", []))
     for path in fixed:

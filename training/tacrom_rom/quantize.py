@@ -17,9 +17,9 @@ made from. The latent refinement keeps the float Jacobian graph.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
-import sys
 
 import onnx
 from onnxruntime.quantization import QuantType, quantize_dynamic
@@ -40,10 +40,10 @@ def hidden_nodes(model):
 
 
 def main(argv=None):
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 1:
-        raise SystemExit(__doc__)
-    (model_dir,) = argv
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("model_dir", help="model directory holding the float decoder and manifest.json")
+    a = p.parse_args(argv)
+    model_dir = a.model_dir
     src = os.path.join(model_dir, SOURCE)
     dst = os.path.join(model_dir, TARGET)
     keep = hidden_nodes(onnx.load(src))

@@ -11,7 +11,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use crate::attributes::{self, Attribute, Valid};
-use crate::mpm::{GelParams, Material, Solver};
+use crate::mpm::{Choice, GelParams, Material, Solver};
 use crate::render::calibrated::CalibratedOptics;
 pub use crate::render::refraction::Camera;
 
@@ -261,7 +261,7 @@ pub struct Config {
     /// Kelvin-Voigt retardation time of the coupling (s).
     pub damping: f64,
     /// The gel's equilibrium solver; `None` leaves the choice to the gel
-    /// ([`Solver::automatic`]) or the reduced-order model's recipe.
+    /// ([`crate::mpm::choose`]) or the reduced-order model's recipe.
     pub solver: Option<Solver>,
 }
 
@@ -276,14 +276,16 @@ impl Config {
     /// The equilibrium solver of this configuration's gel on a grid of spacing `dx` (m),
     /// and whether frames whose contact its particles cannot resolve fall back to the
     /// linear solver: the solver the configuration names, or the gel's own choice
-    /// ([`Solver::automatic`]) with the fallback for `coarse` and `rom`.
+    /// ([`crate::mpm::choose`]) with the fallback for `coarse` and `rom`.
     pub fn solver_choice(&self, dx: f64) -> (Solver, bool) {
-        let solver = self
-            .solver
-            .unwrap_or_else(|| Solver::automatic(&self.gel_params(dx)));
-        let fallback =
-            self.solver.is_none() && matches!(self.physics, Physics::Coarse | Physics::Rom);
-        (solver, fallback)
+        let c = self.choice(dx);
+        (c.solver, c.fallback)
+    }
+
+    /// The gel's solver on a grid of spacing `dx` (m) and why ([`crate::mpm::choice`]).
+    pub fn choice(&self, dx: f64) -> Choice {
+        let small_contacts = matches!(self.physics, Physics::Coarse | Physics::Rom);
+        crate::mpm::choose(&self.gel_params(dx), self.solver, small_contacts)
     }
 
     /// The fingerprint of the sources this configuration's results depend on: the
@@ -1019,10 +1021,11 @@ mod tests {
             ..GelParams::default()
         };
         for dx in [1.4e-3, 0.7e-3, 0.5e-3, 0.3e-3] {
-            assert_eq!(Solver::automatic(&gel(0.43, dx)), Solver::Relaxation);
-            assert_eq!(Solver::automatic(&gel(0.48, dx)), Solver::Relaxation);
-            assert_eq!(Solver::automatic(&gel(0.49, dx)), Solver::Newton);
-            assert_eq!(Solver::automatic(&gel(0.499, dx)), Solver::Newton);
+            let auto = |g: &GelParams| crate::mpm::choose(g, None, false).solver;
+            assert_eq!(auto(&gel(0.43, dx)), Solver::Relaxation);
+            assert_eq!(auto(&gel(0.48, dx)), Solver::Relaxation);
+            assert_eq!(auto(&gel(0.49, dx)), Solver::Newton);
+            assert_eq!(auto(&gel(0.499, dx)), Solver::Newton);
         }
     }
 

@@ -73,6 +73,7 @@
 //! * `transfer.rs`: the four parts of a step; `contact.rs`: the contact forces;
 //!   `material.rs`: the constitutive models; `surface.rs`: the depth and shear images.
 
+pub mod choice;
 mod contact;
 pub mod hertz;
 mod indenters;
@@ -100,10 +101,13 @@ use crate::geometry::{PixelGrid, Placed, Sdf};
 use contact::{ActiveContact, SlotContact, StepIndenter};
 use indenters::match_indenters;
 pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+pub use choice::{
+    choose, Choice, AUTO_NEWTON_POISSON, COARSE_START_UNKNOWNS, LINEAR_UNKNOWNS, MISSED_FRACTION,
+    MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,
+};
 pub use params::{
     GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
-    AUTO_NEWTON_POISSON, CAP_CELLS, COARSE_START_UNKNOWNS, FBAR_POISSON, J_MAX, J_MIN,
-    LINEAR_UNKNOWNS, MISSED_FRACTION, MULTIGRID_UNKNOWNS, NESTED_MARGIN, UNRESOLVED_POINTS,
+    CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, NESTED_MARGIN,
 };
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
@@ -794,26 +798,21 @@ impl Gel {
         } else {
             0
         };
-        let solver = if self.options.fallback
-            && touching
-            && footprint <= UNRESOLVED_POINTS
-            && self.reached_depth(indenters::usable(indenters).into_iter())
-                > MISSED_FRACTION * self.contact_spacing(Solver::Relaxation)
-        {
-            // The relaxation's surface points cannot carry a contact whose footprint holds
-            // so few of them (or none): the linear solver, whose small contacts follow
-            // Hertz and Sneddon, solves the frame instead (Newton's method on a grid too
-            // fine for it). The choice depends on the poses alone, so a body bouncing on
-            // the gel meets one force law on the way in and out. The fallback's state
-            // carries on from its own last fallback frame; the relaxation's goes back to
-            // rest, to start afresh from the frame it carries again.
+        let fallback = if self.options.fallback {
+            let spacing = self.contact_spacing(Solver::Relaxation);
+            let reached = || self.reached_depth(indenters::usable(indenters).into_iter());
+            choice::frame_fallback(&self.params, touching, footprint, reached, spacing)
+        } else {
+            None
+        };
+        let solver = if let Some(solver) = fallback {
+            // The relaxation's surface points cannot carry this contact (`choice`). The
+            // fallback's state carries on from its own last fallback frame; the
+            // relaxation's goes back to rest, to start afresh from the frame it carries
+            // again.
             self.rest_relaxation();
             report.fallback = true;
-            if params::linear_fits(&self.params) {
-                Solver::Linear
-            } else {
-                Solver::Newton
-            }
+            solver
         } else {
             self.options.solver
         };

@@ -16,9 +16,6 @@ pub const J_MAX: f64 = 5.0;
 /// iterations, R = 5 mm sphere at d = 0.2 mm, dx = 1.4 mm, Poisson 0.43).
 pub const FBAR_POISSON: f64 = 0.45;
 
-/// Poisson's ratio from which [`Solver::automatic`] chooses Newton's method.
-pub const AUTO_NEWTON_POISSON: f64 = 0.49;
-
 /// Default [`SolverOptions::active_margin`] (gel thicknesses). The surface of a bonded
 /// layer settles within about one thickness of a contact (measured at dx = 0.7 mm, a
 /// 0.5 mm sphere press: 29 um of indentation 2 mm beyond the contact edge, 1.2 um at
@@ -149,46 +146,12 @@ pub enum Linear {
     Multigrid,
 }
 
-/// Unknowns of a Newton region above which [`Linear::Automatic`] preconditions with the
-/// two-grid cycle instead of factoring: between the default gel's regions at 0.7 mm
-/// (about 19,600 unknowns; the factorisation a little faster) and 0.6 mm (about 31,000;
-/// the two-grid cycle about twice as fast: `docs/solvers.md`, "Friction's sliding points").
-pub const MULTIGRID_UNKNOWNS: usize = 25_000;
-
-/// Unknowns of a gel above which Newton's method starts each frame from a gel twice as
-/// coarse ([`SolverOptions::coarse_start_above`]) and nests its solve in it: the default
-/// gel at 0.7 mm (about 40,000 unknowns) and finer, not at 1.0 mm (about 14,000). It was
-/// 60,000 (0.5 mm and finer) before the nested solve; with it, a 5 mm sphere pressed 0.1,
-/// 0.2 and 0.3 mm at 0.7 mm takes 8.3 s against 18.3 s (`docs/solvers.md`, "A nested
-/// solve").
-pub const COARSE_START_UNKNOWNS: usize = 20_000;
-
 /// Default [`SolverOptions::nested_margin`] (gel thicknesses). At 0.5 mm a 5 mm sphere's
 /// force was within 0.1 % of the whole gel's with the nested margin at 0.25, 0.5 or 1
 /// thickness (a rigid wall half a thickness out: 0.7 to 1.8 % above it); half a
 /// thickness keeps the coarse field a millimetre or more from the footprint's edge
 /// (`docs/solvers.md`, "A nested solve").
 pub const NESTED_MARGIN: f64 = 0.5;
-
-/// Most unknowns (three per grid node, an upper bound) [`Solver::Linear`] factors: the
-/// default gel at 1.0 mm (22,869), not at 0.7 mm (57,132), where the first contact took
-/// 3.5 to 4.4 s (the factorisation and the first node columns) and the process 640 MB.
-pub const LINEAR_UNKNOWNS: usize = 30_000;
-
-/// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that
-/// carries no force has missed a contact that fell between its contact points (the
-/// sensor warns; [`SolverOptions::fallback`] solves the frame again). A smooth
-/// body of radius `R` can sink `s^2 / 4R` between four points untouched (26 um for a 5 mm
-/// sphere on the coarse gel, where a ball landing on it reached 18 um for a step); 5 % of
-/// `s` (36 um there) stays silent for bodies of radius above 5 `s`, and catches a 0.5 mm
-/// sphere or a cone tip, which sink up to 0.25 mm untouched.
-pub const MISSED_FRACTION: f64 = 0.05;
-
-/// Top-surface points in an indenter's rigid footprint at most with which the relaxation
-/// does not resolve a contact (see [`SolverOptions::fallback`]): with one or two of its
-/// points in contact, the 0.5 mm sphere carried 0.13 to 0.65 and the 1 and 2 mm spheres up
-/// to 1.98 times Hertz's force.
-pub const UNRESOLVED_POINTS: usize = 4;
 
 /// How [`Gel::solve`] finds the equilibrium.
 ///
@@ -235,24 +198,6 @@ impl Solver {
     pub fn named(name: &str) -> Option<Solver> {
         Self::ALL.into_iter().find(|s| s.name() == name)
     }
-
-    /// The solver for a gel whose configuration names none: Newton's method where dynamic
-    /// relaxation does not reach equilibrium within its iteration cap, a Poisson's ratio
-    /// of at least [`AUTO_NEWTON_POISSON`] (`tacrom mpm --only work`: at 0.49 one frame in
-    /// four stops at the cap, at 0.499 every frame; Newton converges in 17 to 47 steps at
-    /// every ratio on the coarse grid, in 28 to 38 at 0.499 and 0.5 mm), on every grid;
-    /// relaxation everywhere else. On the fine grids Newton is faster on a continued press
-    /// (two 0.1 mm steps at 0.3 mm: 48.7 against 87.7 s) and slower on one from rest
-    /// (a 1 mm press at 0.4 mm: 104.7 against 64.0 s); the benchmark's sequence of presses at
-    /// 0.3 mm takes them the same time (363.5 against 378.4 s), at 9 times the memory
-    /// (2.6 against 0.29 GB). See `docs/solvers.md`, "Which solver a gel gets".
-    pub fn automatic(params: &GelParams) -> Solver {
-        if params.poisson >= AUTO_NEWTON_POISSON {
-            Solver::Newton
-        } else {
-            Solver::Relaxation
-        }
-    }
 }
 
 impl Default for SolverOptions {
@@ -269,7 +214,7 @@ impl Default for SolverOptions {
             solver: Solver::Relaxation,
             fallback: false,
             linear: Linear::Automatic,
-            coarse_start_above: COARSE_START_UNKNOWNS,
+            coarse_start_above: super::choice::COARSE_START_UNKNOWNS,
             nested_margin: NESTED_MARGIN,
         }
     }
@@ -413,24 +358,13 @@ impl Gel {
         check(
             "dx",
             params.dx,
-            options.solver != Solver::Linear || linear_fits(params),
+            options.solver != Solver::Linear || super::choice::linear_fits(params),
             "is too small for solver=\"linear\": its grid has more unknowns than the 30,000 \
              it factors",
         )
     }
 }
 
-/// Whether the grid of `params` has at most the [`LINEAR_UNKNOWNS`] that
-/// [`Solver::Linear`] factors (three per node, an upper bound).
-pub(crate) fn linear_fits(params: &GelParams) -> bool {
-    let unknowns: f64 = 3.0
-        * params
-            .size
-            .iter()
-            .map(|&l| (l / params.dx).round().max(1.0) + 3.0)
-            .product::<f64>();
-    unknowns <= LINEAR_UNKNOWNS as f64
-}
 
 fn check_params(p: &GelParams) -> Result<(), MpmError> {
     use crate::attributes::{DENSITY, FRICTION, POISSON, SIZE, YOUNG};

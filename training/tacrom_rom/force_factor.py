@@ -73,8 +73,8 @@ def by_poisson(nu, r, bounds):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("data", help="paired data set (tacrom gen-data) whose training presses give the factor")
-    p.add_argument("model", help="model directory whose manifest.json receives the `force` section")
+    p.add_argument("data", metavar="DATA", help="paired data set (tacrom gen-data) whose training presses give the factor")
+    p.add_argument("model", metavar="MODEL_DIR", help="model directory whose manifest.json receives the `force` section")
     a = p.parse_args(argv)
     data, model = a.data, a.model
     k, n, p10, p90, ds, table = factor(data)

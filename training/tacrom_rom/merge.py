@@ -31,9 +31,9 @@ def samples(path):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("out", help="the merged data set's directory (created if needed)")
-    p.add_argument("ranged", help="the data set whose dataset.json becomes OUT's (materials drawn from ranges, or one material)")
-    p.add_argument("fixed", nargs="*", help="data sets of one material each, added with offset indices")
+    p.add_argument("out", metavar="OUT", help="the merged data set's directory (created if needed)")
+    p.add_argument("ranged", metavar="RANGED", help="the data set whose dataset.json becomes OUT's (materials drawn from ranges, or one material)")
+    p.add_argument("fixed", metavar="FIXED", nargs="*", help="data sets of one material each, added with offset indices")
     a = p.parse_args(argv)
     out, ranged, fixed = a.out, a.ranged, a.fixed
     ds = json.load(open(os.path.join(ranged, "dataset.json")))

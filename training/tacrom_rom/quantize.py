@@ -41,7 +41,7 @@ def hidden_nodes(model):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("model_dir", help="model directory holding the float decoder and manifest.json")
+    p.add_argument("model_dir", metavar="MODEL_DIR", help="model directory holding the float decoder and manifest.json")
     a = p.parse_args(argv)
     model_dir = a.model_dir
     src = os.path.join(model_dir, SOURCE)

@@ -250,19 +250,19 @@ def gen_command(path, ds):
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", required=True)
-    p.add_argument("--out", required=True)
+    p.add_argument("--data", required=True, help="paired data set (tacrom gen-data) to train on")
+    p.add_argument("--out", required=True, help="model directory to write (manifest, ONNX files, weights)")
     p.add_argument("--reference", default=None,
                    help="data set of the same presses with a finer reference (gen-data --fine-dx): "
                         "its reference replaces --data's wherever it holds the sample")
-    p.add_argument("--steps", type=int, default=2000)
-    p.add_argument("--latent", type=int, default=64)
+    p.add_argument("--steps", type=int, default=2000, help="optimizer steps")
+    p.add_argument("--latent", type=int, default=64, help="size of the latent code")
     p.add_argument("--points", type=int, default=96, help="query points per press per step")
-    p.add_argument("--batch", type=int, default=32)
-    p.add_argument("--lr", type=float, default=1e-4)
-    p.add_argument("--no-multiscale", action="store_true")
+    p.add_argument("--batch", type=int, default=32, help="presses per step")
+    p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate")
+    p.add_argument("--no-multiscale", action="store_true", help="no multi-scale supervision loss")
     p.add_argument("--no-refinement", action="store_true", help="ablation 'w/o physics': manifest disables latent refinement")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the weights, the batches and the query points")
     inputs = p.add_mutually_exclusive_group()
     inputs.add_argument("--no-conditioning", action="store_true",
                         help="a data set of several materials without the material inputs: the model "
@@ -271,7 +271,7 @@ def main(argv=None):
                         help="condition on Poisson's ratio alone (the friction input held at 0; the "
                         "manifest's `materials` then states the friction it serves)")
     p.add_argument("--no-augment", action="store_true", help="no mirror / quarter-turn augmentation")
-    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p.add_argument("--device", default="cpu", help="torch device of the training loop (cpu, cuda); "
                    "the model is evaluated and exported on the CPU")
     p.add_argument("--region-eps-mm", type=float, default=REGION_EPS_MM,

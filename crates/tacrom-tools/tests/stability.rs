@@ -87,7 +87,7 @@ fn rigid_survives_every_case() {
 }
 
 /// Every case passes; the near-incompressible gels, where the default solver is Newton's
-/// method (`Solver::automatic`), reach equilibrium in every frame (dynamic relaxation
+/// method (`mpm::choose`), reach equilibrium in every frame (dynamic relaxation
 /// stopped at its iteration cap there).
 #[test]
 fn coarse_survives_every_case() {

@@ -896,13 +896,10 @@ impl Newton {
                 self.two_grids.truncate(KEPT_TWO_GRIDS);
             }
         }
-        let multigrid = match self.linear {
-            // A nested region is small, but its gel is fine: the two-grid cycle's Newton
-            // steps (its fixed forcing term) are what such a gel is measured on.
-            Linear::Automatic => 3 * self.region_nodes.len() > MULTIGRID_UNKNOWNS || self.nested,
-            Linear::Factor => false,
-            Linear::Multigrid => true,
-        };
+        // A nested region is small, but its gel is fine: the two-grid cycle's Newton steps
+        // (its fixed forcing term) are what such a gel is measured on.
+        let multigrid =
+            super::choice::newton_multigrid(self.linear, 3 * self.region_nodes.len(), self.nested);
         if !multigrid {
             self.system = match self.systems.iter().position(|(r, _)| *r == bx) {
                 Some(i) => Some(self.systems.remove(i).1),

@@ -737,7 +737,8 @@ fn parse_floats(text: &str) -> Option<Vec<f64>> {
 }
 
 /// The sensordata layout of `config`, as JSON for the Python package: image size and, per
-/// output in sensordata order, its name, offset, shape and unit; the marker grid `[NX, NY]`.
+/// output in sensordata order, its name, offset, shape and unit; the marker grid `[NX, NY]`;
+/// for a gel, its solver and why it runs it ([`Config::choice`]: `null` for `rigid`).
 pub fn layout_json(config: &Config) -> String {
     let layout = config.layout();
     let mut offset = 0;
@@ -759,6 +760,10 @@ pub fn layout_json(config: &Config) -> String {
     serde_json::json!({
         "sensor": config.name,
         "physics": config.physics.name(),
+        "solver": config.dx.map(|dx| {
+            let c = config.choice(dx);
+            serde_json::json!({"name": c.solver.name(), "fallback": c.fallback, "why": c.why})
+        }),
         "width": config.width,
         "height": config.height,
         "markers": config.markers,

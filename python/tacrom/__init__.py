@@ -153,7 +153,8 @@ def layout(model, sensor) -> Dict[str, object]:
 
     Returns ``{"width", "height", "markers", "size", "outputs": {name: {"offset", "shape",
     "unit"}}}`` with the outputs in sensordata order, offsets relative to the sensor's first
-    value; ``markers`` is the marker grid ``[NX, NY]``.
+    value; ``markers`` is the marker grid ``[NX, NY]``; ``solver`` is the gel's solver
+    ``{"name", "fallback", "why"}`` (why the plugin chose it; ``None`` for ``rigid``).
     """
     load()
     sid = _sensor_id(model, sensor)

@@ -272,3 +272,20 @@ def test_attribute_table_names_every_attribute_and_its_defaults_apply(press_xml)
     assert runs[0]["force"][2] > 0
     with pytest.raises(ValueError, match="'young'.*must be in \\[100, 1e10\\] Pa"):
         mujoco.MjModel.from_xml_string(with_config(press_xml, **base, young="1"))
+
+
+def test_layout_names_the_gels_solver_and_why(press_xml):
+    """The layout says which solver the plugin chose for the gel and the rule that chose it:
+    the automatic rule below and above Poisson 0.49, a named solver as named, none for rigid."""
+    def solver(**config):
+        model = mujoco.MjModel.from_xml_string(with_config(press_xml, outputs="depth", **config))
+        return tacrom.layout(model, "touch")["solver"]
+
+    soft = solver(physics="coarse")
+    assert soft["name"] == "relaxation" and soft["fallback"] is True
+    assert "below 0.49" in soft["why"]
+    stiff = solver(physics="coarse", poisson="0.495")
+    assert stiff["name"] == "newton" and "0.49 or more" in stiff["why"]
+    named = solver(physics="coarse", solver="linear")
+    assert named == {"name": "linear", "fallback": False, "why": "named by the configuration"}
+    assert solver(physics="rigid") is None

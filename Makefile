@@ -49,14 +49,14 @@ test-python: build
 
 test: build test-rust test-python bench-quick
 
-# The press benchmark (error against run time of every mode; README "Benchmarks").
+# The press benchmark (error against run time of every mode; docs/benchmarks.md).
 bench: build
 	$(CARGO) run --release --bin tacrom -- mpm --fine
 	$(CARGO) run --release --bin tacrom -- bench --full
 
 # The committed full-profile report (docs/benchmark/report.md) and its accuracy rows
 # (benchmarks/full-baseline.json): every pattern at the centre position against the 0.5 mm
-# reference (README "Benchmarks": why not the 0.3 mm one and the 3 x 3 grid yet).
+# reference (docs/results.md: why not the 0.3 mm one and the 3 x 3 grid yet).
 BENCH_REPORT_MODES = rigid coarse rom coarse-linear rom-linear coarse-tol1e-3 coarse-tol1e-2 \
 	rom-tol1e-3 rom-tol1e-2 rom-norefine rom-latent16 rom-no-multiscale \
 	coarse-newton:physics=coarse,solver=newton
@@ -138,7 +138,7 @@ train: train-env
 # (merged), and its decoder in 8 bits. `train-linear-seeds` trains, on the merged presses,
 # three seeds of a model conditioned on the material, of each of its ablations, of one
 # without the material inputs and of one conditioned on Poisson's ratio alone into
-# out/models (the README's seed table; 15 runs, each about 95 s on one GPU with
+# out/models (docs/rom.md's seed table; 15 runs, each about 95 s on one GPU with
 # ROM_DEVICE=cuda; measured, not shipped).
 ROM_LINEAR_DATA ?= data/rom-linear
 ROM_LINEAR_MAT_DATA ?= data/rom-linear-mat
@@ -194,7 +194,7 @@ gen-data-fine: build
 # Presses of other gel materials: Poisson's ratio and friction drawn per press from ROM_POISSON
 # and ROM_FRICTION (0.7 mm reference). The evidence for the shipped model's manifest `materials`
 # (`make eval-rom-material`) and, merged with ROM_DATA, the training set of a model conditioned
-# on the material (`make train-material`; trained, measured and not shipped: see the README).
+# on the material (`make train-material`; trained, measured and not shipped: docs/rom.md, "Gel materials").
 ROM_MAT_DATA ?= data/rom-mat
 ROM_MAT_SAMPLES ?= 400
 ROM_POISSON ?= 0.3,0.48

@@ -14,7 +14,7 @@ GripperLift-v1 runs 100-step episodes of descend (15 steps), close (10), lift (1
 measurement follows a warm-up episode start and counts environment steps (with two
 processes, both processes' steps) over wall time, and for one process also the CPU time
 per step (what the machine's other jobs do not inflate); episode resets are included. The two
-worker processes start from a forkserver (see README, "Reinforcement learning").
+worker processes start from a forkserver (see docs/rl.md).
 """
 
 from __future__ import annotations

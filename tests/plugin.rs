@@ -441,7 +441,7 @@ fn coarse_gel_press_and_release() {
         assert!(v.iter().all(|x| x.is_finite()));
         assert!(depth.iter().all(|&x| (0.0..=0.004).contains(&x)));
         // From 0.2 mm the contact radius sqrt(2 R d) is at least one coarse cell; there the
-        // coarse grid's force is +4 to +12 % above Hertz (README's table, tolerance 3e-3),
+        // coarse grid's force is +4 to +12 % above Hertz (docs/solvers.md, tolerance 3e-3),
         // within the 15 % asserted (tests/python/test_gel.py asserts the same at 4 depths).
         let hertz = tacrom::mpm::hertz::hertz_bonded(young, poisson, R, press, thickness);
         assert!(

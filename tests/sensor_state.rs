@@ -225,7 +225,7 @@ fn copy_of_rom_sensor_continues_identically_and_keeps_history() {
 /// threads started together; every frame must agree bit for bit.
 ///
 /// Tolerance: none. Each `mjData` owns its gel and its ONNX sessions, and the results do
-/// not depend on thread count or timing (README), so any difference is shared state.
+/// not depend on thread count or timing (docs/configuration.md), so any difference is shared state.
 #[test]
 fn rom_in_two_threads_matches_serial_bit_for_bit() {
     let m = sphere_model("rom", &[]);
@@ -359,7 +359,7 @@ fn rom_outputs_are_invariant_under_a_rigid_motion_of_the_scene() {
     });
 }
 
-/// Pixel centre (x, y) in the sensor frame, as README documents the layout.
+/// Pixel centre (x, y) in the sensor frame, as docs/configuration.md documents the layout.
 fn pixel_centre(row: usize, col: usize) -> (f64, f64) {
     let x = -0.5 * FOV[0] + (col as f64 + 0.5) * FOV[0] / W as f64;
     let y = 0.5 * FOV[1] - (row as f64 + 0.5) * FOV[1] / H as f64;
@@ -393,7 +393,7 @@ const ORIENTATION_BOX: &str = r#"<geom type="box" size="0.003 0.001 0.001" pos="
 /// Catches: a mirrored or transposed image (row order, column order, an axis flipped in
 /// the scene transform). A box long along x pressed at (+5, +3) mm must appear right of
 /// the centre column and above the centre row, at its documented pixel position
-/// (README: row 0 is the +y edge, column 0 the -x edge, pixel centres at
+/// (docs/configuration.md: row 0 is the +y edge, column 0 the -x edge, pixel centres at
 /// x = -fov_x/2 + (col + 0.5) fov_x / W, y = fov_y/2 - (row + 0.5) fov_y / H), and wider
 /// than tall.
 ///

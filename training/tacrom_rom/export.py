@@ -49,7 +49,7 @@ def _export(module, args, path, input_names, output_names, dynamic_axes):
 
 # Loosest run-time tolerance of the coarse solve a model accepts (the sensor refuses a looser
 # one): on the quick benchmark rom's depth error moved by 0.2 um between the training data's
-# 1e-3 and 1e-2 (README, "tolerance").
+# 1e-3 and 1e-2 (docs/configuration.md, "tolerance").
 MAX_TOLERANCE = 1e-2
 
 

@@ -522,7 +522,7 @@ fn non_negative(s: &str) -> Result<f64, String> {
 /// Options of `tacrom calibrate`: fits the `rgb` output's calibrated optics (the `optics`
 /// attribute's file) to ball presses, Taxim-style, and reports the colour MAE and SSIM of
 /// the held-out presses re-rendered through it. The folder holds `background.png`, one
-/// PNG per press and `presses.json` (README, "Calibrated RGB"; src/calibrate/mod.rs).
+/// PNG per press and `presses.json` (docs/calibration.md; crates/tacrom-tools/src/calibrate/mod.rs).
 /// With --synthesize DIR it writes such a folder instead, rendered with the built-in optics.
 #[derive(Debug, Args)]
 #[command(after_help = UNITS)]

@@ -19,7 +19,7 @@ Observations are a ``Dict``: proprioception (``joint_pos``, ``joint_vel``, and
 ``(N, H, W)`` (float32, metres, one image per sensor, in a fixed order) and, when made with
 ``tactile_rgb=True``, ``tactile_rgb`` of shape ``(N, H, W, 3)`` (uint8). Every environment
 takes ``physics`` (``"rigid"``, ``"coarse"``, ``"rom"``), ``resolution`` (W, H),
-``tactile_rgb`` and ``render_mode`` (``"rgb_array"``); see README, "Reinforcement learning".
+``tactile_rgb`` and ``render_mode`` (``"rgb_array"``); see docs/rl.md.
 """
 
 from __future__ import annotations

@@ -47,7 +47,7 @@ def configure_sensors(
 ) -> float:
     """Sets ``physics``, ``resolution`` and ``outputs`` of the named tacrom sensors in
     ``spec``, and any other attributes given in ``extra`` (such as ``tolerance`` or
-    ``threads``, README "Configuration attributes"); the rest stay as the scene has them.
+    ``threads``, docs/configuration.md); the rest stay as the scene has them.
     Returns the thickest of their gels (m), the bound of their depth images."""
     if physics not in PHYSICS:
         raise ValueError(f"physics must be one of {PHYSICS}, not {physics!r}")

@@ -67,7 +67,7 @@ class GripperLiftEnv(TactileEnv):
     up). Episodes end by the time limit (100 steps, 4 s, when made with ``gymnasium.make``).
 
     ``sensor_config``: further attributes of both sensors (``{"tolerance": "1e-2"}``,
-    ``{"threads": 2}``; README "Configuration attributes").
+    ``{"threads": 2}``; docs/configuration.md).
     """
 
     def __init__(

@@ -91,8 +91,8 @@ class PressEnv(TactileEnv):
     centroid (m), NaN without contact. Episodes end by the time limit (50 steps when made
     with ``gymnasium.make``).
 
-    ``sensor_config``: further attributes of the sensor (``{"tolerance": "1e-2"}``; README
-    "Configuration attributes").
+    ``sensor_config``: further attributes of the sensor (``{"tolerance": "1e-2"}``;
+    docs/configuration.md).
     """
 
     def __init__(

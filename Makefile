@@ -25,10 +25,13 @@ $(VENV)/.tacrom-installed: $(VENV)/.installed python/pyproject.toml
 	$(PIP) install -q --no-build-isolation --no-deps -e python
 	touch $@
 
+# The library is replaced only when it changed, and atomically (written beside, then
+# renamed): a running Python process keeps its mapping of the old file, which `cp` over it
+# would truncate (SIGBUS inside mj_forward).
 build: venv
 	$(CARGO) build --release
 	mkdir -p $(dir $(PKG_LIB))
-	cp $(LIB) $(PKG_LIB)
+	cmp -s $(LIB) $(PKG_LIB) || { cp $(LIB) $(PKG_LIB).tmp.$$$$ && mv -f $(PKG_LIB).tmp.$$$$ $(PKG_LIB); }
 	$(MAKE) --no-print-directory $(VENV)/.tacrom-installed
 
 # dist/tacrom-*.whl: the package with the plugin library, the rom-default model and the

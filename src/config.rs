@@ -92,6 +92,8 @@ pub const INDEX_RANGE: [f64; 2] = {
 pub const MAX_CAMERA_DISTANCE: f64 = attributes::CAMERA_DISTANCE.hi;
 /// Most markers along one side of the marker grid.
 pub const MAX_MARKERS: usize = attributes::MARKERS.valid.integers().1;
+/// Most grid cells of a gel (about 1.6e8 particles, 6 GB of them).
+pub const MAX_CELLS: f64 = 2.0e7;
 /// Largest thread count accepted.
 pub const MAX_THREADS: usize = attributes::THREADS.valid.integers().1;
 
@@ -359,13 +361,29 @@ impl Config {
                         .then_some(())
                         .ok_or_else(|| "must be positive and at most half the gel thickness".into())
                 })?;
-                let cells = (size[0] / dx) * (size[1] / dx) * (t / dx);
-                if cells > 2.0e7 {
-                    return Err(p.error(ATTR_DX, "gives more than 2e7 grid cells: too fine"));
-                }
                 (physics != Physics::Rigid).then_some(dx)
             }
         };
+        if let Some(dx) = dx {
+            let cells = (size[0] / dx) * (size[1] / dx) * (size[2] / dx);
+            if cells > MAX_CELLS {
+                // The attribute at fault: the spacing the configuration gives, or else the
+                // gel's size at the mode's own spacing.
+                return Err(match raw.get(ATTR_DX) {
+                    Some(_) => p.error(ATTR_DX, "gives more than 2e7 grid cells: too fine"),
+                    None => p.error(
+                        ATTR_SIZE,
+                        format!(
+                            "gives {cells:.1e} grid cells at the {} mode's spacing dx = {} m, \
+                             more than 2e7: a smaller gel (metres, not millimetres?) or a \
+                             larger 'dx'",
+                            physics.name(),
+                            attributes::number(dx)
+                        ),
+                    ),
+                });
+            }
+        }
         let threads = p.int(ATTR_THREADS, defaults::THREADS, 1, MAX_THREADS)?;
         let tolerance = p.ranged::<1>(&attributes::TOLERANCE, [physics.default_tolerance()])?[0];
         let model = raw
@@ -1274,5 +1292,17 @@ mod tests {
             let msg = err(&[(attr, value)]).to_string();
             assert!(msg.contains(&format!("'{attr}'")) && msg.contains(range), "{msg}");
         }
+    }
+
+    // Regression: a gel given in millimetres (`size="30 30 4"`) at the default spacing was
+    // refused as "invalid gel parameter `dx`", an attribute the configuration never set.
+    #[test]
+    fn a_gel_too_large_for_the_default_spacing_blames_its_size() {
+        let e = err(&[("physics", "coarse"), ("size", "1 1 1")]);
+        assert_eq!(e.attribute, "size", "{e}");
+        assert!(e.reason.contains("dx = 0.0014"), "{e}");
+        let e = err(&[("physics", "coarse"), ("size", "0.3 0.3 0.04"), ("dx", "1e-4")]);
+        assert_eq!(e.attribute, "dx", "{e}");
+        assert!(parse(&[("physics", "rigid"), ("size", "1 1 1")]).is_ok());
     }
 }

@@ -324,6 +324,16 @@ fn a_gel_other_than_the_models_is_refused() {
         e.contains("'touch'") && e.contains("'model'") && e.contains("gel size"),
         "{e}"
     );
+    // Regression: the refusal led with `model`, an attribute the configuration never set;
+    // the attribute whose value the model does not serve leads now.
+    assert!(e.contains("'touch': attribute 'size'"), "{e}");
+    let raw = RawConfig::default()
+        .with(ATTR_PHYSICS, "rom")
+        .with(tacrom::config::ATTR_POISSON, "0");
+    let e = TactileSensor::new(Config::from_raw("touch", &raw).unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("attribute 'poisson'") && e.contains("in [0.3, 0.48]"), "{e}");
     let raw = RawConfig::default().with(ATTR_MODEL, "/no/such/model");
     let e = TactileSensor::new(Config::from_raw("touch", &raw).unwrap())
         .unwrap_err()

@@ -205,6 +205,9 @@ pub enum RomError {
     Mismatch {
         /// The model directory.
         model: PathBuf,
+        /// The sensor attribute whose value the model does not serve (`size`, `poisson`,
+        /// `friction`, `dx`, `material`, `solver`, `tolerance`).
+        attribute: &'static str,
         /// What the manifest says.
         expected: String,
         /// What the sensor has.
@@ -648,31 +651,36 @@ impl Manifest {
         tolerance: f64,
     ) -> Result<(), RomError> {
         let r = &self.recipe;
-        let mismatch = |expected: String, actual: String| RomError::Mismatch {
+        let mismatch = |attribute, expected: String, actual: String| RomError::Mismatch {
             model: self.dir.clone(),
+            attribute,
             expected,
             actual,
         };
         if (dx - r.dx).abs() > 1e-9 {
             return Err(mismatch(
+                "dx",
                 format!("the coarse grid dx = {} m", r.dx),
                 format!("dx = {dx} m"),
             ));
         }
         if material != r.material {
             return Err(mismatch(
+                "material",
                 format!("material = {}", r.material),
                 format!("material = {material}"),
             ));
         }
         if solver != r.solver {
             return Err(mismatch(
+                "solver",
                 format!("coarse solutions of the \"{}\" solver", r.solver),
                 format!("the \"{solver}\" solver"),
             ));
         }
         if tolerance > r.max_tolerance * (1.0 + 1e-9) {
             return Err(mismatch(
+                "tolerance",
                 format!("a coarse solve tolerance of at most {:e}", r.max_tolerance),
                 format!("tolerance = {tolerance:e}"),
             ));
@@ -692,26 +700,30 @@ impl Manifest {
     pub fn check_gel(&self, size: [f64; 3], poisson: f64, friction: f64) -> Result<(), RomError> {
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1e-12);
         let g = &self.gel;
-        let mismatch = |what: &str, e: String, a: String| RomError::Mismatch {
+        let mismatch = |attribute, what: &str, e: String, a: String| RomError::Mismatch {
             model: self.dir.clone(),
+            attribute,
             expected: format!("{what} {e}"),
             actual: format!("{what} {a}"),
         };
         if !(0..3).all(|k| close(size[k], g.size[k])) {
             return Err(mismatch(
+                "size",
                 "gel size",
                 format!("{:?} m", g.size),
                 format!("{size:?} m"),
             ));
         }
-        for (what, value, pick, trained) in [
+        for (attribute, what, value, pick, trained) in [
             (
+                "poisson",
                 "Poisson's ratio",
                 poisson,
                 (|c: &Conditioning| c.poisson) as fn(&Conditioning) -> [f64; 2],
                 g.poisson,
             ),
             (
+                "friction",
                 "friction",
                 friction,
                 |c: &Conditioning| c.friction,
@@ -729,6 +741,7 @@ impl Manifest {
                 Some([lo, hi]) => {
                     if !(value >= lo - 1e-9 && value <= hi + 1e-9) {
                         return Err(mismatch(
+                            attribute,
                             what,
                             format!("in [{lo}, {hi}]"),
                             format!("{value}"),
@@ -738,7 +751,12 @@ impl Manifest {
                 None => {
                     let trained = self.conditioning.as_ref().map_or(trained, |c| pick(c)[0]);
                     if !close(value, trained) {
-                        return Err(mismatch(what, format!("{trained}"), format!("{value}")));
+                        return Err(mismatch(
+                            attribute,
+                            what,
+                            format!("{trained}"),
+                            format!("{value}"),
+                        ));
                     }
                 }
             }

@@ -450,6 +450,15 @@ fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
     };
     let in_dir =
         |e: crate::rom::RomError| format!("attribute '{attr}' = \"{}\": {e}", dir.display());
+    // A gel or a solve the model does not serve: the attribute the user set leads, the
+    // model after it.
+    let served = |e: crate::rom::RomError| match &e {
+        crate::rom::RomError::Mismatch { attribute, .. } => format!(
+            "attribute '{attribute}': {e}; the reduced-order model is attribute '{attr}' \
+             (physics=\"coarse\" serves any gel)"
+        ),
+        _ => in_dir(e),
+    };
     let rom = Rom::load(
         &dir,
         RomOptions {
@@ -462,13 +471,13 @@ fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
     .map_err(in_dir)?;
     let m = rom.manifest();
     m.check_gel(config.size, config.poisson, config.friction)
-        .map_err(in_dir)?;
+        .map_err(served)?;
     m.check_recipe(
         dx,
         material_name(config.material),
         solver.name(),
         config.tolerance,
     )
-    .map_err(in_dir)?;
+    .map_err(served)?;
     Ok(rom)
 }

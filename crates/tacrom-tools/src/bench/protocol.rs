@@ -38,8 +38,10 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
     ),
     ("rom-tol1e-3", &[("physics", "rom"), ("tolerance", "1e-3")]),
     ("rom-tol1e-2", &[("physics", "rom"), ("tolerance", "1e-2")]),
-    // Ablations of rom: no latent refinement ("w/o physics"), latent 16, no multi-scale loss.
+    // Ablations of rom: no latent refinement ("w/o physics"; the shipped models' default,
+    // their manifests say why), the refinement on, latent 16, no multi-scale loss.
     ("rom-norefine", &[("physics", "rom"), ("refine", "false")]),
+    ("rom-refine", &[("physics", "rom"), ("refine", "true")]),
     (
         "rom-latent16",
         &[("physics", "rom"), ("model", "models/rom-latent16")],

@@ -348,7 +348,9 @@ pub const REFINE: Attribute = Attribute {
     name: "refine",
     meaning: "latent refinement of `rom` (L-BFGS on the reduced energy)",
     unit: "",
-    default: Default::Depends("as the model's manifest says (the shipped models: off)"),
+    default: Default::Depends(
+        "as the model's manifest says (`rom-default`: off; `rom-linear`: on)",
+    ),
     valid: Valid::Words {
         words: &["true", "false"],
         several: false,

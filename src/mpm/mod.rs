@@ -71,19 +71,23 @@
 //!   ([`Solver::Newton`]; total-Lagrangian nodal displacements, sparse Cholesky, contact
 //!   on a surface lattice finer than the particles, lagged friction);
 //! * `transfer.rs`: the four parts of a step; `contact.rs`: the contact forces;
-//!   `material.rs`: the constitutive models; `surface.rs`: the depth and shear images.
+//!   `materials/`: the constitutive models, one file each with both its forms (the
+//!   relaxation's f32 stress, Newton's f64 energy); `rotation.rs`: the polar rotation the
+//!   corotated model reads; `choice.rs`: which solver a gel gets; `surface.rs`: the depth
+//!   and shear images.
 
 pub mod choice;
 mod contact;
 pub mod hertz;
 mod indenters;
 mod linear;
-mod material;
+mod materials;
 mod newton;
 mod params;
 mod pressure;
 pub use pressure::spread_loads;
 mod region;
+mod rotation;
 mod relax;
 mod surface;
 mod total;
@@ -100,7 +104,8 @@ use crate::geometry::{PixelGrid, Placed, Sdf};
 
 use contact::{ActiveContact, SlotContact, StepIndenter};
 use indenters::match_indenters;
-pub use material::{extract_rotation, ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+pub use materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+pub use rotation::extract_rotation;
 pub use choice::{
     choose, Choice, AUTO_NEWTON_POISSON, COARSE_START_UNKNOWNS, LINEAR_UNKNOWNS, MISSED_FRACTION,
     MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,

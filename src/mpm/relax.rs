@@ -30,7 +30,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::contact::{self, ContactInput, SlotContact};
 use super::indenters::Sweep;
-use super::material::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 use super::transfer::{self, P2gInput, Particle};
 use super::{Gel, Material, Snapshot, SolveReport, Solver};
 

@@ -30,7 +30,7 @@ use rayon::prelude::*;
 
 use super::contact;
 use super::indenters::Sweep;
-use super::material::ConstitutiveModel;
+use super::materials::ConstitutiveModel;
 use super::transfer::{self, ChunkStats, LayerStats, Node, Stencil};
 use super::{Gel, Snapshot, SolveReport, J_MAX, J_MIN};
 

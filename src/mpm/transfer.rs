@@ -31,7 +31,8 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-use super::material::{extract_rotation_lanes, ConstitutiveModel};
+use super::materials::ConstitutiveModel;
+use super::rotation::extract_rotation_lanes;
 use super::{J_MAX, J_MIN};
 
 /// Width, in cells along x, of one scatter block. Must be at least 2 (a block writes

@@ -15,6 +15,8 @@
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
+use super::super::materials::{corotated, neohookean, Principal, PAIRS};
+
 /// A material, or a part of one (selective integration against locking evaluates the
 /// stiff part of the volume term on other points than the rest).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -169,17 +171,6 @@ fn givens_qr(b: Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
     (q, r)
 }
 
-/// `psi_hat`, its gradient, its Hessian, and for each pair `(0,1), (0,2), (1,2)` the
-/// symmetric and twist eigenvalues.
-struct Principal {
-    energy: f64,
-    grad: Vector3<f64>,
-    hess: Matrix3<f64>,
-    pairs: [(f64, f64); 3],
-}
-
-const PAIRS: [(usize, usize, usize); 3] = [(0, 1, 2), (0, 2, 1), (1, 2, 0)];
-
 impl Density {
     /// Energy only (`+inf` where the density is not defined, `J <= 0` for Neo-Hookean).
     pub fn energy(&self, f: &Matrix3<f64>) -> f64 {
@@ -188,15 +179,7 @@ impl Density {
                 Some(d) => self.principal(&d.s, false).energy,
                 None => f64::INFINITY,
             },
-            Kind::NeoHookean => {
-                let j = f.determinant();
-                if j <= 0.0 || !j.is_finite() {
-                    return f64::INFINITY;
-                }
-                let lj = j.ln();
-                0.5 * self.mu * (f.norm_squared() - 3.0) - self.mu * lj
-                    + 0.5 * self.lambda * lj * lj
-            }
+            Kind::NeoHookean => neohookean::energy(self.mu, self.lambda, f),
         }
     }
 
@@ -268,7 +251,6 @@ impl Density {
     }
 
     fn principal(&self, s: &Vector3<f64>, derivatives: bool) -> Principal {
-        let (mu, lambda) = (self.mu, self.lambda);
         let j = s[0] * s[1] * s[2];
         let mut out = Principal {
             energy: 0.0,
@@ -276,65 +258,15 @@ impl Density {
             hess: Matrix3::zeros(),
             pairs: [(0.0, 0.0); 3],
         };
+        let (mu, lambda) = (self.mu, self.lambda);
         match self.kind {
-            Kind::FixedCorotated => {
-                out.energy = mu * s.map(|x| (x - 1.0) * (x - 1.0)).sum()
-                    + 0.5 * lambda * (j - 1.0) * (j - 1.0);
-                if !derivatives {
-                    return out;
-                }
-                for i in 0..3 {
-                    let others = j_without(s, i);
-                    out.grad[i] = 2.0 * mu * (s[i] - 1.0) + lambda * (j - 1.0) * others;
-                    out.hess[(i, i)] = 2.0 * mu + lambda * others * others;
-                }
-                for (n, &(i, k, l)) in PAIRS.iter().enumerate() {
-                    let h = lambda * s[l] * (2.0 * j - 1.0);
-                    out.hess[(i, k)] = h;
-                    out.hess[(k, i)] = h;
-                    let sum = s[i] + s[k];
-                    let twist_shape = if sum > 1e-12 {
-                        2.0 * mu * (1.0 - 2.0 / sum)
-                    } else {
-                        0.0
-                    };
-                    out.pairs[n] = (
-                        2.0 * mu - lambda * (j - 1.0) * s[l],
-                        twist_shape + lambda * (j - 1.0) * s[l],
-                    );
-                }
-            }
-            Kind::NeoHookean => {
-                let lj = j.ln();
-                out.energy = 0.5 * mu * (s.norm_squared() - 3.0) - mu * lj + 0.5 * lambda * lj * lj;
-                if !derivatives {
-                    return out;
-                }
-                for i in 0..3 {
-                    out.grad[i] = mu * s[i] + (lambda * lj - mu) / s[i];
-                    out.hess[(i, i)] = mu + (mu + lambda * (1.0 - lj)) / (s[i] * s[i]);
-                }
-                for (n, &(i, k, _)) in PAIRS.iter().enumerate() {
-                    let h = lambda / (s[i] * s[k]);
-                    out.hess[(i, k)] = h;
-                    out.hess[(k, i)] = h;
-                    let q = (mu - lambda * lj) / (s[i] * s[k]);
-                    out.pairs[n] = (mu + q, mu - q);
-                }
-            }
+            Kind::FixedCorotated => corotated::principal(mu, lambda, s, j, derivatives, &mut out),
+            Kind::NeoHookean => neohookean::principal(mu, lambda, s, j, derivatives, &mut out),
         }
         out
     }
 }
 
-/// Product of the singular values other than `i`.
-fn j_without(s: &Vector3<f64>, i: usize) -> f64 {
-    match i {
-        0 => s[1] * s[2],
-        1 => s[0] * s[2],
-        _ => s[0] * s[1],
-    }
-}
 
 #[cfg(test)]
 mod tests {

@@ -117,7 +117,7 @@
 //! sphere pressed 0.5 to 0.8 mm into the coarse gel shows it, before the sub-grid
 //! compliance as after; bodies pressed less than their radius are not affected.
 
-mod energy;
+pub(in crate::mpm) mod energy;
 mod multigrid;
 mod slabs;
 pub(super) mod subgrid;

@@ -1,81 +1,7 @@
-//! Constitutive models of the elastomer.
-//!
-//! The transfer kernels need the Kirchhoff stress `tau = P F^T` of each particle (the
-//! MLS-MPM force of Hu et al. 2018, Eq. 18, is `f_i = -sum_p V_p tau_p M_p^-1 (x_i - x_p)
-//! w_ip`), so that is what a [`ConstitutiveModel`] returns. Moduli are in the solver's
-//! internal stress unit (see `mpm/mod.rs`: stresses are divided by the P-wave modulus
-//! `lambda + 2 mu`), so every model here works in f32 at values of order one.
+//! The rotation of a deformation gradient's polar decomposition, warm-started per
+//! particle: what the fixed corotated material ([`super::materials`]) reads.
 
 use nalgebra::{Matrix3, UnitQuaternion};
-
-/// A hyperelastic energy density, evaluated per particle.
-pub trait ConstitutiveModel: Send + Sync {
-    /// Whether [`ConstitutiveModel::kirchhoff`] needs the rotation `R` of the polar
-    /// decomposition `F = R S`; when false the solver neither tracks nor passes it.
-    const USES_ROTATION: bool;
-
-    /// Kirchhoff stress `tau = P(F) F^T` at deformation gradient `f`, with `j` the volume
-    /// ratio that the volumetric (pressure) term uses (`det f`, or its kernel-smoothed
-    /// value against volumetric locking; `j > 0`, clamped by the solver) and rotation `r`
-    /// (the polar factor of `f` when [`ConstitutiveModel::USES_ROTATION`], otherwise the
-    /// identity).
-    fn kirchhoff(&self, f: &Matrix3<f32>, j: f32, r: &Matrix3<f32>) -> Matrix3<f32>;
-}
-
-/// Fixed corotated elasticity (Stomakhin et al. 2012, Eq. 2):
-/// `psi = mu |F - R|^2 + lambda/2 (J - 1)^2`, so
-/// `tau = 2 mu (F - R) F^T + lambda (J - 1) J I`.
-#[derive(Clone, Copy, Debug)]
-pub struct FixedCorotatedModel {
-    /// Shear modulus.
-    pub mu: f32,
-    /// First Lame parameter.
-    pub lambda: f32,
-}
-
-impl ConstitutiveModel for FixedCorotatedModel {
-    const USES_ROTATION: bool = true;
-
-    #[inline(always)]
-    fn kirchhoff(&self, f: &Matrix3<f32>, j: f32, r: &Matrix3<f32>) -> Matrix3<f32> {
-        let mut tau = (f - r) * f.transpose() * (2.0 * self.mu);
-        let vol = self.lambda * (j - 1.0) * j;
-        tau.m11 += vol;
-        tau.m22 += vol;
-        tau.m33 += vol;
-        tau
-    }
-}
-
-/// Compressible Neo-Hookean elasticity (Bonet and Wood, Eq. 6.28):
-/// `psi = mu/2 (tr(F^T F) - 3) - mu ln J + lambda/2 (ln J)^2`, so
-/// `tau = mu (F F^T - I) + lambda ln(J) I`.
-///
-/// Guard: `ln J` diverges as `J -> 0`; the solver clamps `J` to `[J_MIN, J_MAX]`
-/// (see [`super::J_MIN`]) before calling, and this model clamps again so that it never
-/// sees `J <= 0` whatever the caller does.
-#[derive(Clone, Copy, Debug)]
-pub struct NeoHookeanModel {
-    /// Shear modulus.
-    pub mu: f32,
-    /// First Lame parameter.
-    pub lambda: f32,
-}
-
-impl ConstitutiveModel for NeoHookeanModel {
-    const USES_ROTATION: bool = false;
-
-    #[inline(always)]
-    fn kirchhoff(&self, f: &Matrix3<f32>, j: f32, _r: &Matrix3<f32>) -> Matrix3<f32> {
-        let j = j.max(super::J_MIN as f32);
-        let mut tau = f * f.transpose() * self.mu;
-        let diag = self.lambda * j.ln() - self.mu;
-        tau.m11 += diag;
-        tau.m22 += diag;
-        tau.m33 += diag;
-        tau
-    }
-}
 
 /// Updates `q` towards the rotation of the polar decomposition of `a`, by the iteration of
 /// Mueller et al. 2016 ("A robust method to extract the rotational part of deformations",
@@ -219,39 +145,5 @@ mod tests {
             }
         }
         assert_eq!(q[3][5].to_bits(), quats[5].as_ref().coords[3].to_bits());
-    }
-
-    // Both models are stress free at rest and agree to first order (same mu, lambda).
-    #[test]
-    fn models_agree_for_small_strain() {
-        let co = FixedCorotatedModel {
-            mu: 0.3,
-            lambda: 0.4,
-        };
-        let nh = NeoHookeanModel {
-            mu: 0.3,
-            lambda: 0.4,
-        };
-        let i = Matrix3::identity();
-        assert!(co.kirchhoff(&i, 1.0, &i).norm() < 1e-7);
-        assert!(nh.kirchhoff(&i, 1.0, &i).norm() < 1e-7);
-        let e = 1e-3f32;
-        let f = Matrix3::new(
-            1.0 + e,
-            0.5 * e,
-            0.0,
-            0.5 * e,
-            1.0,
-            0.0,
-            0.0,
-            0.0,
-            1.0 - 0.3 * e,
-        );
-        let mut q = UnitQuaternion::identity();
-        extract_rotation(&f, &mut q, 20);
-        let r = *q.to_rotation_matrix().matrix();
-        let j = f.determinant();
-        let d = co.kirchhoff(&f, j, &r) - nh.kirchhoff(&f, j, &r);
-        assert!(d.norm() < 1e-2 * e, "difference {}", d.norm());
     }
 }

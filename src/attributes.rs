@@ -94,7 +94,11 @@ impl Range {
 
     /// Whether `x` lies in the range (never for NaN).
     pub fn contains(&self, x: f64) -> bool {
-        (if self.lo_open { x > self.lo } else { x >= self.lo }) && x <= self.hi
+        (if self.lo_open {
+            x > self.lo
+        } else {
+            x >= self.lo
+        }) && x <= self.hi
     }
 }
 
@@ -463,8 +467,8 @@ pub const SOLVER: Attribute = Attribute {
 /// Every attribute the plugin declares to MuJoCo, in table order.
 pub const TABLE: &[Attribute] = &[
     PHYSICS, OUTPUTS, RESOLUTION, FOV, SIZE, INDENTERS, YOUNG, POISSON, DENSITY, FRICTION, DX,
-    THREADS, MODEL, REFINE, TOLERANCE, MATERIAL, MARKERS, OPTICS, CAMERA, INDEX, COUPLING,
-    DAMPING, SOLVER,
+    THREADS, MODEL, REFINE, TOLERANCE, MATERIAL, MARKERS, OPTICS, CAMERA, INDEX, COUPLING, DAMPING,
+    SOLVER,
 ];
 
 /// The attributes' names, in table order (what MuJoCo is told).
@@ -546,9 +550,8 @@ fn json_string(s: &str) -> String {
 
 /// The README's attribute table (Markdown), between its `tacrom:attributes` markers.
 pub fn markdown_table() -> String {
-    let mut out = String::from(
-        "| attribute | meaning | unit | default | valid |\n|---|---|---|---|---|\n",
-    );
+    let mut out =
+        String::from("| attribute | meaning | unit | default | valid |\n|---|---|---|---|---|\n");
     for a in TABLE {
         let default = match a.default {
             Default::Depends(t) => t.to_owned(),

@@ -1258,7 +1258,10 @@ mod tests {
         };
         let physics: Vec<_> = Physics::ALL.iter().map(|(n, _)| *n).collect();
         assert_eq!(words(&attributes::PHYSICS), physics);
-        let outputs: Vec<_> = crate::sensor::outputs::TABLE.iter().map(|o| o.name()).collect();
+        let outputs: Vec<_> = crate::sensor::outputs::TABLE
+            .iter()
+            .map(|o| o.name())
+            .collect();
         assert_eq!(words(&attributes::OUTPUTS), outputs);
         let materials: Vec<_> = MATERIALS.iter().map(|(n, _)| *n).collect();
         assert_eq!(words(&attributes::MATERIAL), materials);
@@ -1277,7 +1280,11 @@ mod tests {
             }
             let written = parse(&[(a.name, &a.default.to_text())])
                 .unwrap_or_else(|e| panic!("{}: default does not parse: {e}", a.name));
-            assert_eq!(written, c, "{}: the written default differs from the unset one", a.name);
+            assert_eq!(
+                written, c,
+                "{}: the written default differs from the unset one",
+                a.name
+            );
         }
     }
 
@@ -1290,7 +1297,10 @@ mod tests {
             ("size", "0.03 0 0.004", "(0, 1] m"),
         ] {
             let msg = err(&[(attr, value)]).to_string();
-            assert!(msg.contains(&format!("'{attr}'")) && msg.contains(range), "{msg}");
+            assert!(
+                msg.contains(&format!("'{attr}'")) && msg.contains(range),
+                "{msg}"
+            );
         }
     }
 
@@ -1301,7 +1311,11 @@ mod tests {
         let e = err(&[("physics", "coarse"), ("size", "1 1 1")]);
         assert_eq!(e.attribute, "size", "{e}");
         assert!(e.reason.contains("dx = 0.0014"), "{e}");
-        let e = err(&[("physics", "coarse"), ("size", "0.3 0.3 0.04"), ("dx", "1e-4")]);
+        let e = err(&[
+            ("physics", "coarse"),
+            ("size", "0.3 0.3 0.04"),
+            ("dx", "1e-4"),
+        ]);
         assert_eq!(e.attribute, "dx", "{e}");
         assert!(parse(&[("physics", "rigid"), ("size", "1 1 1")]).is_ok());
     }

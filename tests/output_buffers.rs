@@ -39,7 +39,11 @@ fn eval(sensor: &mut TactileSensor, indenters: &[Placed]) -> Vec<f64> {
 #[test]
 fn every_outputs_buffer_is_copied_reset_and_cleared_without_contact() {
     for output in TABLE {
-        let physics = if output.spec().needs_gel { "coarse" } else { "rigid" };
+        let physics = if output.spec().needs_gel {
+            "coarse"
+        } else {
+            "rigid"
+        };
         let name = output.name();
         let fresh = {
             let mut s = TactileSensor::new(config(physics, name)).unwrap();
@@ -57,7 +61,11 @@ fn every_outputs_buffer_is_copied_reset_and_cleared_without_contact() {
         let (mut original, _) = pressed();
         let mut copy = original.try_clone().unwrap();
         let next = ball(0.6e-3, 0.55e-3);
-        assert_eq!(eval(&mut copy, &next), eval(&mut original, &next), "{name}: copy");
+        assert_eq!(
+            eval(&mut copy, &next),
+            eval(&mut original, &next),
+            "{name}: copy"
+        );
 
         // Reset: the flat gel's outputs, as a fresh sensor writes them, before and after
         // its next frame without contact.
@@ -72,7 +80,10 @@ fn every_outputs_buffer_is_copied_reset_and_cleared_without_contact() {
         for _ in 0..3 {
             last = eval(&mut left, &[]);
         }
-        let peak = fresh.iter().chain(&last).fold(0.0f64, |m, v| m.max(v.abs()));
+        let peak = fresh
+            .iter()
+            .chain(&last)
+            .fold(0.0f64, |m, v| m.max(v.abs()));
         let worst = fresh
             .iter()
             .zip(&last)

@@ -333,7 +333,10 @@ fn a_gel_other_than_the_models_is_refused() {
     let e = TactileSensor::new(Config::from_raw("touch", &raw).unwrap())
         .unwrap_err()
         .to_string();
-    assert!(e.contains("attribute 'poisson'") && e.contains("in [0.3, 0.48]"), "{e}");
+    assert!(
+        e.contains("attribute 'poisson'") && e.contains("in [0.3, 0.48]"),
+        "{e}"
+    );
     let raw = RawConfig::default().with(ATTR_MODEL, "/no/such/model");
     let e = TactileSensor::new(Config::from_raw("touch", &raw).unwrap())
         .unwrap_err()

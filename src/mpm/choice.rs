@@ -125,7 +125,8 @@ pub fn frame_fallback(
     reached: impl FnOnce() -> f64,
     spacing: f64,
 ) -> Option<Solver> {
-    let missed = touching && footprint <= UNRESOLVED_POINTS && reached() > MISSED_FRACTION * spacing;
+    let missed =
+        touching && footprint <= UNRESOLVED_POINTS && reached() > MISSED_FRACTION * spacing;
     missed.then(|| {
         if linear_fits(params) {
             Solver::Linear

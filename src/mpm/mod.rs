@@ -87,8 +87,8 @@ mod params;
 mod pressure;
 pub use pressure::spread_loads;
 mod region;
-mod rotation;
 mod relax;
+mod rotation;
 mod surface;
 mod total;
 mod transfer;
@@ -102,18 +102,18 @@ use std::sync::Arc;
 
 use crate::geometry::{PixelGrid, Placed, Sdf};
 
-use contact::{ActiveContact, SlotContact, StepIndenter};
-use indenters::match_indenters;
-pub use materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-pub use rotation::extract_rotation;
 pub use choice::{
     choose, Choice, AUTO_NEWTON_POISSON, COARSE_START_UNKNOWNS, LINEAR_UNKNOWNS, MISSED_FRACTION,
     MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,
 };
+use contact::{ActiveContact, SlotContact, StepIndenter};
+use indenters::match_indenters;
+pub use materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 pub use params::{
     GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
     CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, NESTED_MARGIN,
 };
+pub use rotation::extract_rotation;
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
 /// Rotation-extraction steps per time step (fixed corotated), warm-started.

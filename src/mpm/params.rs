@@ -365,7 +365,6 @@ impl Gel {
     }
 }
 
-
 fn check_params(p: &GelParams) -> Result<(), MpmError> {
     use crate::attributes::{DENSITY, FRICTION, POISSON, SIZE, YOUNG};
     let sizes = ["size[0]", "size[1]", "size[2]"].into_iter().zip(p.size);

@@ -718,7 +718,9 @@ pub unsafe extern "C" fn tacrom_sensor_outputs(
 /// `buf` must hold `len` bytes.
 #[no_mangle]
 pub unsafe extern "C" fn tacrom_output_table(buf: *mut c_char, len: c_int) -> c_int {
-    guarded(ERROR, || json_into(buf, len, &crate::sensor::outputs::table_json()))
+    guarded(ERROR, || {
+        json_into(buf, len, &crate::sensor::outputs::table_json())
+    })
 }
 
 /// The attribute table as JSON (see [`crate::attributes::table_json`]), written as
@@ -728,7 +730,9 @@ pub unsafe extern "C" fn tacrom_output_table(buf: *mut c_char, len: c_int) -> c_
 /// `buf` must hold `len` bytes.
 #[no_mangle]
 pub unsafe extern "C" fn tacrom_attribute_table(buf: *mut c_char, len: c_int) -> c_int {
-    guarded(ERROR, || json_into(buf, len, &crate::attributes::table_json()))
+    guarded(ERROR, || {
+        json_into(buf, len, &crate::attributes::table_json())
+    })
 }
 
 /// Writes `json` NUL-terminated into `buf` when it fits in `len` bytes; returns its

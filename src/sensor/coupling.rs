@@ -220,7 +220,13 @@ mod tests {
     fn rates_are_differences_over_the_step_and_kept_for_the_same_time() {
         let mut c = Coupling::default();
         c.update(0.0, vec![sample(3, 1.0, 0.0)]);
-        assert_eq!(c.rates[0], Sample { geom: 3, ..Sample::default() });
+        assert_eq!(
+            c.rates[0],
+            Sample {
+                geom: 3,
+                ..Sample::default()
+            }
+        );
         c.update(0.002, vec![sample(3, 1.5, -1e-5)]);
         assert!((c.rates[0].wrench.force.z - 250.0).abs() < 1e-9);
         assert!((c.rates[0].at.z + 5e-3).abs() < 1e-12);
@@ -231,7 +237,13 @@ mod tests {
         assert_eq!(c.rates, before);
         // A step back in time (a reset or a restored state): no rate, no step.
         c.update(0.0, vec![sample(3, 1.5, -1e-5)]);
-        assert_eq!(c.rates[0], Sample { geom: 3, ..Sample::default() });
+        assert_eq!(
+            c.rates[0],
+            Sample {
+                geom: 3,
+                ..Sample::default()
+            }
+        );
         assert_eq!(c.step, None);
     }
 
@@ -274,12 +286,17 @@ mod tests {
             c.push(0.002, vec![sample(0, 0.02, -2e-6)], 0.0, |_| mass)
         };
         let light = run(1e-4);
-        let i = light[0].unstable.expect("k h^2 / m = 0.4 / 1e-4 * 1e-2 > 2");
+        let i = light[0]
+            .unstable
+            .expect("k h^2 / m = 0.4 / 1e-4 * 1e-2 > 2");
         assert!((i.stiffness - 1e4).abs() < 1e-6, "{}", i.stiffness);
         assert!((i.ratio - 1e4 * 4e-6 / 1e-4).abs() < 1e-9);
         assert!(run(1.0)[0].unstable.is_none());
         assert!(run(f64::INFINITY)[0].unstable.is_none());
-        assert_eq!(light[0].wrench.force.z, 0.02, "no damping: the elastic wrench");
+        assert_eq!(
+            light[0].wrench.force.z, 0.02,
+            "no damping: the elastic wrench"
+        );
     }
 
     #[test]

@@ -356,8 +356,12 @@ impl TactileSensor {
         self.model.solve(&scene, &mut eval);
         if self.needs.depth {
             if self.needs.shear {
-                self.model
-                    .depth_and_shear(&scene, &mut self.fields.depth, &mut self.fields.shear, &mut eval);
+                self.model.depth_and_shear(
+                    &scene,
+                    &mut self.fields.depth,
+                    &mut self.fields.shear,
+                    &mut eval,
+                );
             } else {
                 self.model.depth(&scene, &mut self.fields.depth, &mut eval);
             }

@@ -373,7 +373,11 @@ pub fn markdown_table() -> String {
             Shape::Vector(n) => format!("({n},)"),
             Shape::PerMarker(n) => format!("(NX * NY, {n})"),
         };
-        let gel = if s.needs_gel { " (not with `rigid`)" } else { "" };
+        let gel = if s.needs_gel {
+            " (not with `rigid`)"
+        } else {
+            ""
+        };
         out.push_str(&format!(
             "| `{}` | {shape} | {} | {}{gel} |\n",
             s.name, s.unit, s.doc

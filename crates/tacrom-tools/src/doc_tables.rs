@@ -37,12 +37,15 @@ mod tests {
 
     #[test]
     fn a_block_is_replaced_and_the_rest_kept() {
-        let text = "intro\n<!-- tacrom:attributes:begin -->\nstale row\n<!-- tacrom:attributes:end \
+        let text =
+            "intro\n<!-- tacrom:attributes:begin -->\nstale row\n<!-- tacrom:attributes:end \
                     -->\nmiddle\n<!-- tacrom:outputs:begin --><!-- tacrom:outputs:end -->\nend\n";
         let out = splice(text).unwrap();
         assert!(out.starts_with("intro\n<!-- tacrom:attributes:begin -->\n| attribute |"));
         assert!(!out.contains("stale row"));
-        assert!(out.contains("| `young` | Young's modulus of the gel | Pa | `1.19e5` | [100, 1e10] |"));
+        assert!(
+            out.contains("| `young` | Young's modulus of the gel | Pa | `1.19e5` | [100, 1e10] |")
+        );
         assert!(out.contains("| `depth` | (H, W) | m |"));
         assert!(out.ends_with("<!-- tacrom:outputs:end -->\nend\n"));
         assert_eq!(splice(&out).unwrap(), out, "splicing is idempotent");

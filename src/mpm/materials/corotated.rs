@@ -41,8 +41,7 @@ pub(crate) fn principal(
     derivatives: bool,
     out: &mut Principal,
 ) {
-    out.energy = mu * s.map(|x| (x - 1.0) * (x - 1.0)).sum()
-        + 0.5 * lambda * (j - 1.0) * (j - 1.0);
+    out.energy = mu * s.map(|x| (x - 1.0) * (x - 1.0)).sum() + 0.5 * lambda * (j - 1.0) * (j - 1.0);
     if !derivatives {
         return;
     }

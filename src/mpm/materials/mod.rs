@@ -130,7 +130,10 @@ mod tests {
     #[test]
     fn each_materials_f32_stress_is_its_f64_energys_gradient() {
         let (mu, lambda) = (0.3, 0.45);
-        for (kind, name) in [(Kind::FixedCorotated, "corotated"), (Kind::NeoHookean, "neohookean")] {
+        for (kind, name) in [
+            (Kind::FixedCorotated, "corotated"),
+            (Kind::NeoHookean, "neohookean"),
+        ] {
             let density = Density { kind, mu, lambda };
             let mut worst = 0.0f64;
             for f in deformations() {
@@ -154,7 +157,10 @@ mod tests {
                 let scale = tau64.norm() + mu + lambda;
                 let err = (tau32.cast::<f64>() - tau64).norm() / scale;
                 worst = worst.max(err);
-                assert!(err < 2e-5, "{name} at F = {f}: f32 {tau32} against f64 {tau64}");
+                assert!(
+                    err < 2e-5,
+                    "{name} at F = {f}: f32 {tau32} against f64 {tau64}"
+                );
             }
             assert!(worst > 0.0, "{name}: the two forms are computed apart");
         }
@@ -175,12 +181,18 @@ mod tests {
             };
             neohookean::principal(mu, lambda, &d.s, j, false, &mut out);
             let closed = neohookean::energy(mu, lambda, &f);
-            assert!((out.energy - closed).abs() <= 1e-12 * closed.abs().max(1.0), "{f}");
+            assert!(
+                (out.energy - closed).abs() <= 1e-12 * closed.abs().max(1.0),
+                "{f}"
+            );
             // Fixed corotated: mu |F - R|^2 + lambda/2 (J - 1)^2 with R = U V^T.
             let r = d.u * d.v.transpose();
             let direct = mu * (f - r).norm_squared() + 0.5 * lambda * (j - 1.0).powi(2);
             corotated::principal(mu, lambda, &d.s, j, false, &mut out);
-            assert!((out.energy - direct).abs() <= 1e-12 * direct.abs().max(1.0), "{f}");
+            assert!(
+                (out.energy - direct).abs() <= 1e-12 * direct.abs().max(1.0),
+                "{f}"
+            );
         }
     }
 }

@@ -267,7 +267,6 @@ impl Density {
     }
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1262,7 +1262,10 @@ impl Newton {
     /// point's stress and tangent and each contact point's stiffness for the Hessian
     /// ([`Self::hessian_product`], [`Self::fill_matrix`]); also the smallest and largest
     /// `det F`. `None` where the material is not defined.
-    pub(in crate::mpm) fn evaluate(&mut self, indenters: &[StepIndenter]) -> Option<(f64, f64, f64)> {
+    pub(in crate::mpm) fn evaluate(
+        &mut self,
+        indenters: &[StepIndenter],
+    ) -> Option<(f64, f64, f64)> {
         self.grad.fill(0.0);
         let (points, densities, u) = (&self.points, &self.densities, &self.u);
         self.states

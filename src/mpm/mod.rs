@@ -1018,7 +1018,7 @@ fn step_context(params: &GelParams, options: &SolverOptions, layout: &Layout, mu
         pvol: pvol as f32,
         damping: damping as f32,
         fbar: options.fbar && params.poisson >= FBAR_POISSON,
-        rot_iters: if params.material == Material::FixedCorotated {
+        rot_iters: if params.material.uses_rotation() {
             ROT_ITERS
         } else {
             0

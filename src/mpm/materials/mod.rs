@@ -1,20 +1,34 @@
 //! The gel's materials, one file each, both forms side by side: the f32 Kirchhoff stress
 //! the dynamic relaxation's particles use ([`ConstitutiveModel`]) and the f64 energy of the
 //! signed singular values of `F`, with its gradient, Hessian and pair eigenvalues, that
-//! Newton's method and the linear solver use (`principal`, read by `newton/energy.rs`).
-//! A test checks that the two agree: the f32 stress is the f64 energy's `P F^T`.
+//! Newton's method and the linear solver use (`principal`, read by `newton/energy.rs`
+//! through the tables below). The two forms differ by design (the relaxation's corotated
+//! stress reads the polar rotation it tracks per particle; Newton's reads the signed SVD),
+//! so each file holds both rather than one generic over the scalar; a test checks that they
+//! agree: the f32 stress is the f64 energy's `P F^T`.
 //!
 //! Moduli are in the solver's internal stress unit (see `mpm/mod.rs`: stresses are
 //! divided by the P-wave modulus `lambda + 2 mu`), so every model here works at values of
-//! order one.
+//! order one. Both solvers take the gel's `mu` and `lambda` as they are (Newton casts them
+//! to f64 and may split `lambda` between particles and cells, which adds).
 //!
-//! A new material: its file here (both forms), its value of
-//! [`Material`](super::Material) (`params.rs`), its name in the `material` attribute
-//! (`config::MATERIALS` and `attributes::MATERIAL`, checked against each other by a test),
-//! and its arm in the two dispatches (`relax.rs`, `Gel::relax_material`; `newton/energy.rs`,
-//! `Kind`).
+//! A new material touches:
+//! 1. its file here, with both forms (the f32 model implementing [`ConstitutiveModel`];
+//!    the f64 `principal`, and a closed-form `energy` where it has one), and its `mod` and
+//!    `pub use` lines below;
+//! 2. its value of [`Material`] (`params.rs`);
+//! 3. its name in `config::MATERIALS` and `attributes::MATERIAL` (checked against each
+//!    other by a test; the tests here and in `newton/energy.rs` run every material that
+//!    `config::MATERIALS` names);
+//! 4. one arm in each table: the tables of `impl Material` below, the relaxation's choice
+//!    of model (`relax.rs`, `Gel::relax_material`) and the test's (`kirchhoff` here).
+//!
+//! Every table is an exhaustive `match`, so the compiler names each arm a new material
+//! still lacks.
 
 use nalgebra::{Matrix3, Vector3};
+
+use super::Material;
 
 pub(crate) mod corotated;
 pub(crate) mod neohookean;
@@ -56,11 +70,61 @@ pub(crate) fn j_without(s: &Vector3<f64>, i: usize) -> f64 {
     }
 }
 
+/// The tables: what each material is to the parts of the solver that are not generic over
+/// it, one arm per material.
+impl Material {
+    /// Whether the relaxation's model reads the polar rotation of `F`
+    /// ([`ConstitutiveModel::USES_ROTATION`]), so that the particles track it.
+    pub(crate) fn uses_rotation(self) -> bool {
+        match self {
+            Material::FixedCorotated => FixedCorotatedModel::USES_ROTATION,
+            Material::NeoHookean => NeoHookeanModel::USES_ROTATION,
+        }
+    }
+
+    /// Whether the f64 energy is defined only where every signed singular value of `F` is
+    /// positive (`J > 0`).
+    pub(crate) fn needs_positive_stretches(self) -> bool {
+        match self {
+            Material::FixedCorotated => false,
+            Material::NeoHookean => true,
+        }
+    }
+
+    /// The f64 energy at `f` in closed form (`+inf` where it is not defined), or `None`
+    /// where the material has none (the energy then comes from [`Material::principal`]
+    /// at the signed singular values).
+    pub(crate) fn closed_energy(self, mu: f64, lambda: f64, f: &Matrix3<f64>) -> Option<f64> {
+        match self {
+            Material::FixedCorotated => None,
+            Material::NeoHookean => Some(neohookean::energy(mu, lambda, f)),
+        }
+    }
+
+    /// The f64 energy of the signed singular values `s` (`j` their product) and, with
+    /// `derivatives`, its gradient, Hessian and pair eigenvalues, into `out` (zero on
+    /// entry).
+    pub(crate) fn principal(
+        self,
+        mu: f64,
+        lambda: f64,
+        s: &Vector3<f64>,
+        j: f64,
+        derivatives: bool,
+        out: &mut Principal,
+    ) {
+        match self {
+            Material::FixedCorotated => corotated::principal(mu, lambda, s, j, derivatives, out),
+            Material::NeoHookean => neohookean::principal(mu, lambda, s, j, derivatives, out),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::mpm::extract_rotation;
-    use crate::mpm::newton::energy::{Density, Kind, SignedSvd};
+    use crate::mpm::newton::energy::{Density, SignedSvd};
     use nalgebra::UnitQuaternion;
 
     // Both models are stress free at rest and agree to first order (same mu, lambda).
@@ -122,19 +186,41 @@ mod tests {
         out
     }
 
+    /// The relaxation's f32 Kirchhoff stress of `material`, as `Gel::relax_material`
+    /// builds its model.
+    fn kirchhoff(
+        material: Material,
+        mu: f32,
+        lambda: f32,
+        f: &Matrix3<f32>,
+        j: f32,
+        r: &Matrix3<f32>,
+    ) -> Matrix3<f32> {
+        match material {
+            Material::FixedCorotated => FixedCorotatedModel { mu, lambda }.kirchhoff(f, j, r),
+            Material::NeoHookean => NeoHookeanModel { mu, lambda }.kirchhoff(f, j, r),
+        }
+    }
+
     // One material, two forms: the relaxation's f32 Kirchhoff stress is the f64 energy's
-    // `P F^T` (Newton's side), at every deformation above. Tolerance: f32 round-off of
-    // stresses of order one, a few ulps (1.2e-7 each) over a dozen operations, plus, for
-    // the fixed corotated form, the rotation passed to it in f32 (1e-7): 2e-5 of the
-    // stress's scale `|tau| + mu + lambda`.
+    // `P F^T` (Newton's side, `P = U diag(grad) V^T`), at every deformation above, for
+    // every material the `material` attribute names. Both sides get the same moduli, as
+    // the solvers do (the gel's f32 `mu`, `lambda`; Newton casts them to f64). Tolerance:
+    // f32 round-off of stresses of order one, a few ulps (1.2e-7 each) over a dozen
+    // operations, plus, for the fixed corotated form, the rotation passed to it in f32
+    // (1e-7): 2e-5 of the stress's scale `|tau| + mu + lambda`. And the f64 `P` is the
+    // central difference of the f64 energy (step 1e-6: truncation about 1e-12, round-off
+    // about 1e-16 / 1e-6 = 1e-10 of energies of order one), to 1e-6 of `1 + |P|`.
     #[test]
     fn each_materials_f32_stress_is_its_f64_energys_gradient() {
-        let (mu, lambda) = (0.3, 0.45);
-        for (kind, name) in [
-            (Kind::FixedCorotated, "corotated"),
-            (Kind::NeoHookean, "neohookean"),
-        ] {
-            let density = Density { kind, mu, lambda };
+        let (mu, lambda) = (0.3f32, 0.45f32);
+        let (mu64, lambda64) = (mu as f64, lambda as f64);
+        for &(name, material) in crate::config::MATERIALS {
+            let density = Density {
+                material,
+                mu: mu64,
+                lambda: lambda64,
+            };
             let mut worst = 0.0f64;
             for f in deformations() {
                 let p = density.evaluate(&f).expect("defined at det F > 0").stress;
@@ -142,25 +228,26 @@ mod tests {
                 let d = SignedSvd::of(&f).unwrap();
                 let r = (d.u * d.v.transpose()).cast::<f32>();
                 let (f32_, j) = (f.cast::<f32>(), f.determinant() as f32);
-                let tau32 = match kind {
-                    Kind::FixedCorotated => FixedCorotatedModel {
-                        mu: mu as f32,
-                        lambda: lambda as f32,
-                    }
-                    .kirchhoff(&f32_, j, &r),
-                    Kind::NeoHookean => NeoHookeanModel {
-                        mu: mu as f32,
-                        lambda: lambda as f32,
-                    }
-                    .kirchhoff(&f32_, j, &r),
-                };
-                let scale = tau64.norm() + mu + lambda;
+                let tau32 = kirchhoff(material, mu, lambda, &f32_, j, &r);
+                let scale = tau64.norm() + mu64 + lambda64;
                 let err = (tau32.cast::<f64>() - tau64).norm() / scale;
                 worst = worst.max(err);
                 assert!(
                     err < 2e-5,
                     "{name} at F = {f}: f32 {tau32} against f64 {tau64}"
                 );
+                let h = 1e-6;
+                for a in 0..9 {
+                    let (mut fp, mut fm) = (f, f);
+                    fp[(a / 3, a % 3)] += h;
+                    fm[(a / 3, a % 3)] -= h;
+                    let fd = (density.energy(&fp) - density.energy(&fm)) / (2.0 * h);
+                    let pa = p[(a / 3, a % 3)];
+                    assert!(
+                        (fd - pa).abs() < 1e-6 * (1.0 + pa.abs()),
+                        "{name} at F = {f}, entry {a}: difference {fd}, P {pa}"
+                    );
+                }
             }
             assert!(worst > 0.0, "{name}: the two forms are computed apart");
         }

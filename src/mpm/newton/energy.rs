@@ -15,26 +15,19 @@
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-use super::super::materials::{corotated, neohookean, Principal, PAIRS};
+use super::super::materials::{Principal, PAIRS};
+use super::super::Material;
 
 /// A material, or a part of one (selective integration against locking evaluates the
 /// stiff part of the volume term on other points than the rest).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Density {
-    pub kind: Kind,
+    /// Which energy (its f64 form in `mpm/materials/`).
+    pub material: Material,
     /// Shear modulus (internal units; 0 leaves the shape term out).
     pub mu: f64,
     /// First Lame parameter (0 leaves the volume term out).
     pub lambda: f64,
-}
-
-/// The constitutive family.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Kind {
-    /// `mu |F - R|^2 + lambda/2 (J - 1)^2` (Stomakhin et al. 2012).
-    FixedCorotated,
-    /// `mu/2 (|F|^2 - 3) - mu ln J + lambda/2 (ln J)^2`.
-    NeoHookean,
 }
 
 /// What a density gives at one `F`.
@@ -172,14 +165,15 @@ fn givens_qr(b: Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
 }
 
 impl Density {
-    /// Energy only (`+inf` where the density is not defined, `J <= 0` for Neo-Hookean).
+    /// Energy only (`+inf` where the density is not defined, `J <= 0` for Neo-Hookean):
+    /// the material's closed form where it has one, else its principal form.
     pub fn energy(&self, f: &Matrix3<f64>) -> f64 {
-        match self.kind {
-            Kind::FixedCorotated => match SignedSvd::of(f) {
+        match self.material.closed_energy(self.mu, self.lambda, f) {
+            Some(e) => e,
+            None => match SignedSvd::of(f) {
                 Some(d) => self.principal(&d.s, false).energy,
                 None => f64::INFINITY,
             },
-            Kind::NeoHookean => neohookean::energy(self.mu, self.lambda, f),
         }
     }
 
@@ -187,7 +181,7 @@ impl Density {
     /// defined.
     pub fn evaluate(&self, f: &Matrix3<f64>) -> Option<Evaluated> {
         let d = SignedSvd::of(f)?;
-        if self.kind == Kind::NeoHookean && d.s.iter().any(|&x| x <= 0.0) {
+        if self.material.needs_positive_stretches() && d.s.iter().any(|&x| x <= 0.0) {
             return None;
         }
         let p = self.principal(&d.s, true);
@@ -258,11 +252,8 @@ impl Density {
             hess: Matrix3::zeros(),
             pairs: [(0.0, 0.0); 3],
         };
-        let (mu, lambda) = (self.mu, self.lambda);
-        match self.kind {
-            Kind::FixedCorotated => corotated::principal(mu, lambda, s, j, derivatives, &mut out),
-            Kind::NeoHookean => neohookean::principal(mu, lambda, s, j, derivatives, &mut out),
-        }
+        self.material
+            .principal(self.mu, self.lambda, s, j, derivatives, &mut out);
         out
     }
 }
@@ -288,9 +279,13 @@ mod tests {
 
     fn densities() -> Vec<Density> {
         let mut out = Vec::new();
-        for kind in [Kind::FixedCorotated, Kind::NeoHookean] {
+        for &(_, material) in crate::config::MATERIALS {
             for (mu, lambda) in [(0.3, 0.4), (0.3, 0.0), (0.0, 5.0)] {
-                out.push(Density { kind, mu, lambda });
+                out.push(Density {
+                    material,
+                    mu,
+                    lambda,
+                });
             }
         }
         out

@@ -133,11 +133,11 @@ use rayon::prelude::*;
 use super::contact::{StepIndenter, CONTACT_BAND};
 use super::indenters::Sweep;
 use super::{
-    Gel, GelParams, Layout, Linear, Material, SolveReport, Solver, SolverOptions, FBAR_POISSON,
-    J_MAX, J_MIN, MULTIGRID_UNKNOWNS, PAD_BOTTOM,
+    Gel, GelParams, Layout, Linear, SolveReport, Solver, SolverOptions, FBAR_POISSON, J_MAX, J_MIN,
+    MULTIGRID_UNKNOWNS, PAD_BOTTOM,
 };
 use crate::geometry::{Aabb, Placed, Sdf};
-use energy::{Density, Kind};
+use energy::Density;
 use multigrid::TwoGrid;
 use slabs::Slabs;
 use std::sync::Arc;
@@ -536,10 +536,7 @@ impl Newton {
     pub(super) fn new(gel: &Gel) -> Result<Newton, String> {
         let layout: &Layout = &gel.layout;
         let params = &gel.params;
-        let kind = match params.material {
-            Material::FixedCorotated => Kind::FixedCorotated,
-            Material::NeoHookean => Kind::NeoHookean,
-        };
+        let material = params.material;
         let (mu, lambda) = (gel.mu as f64, gel.lambda as f64);
         let selective = params.poisson > FBAR_POISSON;
         let densities = if selective {
@@ -548,18 +545,22 @@ impl Newton {
             let kept = (2.0 * mu * FBAR_POISSON / (1.0 - 2.0 * FBAR_POISSON)).min(lambda);
             vec![
                 Density {
-                    kind,
+                    material,
                     mu,
                     lambda: kept,
                 },
                 Density {
-                    kind,
+                    material,
                     mu: 0.0,
                     lambda: lambda - kept,
                 },
             ]
         } else {
-            vec![Density { kind, mu, lambda }]
+            vec![Density {
+                material,
+                mu,
+                lambda,
+            }]
         };
         let dx = layout.dx;
         let [nx, ny, nz] = layout.lattice;

@@ -44,6 +44,10 @@ demo: build
 	$(PY) examples/gripper.py --out out/gripper --physics rigid --resolution 64 48
 	$(PY) examples/rest.py --physics coarse --seconds 0.3
 
+# The tests keep the gel cache (the linear solver's surface compliance, docs/solvers.md)
+# in the build folder, not in the user's.
+test-rust test-python bench-quick: export TACROM_CACHE := $(CURDIR)/target/tacrom-cache
+
 test-rust: venv
 	$(CARGO) test --release
 

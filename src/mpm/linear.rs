@@ -122,6 +122,8 @@ use faer::linalg::cholesky::llt;
 use faer::{Conj, MatMut, MatRef, Par};
 use std::sync::{Arc, Mutex, Weak};
 
+use super::gel_cache;
+
 /// Steps at most of a march along the vertical ([`Compliance::vertical_gap`]), the
 /// smallest step (cells) down through an indenter, the bisections of the way out, and the
 /// distance (cells) at which a march up has met the surface.
@@ -182,9 +184,6 @@ type Columns = [(u32, f64); 9];
 /// The linear solver's state for one gel.
 #[derive(Clone)]
 pub(crate) struct Compliance {
-    /// The gel's stiffness at rest, factored: shared by every gel of the same parameters
-    /// ([`shared_factor`]).
-    system: Arc<System>,
     dx: f64,
     origin: Vector3<f64>,
     /// Node columns along y (the column index is `ix * ny + iy`).
@@ -206,13 +205,14 @@ pub(crate) struct Compliance {
     /// the node (`u32::MAX`: fixed), and the three vertical weights.
     levels: Vec<[u32; 3]>,
     weights: [f64; 3],
-    /// The response (3 per node column, cells per internal force unit) of every node
-    /// column to each column load computed so far (whole tiles).
-    columns: HashMap<u32, Box<[f64]>>,
-    /// Coulomb friction coefficient; where it is positive, the responses to the columns'
-    /// lateral loads (+x, then +y: 6 per node column), computed as `columns`.
+    /// Every node column's responses to its loads: shared by the gels of the same
+    /// parameters, and kept on disk ([`Responses`]).
+    responses: Arc<Responses>,
+    /// Node columns whose responses this gel's construction computed (0: read from the
+    /// cache or from a live gel of the same parameters).
+    pub computed: usize,
+    /// Coulomb friction coefficient (the lateral responses exist where it is positive).
     friction: f64,
-    shear: HashMap<u32, Box<[f64]>>,
     /// Friction's history: the stick anchor of each lattice point in contact, its force on
     /// the gel (internal units) and the node columns' mean displacement (cells, 3 per
     /// column; empty: at rest) at the end of the last frame.
@@ -245,36 +245,88 @@ pub(crate) struct Contact {
     pub converged: bool,
 }
 
-/// The factored stiffness at rest of the gels alive, by their parameters (`GelParams` as
-/// `Debug` prints them: every field, each float to the bit).
-static FACTORS: Mutex<Vec<(String, Weak<System>)>> = Mutex::new(Vec::new());
-
-/// The factored stiffness of a gel whose parameters print as `key`: the one a live gel of
-/// the same parameters holds, else `build`'s. The linear solver's factor is the largest
-/// thing a gel holds (tens of MB on the coarse gel); the sensors of one process (an RL
-/// process with several environments, a gripper's two fingers) hold one per gel.
-fn shared_factor(
-    key: &str,
-    build: impl FnOnce() -> Result<System, String>,
-) -> Result<Arc<System>, String> {
-    let mut factors = FACTORS.lock().unwrap_or_else(|e| e.into_inner());
-    factors.retain(|(_, w)| w.strong_count() > 0);
-    if let Some(system) = factors
-        .iter()
-        .find(|(k, _)| k == key)
-        .and_then(|(_, w)| w.upgrade())
-    {
-        return Ok(system);
-    }
-    let system = Arc::new(build()?);
-    factors.push((key.to_owned(), Arc::downgrade(&system)));
-    Ok(system)
+/// Every node column's response (3 values per node column: its mean displacement, cells
+/// per internal force unit) to a unit downward load on one node column, and with
+/// friction to unit loads along +x and +y: all of a gel's surface compliance.
+pub(crate) struct Responses {
+    /// Values per response: 3 per node column.
+    len: usize,
+    /// Column `c`'s response to its downward load: `down[c * len..][..len]`.
+    down: Vec<f64>,
+    /// Column `c`'s responses to its +x and +y loads: `lateral[2 * c * len..][..2 * len]`
+    /// (empty without friction).
+    lateral: Vec<f64>,
 }
 
+impl Responses {
+    /// The response of every node column to the downward load of column `c`.
+    fn down(&self, c: u32) -> &[f64] {
+        &self.down[c as usize * self.len..][..self.len]
+    }
+
+    /// The responses of every node column to the +x, then the +y load of column `c`.
+    fn lateral(&self, c: u32) -> &[f64] {
+        &self.lateral[2 * c as usize * self.len..][..2 * self.len]
+    }
+
+    /// The numbers a cache file holds: the downward responses, then the lateral ones.
+    fn to_flat(&self) -> Vec<f64> {
+        [&self.down[..], &self.lateral[..]].concat()
+    }
+
+    /// The responses of `columns` node columns from a cache file's numbers, if they are as
+    /// many as they must be.
+    fn from_flat(mut flat: Vec<f64>, columns: usize, lateral: bool) -> Option<Responses> {
+        let len = 3 * columns;
+        let down = columns * len;
+        if flat.len() != down * if lateral { 3 } else { 1 } {
+            return None;
+        }
+        let lateral = flat.split_off(down);
+        Some(Responses {
+            len,
+            down: flat,
+            lateral,
+        })
+    }
+}
+
+/// The responses of the gels alive, by their key ([`Compliance::responses_key`]).
+static RESPONSES: Mutex<Vec<(String, Weak<Responses>)>> = Mutex::new(Vec::new());
+
+/// The kind of the responses' cache files ([`gel_cache`]).
+const CACHE_KIND: &str = "linear";
+
+/// Tiles solved for together when the responses are computed (one parallel batch: its
+/// right-hand sides, about 35 MB on the coarse gel, are the memory it takes).
+const TILES_PER_BATCH: usize = 8;
+
 impl Compliance {
-    /// The stiffness of `gel` at rest, factored, its top slots and its contact lattice.
+    /// The stiffness of `gel` at rest, its top slots, its contact lattice and the
+    /// responses of all its node columns: those of a live gel of the same parameters, else
+    /// the cache's ([`gel_cache`]), else computed with the factored stiffness (and cached).
     pub fn new(gel: &Gel) -> Result<Compliance, String> {
-        let mut newton = Newton::new(gel)?;
+        let (mut c, newton) = Self::skeleton(gel)?;
+        let key = Self::responses_key(gel);
+        let mut live = RESPONSES.lock().unwrap_or_else(|e| e.into_inner());
+        live.retain(|(_, w)| w.strong_count() > 0);
+        if let Some(r) = live
+            .iter()
+            .find(|(k, _)| *k == key)
+            .and_then(|(_, w)| w.upgrade())
+        {
+            c.responses = r;
+            return Ok(c);
+        }
+        c.fill(newton, gel_cache::Store::from_env().as_ref(), &key)?;
+        live.push((key, Arc::downgrade(&c.responses)));
+        Ok(c)
+    }
+
+    /// Everything of [`Compliance::new`] but the responses (none yet), and the gel's
+    /// Newton discretisation, whose stiffness gives them.
+    fn skeleton(gel: &Gel) -> Result<(Compliance, Newton), String> {
+        let newton = Newton::new(gel)?;
         if newton.u.len() > LINEAR_UNKNOWNS {
             return Err(format!(
                 "the grid has {} unknowns, more than the {LINEAR_UNKNOWNS} the linear solver \
@@ -282,19 +334,6 @@ impl Compliance {
                 newton.u.len()
             ));
         }
-        newton.linear = LinearSolve::Factor;
-        newton.set_region([0, newton.dims[0], 0, newton.dims[1]])?;
-        let system = shared_factor(&format!("{:?}", gel.params), || {
-            newton
-                .evaluate(&[])
-                .ok_or("the material is not defined at rest")?;
-            let mut system = newton.system.take().ok_or("no stiffness system")?;
-            newton.fill_matrix(&mut system);
-            system
-                .factor()
-                .map_err(|_| "the stiffness at rest is not positive definite".to_owned())?;
-            Ok(system)
-        })?;
         let rest: Vec<Vector3<f64>> = gel.top_ref.iter().map(|r| r.cast::<f64>()).collect();
         let [_, ny, nz] = newton.dims;
         let first = Stencil::at(rest.first().ok_or("the gel has no top slots")?);
@@ -318,7 +357,6 @@ impl Compliance {
             .collect();
         let (lattice, spacing, first_point) = contact_lattice(gel, SUBDIVISION);
         let mut c = Compliance {
-            system,
             dx: newton.dx,
             origin: newton.origin,
             ny,
@@ -331,15 +369,69 @@ impl Compliance {
             layer: [newton.e_star, newton.layer_slope, newton.thickness],
             levels,
             weights: first.w[2],
-            columns: HashMap::new(),
+            responses: Arc::new(Responses {
+                len: 0,
+                down: Vec::new(),
+                lateral: Vec::new(),
+            }),
+            computed: 0,
             friction: gel.params.friction,
-            shear: HashMap::new(),
             anchors: BTreeMap::new(),
             lagged: HashMap::new(),
             last: Vec::new(),
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
-        Ok(c)
+        Ok((c, newton))
+    }
+
+    /// Gives the compliance the responses stored under `key` in `store`, or computes them
+    /// with `newton`'s stiffness at rest, factored (and stores them).
+    fn fill(
+        &mut self,
+        mut newton: Newton,
+        store: Option<&gel_cache::Store>,
+        key: &str,
+    ) -> Result<(), String> {
+        let lateral = self.friction > 0.0;
+        let cached = store
+            .and_then(|s| s.read(CACHE_KIND, key))
+            .and_then(|flat| Responses::from_flat(flat, self.levels.len(), lateral));
+        if let Some(r) = cached {
+            self.responses = Arc::new(r);
+            self.computed = 0;
+            return Ok(());
+        }
+        newton.linear = LinearSolve::Factor;
+        newton.set_region([0, newton.dims[0], 0, newton.dims[1]])?;
+        newton
+            .evaluate(&[])
+            .ok_or("the material is not defined at rest")?;
+        let mut system = newton.system.take().ok_or("no stiffness system")?;
+        newton.fill_matrix(&mut system);
+        system
+            .factor()
+            .map_err(|_| "the stiffness at rest is not positive definite".to_owned())?;
+        let r = self.compute_responses(&system, lateral);
+        if let Some(s) = store {
+            // A cache that cannot be written costs the next load the solves, no more.
+            let _ = s.write(CACHE_KIND, key, &r.to_flat());
+        }
+        self.responses = Arc::new(r);
+        self.computed = self.levels.len();
+        Ok(())
+    }
+
+    /// What the responses depend on: the physics source (its fingerprint), every gel
+    /// parameter to the bit but the friction coefficient, and whether there is friction
+    /// (the lateral responses).
+    fn responses_key(gel: &Gel) -> String {
+        let mut params = gel.params;
+        let lateral = params.friction > 0.0;
+        params.friction = 0.0;
+        format!(
+            "linear responses\nphysics {}\n{params:?}\nlateral {lateral}",
+            crate::PHYSICS_FINGERPRINT
+        )
     }
 
     /// The node columns and in-plane weights of the surface point at `x` (cells).
@@ -365,17 +457,6 @@ impl Compliance {
         )
     }
 
-    /// Node columns whose response has been computed.
-    pub fn columns(&self) -> usize {
-        self.columns.len()
-    }
-
-    /// The tile of node column `c` (`ix * ny + iy`).
-    fn tile_of(&self, c: u32) -> u32 {
-        let (ix, iy) = (c as usize / self.ny, c as usize % self.ny);
-        ((ix / TILE) * self.ny.div_ceil(TILE) + iy / TILE) as u32
-    }
-
     /// The node columns of tile `t`, in index order.
     fn tile_columns(&self, t: u32) -> impl Iterator<Item = u32> + '_ {
         let per_row = self.ny.div_ceil(TILE);
@@ -386,39 +467,48 @@ impl Compliance {
         })
     }
 
-    /// Computes the responses to the node columns `needed` not computed yet, whole tiles
-    /// at a time: to their downward loads, and with friction to their lateral ones.
-    fn ensure(&mut self, needed: &[u32]) {
-        let missing = |c: &Self, have: &HashMap<u32, Box<[f64]>>| -> BTreeSet<u32> {
-            needed
-                .iter()
-                .filter(|k| !have.contains_key(k))
-                .map(|&k| c.tile_of(k))
-                .collect()
-        };
-        let down = missing(self, &self.columns);
-        for (c, r) in self.responses(&down, &[2]) {
-            self.columns.insert(c, r);
-        }
-        if self.friction > 0.0 {
-            let lateral = missing(self, &self.shear);
-            for (c, r) in self.responses(&lateral, &[0, 1]) {
-                self.shear.insert(c, r);
+    /// The responses of every node column to the loads of every node column, solved with
+    /// `system` (the stiffness at rest, factored): downward, and with `lateral` along +x
+    /// and +y. Each tile of [`TILE`] x [`TILE`] columns is one multi-column solve (its
+    /// columns' bits depend on nothing else), the tiles of a batch in parallel.
+    fn compute_responses(&self, system: &System, lateral: bool) -> Responses {
+        let columns = self.levels.len();
+        let len = 3 * columns;
+        let mut down = vec![0.0; columns * len];
+        let mut side = vec![0.0; if lateral { 2 * columns * len } else { 0 }];
+        let nx = columns / self.ny;
+        let tiles = (nx.div_ceil(TILE) * self.ny.div_ceil(TILE)) as u32;
+        let all: Vec<u32> = (0..tiles).collect();
+        for batch in all.chunks(TILES_PER_BATCH) {
+            let axes: &[usize] = if lateral { &[2, 0, 1] } else { &[2] };
+            for (c, r) in self.solve_tiles(system, batch, axes) {
+                let c = c as usize;
+                down[c * len..][..len].copy_from_slice(&r[..len]);
+                if lateral {
+                    side[2 * c * len..][..2 * len].copy_from_slice(&r[len..]);
+                }
             }
+        }
+        Responses {
+            len,
+            down,
+            lateral: side,
         }
     }
 
     /// The responses of every node column to unit loads on each column of `tiles` along
     /// `axes` (2: downward; 0, 1: +x, +y), 3 per node column and axis, in that order.
-    fn responses(&self, tiles: &BTreeSet<u32>, axes: &[usize]) -> Vec<(u32, Box<[f64]>)> {
-        if tiles.is_empty() {
-            return Vec::new();
-        }
+    fn solve_tiles(
+        &self,
+        system: &System,
+        tiles: &[u32],
+        axes: &[usize],
+    ) -> Vec<(u32, Box<[f64]>)> {
         let groups: Vec<Vec<u32>> = tiles
             .iter()
             .map(|&t| self.tile_columns(t).collect())
             .collect();
-        let n = self.system.n;
+        let n = system.n;
         let per = axes.len();
         let mut b = vec![0.0; n * per * groups.iter().map(Vec::len).sum::<usize>()];
         let batch: Vec<u32> = groups.iter().flatten().copied().collect();
@@ -442,7 +532,7 @@ impl Compliance {
         }
         parts
             .into_par_iter()
-            .for_each(|part| self.system.solve_block(part));
+            .for_each(|part| system.solve_block(part));
         let columns: Vec<Box<[f64]>> = b
             .par_chunks_exact(n * per)
             .map(|xs| {
@@ -493,12 +583,12 @@ impl Compliance {
         let mut u = vec![0.0; 3 * self.levels.len()];
         for &(c, f) in loads {
             if f.z != 0.0 {
-                for (u, &r) in u.iter_mut().zip(self.columns[&c].iter()) {
+                for (u, &r) in u.iter_mut().zip(self.responses.down(c)) {
                     *u += f.z * r;
                 }
             }
             if f.x != 0.0 || f.y != 0.0 {
-                let (x, y) = self.shear[&c].split_at(u.len());
+                let (x, y) = self.responses.lateral(c).split_at(u.len());
                 for ((u, &rx), &ry) in u.iter_mut().zip(x).zip(y) {
                     *u += f.x * rx + f.y * ry;
                 }
@@ -688,14 +778,12 @@ impl Compliance {
 
     /// The grid's own compliance at the surface point `at` (cells): its sinking under a
     /// unit load on it.
-    fn point_compliance(&mut self, at: &Vector3<f64>) -> f64 {
+    fn point_compliance(&self, at: &Vector3<f64>) -> f64 {
         let stencil = self.columns_at(at);
-        let columns: Vec<u32> = stencil.iter().map(|&(c, _)| c).collect();
-        self.ensure(&columns);
         stencil
             .iter()
             .map(|&(a, wa)| {
-                let response = &self.columns[&a];
+                let response = self.responses.down(a);
                 stencil
                     .iter()
                     .map(|&(b, wb)| -wb * response[3 * b as usize + 2])
@@ -858,11 +946,10 @@ impl Compliance {
     /// The node columns that the points of `stencils` load (their responses computed),
     /// less those whose nodes are all fixed (beyond the gel's edge: they do not move, and
     /// their weights are left out with them), and the points' rows of weights over them.
-    fn columns_under(&mut self, stencils: &[Columns]) -> (Vec<u32>, Vec<Columns>) {
+    fn columns_under(&self, stencils: &[Columns]) -> (Vec<u32>, Vec<Columns>) {
         let mut local: Vec<u32> = stencils.iter().flat_map(|s| s.map(|(c, _)| c)).collect();
         local.sort_unstable();
         local.dedup();
-        self.ensure(&local);
         local.retain(|&c| self.levels[c as usize].iter().any(|&d| d != u32::MAX));
         let rows = stencils
             .iter()
@@ -877,9 +964,9 @@ impl Compliance {
     }
 
     fn local_compliance(&self, local: &[u32], lateral: bool) -> DMatrix<f64> {
-        let down: Vec<&[f64]> = local.iter().map(|c| &self.columns[c][..]).collect();
+        let down: Vec<&[f64]> = local.iter().map(|&c| self.responses.down(c)).collect();
         let g = if lateral {
-            let shear: Vec<&[f64]> = local.iter().map(|c| &self.shear[c][..]).collect();
+            let shear: Vec<&[f64]> = local.iter().map(|&c| self.responses.lateral(c)).collect();
             let n = 3 * self.levels.len();
             DMatrix::from_fn(3 * local.len(), 3 * local.len(), |p, q| {
                 let (a, i, b, j) = (p / 3, p % 3, q / 3, q % 3);
@@ -1724,8 +1811,9 @@ impl Gel {
             }
             match Compliance::new(self) {
                 Ok(c) => {
+                    report.factorisations = usize::from(c.computed > 0);
+                    report.columns = c.computed;
                     self.linear = Some(Box::new(c));
-                    report.factorisations = 1;
                 }
                 Err(_) => {
                     report.converged = false;
@@ -1736,9 +1824,7 @@ impl Gel {
         }
         let mut linear = self.linear.take().expect("built above");
         linear.remap(matched);
-        let before = linear.columns();
         let contact = linear.contact(&placed, &sweep.starts, self.options.tolerance);
-        report.columns = linear.columns() - before;
         report.iterations = contact.passes;
         report.cg_iterations = contact.iterations;
         report.sweep_steps = 1;

@@ -132,11 +132,10 @@ fn the_penalty_contact_solves_the_complementarity_problem() {
 #[test]
 fn the_compliance_is_reciprocal() {
     let g = Gel::new(small_gel(), options(1)).unwrap();
-    let mut c = Compliance::new(&g).unwrap();
+    let c = Compliance::new(&g).unwrap();
     // Columns under the top face (the slots' centre columns).
     let cols: Vec<u32> = c.slots.iter().step_by(5).map(|s| s[4].0).collect();
-    c.ensure(&cols);
-    let sink = |c: &Compliance, a: u32, b: u32| -c.columns[&b][3 * a as usize + 2];
+    let sink = |c: &Compliance, a: u32, b: u32| -c.responses.down(b)[3 * a as usize + 2];
     let peak = cols.iter().map(|&b| sink(&c, b, b)).fold(0.0, f64::max);
     assert!(peak > 0.0);
     for &a in &cols {
@@ -148,27 +147,100 @@ fn the_compliance_is_reciprocal() {
     }
 }
 
-/// Gels of the same parameters share one factored stiffness while any of them holds it
-/// (whatever their thread counts); other parameters get their own; once the last gel
-/// holding it is gone, the next one builds it afresh.
+/// Gels of the same parameters share one set of responses while any of them holds it
+/// (whatever their thread counts); other parameters get their own.
 #[test]
-fn gels_of_the_same_parameters_share_the_factor() {
+fn gels_of_the_same_parameters_share_the_responses() {
     let params = GelParams {
         young: 1.2345e5,
         ..small_gel()
     };
     let a = Compliance::new(&Gel::new(params, options(1)).unwrap()).unwrap();
     let b = Compliance::new(&Gel::new(params, options(2)).unwrap()).unwrap();
-    assert!(Arc::ptr_eq(&a.system, &b.system));
+    assert!(Arc::ptr_eq(&a.responses, &b.responses));
     let other = GelParams {
         poisson: 0.41,
         ..params
     };
     let c = Compliance::new(&Gel::new(other, options(1)).unwrap()).unwrap();
-    assert!(!Arc::ptr_eq(&a.system, &c.system));
-    drop((a, b));
-    let rebuilt = shared_factor(&format!("{params:?}"), || Err("built afresh".into()));
-    assert_eq!(rebuilt.err().as_deref(), Some("built afresh"));
+    assert!(!Arc::ptr_eq(&a.responses, &c.responses));
+}
+
+/// A cache folder of its own for one test.
+fn test_store(name: &str) -> gel_cache::Store {
+    let dir = std::env::temp_dir().join(format!("tacrom-linear-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    gel_cache::Store::new(dir, 1 << 30)
+}
+
+/// The responses read back from the cache equal the computed ones bit for bit (with
+/// friction, both kinds); a corrupt file, or another gel's under this gel's name, is
+/// rejected, the responses computed again and the file rewritten.
+#[test]
+fn cached_responses_equal_computed_ones_and_bad_files_are_rebuilt() {
+    let store = test_store("cache");
+    let params = GelParams {
+        friction: 0.4,
+        ..small_gel()
+    };
+    let gel = Gel::new(params, options(1)).unwrap();
+    let key = Compliance::responses_key(&gel);
+    let fresh = || Compliance::skeleton(&gel).unwrap();
+    let (mut computed, newton) = fresh();
+    computed.fill(newton, Some(&store), &key).unwrap();
+    assert_eq!(computed.computed, computed.levels.len());
+    assert!(!computed.responses.lateral.is_empty());
+    let same_bits = |a: &Compliance, b: &Compliance| {
+        a.responses
+            .to_flat()
+            .iter()
+            .map(|v| v.to_bits())
+            .collect::<Vec<_>>()
+            == b.responses
+                .to_flat()
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>()
+    };
+    let (mut read, newton) = fresh();
+    read.fill(newton, Some(&store), &key).unwrap();
+    assert_eq!(read.computed, 0, "read from the cache");
+    assert!(same_bits(&computed, &read));
+
+    // One byte changed in the middle of the file: rejected, computed, rewritten.
+    let path = store.path(CACHE_KIND, &key);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x40;
+    std::fs::write(&path, &bytes).unwrap();
+    let (mut rebuilt, newton) = fresh();
+    rebuilt.fill(newton, Some(&store), &key).unwrap();
+    assert_eq!(rebuilt.computed, rebuilt.levels.len());
+    assert!(same_bits(&computed, &rebuilt));
+    let (mut again, newton) = fresh();
+    again.fill(newton, Some(&store), &key).unwrap();
+    assert_eq!(again.computed, 0, "the rewritten file reads");
+
+    // Another gel's file (a stiffer one) copied under this gel's name: its key differs.
+    let stiffer = Gel::new(
+        GelParams {
+            young: 2.0 * params.young,
+            ..params
+        },
+        options(1),
+    )
+    .unwrap();
+    let other_key = Compliance::responses_key(&stiffer);
+    let (mut other, newton) = Compliance::skeleton(&stiffer).unwrap();
+    other.fill(newton, Some(&store), &other_key).unwrap();
+    std::fs::copy(store.path(CACHE_KIND, &other_key), &path).unwrap();
+    let (mut foreign, newton) = fresh();
+    foreign.fill(newton, Some(&store), &key).unwrap();
+    assert_eq!(foreign.computed, foreign.levels.len());
+    assert!(same_bits(&computed, &foreign));
+    let _ = std::fs::remove_dir_all(
+        std::env::temp_dir().join(format!("tacrom-linear-cache-{}", std::process::id())),
+    );
 }
 
 /// The indenters `placed` as one solve step sees them (bounds inflated by two cells).
@@ -326,14 +398,25 @@ fn threads_give_identical_results() {
     assert!(run(1) == run(2));
 }
 
-/// A scene that never touches the gel builds nothing; a grid too fine to factor is
+/// The compliance is built with the gel, so the first contact is an ordinary frame; a
+/// frame that does not touch the gel leaves it undeformed; a grid too fine to factor is
 /// refused when the gel is made, naming `dx`.
 #[test]
-fn nothing_is_built_without_contact_and_fine_grids_are_refused() {
+fn the_compliance_is_built_at_load_and_fine_grids_are_refused() {
     let mut g = Gel::new(small_gel(), options(1)).unwrap();
+    assert!(g.linear.is_some(), "built with the gel");
     let s = ball(2e-3);
     let rep = g.solve(&[at(&s, 2e-3, 0.0, 0.0, -1e-3)]);
-    assert!(rep.converged && g.linear.is_none() && g.force() == Vector3::zeros());
+    assert!(rep.converged && g.force() == Vector3::zeros());
+    assert!(g.surface_u.iter().all(|u| *u == Vector3::zeros()));
+    assert_eq!(rep.factorisations, 0);
+    let rep = g.solve(&[at(&s, 2e-3, 0.0, 0.0, 0.2e-3)]);
+    assert!(rep.converged && g.force().z.abs() > 0.0);
+    assert_eq!(
+        (rep.factorisations, rep.columns),
+        (0, 0),
+        "no solve with the factor"
+    );
     let fine = GelParams {
         dx: 0.2e-3,
         ..GelParams::default()
@@ -733,7 +816,7 @@ fn a_whole_pad_pressed_by_a_box_face_converges() {
         .map(|i| f64::from_le_bytes(bytes[at + 8 * i..at + 8 * i + 8].try_into().unwrap()))
         .collect();
     let gel = Gel::new(GelParams::default(), options(1)).unwrap();
-    let mut c = Compliance::new(&gel).unwrap();
+    let c = Compliance::new(&gel).unwrap();
     let stencils: Vec<Columns> = ids.iter().map(|&k| c.columns_at(&c.point(k))).collect();
     let (local, rows) = c.columns_under(&stencils);
     assert_eq!(local.len(), 398);

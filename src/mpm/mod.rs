@@ -78,6 +78,7 @@
 
 pub mod choice;
 mod contact;
+mod gel_cache;
 pub mod hertz;
 mod indenters;
 mod linear;
@@ -443,7 +444,7 @@ impl Gel {
         let n = particles.len();
         let (dims, nxp) = (layout.dims, layout.lattice[0]);
         let top_len = top.len();
-        Ok(Gel {
+        let mut gel = Gel {
             params,
             options,
             pool,
@@ -486,7 +487,17 @@ impl Gel {
             loads: Vec::new(),
             total: None,
             linear: None,
-        })
+        };
+        if gel.options.solver == Solver::Linear {
+            // What depends on the gel alone (its surface compliance) is ready before the
+            // first contact, which is then an ordinary frame. Where it cannot be built the
+            // first contact tries again and reports why.
+            let pool = gel.pool;
+            if let Ok(c) = pool.install(|| linear::Compliance::new(&gel)) {
+                gel.linear = Some(Box::new(c));
+            }
+        }
+        Ok(gel)
     }
 
     /// Most steps per solve: [`SolverOptions::max_iterations`] scaled by the layer's

@@ -133,7 +133,8 @@ impl SurfaceModel for Rigid {
 }
 
 /// An MPM gel solved to quasi-static equilibrium (`coarse` and `fine`), created on first
-/// contact: a scene that never touches costs nothing.
+/// contact (a scene that never touches costs nothing), or at load for the linear solver,
+/// whose gel holds what its first contact would otherwise stall on.
 #[derive(Clone, Debug)]
 struct Mpm {
     name: String,
@@ -162,11 +163,24 @@ impl Mpm {
             sensor: config.name.clone(),
             message: e.to_string(),
         })?;
+        // The linear solver's gel holds what depends on the gel alone (its surface
+        // compliance, computed or read from the gel cache): built at load, so that the
+        // first contact is an ordinary frame. Other gels have nothing to prepare and are
+        // made at their first contact.
+        let gel = if solver == Solver::Linear {
+            let gel = Gel::new(params, options).map_err(|e| SensorError::Physics {
+                sensor: config.name.clone(),
+                message: e.to_string(),
+            })?;
+            Some(Box::new(gel))
+        } else {
+            None
+        };
         Ok(Self {
             name: config.name.clone(),
             params,
             options,
-            gel: None,
+            gel,
             deformed: false,
         })
     }

@@ -5,6 +5,7 @@
 
 pub mod deep;
 pub mod fine_press;
+pub mod first_contact;
 pub mod image_time;
 pub mod mesh_press;
 pub mod newton_profile;
@@ -20,6 +21,7 @@ type Probe = (&'static str, fn(Vec<String>));
 const PROBES: &[Probe] = &[
     ("deep", deep::run),
     ("fine_press", fine_press::run),
+    ("first_contact", first_contact::run),
     ("image_time", image_time::run),
     ("mesh_press", mesh_press::run),
     ("newton_profile", newton_profile::run),
@@ -31,9 +33,10 @@ const PROBES: &[Probe] = &[
 ];
 
 /// The probes' names, for the command line.
-pub const NAMES: [&str; 10] = [
+pub const NAMES: [&str; 11] = [
     "deep",
     "fine_press",
+    "first_contact",
     "image_time",
     "mesh_press",
     "newton_profile",

@@ -86,10 +86,11 @@
 //!
 //! # Cost
 //!
-//! `K` is factored once per gel (faer), at the first contact. The columns' responses are
-//! computed when a contact first needs them, in fixed tiles of [`TILE`] columns (one
-//! multi-column solve each, so a column's bits do not depend on the order of the
-//! contacts that needed it) and kept. A frame then costs dense algebra of the size of
+//! Every node column's responses are made with the gel: read from the gel cache
+//! ([`gel_cache`], a file per gel keyed by the physics sources and the gel's parameters),
+//! or computed with `K` factored once (faer), in fixed tiles of [`TILE`] columns (one
+//! multi-column solve each, so a column's bits depend on nothing else), and cached. The
+//! sensors of one gel in a process share them. A first contact is then an ordinary frame. A frame then costs dense algebra of the size of
 //! the node columns under its contact and a sum over its loaded columns: no pass over the
 //! particles or the grid.
 //!

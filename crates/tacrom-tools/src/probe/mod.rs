@@ -3,6 +3,7 @@
 //! module's doc gives its arguments; each prints a table to standard output. They use
 //! the plugin's public API only, and their numbers are quoted in `docs/solvers.md`.
 
+pub mod contact_size;
 pub mod deep;
 pub mod fine_press;
 pub mod first_contact;
@@ -19,6 +20,7 @@ pub mod small;
 type Probe = (&'static str, fn(Vec<String>));
 
 const PROBES: &[Probe] = &[
+    ("contact_size", contact_size::run),
     ("deep", deep::run),
     ("fine_press", fine_press::run),
     ("first_contact", first_contact::run),
@@ -33,7 +35,8 @@ const PROBES: &[Probe] = &[
 ];
 
 /// The probes' names, for the command line.
-pub const NAMES: [&str; 11] = [
+pub const NAMES: [&str; 12] = [
+    "contact_size",
     "deep",
     "fine_press",
     "first_contact",

@@ -220,7 +220,26 @@ pub(crate) struct Compliance {
     anchors: BTreeMap<u32, Anchor>,
     lagged: HashMap<u32, Vector3<f64>>,
     last: Vec<f64>,
+    /// The dense systems of the node columns under the last contact (at most
+    /// [`LOCAL_SYSTEMS`]): a contact that loads the same columns as the frame before (a
+    /// grasp held) builds and inverts nothing.
+    locals: Vec<LocalSystem>,
 }
+
+/// The dense systems of one set of node columns under a contact.
+#[derive(Clone)]
+struct LocalSystem {
+    /// The node columns, and whether with their lateral loads (3 per column) or not.
+    local: Vec<u32>,
+    lateral: bool,
+    /// Their compliance ([`Compliance::local_compliance`]) and its inverse.
+    g: DMatrix<f64>,
+    inverse: DMatrix<f64>,
+}
+
+/// Sets of node columns whose dense systems are kept: the frictional problem's and the
+/// vertical one of a frame that starts without friction.
+const LOCAL_SYSTEMS: usize = 2;
 
 /// One solve's answer.
 pub(crate) struct Contact {
@@ -380,6 +399,7 @@ impl Compliance {
             anchors: BTreeMap::new(),
             lagged: HashMap::new(),
             last: Vec::new(),
+            locals: Vec::new(),
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
         Ok((c, newton))
@@ -991,6 +1011,35 @@ impl Compliance {
         (&g + g.transpose()) * 0.5
     }
 
+    /// The dense systems of node columns `local` (kept from an earlier contact, or built);
+    /// `None` where their compliance is not positive definite.
+    fn take_local(&mut self, local: &[u32], lateral: bool) -> Option<LocalSystem> {
+        if let Some(i) = self
+            .locals
+            .iter()
+            .position(|s| s.lateral == lateral && s.local == local)
+        {
+            return Some(self.locals.remove(i));
+        }
+        let g = self.local_compliance(local, lateral);
+        let inverse = spd_inverse(&g)?;
+        Some(LocalSystem {
+            local: local.to_vec(),
+            lateral,
+            g,
+            inverse,
+        })
+    }
+
+    /// Keeps `system` for the next contacts (the oldest kept goes beyond
+    /// [`LOCAL_SYSTEMS`]).
+    fn put_local(&mut self, system: LocalSystem) {
+        self.locals.push(system);
+        if self.locals.len() > LOCAL_SYSTEMS {
+            self.locals.remove(0);
+        }
+    }
+
     /// The contact of the gel's surface with `indenters` (which started the frame at
     /// `starts`), to a penetration of at most `tolerance` times the deepest sinking beyond
     /// what the contact's compliance allows; with friction, until the lagged normal forces
@@ -1069,6 +1118,11 @@ impl Compliance {
             *f = self.lagged.get(k).copied().unwrap_or(Vector3::zeros());
         }
         let mut lag: Vec<f64> = forces.iter().map(|f| f.z).collect();
+        // Whether the last frame pressed some of these points: then its normal forces are
+        // the first lagged ones and its loads the start (a grasp held, a press moving
+        // on), not a solve without friction and the larger stick radii, which in a held
+        // grasp took 57 Newton steps a frame to find the frame before's answer again.
+        let from_last = friction && lag.iter().any(|&f| f > 0.0);
         let mut offsets = vec![Vector2::zeros(); near.len()];
 
         for pass in 0..MAX_PASSES {
@@ -1087,32 +1141,34 @@ impl Compliance {
             if local.is_empty() {
                 break;
             }
-            let g = self.local_compliance(&local, friction);
-            let Some(stiffness) = spd_inverse(&g) else {
+            let Some(system) = self.take_local(&local, friction) else {
                 break;
             };
             let d: Vec<f64> = cand.iter().map(|&i| delta[i]).collect();
             let eps: Vec<f64> = cand.iter().map(|&i| soft[i]).collect();
             let mut solved = true;
-            if friction && pass == 0 {
+            if friction && pass == 0 && !from_last {
                 // The normal forces without friction first: the first lagged ones (the
                 // last frame's lateral forces kept, to start the lateral loads from).
                 // Without friction no column carries a lateral load: the vertical block's
                 // problem.
-                let k = local.len();
-                let vertical = DMatrix::from_fn(k, k, |a, b| g[(3 * a + 2, 3 * b + 2)]);
-                let mut l = DVector::zeros(k);
-                let solve = |inverse: DMatrix<f64>| {
+                let mut l = DVector::zeros(local.len());
+                let mut solve = |vertical: &LocalSystem| {
                     let problem = Problem {
-                        g: &vertical,
-                        inverse: &inverse,
+                        g: &vertical.g,
+                        inverse: &vertical.inverse,
                         w: &rows,
                         delta: &d,
                         eps: &eps,
                     };
                     penalty_contact(&problem, &mut l)
                 };
-                match spd_inverse(&vertical).and_then(solve) {
+                let answer = self.take_local(&local, false).and_then(|vertical| {
+                    let answer = solve(&vertical);
+                    self.put_local(vertical);
+                    answer
+                });
+                match answer {
                     Some((f, steps)) => {
                         iterations += steps;
                         for (&i, &fi) in cand.iter().zip(&f) {
@@ -1123,8 +1179,8 @@ impl Compliance {
                 }
             }
             let problem = Problem {
-                g: &g,
-                inverse: &stiffness,
+                g: &system.g,
+                inverse: &system.inverse,
                 w: &rows,
                 delta: &d,
                 eps: &eps,
@@ -1182,7 +1238,7 @@ impl Compliance {
                     let friction = Friction {
                         caps: &caps,
                         anchors: &anchors,
-                        warm: lags > 0,
+                        warm: lags > 0 || from_last,
                     };
                     let Some((f, steps)) = frictional_contact(&problem, &friction, &mut l) else {
                         solved = false;
@@ -1216,6 +1272,7 @@ impl Compliance {
                     None => solved = false,
                 }
             }
+            self.put_local(system);
             if !solved {
                 break;
             }

@@ -263,6 +263,18 @@ mod tests {
         let _ = fs::remove_dir_all(&s.dir);
     }
 
+    /// A folder that cannot be made (its parent is a file) is no cache: writes fail with
+    /// an error the caller may ignore, reads find nothing.
+    #[test]
+    fn an_unwritable_folder_is_no_cache() {
+        let file = std::env::temp_dir().join(format!("tacrom-cache-file-{}", std::process::id()));
+        fs::write(&file, b"a file, not a folder").unwrap();
+        let s = Store::new(file.join("cache"), 1 << 20);
+        assert!(s.write("t", "key", &[1.0]).is_err());
+        assert!(s.read("t", "key").is_none());
+        let _ = fs::remove_file(&file);
+    }
+
     #[test]
     fn concurrent_writers_of_one_key_leave_a_whole_file() {
         let s = store("race", 1 << 24);

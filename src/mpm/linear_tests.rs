@@ -175,7 +175,8 @@ fn test_store(name: &str) -> gel_cache::Store {
 
 /// The responses read back from the cache equal the computed ones bit for bit (with
 /// friction, both kinds); a corrupt file, or another gel's under this gel's name, is
-/// rejected, the responses computed again and the file rewritten.
+/// rejected, the responses computed again and the file rewritten; a cache that cannot be
+/// written costs the solves and nothing else.
 #[test]
 fn cached_responses_equal_computed_ones_and_bad_files_are_rebuilt() {
     let store = test_store("cache");
@@ -241,6 +242,16 @@ fn cached_responses_equal_computed_ones_and_bad_files_are_rebuilt() {
     let _ = std::fs::remove_dir_all(
         std::env::temp_dir().join(format!("tacrom-linear-cache-{}", std::process::id())),
     );
+
+    // A cache that cannot be written: the responses are computed, equal, and the gel works.
+    let file = std::env::temp_dir().join(format!("tacrom-linear-file-{}", std::process::id()));
+    std::fs::write(&file, b"a file, not a folder").unwrap();
+    let unwritable = gel_cache::Store::new(file.join("cache"), 1 << 30);
+    let (mut lost, newton) = fresh();
+    lost.fill(newton, Some(&unwritable), &key).unwrap();
+    assert_eq!(lost.computed, lost.levels.len());
+    assert!(same_bits(&computed, &lost));
+    let _ = std::fs::remove_file(&file);
 }
 
 /// The indenters `placed` as one solve step sees them (bounds inflated by two cells).

@@ -273,7 +273,8 @@ pub struct SolveReport {
     pub restarted: bool,
     /// Particles the solve moved (the active region; the rest kept their state).
     pub active_particles: usize,
-    /// Newton solver: sparse factorisations of the stiffness matrix.
+    /// Newton solver: sparse factorisations of the stiffness matrix (linear solver: 1 where
+    /// this solve factored the stiffness at rest, see `columns`).
     pub factorisations: usize,
     /// Newton solver: steps solved by conjugate gradients preconditioned with an earlier
     /// factorisation.
@@ -282,7 +283,8 @@ pub struct SolveReport {
     /// contact's Newton steps).
     pub cg_iterations: usize,
     /// Linear solver: node columns whose response this solve computed (one solve with the
-    /// factorisation each).
+    /// factorisation each): all of them at a relaxation's first fallback frame where the
+    /// gel cache had none, else 0 (the linear solver's own gel computes them at load).
     pub columns: usize,
     /// Whether the relaxation did not resolve the contact and another solver solved the
     /// frame ([`SolverOptions::fallback`]).

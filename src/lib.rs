@@ -6,6 +6,8 @@
 //! touch its C API.
 #![warn(missing_docs)]
 #![warn(clippy::undocumented_unsafe_blocks)]
+// `!(x > 0.0)` is how this crate says "not positive, or NaN": the negation is the point.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod attributes;
 pub mod config;

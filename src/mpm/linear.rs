@@ -111,13 +111,15 @@ use nalgebra::{
 use rayon::prelude::*;
 
 use super::contact::StepIndenter;
-use super::indenters::Sweep;
 use super::newton::subgrid::{tip_samples, TIP_SAMPLES};
 use super::newton::system::{par, System};
 use super::newton::{
     contact_lattice, contains, remap_anchors, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK,
 };
-use super::{pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, LINEAR_UNKNOWNS};
+use super::solver::{Equilibrium, Frame};
+use super::{
+    pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, Solver, LINEAR_UNKNOWNS,
+};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt;
 use faer::{Conj, MatMut, MatRef, Par};
@@ -1846,32 +1848,61 @@ fn minimise(
     None
 }
 
+/// The linear solver ([`Solver::Linear`]): the surface compliance of the small-strain gel
+/// and the contact state of its last frame.
+#[derive(Clone, Default)]
+pub(super) struct LinearSolver {
+    /// The compliance, built when the gel is made ([`Equilibrium::prepare`]) or, where
+    /// that failed or the solver came later (a fallback), at the first frame that
+    /// presses the undeformed gel.
+    compliance: Option<Box<Compliance>>,
+}
+
+#[cfg(test)]
 impl Gel {
-    /// The linear solver's frame: the contact of the small-strain gel with the indenters
-    /// at the end of `sweep` (`matched[i]`: the previous index of indenter `i`).
-    pub(in crate::mpm) fn solve_linear(
-        &mut self,
-        sweep: &Sweep,
-        matched: &[Option<usize>],
-        report: &mut SolveReport,
-    ) {
-        let dx = self.layout.dx;
+    /// The linear solver's compliance, where the gel runs it and has built it.
+    fn compliance(&self) -> Option<&Compliance> {
+        let s = self
+            .solver
+            .as_ref()?
+            .as_any()
+            .downcast_ref::<LinearSolver>()?;
+        s.compliance.as_deref()
+    }
+}
+
+impl Equilibrium for LinearSolver {
+    fn kind(&self) -> Solver {
+        Solver::Linear
+    }
+
+    fn prepare(&mut self, gel: &Gel) {
+        if self.compliance.is_none() {
+            self.compliance = Compliance::new(gel).ok().map(Box::new);
+        }
+    }
+
+    /// The contact of the small-strain gel with the indenters at the end of the frame's
+    /// sweep.
+    fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport) {
+        let sweep = frame.sweep;
+        let dx = gel.layout.dx;
         let mut placed = Vec::new();
         sweep.place(sweep.steps.max(1) - 1, dx, &mut placed);
-        if self.linear.is_none() {
-            if self.reached_depth(sweep.indenters.iter().copied()) <= 0.0 {
+        if self.compliance.is_none() {
+            if gel.reached_depth(sweep.indenters.iter().copied()) <= 0.0 {
                 // Nothing inside the undeformed top face yet: the undeformed gel is the
                 // answer, and nothing is built (once built, the contact solve finds this).
-                self.force = Vector3::zeros();
-                self.loads.clear();
-                self.set_surface(|_| Vector3::zeros());
+                gel.force = Vector3::zeros();
+                gel.loads.clear();
+                gel.set_surface(|_| Vector3::zeros());
                 return;
             }
-            match Compliance::new(self) {
+            match Compliance::new(gel) {
                 Ok(c) => {
                     report.factorisations = usize::from(c.computed > 0);
                     report.columns = c.computed;
-                    self.linear = Some(Box::new(c));
+                    self.compliance = Some(Box::new(c));
                 }
                 Err(_) => {
                     report.converged = false;
@@ -1880,9 +1911,9 @@ impl Gel {
                 }
             }
         }
-        let mut linear = self.linear.take().expect("built above");
-        linear.remap(matched);
-        let contact = linear.contact(&placed, &sweep.starts, self.options.tolerance);
+        let linear = self.compliance.as_mut().expect("built above");
+        linear.remap(frame.matched);
+        let contact = linear.contact(&placed, &sweep.starts, gel.options.tolerance);
         report.iterations = contact.passes;
         report.cg_iterations = contact.iterations;
         report.sweep_steps = 1;
@@ -1894,16 +1925,16 @@ impl Gel {
         } else {
             0.0
         };
-        let scale = self.modulus * dx * dx;
+        let scale = gel.modulus * dx * dx;
         // The gel's force on the indenters: the reverse of theirs on it (+x, +y, downward).
         let on_indenters = |f: &Vector3<f64>| Vector3::new(-f.x, -f.y, f.z) * scale;
-        self.force = contact.forces.iter().map(on_indenters).sum();
-        self.loads = contact
+        gel.force = contact.forces.iter().map(on_indenters).sum();
+        gel.loads = contact
             .points
             .iter()
             .zip(&contact.forces)
             .map(|(x, f)| {
-                let x = self.layout.origin + x * dx;
+                let x = gel.layout.origin + x * dx;
                 ContactLoad {
                     at: [x.x, x.y],
                     z: x.z,
@@ -1911,8 +1942,26 @@ impl Gel {
                 }
             })
             .collect();
-        self.set_surface(|slot| contact.surface[slot] * dx);
-        self.linear = Some(linear);
+        gel.set_surface(|slot| contact.surface[slot] * dx);
+    }
+
+    fn reset(&mut self) {
+        if let Some(c) = self.compliance.as_mut() {
+            c.reset();
+        }
+    }
+
+    fn boxed_clone(&self) -> Box<dyn Equilibrium> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    #[cfg(test)]
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
     }
 }
 

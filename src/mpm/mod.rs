@@ -90,6 +90,7 @@ pub use pressure::spread_loads;
 mod region;
 mod relax;
 mod rotation;
+mod solver;
 mod surface;
 mod total;
 mod transfer;
@@ -108,13 +109,14 @@ pub use choice::{
     MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,
 };
 use contact::{ActiveContact, SlotContact, StepIndenter};
-use indenters::match_indenters;
+use indenters::{match_indenters, Sweep};
 pub use materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 pub use params::{
     GelParams, Linear, Material, MpmError, SolveReport, Solver, SolverOptions, ACTIVE_MARGIN,
     CAP_CELLS, FBAR_POISSON, J_MAX, J_MIN, NESTED_MARGIN,
 };
 pub use rotation::extract_rotation;
+use solver::Equilibrium;
 use transfer::{ChunkStats, LayerStats, Node, Particle, Region, Stencil, StepCtx};
 
 /// Rotation-extraction steps per time step (fixed corotated), warm-started.
@@ -390,29 +392,21 @@ pub struct Gel {
     reaction: f32,
     /// Whether the last solve ended with `det F` at a clamp.
     clamped: bool,
-    /// The secant predictor's memory: each particle's change of position and deformation
-    /// gradient over the last solve (empty when there is none to use), and the indenters'
-    /// translations (m) in it.
-    last_change: Vec<(Vector3<f32>, nalgebra::Matrix3<f32>)>,
-    last_motion: Vec<Vector3<f64>>,
     /// Lattice box of the top slots in contact at the end of the last solve.
     last_footprint: Option<[usize; 4]>,
-    /// The Newton solver's state, built at the first solve that needs it.
-    newton: Option<Box<newton::Newton>>,
-    /// The gel on a grid twice as coarse whose solve starts Newton's on this one
-    /// ([`SolverOptions::coarse_start_above`]), built at the first solve that needs it.
-    companion: Option<Box<Gel>>,
     /// The last solve's contact loads, for [`Gel::contact_pressure`].
     loads: Vec<pressure::ContactLoad>,
-    /// The total-Lagrangian relaxation's nodal state ([`Solver::Total`]).
-    total: Option<Box<total::Total>>,
     /// Whether the relaxation ran since its state was last put back to rest.
     relaxed: bool,
     /// The contact multipliers' gain in this relaxation, as a fraction of
     /// [`contact::multiplier_gain`]'s (see [`Gel::iterate`]).
     gain_scale: f32,
-    /// The linear solver's factorisation and surface compliance ([`Solver::Linear`]).
-    linear: Option<Box<linear::Compliance>>,
+    /// The gel's equilibrium solver ([`SolverOptions::solver`]) and its state; `None`
+    /// only while it solves a frame.
+    solver: Option<Box<dyn Equilibrium>>,
+    /// The solver of the frames the gel's own cannot carry ([`SolverOptions::fallback`],
+    /// [`choice::frame_fallback`]) and its state, built at the first such frame.
+    fallback: Option<Box<dyn Equilibrium>>,
 }
 
 impl std::fmt::Debug for Gel {
@@ -478,25 +472,16 @@ impl Gel {
             reaction: 0.0,
             clamped: false,
             last_footprint: None,
-            last_change: Vec::new(),
-            last_motion: Vec::new(),
             relaxed: false,
             gain_scale: 1.0,
-            newton: None,
-            companion: None,
             loads: Vec::new(),
-            total: None,
-            linear: None,
+            solver: None,
+            fallback: None,
         };
-        if gel.options.solver == Solver::Linear {
-            // What depends on the gel alone (its surface compliance) is ready before the
-            // first contact, which is then an ordinary frame. Where it cannot be built the
-            // first contact tries again and reports why.
-            let pool = gel.pool;
-            if let Ok(c) = pool.install(|| linear::Compliance::new(&gel)) {
-                gel.linear = Some(Box::new(c));
-            }
-        }
+        let mut own = solver::build(gel.options.solver);
+        let pool = gel.pool;
+        pool.install(|| own.prepare(&gel));
+        gel.solver = Some(own);
         Ok(gel)
     }
 
@@ -690,20 +675,17 @@ impl Gel {
         self.surface_box = None;
         self.resting = true;
         self.loads.clear();
-        if let Some(n) = self.newton.as_mut() {
-            n.reset();
+        if let Some(s) = self.solver.as_mut() {
+            s.reset();
         }
-        if let Some(c) = self.companion.as_mut() {
-            c.reset();
-        }
-        if let Some(l) = self.linear.as_mut() {
-            l.reset();
+        if let Some(f) = self.fallback.as_mut() {
+            f.reset();
         }
     }
 
     /// The relaxation's own state back to the undeformed gel at rest (its particles, stick
-    /// contacts, reaction scale, footprint and motion), where a solve since the last such
-    /// reset moved it.
+    /// contacts, reaction scale, footprint and the solver's memory), where a solve since
+    /// the last such reset moved it.
     fn rest_relaxation(&mut self) {
         if !std::mem::take(&mut self.relaxed) {
             return;
@@ -713,9 +695,9 @@ impl Gel {
         self.clamped = false;
         self.last_footprint = None;
         self.contacts.fill(SlotContact::NONE);
-        self.last_change.clear();
-        self.last_motion.clear();
-        self.total = None;
+        if let Some(s) = self.solver.as_mut().filter(|s| s.kind().relaxes()) {
+            s.reset();
+        }
     }
 
     /// Number of particles.
@@ -821,18 +803,26 @@ impl Gel {
         } else {
             None
         };
-        let solver = if let Some(solver) = fallback {
-            // The relaxation's surface points cannot carry this contact (`choice`). The
-            // fallback's state carries on from its own last fallback frame; the
-            // relaxation's goes back to rest, to start afresh from the frame it carries
-            // again.
-            self.rest_relaxation();
-            report.fallback = true;
-            solver
-        } else {
-            self.options.solver
+        let mut solver = match fallback {
+            Some(kind) => {
+                // The relaxation's surface points cannot carry this contact (`choice`). The
+                // fallback's state carries on from its own last fallback frame; the
+                // relaxation's goes back to rest, to start afresh from the frame it carries
+                // again.
+                self.rest_relaxation();
+                report.fallback = true;
+                match self.fallback.take() {
+                    Some(s) if s.kind() == kind => s,
+                    _ => solver::build(kind),
+                }
+            }
+            None => self
+                .solver
+                .take()
+                .expect("the gel's solver is in place between frames"),
         };
-        if matches!(solver, Solver::Relaxation | Solver::Total) && footprint == 0 {
+        let relaxes = solver.kind().relaxes();
+        if relaxes && footprint == 0 {
             // No contact point of the undeformed gel lies inside an indenter: the
             // undeformed gel is at equilibrium (no stress, no contact force), and without
             // friction it is the only equilibrium (the least energy, zero, among the
@@ -841,13 +831,14 @@ impl Gel {
             // deformation took steps for nothing, and a lift-off to a pose that leaves
             // the gel almost free could run to the iteration cap: its residual is measured
             // against the vanishing load.
+            self.solver = Some(solver);
             if !self.resting {
                 self.reset();
             }
             self.prev = current;
             return report;
         }
-        let sweep = if matches!(solver, Solver::Linear | Solver::Newton) || self.relaxed {
+        let sweep = if !relaxes || self.relaxed {
             self.plan_sweep(used, &matched)
         } else {
             // The relaxation's state is the gel at rest (a fresh gel, or one whose last
@@ -857,33 +848,30 @@ impl Gel {
             // undeformed gel and stopped at the iteration cap with no vertical force.)
             self.plan_sweep(used, &vec![None; matched.len()])
         };
-        if matches!(solver, Solver::Linear | Solver::Newton) {
-            if solver == Solver::Linear {
-                self.solve_linear(&sweep, &matched, &mut report);
-            } else {
-                self.solve_newton(indenters, &sweep, &matched, &mut report);
-            }
-            self.prev = if report.nonfinite_recovered {
-                Vec::new()
-            } else {
-                current
-            };
-            self.resting = !touching && self.surface_box.is_none();
-            return report;
-        }
-        report.sweep_steps = sweep.steps;
-        self.ctx.region = self.active_region(&sweep);
-        report.active_particles = self.ctx.region.particles(self.ctx.column_len);
-        self.relaxed = true;
-        self.relax_material(&sweep, &mut report);
-        self.finish(current, touching, repaired, &mut report);
-        if self.options.fallback {
-            // The relaxation carries this frame: a later fallback starts afresh.
-            if let Some(n) = self.newton.as_mut() {
-                n.reset();
-            }
-            if let Some(l) = self.linear.as_mut() {
-                l.reset();
+        let frame = solver::Frame {
+            indenters,
+            sweep: &sweep,
+            matched: &matched,
+        };
+        solver.solve(self, &frame, &mut report);
+        // A solve that ended with a non-finite value kept no poses; one that began with a
+        // non-finite particle says so after the poses are kept.
+        self.prev = if report.nonfinite_recovered {
+            Vec::new()
+        } else {
+            current
+        };
+        report.nonfinite_recovered |= repaired;
+        self.resting = !touching && self.surface_box.is_none();
+        if report.fallback {
+            self.fallback = Some(solver);
+        } else {
+            self.solver = Some(solver);
+            if self.options.fallback {
+                // The gel's own solver carries this frame: a later fallback starts afresh.
+                if let Some(f) = self.fallback.as_mut() {
+                    f.reset();
+                }
             }
         }
         report
@@ -903,34 +891,32 @@ impl Gel {
         repaired
     }
 
-    /// The bookkeeping after the relaxation: what the next solve starts from (the
-    /// indenters `current`, the reaction scale, the contact footprint, whether the gel
-    /// rests or ended at a clamp), the surface displacement, and the rest of `report`
-    /// (`repaired`: whether the solve began with a non-finite particle).
-    fn finish(
-        &mut self,
-        current: Vec<(Arc<dyn Sdf>, Isometry3<f64>)>,
-        touching: bool,
-        repaired: bool,
-        report: &mut SolveReport,
-    ) {
+    /// The start of a relaxation's frame: the region it moves, and that the particles
+    /// leave their rest.
+    fn begin_relaxation(&mut self, sweep: &Sweep, report: &mut SolveReport) {
+        report.sweep_steps = sweep.steps;
+        self.ctx.region = self.active_region(sweep);
+        report.active_particles = self.ctx.region.particles(self.ctx.column_len);
+        self.relaxed = true;
+    }
+
+    /// The bookkeeping after a relaxation: what the next solve starts from (the reaction
+    /// scale, the contact footprint, whether the gel ended at a clamp), the loads, the
+    /// force and the surface displacement.
+    fn finish_relaxation(&mut self, report: &mut SolveReport) {
         if report.nonfinite_recovered {
             let (lo, hi) = self.det_range();
             report.det_f_min = lo;
             report.det_f_max = hi;
             self.force = Vector3::zeros();
-            self.prev.clear();
             self.last_reaction = 0.0;
             self.loads.clear();
         } else {
-            self.prev = current;
             self.last_reaction = self.reaction;
             self.record_loads();
         }
-        report.nonfinite_recovered |= repaired;
         self.update_surface();
         self.last_footprint = self.footprint();
-        self.resting = !touching && self.surface_box.is_none();
         self.clamped = report.det_f_min <= J_MIN * 1.01 || report.det_f_max >= J_MAX * 0.99;
     }
 

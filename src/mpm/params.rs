@@ -195,6 +195,12 @@ impl Solver {
         }
     }
 
+    /// Whether this solver is a relaxation, moving the gel's own particles (their grid,
+    /// stencils and contact memory), rather than a solver of its own fields.
+    pub(crate) fn relaxes(self) -> bool {
+        matches!(self, Solver::Relaxation | Solver::Total)
+    }
+
     /// The solver called `name`.
     pub fn named(name: &str) -> Option<Solver> {
         Self::ALL.into_iter().find(|s| s.name() == name)

@@ -20,8 +20,8 @@
 //! pressure times `dx^2`), and the residual the constraint error `k |g|` of every loaded
 //! surface point.
 //!
-//! The material is chosen once per solve ([`Gel::relax_material`]): the relaxation and
-//! its steps are generic over the [`ConstitutiveModel`].
+//! The material is chosen once per solve (`Relaxation::solve`, `TotalRelaxation::solve`):
+//! the relaxation and its steps are generic over the [`ConstitutiveModel`].
 //!
 //! [`SolverOptions::damping`]: super::SolverOptions::damping
 //! [`SolverOptions::tolerance`]: super::SolverOptions::tolerance
@@ -31,6 +31,7 @@ use nalgebra::{Matrix3, Vector3};
 use super::contact::{self, ContactInput, SlotContact};
 use super::indenters::Sweep;
 use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use super::solver::{Equilibrium, Frame};
 use super::transfer::{self, P2gInput, Particle};
 use super::{Gel, Material, Snapshot, SolveReport, Solver};
 
@@ -73,65 +74,138 @@ struct StepOutcome {
     det_max: f64,
 }
 
+/// The updated-Lagrangian dynamic relaxation ([`Solver::Relaxation`]). It moves the gel's
+/// own particles; what it keeps of its own is the secant predictor's memory.
+#[derive(Clone, Default)]
+pub(super) struct Relaxation {
+    /// Each particle's change of position and deformation gradient over the last solve
+    /// (empty when there is none to use), and the indenters' translations (m) in it.
+    pub(super) last_change: Vec<(Vector3<f32>, Matrix3<f32>)>,
+    pub(super) last_motion: Vec<Vector3<f64>>,
+}
+
+#[cfg(test)]
 impl Gel {
-    /// Relaxes the gel to equilibrium with the sweep of `sweep`, with the constitutive
-    /// model of the gel's [`Material`], chosen here once, by the updated-Lagrangian
-    /// relaxation or, for [`Solver::Total`], the total-Lagrangian one (`total.rs`).
-    pub(super) fn relax_material(&mut self, sweep: &Sweep, report: &mut SolveReport) {
-        let (mu, lambda) = (self.mu, self.lambda);
-        match self.params.material {
-            Material::FixedCorotated => {
-                self.relax_with(&FixedCorotatedModel { mu, lambda }, sweep, report)
+    /// The relaxation's state, where the gel runs it.
+    pub(super) fn relaxation(&self) -> Option<&Relaxation> {
+        self.solver.as_ref()?.as_any().downcast_ref::<Relaxation>()
+    }
+}
+
+impl Equilibrium for Relaxation {
+    fn kind(&self) -> Solver {
+        Solver::Relaxation
+    }
+
+    fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport) {
+        gel.begin_relaxation(frame.sweep, report);
+        let (mu, lambda) = (gel.mu, gel.lambda);
+        match gel.params.material {
+            Material::FixedCorotated => gel.relax(
+                &FixedCorotatedModel { mu, lambda },
+                frame.sweep,
+                self,
+                report,
+            ),
+            Material::NeoHookean => {
+                gel.relax(&NeoHookeanModel { mu, lambda }, frame.sweep, self, report)
             }
-            Material::NeoHookean => self.relax_with(&NeoHookeanModel { mu, lambda }, sweep, report),
         }
+        gel.finish_relaxation(report);
     }
 
-    fn relax_with<M: ConstitutiveModel>(
-        &mut self,
-        model: &M,
-        sweep: &Sweep,
-        report: &mut SolveReport,
-    ) {
-        if self.options.solver == Solver::Total {
-            self.relax_total(model, sweep, report)
-        } else {
-            self.relax(model, sweep, report)
-        }
+    fn reset(&mut self) {
+        self.last_change.clear();
+        self.last_motion.clear();
     }
 
+    fn boxed_clone(&self) -> Box<dyn Equilibrium> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    #[cfg(test)]
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
+
+impl Relaxation {
+    /// Keeps each particle's change over a converged solve, and the indenters' motion in
+    /// it, for the next solve's [`Gel::predict`]; forgets them after any other, and when
+    /// the change is within [`PREDICT_ABOVE`] times the solve's tolerance of the gel's
+    /// deformation: a solve stops that far from the exact equilibrium, so such a change is
+    /// mostly that error, and extrapolating it would add to the next one (a body resting
+    /// on a coupled gel then jitters).
+    fn remember_change(&mut self, gel: &Gel, motion: Vec<Vector3<f64>>, report: &SolveReport) {
+        self.last_change.clear();
+        self.last_motion.clear();
+        if !report.converged || report.nonfinite_recovered {
+            return;
+        }
+        let moved = gel
+            .particles
+            .iter()
+            .zip(&gel.snapshot)
+            .map(|(p, s)| (p.x - s.x).norm())
+            .fold(0.0f32, f32::max) as f64;
+        let deformed = gel.surface_u.iter().map(|u| u.norm()).fold(0.0, f64::max) / gel.layout.dx;
+        if moved <= PREDICT_ABOVE * gel.options.tolerance * deformed {
+            return;
+        }
+        self.last_change.extend(
+            gel.particles
+                .iter()
+                .zip(&gel.snapshot)
+                .map(|(p, s)| (p.x - s.x, p.f - s.f)),
+        );
+        self.last_motion = motion;
+    }
+}
+
+impl Gel {
     /// Dynamic relaxation of the active region from the current state at rest, the
     /// indenters moving as `sweep` says, until the residual is below the tolerance after
     /// the sweep, a non-finite value appears (the gel is then restored, see
     /// [`Gel::recover`]) or [`Gel::iteration_cap`] steps.
-    fn relax<M: ConstitutiveModel>(&mut self, model: &M, sweep: &Sweep, report: &mut SolveReport) {
-        let motion = self.warm_start(sweep);
-        self.iterate(sweep, report, |g| g.step(model), |_| {});
-        self.remember_change(motion, report);
+    fn relax<M: ConstitutiveModel>(
+        &mut self,
+        model: &M,
+        sweep: &Sweep,
+        memory: &mut Relaxation,
+        report: &mut SolveReport,
+    ) {
+        let motion = self.warm_start(sweep, memory);
+        self.iterate(&mut (), sweep, report, |g, _| g.step(model), |_, _| {});
+        memory.remember_change(self, motion, report);
     }
 
-    /// The explicit steps of a relaxation (`step`: one step, returning the contact force
-    /// on the gel) with the indenters moving as `sweep` says, until the residual is below
-    /// the tolerance after the sweep, a non-finite value appears (`restore` and
-    /// [`Gel::recover`] then bring back the state at the start) or
-    /// [`Gel::iteration_cap`] steps.
-    pub(super) fn iterate(
+    /// The explicit steps of a relaxation (`step`: one step on the gel and the solver's
+    /// `state`, returning the contact force on the gel) with the indenters moving as
+    /// `sweep` says, until the residual is below the tolerance after the sweep, a
+    /// non-finite value appears (`restore` and [`Gel::recover`] then bring back the state
+    /// at the start) or [`Gel::iteration_cap`] steps.
+    pub(super) fn iterate<S>(
         &mut self,
+        state: &mut S,
         sweep: &Sweep,
         report: &mut SolveReport,
-        mut step: impl FnMut(&mut Gel) -> [f64; 3],
-        mut restore: impl FnMut(&mut Gel),
+        mut step: impl FnMut(&mut Gel, &mut S) -> [f64; 3],
+        mut restore: impl FnMut(&mut Gel, &mut S),
     ) {
         let tol = self.options.tolerance;
         self.gain_scale = 1.0;
         let (mut window_min, mut last_min) = (f64::INFINITY, f64::INFINITY);
         for it in 0..self.iteration_cap() {
             sweep.place(it, self.layout.dx, &mut self.step_ind);
-            let f = step(self);
+            let f = step(self, state);
             let out = self.measure(f);
             report.iterations = it + 1;
             if out.nonfinite {
-                restore(self);
+                restore(self, state);
                 self.recover();
                 report.nonfinite_recovered = true;
                 report.converged = false;
@@ -169,12 +243,12 @@ impl Gel {
     /// multiple of their last change of position and deformation gradient, so that the
     /// relaxation starts near the new equilibrium rather than at the old one. Returns the
     /// indenters' translations in this solve (m). The stencils are the caller's to update.
-    fn predict(&mut self, sweep: &Sweep) -> Vec<Vector3<f64>> {
+    fn predict(&mut self, sweep: &Sweep, memory: &Relaxation) -> Vec<Vector3<f64>> {
         let motion = sweep.motion();
-        if self.last_change.len() != self.particles.len() {
+        if memory.last_change.len() != self.particles.len() {
             return motion;
         }
-        let Some(s) = super::secant_scale(&motion, &self.last_motion) else {
+        let Some(s) = super::secant_scale(&motion, &memory.last_motion) else {
             return motion;
         };
         let s = s as f32;
@@ -185,7 +259,7 @@ impl Gel {
             for iy in y0..y1 {
                 let first = (ix * nyp + iy) * nzp;
                 for k in first..first + nzp {
-                    let (dx, df) = &self.last_change[k];
+                    let (dx, df) = &memory.last_change[k];
                     let p = &mut self.particles[k];
                     p.x += dx * s;
                     p.f += df * s;
@@ -195,48 +269,17 @@ impl Gel {
         motion
     }
 
-    /// Keeps each particle's change over a converged solve, and the indenters' motion in
-    /// it, for the next solve's [`Gel::predict`]; forgets them after any other, and when
-    /// the change is within [`PREDICT_ABOVE`] times the solve's tolerance of the gel's
-    /// deformation: a solve stops that far from the exact equilibrium, so such a change is
-    /// mostly that error, and extrapolating it would add to the next one (a body resting
-    /// on a coupled gel then jitters).
-    fn remember_change(&mut self, motion: Vec<Vector3<f64>>, report: &SolveReport) {
-        self.last_change.clear();
-        self.last_motion.clear();
-        if !report.converged || report.nonfinite_recovered {
-            return;
-        }
-        let moved = self
-            .particles
-            .iter()
-            .zip(&self.snapshot)
-            .map(|(p, s)| (p.x - s.x).norm())
-            .fold(0.0f32, f32::max) as f64;
-        let deformed = self.surface_u.iter().map(|u| u.norm()).fold(0.0, f64::max) / self.layout.dx;
-        if moved <= PREDICT_ABOVE * self.options.tolerance * deformed {
-            return;
-        }
-        self.last_change.extend(
-            self.particles
-                .iter()
-                .zip(&self.snapshot)
-                .map(|(p, s)| (p.x - s.x, p.f - s.f)),
-        );
-        self.last_motion = motion;
-    }
-
     /// Records the state the solve starts from (the last equilibrium, for
-    /// [`Gel::recover`] and for the change [`Gel::remember_change`] keeps), sets every
+    /// [`Gel::recover`] and for the change [`Relaxation::remember_change`] keeps), sets every
     /// particle at rest, moves it on by [`Gel::predict`] and computes the stencils once.
     /// Returns the indenters' translations in this solve (m).
-    fn warm_start(&mut self, sweep: &Sweep) -> Vec<Vector3<f64>> {
+    fn warm_start(&mut self, sweep: &Sweep, memory: &Relaxation) -> Vec<Vector3<f64>> {
         for (s, p) in self.snapshot.iter_mut().zip(&mut self.particles) {
             *s = Snapshot::of(p);
             p.v = Vector3::zeros();
             p.c = Matrix3::zeros();
         }
-        let motion = self.predict(sweep);
+        let motion = self.predict(sweep, memory);
         transfer::compute_stencils(&self.particles, &mut self.stencils);
         self.binned = false;
         motion

@@ -30,9 +30,10 @@ use rayon::prelude::*;
 
 use super::contact;
 use super::indenters::Sweep;
-use super::materials::ConstitutiveModel;
+use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use super::solver::{Equilibrium, Frame};
 use super::transfer::{self, ChunkStats, LayerStats, Node, Stencil};
-use super::{Gel, Snapshot, SolveReport, J_MAX, J_MIN};
+use super::{Gel, Material, Snapshot, SolveReport, Solver, J_MAX, J_MIN};
 
 /// A solve's change must exceed this many times the tolerance times the deformation for
 /// the next solve to extrapolate it (as the relaxation's `PREDICT_ABOVE`).
@@ -119,24 +120,74 @@ impl Total {
     }
 }
 
+/// The total-Lagrangian relaxation ([`Solver::Total`]): the particles follow the nodal
+/// displacements it owns.
+#[derive(Clone, Default)]
+pub(super) struct TotalRelaxation {
+    /// The nodal state, built at the first frame (and again after a restart).
+    total: Option<Box<Total>>,
+}
+
+impl Equilibrium for TotalRelaxation {
+    fn kind(&self) -> Solver {
+        Solver::Total
+    }
+
+    fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport) {
+        gel.begin_relaxation(frame.sweep, report);
+        if report.restarted || self.total.is_none() {
+            self.total = Some(Box::new(Total::new(gel)));
+        }
+        let total = self.total.as_mut().expect("built above");
+        let (mu, lambda) = (gel.mu, gel.lambda);
+        match gel.params.material {
+            Material::FixedCorotated => gel.relax_total(
+                &FixedCorotatedModel { mu, lambda },
+                frame.sweep,
+                total,
+                report,
+            ),
+            Material::NeoHookean => {
+                gel.relax_total(&NeoHookeanModel { mu, lambda }, frame.sweep, total, report)
+            }
+        }
+        gel.finish_relaxation(report);
+    }
+
+    fn reset(&mut self) {
+        self.total = None;
+    }
+
+    fn boxed_clone(&self) -> Box<dyn Equilibrium> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    #[cfg(test)]
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
+
 impl Gel {
-    /// The total-Lagrangian relaxation of `sweep` with the constitutive model `model`.
-    pub(super) fn relax_total<M: ConstitutiveModel>(
+    /// The total-Lagrangian relaxation of `sweep` with the constitutive model `model`,
+    /// from the nodal state `total`.
+    fn relax_total<M: ConstitutiveModel>(
         &mut self,
         model: &M,
         sweep: &Sweep,
+        total: &mut Total,
         report: &mut SolveReport,
     ) {
-        if report.restarted || self.total.is_none() {
-            self.total = Some(Box::new(Total::new(self)));
-        }
         for (s, p) in self.snapshot.iter_mut().zip(&self.particles) {
             *s = Snapshot::of(p);
         }
         let motion = sweep.motion();
         let (region, bottom) = (self.ctx.region, self.ctx.iz_bottom);
         let [_, ny, nz] = self.layout.dims;
-        let total = self.total.as_mut().expect("built above");
         total.saved.clone_from(&total.u);
         total.v.iter_mut().for_each(|v| *v = Vector3::zeros());
         // The secant predictor (as the relaxation's, on the nodal displacements).
@@ -151,22 +202,16 @@ impl Gel {
                 }
             }
         }
-        self.last_change.clear();
-        self.last_motion.clear();
         self.iterate(
+            total,
             sweep,
             report,
-            |g| g.total_step(model),
-            |g| {
-                if let Some(t) = g.total.as_mut() {
-                    t.u.clone_from(&t.saved);
-                }
-            },
+            |g, t| g.total_step(model, t),
+            |_, t| t.u.clone_from(&t.saved),
         );
         // Keep this solve's change for the next one's prediction, unless it is within a
         // few tolerances of the deformation (mostly the solve's own error).
         let tol = self.options.tolerance;
-        let total = self.total.as_mut().expect("built above");
         total.last_motion.clear();
         total.last_du.clear();
         if report.converged && !report.nonfinite_recovered {
@@ -192,16 +237,14 @@ impl Gel {
     /// The first part of a total-Lagrangian step: `F` and the position of every active
     /// particle from the nodal displacements (and the rotation of `F`, when the model
     /// uses it), with their `det F` range into the chunk statistics.
-    fn gather_total<M: ConstitutiveModel>(&mut self) {
+    fn gather_total<M: ConstitutiveModel>(&mut self, total: &Total) {
         let Gel {
             pool,
             ctx,
             particles,
             chunk_stats,
-            total,
             ..
         } = self;
-        let total = total.as_ref().expect("built by relax_total");
         let ctx = &*ctx;
         pool.install(|| {
             let [_, ny, nz] = ctx.dims;
@@ -262,8 +305,8 @@ impl Gel {
         });
     }
 
-    fn total_step<M: ConstitutiveModel>(&mut self, model: &M) -> [f64; 3] {
-        self.gather_total::<M>();
+    fn total_step<M: ConstitutiveModel>(&mut self, model: &M, total: &mut Total) -> [f64; 3] {
+        self.gather_total::<M>(total);
         self.update_contacts(GAP_FILTER);
         let Gel {
             pool,
@@ -272,10 +315,8 @@ impl Gel {
             active,
             grid,
             layer_stats,
-            total,
             ..
         } = self;
-        let total = total.as_mut().expect("built by relax_total");
         let ctx = &*ctx;
         pool.install(|| {
             let [nx, ny, nz] = ctx.dims;

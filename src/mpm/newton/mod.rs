@@ -132,6 +132,7 @@ use rayon::prelude::*;
 
 use super::contact::{StepIndenter, CONTACT_BAND};
 use super::indenters::Sweep;
+use super::solver::{Equilibrium, Frame};
 use super::{
     Gel, GelParams, Layout, Linear, SolveReport, Solver, SolverOptions, FBAR_POISSON, J_MAX, J_MIN,
     MULTIGRID_UNKNOWNS, PAD_BOTTOM,
@@ -505,7 +506,7 @@ pub(crate) struct Newton {
     /// its start and after each accepted step.
     pub history: Vec<Vec<f64>>,
     /// The coarse start's displacement change over the next substep (empty when there
-    /// is none; [`Gel::coarse_start`]), taken by [`Newton::predict`].
+    /// is none; [`NewtonSolver::coarse_start`]), taken by [`Newton::predict`].
     coarse_step: Vec<f64>,
     /// The displacement change over the last substep and the indenters' translations
     /// (cells) in it, for the secant predictor.
@@ -1909,7 +1910,7 @@ impl Newton {
     }
 
     /// The predictor: the coarse start's change over this substep where there is one (a
-    /// frame that does not move on along the last one's path, see [`Gel::solve_newton`]);
+    /// frame that does not move on along the last one's path, see [`NewtonSolver::solve_frame`]);
     /// elsewhere, where the indenters move on along their last path, the secant one (the
     /// gel moved on by the same multiple of its last change). Kept only if that lowers
     /// the energy (friction left out). A warm start from the last equilibrium alone meets
@@ -2202,8 +2203,74 @@ pub(super) fn smooth_slip(y: f64, r: f64) -> f64 {
     }
 }
 
+/// Newton's method on the gel's total potential energy ([`Solver::Newton`]): its state,
+/// and the gel twice as coarse whose solve starts it on a fine grid.
+#[derive(Clone, Default)]
+pub(in crate::mpm) struct NewtonSolver {
+    /// The region, its displacements, contact anchors and kept factors, built at the
+    /// first frame.
+    pub(in crate::mpm) state: Option<Box<Newton>>,
+    /// The gel on a grid twice as coarse whose solve starts Newton's on this one
+    /// ([`SolverOptions::coarse_start_above`]), built at the first solve that needs it.
+    companion: Option<Box<Gel>>,
+}
+
+impl Equilibrium for NewtonSolver {
+    fn kind(&self) -> Solver {
+        Solver::Newton
+    }
+
+    fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport) {
+        self.solve_frame(gel, frame.indenters, frame.sweep, frame.matched, report);
+    }
+
+    fn reset(&mut self) {
+        if let Some(n) = self.state.as_mut() {
+            n.reset();
+        }
+        if let Some(c) = self.companion.as_mut() {
+            c.reset();
+        }
+    }
+
+    fn boxed_clone(&self) -> Box<dyn Equilibrium> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+
+    #[cfg(test)]
+    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
+        self
+    }
+}
+
 impl Gel {
-    /// The coarse start of a Newton solve on this gel
+    /// The Newton solver's state, where the gel runs Newton's method and has solved a
+    /// frame.
+    pub(in crate::mpm) fn newton(&self) -> Option<&Newton> {
+        let s = self
+            .solver
+            .as_ref()?
+            .as_any()
+            .downcast_ref::<NewtonSolver>()?;
+        s.state.as_deref()
+    }
+
+    /// The Newton solver itself, where the gel runs Newton's method.
+    #[cfg(test)]
+    pub(in crate::mpm) fn newton_solver(&mut self) -> Option<&mut NewtonSolver> {
+        self.solver
+            .as_mut()?
+            .as_any_mut()
+            .downcast_mut::<NewtonSolver>()
+    }
+}
+
+impl NewtonSolver {
+    /// The coarse start of a Newton solve on `gel`
     /// ([`SolverOptions::coarse_start_above`]):
     /// the gel twice as coarse solves for `indenters` (a frame's poses or a substep's),
     /// and the change of its displacement field over that solve, at each node of
@@ -2211,24 +2278,25 @@ impl Gel {
     /// grid is small enough to go without, or the coarse solve did not converge.
     fn coarse_start(
         &mut self,
+        gel: &mut Gel,
         indenters: &[Placed],
         fine: &Newton,
         report: &mut SolveReport,
     ) -> Option<Vec<f64>> {
-        if !self.has_companion(fine.u.len()) {
+        if !self.has_companion(gel, fine.u.len()) {
             return None;
         }
-        let gel = self.companion.as_mut()?;
-        let before = gel.newton.as_ref().map(|n| n.u.clone());
-        let solved = gel.solve(indenters);
+        let coarse_gel = self.companion.as_mut()?;
+        let before = coarse_gel.newton().map(|n| n.u.clone());
+        let solved = coarse_gel.solve(indenters);
         report.coarse_iterations += solved.iterations + solved.coarse_iterations;
         if !solved.converged {
             return None;
         }
-        let coarse = gel.newton.as_ref()?;
+        let coarse = coarse_gel.newton()?;
         let mut step = vec![0.0; fine.u.len()];
         for &g in &fine.region_nodes {
-            let x = coarse.at_node(fine, g, &self.params.size);
+            let x = coarse.at_node(fine, g, &gel.params.size);
             let s = Stencil::at(&x);
             let mut d = coarse.displacement(&s, &coarse.u);
             if let Some(b) = &before {
@@ -2242,10 +2310,11 @@ impl Gel {
     }
 
     /// The coarse start's displacement at the nodes of `fine` outside its region (cells of
-    /// `fine`'s grid, 3 per free node; zero at the region's nodes), for a nested solve.
-    fn companion_field(&self, fine: &Newton) -> Option<Vec<f64>> {
+    /// `fine`'s grid, 3 per free node; zero at the region's nodes), for a nested solve of
+    /// a gel of `size`.
+    fn companion_field(&self, size: &[f64; 3], fine: &Newton) -> Option<Vec<f64>> {
         let mut field = vec![0.0; fine.u.len()];
-        let Some(coarse) = self.companion.as_ref()?.newton.as_ref() else {
+        let Some(coarse) = self.companion.as_ref()?.newton() else {
             // Not solved yet: at rest.
             return Some(field);
         };
@@ -2256,7 +2325,7 @@ impl Gel {
                 for (j, v) in out.chunks_exact_mut(3).enumerate() {
                     let k = chunk * CHUNK + j;
                     if fine.local[k] == u32::MAX {
-                        let x = coarse.at_node(fine, k as u32, &self.params.size);
+                        let x = coarse.at_node(fine, k as u32, size);
                         let d = coarse.displacement(&Stencil::at(&x), &coarse.u)
                             * (coarse.dx / fine.dx);
                         v.copy_from_slice(d.as_slice());
@@ -2266,16 +2335,16 @@ impl Gel {
         Some(field)
     }
 
-    /// Whether a Newton solve of `unknowns` takes a coarse start; builds the gel twice as
-    /// coarse at the first that does.
-    fn has_companion(&mut self, unknowns: usize) -> bool {
-        if unknowns <= self.options.coarse_start_above {
+    /// Whether a Newton solve of `unknowns` on `gel` takes a coarse start; builds the gel
+    /// twice as coarse at the first that does.
+    fn has_companion(&mut self, gel: &mut Gel, unknowns: usize) -> bool {
+        if unknowns <= gel.options.coarse_start_above {
             return false;
         }
         if self.companion.is_none() {
             let params = GelParams {
-                dx: 2.0 * self.params.dx,
-                ..self.params
+                dx: 2.0 * gel.params.dx,
+                ..gel.params
             };
             // Not nested itself (it may have a coarse start of its own): this gel's nodes
             // outside its region read the companion's own solve. At 0.3 mm (frictionless,
@@ -2287,14 +2356,14 @@ impl Gel {
                 solver: Solver::Newton,
                 fallback: false,
                 nested_margin: f64::INFINITY,
-                ..self.options
+                ..gel.options
             };
             match Gel::new(params, options) {
-                Ok(gel) => self.companion = Some(Box::new(gel)),
+                Ok(coarse) => self.companion = Some(Box::new(coarse)),
                 Err(_) => {
                     // A gel too thin for the doubled spacing: no coarse start, and no
                     // new attempt at every frame.
-                    self.options.coarse_start_above = usize::MAX;
+                    gel.options.coarse_start_above = usize::MAX;
                     return false;
                 }
             }
@@ -2302,19 +2371,20 @@ impl Gel {
         true
     }
 
-    /// The Newton solve of `sweep` (see the module docs); fills `report`.
-    pub(super) fn solve_newton(
+    /// The Newton solve of `sweep` on `gel` (see the module docs); fills `report`.
+    fn solve_frame(
         &mut self,
+        gel: &mut Gel,
         indenters: &[Placed],
         sweep: &Sweep,
         matched: &[Option<usize>],
         report: &mut SolveReport,
     ) {
-        if self.newton.is_none() {
-            match Newton::new(self) {
+        if self.state.is_none() {
+            match Newton::new(gel) {
                 Ok(mut n) => {
                     n.calibrate_subgrid();
-                    self.newton = Some(Box::new(n));
+                    self.state = Some(Box::new(n));
                 }
                 Err(_) => {
                     report.converged = false;
@@ -2323,12 +2393,12 @@ impl Gel {
                 }
             }
         }
-        let dx = self.layout.dx;
-        let tolerance = self.options.tolerance;
-        let mut newton = self.newton.take().expect("built above");
+        let dx = gel.layout.dx;
+        let tolerance = gel.options.tolerance;
+        let mut newton = self.state.take().expect("built above");
         newton.remap(matched);
         newton.history.clear();
-        let motion = sweep.steps as f64 * self.options.sweep_rate;
+        let motion = sweep.steps as f64 * gel.options.sweep_rate;
         // A body smaller than a couple of cells in every direction moves by at most
         // [`SOFT_EXTENT`] of its size per substep: moved past its radius in one go, it
         // would carry the surface points it met past its centre, where the distance
@@ -2370,8 +2440,8 @@ impl Gel {
             plan.place(s, dx, &mut placed);
             poses.extend(placed.iter().map(|p| (p.shape.clone(), p.now)));
         }
-        newton.nested = self.options.nested_margin < self.options.active_margin
-            && self.has_companion(newton.u.len());
+        newton.nested = gel.options.nested_margin < gel.options.active_margin
+            && self.has_companion(gel, newton.u.len());
         newton.boundary = None;
         let Some(bx) = newton.region_box(&poses) else {
             // Nothing reaches the gel: without a load the undeformed gel is the minimum.
@@ -2381,16 +2451,16 @@ impl Gel {
             }
             report.sweep_steps = 0;
             report.residual = 0.0;
-            self.force = Vector3::zeros();
-            self.loads.clear();
-            self.set_surface(|_| Vector3::zeros());
-            self.newton = Some(newton);
+            gel.force = Vector3::zeros();
+            gel.loads.clear();
+            gel.set_surface(|_| Vector3::zeros());
+            self.state = Some(newton);
             return;
         };
         if newton.set_region(bx).is_err() {
             report.converged = false;
             report.residual = f64::INFINITY;
-            self.newton = Some(newton);
+            self.state = Some(newton);
             return;
         }
         report.active_particles = newton.region_points.len();
@@ -2410,14 +2480,16 @@ impl Gel {
         // A nested solve's nodes outside its region: the coarse gel's displacement before
         // and after its solve (of the frame, or of each substep).
         let nested = newton.nested;
-        let field =
-            |gel: &Gel, newton: &Newton| nested.then(|| gel.companion_field(newton)).flatten();
+        let size = gel.params.size;
+        let field = |s: &NewtonSolver, newton: &Newton| {
+            nested.then(|| s.companion_field(&size, newton)).flatten()
+        };
         let mut frame_field = None;
         if steady {
             // The coarse gel follows every frame, so that its change is at hand when
             // needed.
             let before = field(self, &newton);
-            let solved = self.coarse_start(indenters, &newton, report).is_some();
+            let solved = self.coarse_start(gel, indenters, &newton, report).is_some();
             frame_field = before.zip(field(self, &newton)).filter(|_| solved);
         }
         let saved = newton.u.clone();
@@ -2442,7 +2514,7 @@ impl Gel {
                     None => field(self, &newton),
                 };
                 newton.coarse_step = self
-                    .coarse_start(&poses, &newton, report)
+                    .coarse_start(gel, &poses, &newton, report)
                     .unwrap_or_default();
                 let solved = !newton.coarse_step.is_empty();
                 newton.boundary = before
@@ -2480,13 +2552,13 @@ impl Gel {
         }
         match force {
             Some(f) if newton.u.iter().all(|v| v.is_finite()) => {
-                let scale = self.modulus * dx * dx;
-                self.force = f * scale;
-                self.loads = newton
+                let scale = gel.modulus * dx * dx;
+                gel.force = f * scale;
+                gel.loads = newton
                     .loads
                     .iter()
                     .map(|(x, f)| {
-                        let at = self.layout.origin + x * dx;
+                        let at = gel.layout.origin + x * dx;
                         super::pressure::ContactLoad {
                             at: [at.x, at.y],
                             z: at.z,
@@ -2501,12 +2573,12 @@ impl Gel {
                 report.nonfinite_recovered = true;
                 report.converged = false;
                 report.residual = f64::INFINITY;
-                self.force = Vector3::zeros();
-                self.loads.clear();
+                gel.force = Vector3::zeros();
+                gel.loads.clear();
             }
         }
-        let rests: Vec<Vector3<f64>> = self.top_ref.iter().map(|r| r.cast::<f64>()).collect();
-        self.set_surface(|slot| newton.surface_displacement(&rests[slot]));
-        self.newton = Some(newton);
+        let rests: Vec<Vector3<f64>> = gel.top_ref.iter().map(|r| r.cast::<f64>()).collect();
+        gel.set_surface(|slot| newton.surface_displacement(&rests[slot]));
+        self.state = Some(newton);
     }
 }

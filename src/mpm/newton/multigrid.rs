@@ -1012,7 +1012,7 @@ mod tests {
             pose: Isometry3::translation(0.0, 0.0, 3e-3 - 0.3e-3),
         }]);
         // The solver keeps the tangents and contact stiffnesses of its last evaluation.
-        let mut n = *gel.newton.take().unwrap();
+        let mut n = *gel.newton_solver().unwrap().state.take().unwrap();
         let mut grid = n.two_grid.take().unwrap();
         grid.build(&n, true, true).unwrap();
         (n, grid)

@@ -1,0 +1,91 @@
+//! The seam between a gel and its equilibrium solvers.
+//!
+//! A [`Gel`] holds the gel: its particles at their last equilibrium, its top surface's
+//! displacement, the contact loads and force of the last frame, the indenters it saw.
+//! How a frame reaches equilibrium is an [`Equilibrium`]: each solver owns the state it
+//! keeps between frames and is built by [`build`] for the [`Solver`] that
+//! [`super::choice`] gave the gel (and, for the frames the gel's own solver cannot carry,
+//! for the one [`super::choice::frame_fallback`] names).
+//!
+//! | solver | its file | the state it owns |
+//! |---|---|---|
+//! | [`Solver::Relaxation`] | `relax.rs` | the secant predictor's memory |
+//! | [`Solver::Total`] | `total.rs` | the nodal displacements, velocities and masses |
+//! | [`Solver::Newton`] | `newton/` | the region, its displacements, contact anchors and kept factors; the gel twice as coarse that starts it |
+//! | [`Solver::Linear`] | `linear.rs` | the node columns' compliance, the last frame's contact points and loads |
+//!
+//! The relaxations move the gel's particles themselves (their grid, stencils and contact
+//! memory are the gel's discretisation and stay in [`Gel`]); Newton's method and the
+//! linear solver write the surface, the loads and the force from their own fields.
+//!
+//! A frame goes: the gel matches the indenters to the last frame's, decides whether the
+//! frame needs solving at all and which solver carries it ([`Gel::solve`]); the solver
+//! solves it; the gel keeps the poses for the next frame.
+
+use std::any::Any;
+
+use super::indenters::Sweep;
+use super::{Gel, Placed, SolveReport, Solver};
+
+/// What a solver is given of one frame.
+pub(in crate::mpm) struct Frame<'a> {
+    /// The frame's indenters as the caller gave them (non-finite poses included; a
+    /// solver skips those).
+    pub indenters: &'a [Placed],
+    /// The usable indenters' motion from the last frame's poses to this frame's.
+    pub sweep: &'a Sweep<'a>,
+    /// For each usable indenter, which of the last frame's it is (`None`: new).
+    pub matched: &'a [Option<usize>],
+}
+
+/// An equilibrium solver of a gel: one frame at a time, with the state it keeps between
+/// frames.
+pub(in crate::mpm) trait Equilibrium: Send + Sync {
+    /// Which solver this is.
+    fn kind(&self) -> Solver;
+
+    /// Brings `gel` to equilibrium under `frame`'s indenters: the gel's surface
+    /// displacement, contact loads and force are the frame's after it; `report` says how.
+    fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport);
+
+    /// Computes what depends on `gel` alone, before the first frame (the linear solver's
+    /// surface compliance, so that its first contact is an ordinary frame). Where it
+    /// cannot, the first frame that needs it tries again and reports why.
+    fn prepare(&mut self, _gel: &Gel) {}
+
+    /// Forgets every earlier frame: the next starts from the undeformed gel at rest.
+    fn reset(&mut self);
+
+    /// A copy of the solver and its state.
+    fn boxed_clone(&self) -> Box<dyn Equilibrium>;
+
+    /// For downcasting in the solvers' own code and tests.
+    fn as_any(&self) -> &dyn Any;
+
+    /// For downcasting in tests.
+    #[cfg(test)]
+    fn as_any_mut(&mut self) -> &mut dyn Any;
+}
+
+impl Clone for Box<dyn Equilibrium> {
+    fn clone(&self) -> Self {
+        self.boxed_clone()
+    }
+}
+
+impl std::fmt::Debug for dyn Equilibrium {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.kind().name())
+    }
+}
+
+/// The solver `kind`, with no frame solved and nothing built yet ([`Equilibrium::prepare`]
+/// builds what it can before the first frame).
+pub(in crate::mpm) fn build(kind: Solver) -> Box<dyn Equilibrium> {
+    match kind {
+        Solver::Relaxation => Box::new(super::relax::Relaxation::default()),
+        Solver::Total => Box::new(super::total::TotalRelaxation::default()),
+        Solver::Newton => Box::new(super::newton::NewtonSolver::default()),
+        Solver::Linear => Box::new(super::linear::LinearSolver::default()),
+    }
+}

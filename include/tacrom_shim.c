@@ -1,18 +1,19 @@
 /* Registration of the tacrom.tactile sensor plugin, and the only place that raises MuJoCo
  * errors and warnings.
  *
- * Each callback forwards to Rust (see tacrom.h). Rust returns a status and a message; the
- * shim turns an error into mju_error and a warning into mju_warning after the Rust call has
- * returned, so no Rust frame is ever on the stack when MuJoCo unwinds. */
+ * The callbacks are Rust functions (src/mujoco/plugin.rs); "tacrom.h" is generated from
+ * them by build.rs. Those that can fail return a status and a message; the wrappers here
+ * turn an error into mju_error and a warning into mju_warning after the Rust call has
+ * returned, so no Rust frame is ever on the stack when MuJoCo unwinds. Those that cannot
+ * fail are registered as they are. */
 #include <string.h>
 
 #include <mujoco/mujoco.h>
 
 #include "tacrom.h"
 
-static int nstate(const mjModel* m, int instance) {
-  return tacrom_nstate(m, instance);
-}
+/* Size of the message buffers passed to Rust. */
+#define TACROM_MSG_LEN 1000
 
 static int nsensordata(const mjModel* m, int instance, int sensor_id) {
   char msg[TACROM_MSG_LEN] = {0};
@@ -37,19 +38,11 @@ static int init(const mjModel* m, mjData* d, int instance) {
   return 0;
 }
 
-static void destroy(mjData* d, int instance) {
-  tacrom_destroy(d, instance);
-}
-
 static void copy(mjData* dest, const mjModel* m, const mjData* src, int instance) {
   char msg[TACROM_MSG_LEN] = {0};
   if (tacrom_copy(dest, m, src, instance, msg, sizeof(msg)) != TACROM_OK) {
     mju_warning("%s", msg);
   }
-}
-
-static void reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data, int instance) {
-  tacrom_reset(m, plugin_state, plugin_data, instance);
 }
 
 static void compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
@@ -64,26 +57,21 @@ static void compute(const mjModel* m, mjData* d, int instance, int capability_bi
   }
 }
 
-static void visualize(const mjModel* m, mjData* d, const mjvOption* opt, mjvScene* scn,
-                      int instance) {
-  tacrom_visualize(m, d, opt, scn, instance);
-}
-
 mjPLUGIN_LIB_INIT(tacrom) {
   mjpPlugin plugin;
   mjp_defaultPlugin(&plugin);
-  plugin.name = "tacrom.tactile";
+  plugin.name = TACROM_PLUGIN_NAME;
   /* Passive: the optional coupling, which pushes the bodies back (coupling="on"). */
   plugin.capabilityflags |= mjPLUGIN_SENSOR | mjPLUGIN_PASSIVE;
   plugin.needstage = mjSTAGE_POS;
   plugin.attributes = tacrom_attributes(&plugin.nattribute);
-  plugin.nstate = nstate;
+  plugin.nstate = tacrom_nstate;
   plugin.nsensordata = nsensordata;
   plugin.init = init;
-  plugin.destroy = destroy;
+  plugin.destroy = tacrom_destroy;
   plugin.copy = copy;
-  plugin.reset = reset;
+  plugin.reset = tacrom_reset;
   plugin.compute = compute;
-  plugin.visualize = visualize;
+  plugin.visualize = tacrom_visualize;
   mjp_registerPlugin(&plugin);
 }

@@ -1,4 +1,7 @@
-//! The plugin callbacks that the C shim (`include/tacrom_shim.c`) forwards to.
+//! The plugin callbacks that the C shim (`include/tacrom_shim.c`) registers or forwards to.
+//! Each is declared here alone: `build.rs` writes the shim's header from the `pub unsafe
+//! extern "C" fn tacrom_*` signatures and the constants `PLUGIN_NAME`, `OK`, `WARN` and
+//! `ERROR`.
 //!
 //! Every entry point goes through `edge`: panics are caught, errors become a status code
 //! and a message in the shim's buffer, and nothing unwinds into C. Rust never calls
@@ -20,7 +23,7 @@ use crate::sensor::coupling::{reduced_mass, Coupling, Sample, STABLE_RATIO};
 use crate::sensor::TactileSensor;
 use crate::visual::{self, ArrowStyle, Surface, GEOM_BUDGET};
 
-/// The name the shim registers the plugin under.
+/// The name the shim registers the plugin under (`TACROM_PLUGIN_NAME` in its header).
 const PLUGIN_NAME: &str = "tacrom.tactile";
 
 const OK: c_int = 0;

@@ -26,7 +26,7 @@ pub mod models;
 pub mod outputs;
 
 use models::SurfaceModel;
-use outputs::{Frame, Needs, Seen, Shape};
+use outputs::{Field, Frame, Needs, Seen, Shape};
 
 /// Failure to build a sensor from a valid configuration.
 #[derive(Debug, thiserror::Error)]
@@ -123,12 +123,11 @@ struct Fields {
     /// Whether the last evaluation's surface was deformed, so that the pinhole's images
     /// differ from the orthographic ones (false: flat, every camera sees alike).
     bent: bool,
-    /// Normal contact pressure (Pa), when an output needs it.
-    pressure: Vec<f64>,
+    /// Each physical image at its [`Field::index`] (H x W x channels), when an output
+    /// needs it; else empty.
+    images: [Vec<f64>; Field::ALL.len()],
     /// The gel's force on the indenters (N, sensor frame); zero unless an output needs it.
     force: Vector3<f64>,
-    /// In-plane surface displacement per pixel (H x W x 2, m), when an output needs it.
-    shear: Vec<f64>,
     /// The markers, when an output needs them.
     markers: Markers,
 }
@@ -143,9 +142,8 @@ impl Fields {
             depth: sized(needs.depth, pixels),
             seen_depth: sized(seen, pixels),
             bent: false,
-            pressure: sized(needs.pressure, pixels),
+            images: Field::ALL.map(|f| sized(needs.has(f), f.channels() * pixels)),
             force: Vector3::zeros(),
-            shear: sized(needs.shear, 2 * pixels),
             markers: if needs.markers {
                 Markers::new(markers, grid)
             } else {
@@ -154,15 +152,14 @@ impl Fields {
         }
     }
 
-    /// Back to the flat gel's values: no depth, pressure, force or shear, the markers at
+    /// Back to the flat gel's values: no depth, force or physical image, the markers at
     /// rest.
     fn flatten(&mut self) {
         self.depth.fill(0.0);
         self.seen_depth.fill(0.0);
         self.bent = false;
-        self.pressure.fill(0.0);
+        self.images.iter_mut().for_each(|i| i.fill(0.0));
         self.force = Vector3::zeros();
-        self.shear.fill(0.0);
         self.markers.settle();
     }
 }
@@ -183,7 +180,7 @@ impl TactileSensor {
             .iter()
             .fold(Needs::NONE, |n, o| n | o.spec().needs);
         // `rom` scales its force and pressure by the decoded surface: it decodes for them.
-        needs.depth |= model.force_needs_depth() && (needs.force || needs.pressure);
+        needs.depth |= model.force_needs_depth() && (needs.force || needs.has(Field::Pressure));
         let pixels = config.pixels();
         // Through a pinhole every image is resampled where the rays meet the surface, so
         // the depth image is computed for any of them.
@@ -284,7 +281,7 @@ impl TactileSensor {
     /// The shear image of the last evaluation (H x W x 2, row-major, m); empty when no
     /// configured output needs it.
     pub fn shear(&self) -> &[f64] {
-        &self.fields.shear
+        &self.fields.images[Field::Shear.index()]
     }
 
     /// The markers and their displacements after the last evaluation; none when no
@@ -354,12 +351,14 @@ impl TactileSensor {
         eval.times.geometry = (t1 - t0).as_secs_f64();
 
         self.model.solve(&scene, &mut eval);
+        // Shear is the depth image's inverse map: computed with it when both are needed.
+        let with_depth = self.needs.depth && self.needs.has(Field::Shear);
         if self.needs.depth {
-            if self.needs.shear {
+            if with_depth {
                 self.model.depth_and_shear(
                     &scene,
                     &mut self.fields.depth,
-                    &mut self.fields.shear,
+                    &mut self.fields.images[Field::Shear.index()],
                     &mut eval,
                 );
             } else {
@@ -381,14 +380,15 @@ impl TactileSensor {
         } else {
             Vector3::zeros()
         };
-        if self.needs.pressure {
-            self.model.pressure(&self.grid, &mut self.fields.pressure);
-            if !self.fields.pressure.iter().all(|v| v.is_finite()) {
-                self.fields.pressure.fill(0.0);
+        for field in Field::ALL {
+            if !self.needs.has(field) || (field == Field::Shear && with_depth) {
+                continue;
             }
-        }
-        if self.needs.shear && !self.needs.depth {
-            self.model.shear(scene.grid, &mut self.fields.shear);
+            let image = &mut self.fields.images[field.index()];
+            self.model.field(field, scene.grid, image);
+            if !image.iter().all(|v| v.is_finite()) {
+                image.fill(0.0);
+            }
         }
         if self.needs.markers {
             let model = &self.model;
@@ -416,9 +416,8 @@ impl TactileSensor {
             surface: &self.fields.depth,
             zmin: &self.zmin,
             force: self.fields.force,
-            pressure: &self.fields.pressure,
+            fields: self.fields.images.each_ref().map(Vec::as_slice),
             grid: &self.grid,
-            shear: &self.fields.shear,
             markers: &self.fields.markers,
             optics: &self.optics,
         };

@@ -4,6 +4,7 @@
 
 use nalgebra::Vector3;
 
+use super::outputs::Field;
 use super::{Evaluation, Scene, SensorError};
 use crate::config::{material_name, Config, Physics};
 use crate::geometry::{PixelGrid, Placed};
@@ -33,20 +34,18 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
         vec![Wrench::default(); indenters.len()]
     }
 
-    /// The normal contact pressure on the image grid after the last solve (Pa); zero
-    /// where the model has none.
-    fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
-        let _ = grid;
+    /// The physical image `field` on `grid` after the last solve ([`Field`]):
+    /// [`Field::Pressure`], the normal contact pressure (Pa); [`Field::Shear`], the
+    /// in-plane displacement of the gel surface seen at each pixel (`H x W x 2`, m, sensor
+    /// frame x then y; the inverse map of the depth image). Zero where the model has none
+    /// (the undeformed gel; everywhere for a model without a gel).
+    fn field(&self, field: Field, grid: &PixelGrid, out: &mut [f64]) {
+        let _ = (field, grid);
         out.fill(0.0);
     }
 
-    /// The in-plane displacement of the gel surface seen at each pixel of `grid` after the
-    /// last solve (`H x W x 2`, m, sensor frame x then y; the inverse map of the depth
-    /// image); zero where the gel is undeformed and for a model without a gel.
-    fn shear(&self, grid: &PixelGrid, out: &mut [f64]);
-
-    /// [`SurfaceModel::depth`] and [`SurfaceModel::shear`] together (`shear` after the
-    /// depth); a model whose two come from one inverse map computes it once.
+    /// [`SurfaceModel::depth`] and the [`Field::Shear`] image together (the shear after
+    /// the depth); a model whose two come from one inverse map computes it once.
     fn depth_and_shear(
         &mut self,
         scene: &Scene<'_>,
@@ -55,7 +54,7 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
         eval: &mut Evaluation,
     ) {
         self.depth(scene, depth, eval);
-        self.shear(scene.grid, shear);
+        self.field(Field::Shear, scene.grid, shear);
     }
 
     /// The in-plane displacement (m) of the surface point whose rest position is `rest`
@@ -115,10 +114,6 @@ impl SurfaceModel for Rigid {
 
     fn force(&self) -> Vector3<f64> {
         Vector3::zeros()
-    }
-
-    fn shear(&self, _: &PixelGrid, out: &mut [f64]) {
-        out.fill(0.0);
     }
 
     fn displacement(&self, _: [f64; 2]) -> [f64; 2] {
@@ -276,17 +271,11 @@ impl SurfaceModel for Mpm {
         }
     }
 
-    fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
-        match self.gel() {
-            Some(gel) if self.deformed => gel.contact_pressure(grid, out),
+    fn field(&self, field: Field, grid: &PixelGrid, out: &mut [f64]) {
+        match (field, self.gel()) {
+            (Field::Pressure, Some(gel)) if self.deformed => gel.contact_pressure(grid, out),
+            (Field::Shear, Some(gel)) => gel.surface_shear(grid, out),
             _ => out.fill(0.0),
-        }
-    }
-
-    fn shear(&self, grid: &PixelGrid, out: &mut [f64]) {
-        match self.gel() {
-            Some(gel) => gel.surface_shear(grid, out),
-            None => out.fill(0.0),
         }
     }
 
@@ -404,23 +393,24 @@ impl SurfaceModel for Reduced {
         w
     }
 
-    /// The pressure head's field carrying the reported normal force, where the head ran on
-    /// the last decoded evaluation and its correction of the coarse load lies in range;
-    /// else the coarse gel's pressure scaled as the normal force.
-    fn pressure(&self, grid: &PixelGrid, out: &mut [f64]) {
-        if self.decoded
-            && self.rom.last_head_factor().is_some()
-            && self.rom.render_pressure(grid, self.force().z, out)
-        {
-            return;
+    /// The pressure: the pressure head's field carrying the reported normal force, where
+    /// the head ran on the last decoded evaluation and its correction of the coarse load
+    /// lies in range; else the coarse gel's pressure scaled as the normal force. The
+    /// decoder restores depth only: shear comes from the coarse gel.
+    fn field(&self, field: Field, grid: &PixelGrid, out: &mut [f64]) {
+        match field {
+            Field::Pressure => {
+                if self.decoded
+                    && self.rom.last_head_factor().is_some()
+                    && self.rom.render_pressure(grid, self.force().z, out)
+                {
+                    return;
+                }
+                self.mpm.field(field, grid, out);
+                out.iter_mut().for_each(|p| *p *= self.force_factor);
+            }
+            Field::Shear => self.mpm.field(field, grid, out),
         }
-        self.mpm.pressure(grid, out);
-        out.iter_mut().for_each(|p| *p *= self.force_factor);
-    }
-
-    /// The decoder restores depth only: shear comes from the coarse gel.
-    fn shear(&self, grid: &PixelGrid, out: &mut [f64]) {
-        self.mpm.shear(grid, out);
     }
 
     /// From the coarse gel too.
@@ -478,7 +468,10 @@ fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
         RomOptions {
             refine: config.refine,
             threads: config.threads,
-            pressure: config.outputs.iter().any(|o| o.spec().needs.pressure),
+            pressure: config
+                .outputs
+                .iter()
+                .any(|o| o.spec().needs.has(Field::Pressure)),
             force: config.coupling || config.outputs.iter().any(|o| o.spec().needs.force),
         },
     )

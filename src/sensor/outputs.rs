@@ -43,6 +43,37 @@ pub enum Seen {
     Refused,
 }
 
+/// A physical image a model computes on the image grid after its solve, beside the depth.
+/// Each is one buffer of the sensor, sized when an output needs it, and copied, reset and
+/// cleared for the frame without contact by one rule; a model computes it in
+/// [`super::models::SurfaceModel::field`]. A new one is a variant here (its channels), an
+/// arm there, and the output that writes it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Field {
+    /// The normal contact pressure of the gel on the indenters (Pa).
+    Pressure,
+    /// The in-plane displacement of the gel surface seen at each pixel, x then y (m).
+    Shear,
+}
+
+impl Field {
+    /// Every field, in the order the sensor computes them.
+    pub const ALL: [Field; 2] = [Field::Pressure, Field::Shear];
+
+    /// Values per pixel.
+    pub const fn channels(self) -> usize {
+        match self {
+            Field::Pressure => 1,
+            Field::Shear => 2,
+        }
+    }
+
+    /// Its place in [`Field::ALL`] and in the arrays indexed by field.
+    pub const fn index(self) -> usize {
+        self as usize
+    }
+}
+
 /// What an evaluation must compute for an output.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Needs {
@@ -50,12 +81,25 @@ pub struct Needs {
     pub depth: bool,
     /// The gel's contact force.
     pub force: bool,
-    /// The contact pressure image.
-    pub pressure: bool,
-    /// The shear image (the gel's in-plane surface displacement per pixel).
-    pub shear: bool,
     /// The markers' displacements.
     pub markers: bool,
+    /// The physical images, one bit per [`Field`] at its [`Field::index`].
+    fields: u8,
+}
+
+impl Needs {
+    /// The field `f` alone.
+    pub const fn field(f: Field) -> Needs {
+        Needs {
+            fields: 1 << f.index(),
+            ..Needs::NONE
+        }
+    }
+
+    /// Whether the field `f` is needed.
+    pub const fn has(&self, f: Field) -> bool {
+        self.fields & (1 << f.index()) != 0
+    }
 }
 
 impl std::ops::BitOr for Needs {
@@ -64,9 +108,8 @@ impl std::ops::BitOr for Needs {
         Needs {
             depth: self.depth || o.depth,
             force: self.force || o.force,
-            pressure: self.pressure || o.pressure,
-            shear: self.shear || o.shear,
             markers: self.markers || o.markers,
+            fields: self.fields | o.fields,
         }
     }
 }
@@ -85,13 +128,11 @@ pub struct Frame<'a> {
     pub zmin: &'a [f64],
     /// Total force of the gel on the indenters (N, sensor frame); zero unless needed.
     pub force: Vector3<f64>,
-    /// Normal contact pressure image (Pa), when an output needs it; else empty.
-    pub pressure: &'a [f64],
+    /// Each [`Field`] at its index (H x W x channels), when an output needs it; else
+    /// empty.
+    pub fields: [&'a [f64]; Field::ALL.len()],
     /// The images' pixel grid.
     pub grid: &'a PixelGrid,
-    /// In-plane surface displacement per pixel (H x W x 2, m), when an output needs it;
-    /// else empty.
-    pub shear: &'a [f64],
     /// The markers and their displacements, when an output needs them; else empty.
     pub markers: &'a Markers,
     /// The optical model of the `rgb` output.
@@ -282,12 +323,9 @@ const PRESSURE: OutputSpec = OutputSpec {
     unit: "Pa",
     shape: Shape::Image { channels: 1 },
     needs_gel: true,
-    needs: Needs {
-        pressure: true,
-        ..Needs::NONE
-    },
+    needs: Needs::field(Field::Pressure),
     seen: Seen::Resampled(Sampling::Bilinear),
-    write: |f, out| out.copy_from_slice(f.pressure),
+    write: |f, out| out.copy_from_slice(f.fields[Field::Pressure.index()]),
 };
 
 const SHEAR: OutputSpec = OutputSpec {
@@ -298,12 +336,9 @@ const SHEAR: OutputSpec = OutputSpec {
     unit: "m",
     shape: Shape::Image { channels: 2 },
     needs_gel: true,
-    needs: Needs {
-        shear: true,
-        ..Needs::NONE
-    },
+    needs: Needs::field(Field::Shear),
     seen: Seen::Resampled(Sampling::Bilinear),
-    write: |f, out| out.copy_from_slice(f.shear),
+    write: |f, out| out.copy_from_slice(f.fields[Field::Shear.index()]),
 };
 
 const MARKERS: OutputSpec = OutputSpec {
@@ -329,9 +364,8 @@ impl Needs {
     pub const NONE: Needs = Needs {
         depth: false,
         force: false,
-        pressure: false,
-        shear: false,
         markers: false,
+        fields: 0,
     };
 }
 

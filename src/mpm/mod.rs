@@ -478,7 +478,7 @@ impl Gel {
             solver: None,
             fallback: None,
         };
-        let mut own = solver::build(gel.options.solver);
+        let mut own = build_solver(gel.options.solver);
         let pool = gel.pool;
         pool.install(|| own.prepare(&gel));
         gel.solver = Some(own);
@@ -813,7 +813,7 @@ impl Gel {
                 report.fallback = true;
                 match self.fallback.take() {
                     Some(s) if s.kind() == kind => s,
-                    _ => solver::build(kind),
+                    _ => build_solver(kind),
                 }
             }
             None => self
@@ -997,6 +997,17 @@ impl Moduli {
 /// The fixed quantities of every step (see the module docs, "Internal units and mass
 /// scaling", and `relax.rs` for the damping); `mu` in internal units. The region is the whole
 /// gel until a solve sets it.
+/// The solver `kind`, with no frame solved and nothing built yet ([`Equilibrium::prepare`]
+/// builds what it can before the first frame). Which kind a gel gets is `choice.rs`'s.
+fn build_solver(kind: Solver) -> Box<dyn Equilibrium> {
+    match kind {
+        Solver::Relaxation => Box::new(relax::Relaxation::default()),
+        Solver::Total => Box::new(total::TotalRelaxation::default()),
+        Solver::Newton => Box::new(newton::NewtonSolver::default()),
+        Solver::Linear => Box::new(linear::LinearSolver::default()),
+    }
+}
+
 fn step_context(params: &GelParams, options: &SolverOptions, layout: &Layout, mu: f64) -> StepCtx {
     let dx = layout.dx;
     // Mass scaling: rho' = 1 / cfl^2, so c_p = cfl cells per step.

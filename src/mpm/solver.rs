@@ -3,7 +3,7 @@
 //! A [`Gel`] holds the gel: its particles at their last equilibrium, its top surface's
 //! displacement, the contact loads and force of the last frame, the indenters it saw.
 //! How a frame reaches equilibrium is an [`Equilibrium`]: each solver owns the state it
-//! keeps between frames and is built by [`build`] for the [`Solver`] that
+//! keeps between frames and is built by `build_solver` (`mod.rs`) for the [`Solver`] that
 //! [`super::choice`] gave the gel (and, for the frames the gel's own solver cannot carry,
 //! for the one [`super::choice::frame_fallback`] names).
 //!
@@ -76,16 +76,5 @@ impl Clone for Box<dyn Equilibrium> {
 impl std::fmt::Debug for dyn Equilibrium {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{}", self.kind().name())
-    }
-}
-
-/// The solver `kind`, with no frame solved and nothing built yet ([`Equilibrium::prepare`]
-/// builds what it can before the first frame).
-pub(in crate::mpm) fn build(kind: Solver) -> Box<dyn Equilibrium> {
-    match kind {
-        Solver::Relaxation => Box::new(super::relax::Relaxation::default()),
-        Solver::Total => Box::new(super::total::TotalRelaxation::default()),
-        Solver::Newton => Box::new(super::newton::NewtonSolver::default()),
-        Solver::Linear => Box::new(super::linear::LinearSolver::default()),
     }
 }

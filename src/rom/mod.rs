@@ -57,7 +57,9 @@
 //! where the coarse depth exceeds `region.eps_mm` or the indenters pierce the gel, grown by
 //! `region.grow` points (elsewhere the surface is the coarse one). The lattice is the
 //! field's resolution, set from the reference simulation's (finer detail is not in the
-//! training data); the image's pixels interpolate it bilinearly, and the contact constraint
+//! training data); the image's pixels interpolate it by monotone cubic interpolation
+//! (continuous slopes, so a pixel finer than the lattice shows no lattice, and no
+//! overshoot), and the contact constraint
 //! `depth >= p` is applied at every pixel, so the indenter's own sharp edges come through at
 //! full image resolution. Depths are clamped to `[0, T]`.
 //!
@@ -1383,8 +1385,9 @@ impl Rom {
         true
     }
 
-    /// Renders the last inference's lattice onto `grid` by bilinear interpolation; the
-    /// caller applies the depth rule with the full-resolution rigid surface.
+    /// Renders the last inference's lattice onto `grid` by monotone cubic interpolation
+    /// ([`render_lattice`]); the caller applies the depth rule with the full-resolution
+    /// rigid surface.
     pub fn render(&self, grid: &PixelGrid, out: &mut [f64]) {
         render_lattice(&self.manifest.lattice, &self.lattice_depth, grid, out);
     }
@@ -1437,26 +1440,80 @@ const _: fn() = || {
     assert_send::<Rom>();
 };
 
-/// Bilinear interpolation of the lattice field `lat` (row-major `ny x nx`) onto `grid`.
+/// The lattice field `lat` (row-major `ny x nx`) on `grid`: monotone cubic Hermite
+/// interpolation (Fritsch and Carlson) in x then y. It passes through the lattice values,
+/// its slope is continuous across the lattice lines, and between two points it stays
+/// within their values (no overshoot at a contact's edge). At a pixel finer than the
+/// lattice the surface's slope changes then show no preference for the lines, where
+/// bilinear interpolation kept the slope within a lattice cell and changed it at the lines
+/// (the rgb image showed the lattice as blocks; `tests/lattice_pattern.rs`). Beyond the
+/// outer lattice points the edge values repeat.
 fn render_lattice(spec: &LatticeSpec, lat: &[f64], grid: &PixelGrid, out: &mut [f64]) {
     let (nx, ny) = (spec.nx, spec.ny);
     let [lx, ly, _] = spec.size;
     let (px, py) = (lx / nx as f64, ly / ny as f64);
+    let cols: Vec<(usize, f64)> = (0..grid.width)
+        .map(|col| cell((grid.x(col) + 0.5 * lx) / px - 0.5, nx))
+        .collect();
+    // Each lattice row the image reads, interpolated along x once.
+    let mut rows: Vec<Option<Vec<f64>>> = vec![None; ny];
+    let mut column = vec![0.0; ny];
     for row in 0..grid.height {
-        let fy = ((0.5 * ly - grid.y(row)) / py - 0.5).clamp(0.0, (ny - 1) as f64);
-        let r0 = (fy.floor() as usize).min(ny.saturating_sub(2));
-        let wy = fy - r0 as f64;
-        let r1 = (r0 + 1).min(ny - 1);
-        for col in 0..grid.width {
-            let fx = ((grid.x(col) + 0.5 * lx) / px - 0.5).clamp(0.0, (nx - 1) as f64);
-            let c0 = (fx.floor() as usize).min(nx.saturating_sub(2));
-            let wx = fx - c0 as f64;
-            let c1 = (c0 + 1).min(nx - 1);
-            let v = (1.0 - wy) * ((1.0 - wx) * lat[r0 * nx + c0] + wx * lat[r0 * nx + c1])
-                + wy * ((1.0 - wx) * lat[r1 * nx + c0] + wx * lat[r1 * nx + c1]);
-            out[row * grid.width + col] = v;
+        let (r, t) = cell((0.5 * ly - grid.y(row)) / py - 0.5, ny);
+        let used = r.saturating_sub(1)..(r + 3).min(ny);
+        for k in used.clone() {
+            rows[k].get_or_insert_with(|| {
+                let line = &lat[k * nx..(k + 1) * nx];
+                cols.iter().map(|&(c, t)| hermite(line, c, t)).collect()
+            });
+        }
+        let dst = &mut out[row * grid.width..(row + 1) * grid.width];
+        for (col, v) in dst.iter_mut().enumerate() {
+            for k in used.clone() {
+                column[k] = rows[k].as_ref().expect("filled above")[col];
+            }
+            *v = hermite(&column, r, t);
         }
     }
+}
+
+/// The lattice cell `[i, i + 1]` of the continuous lattice coordinate `f` (0 at the first
+/// point; clamped to the lattice) and the position `t` in it.
+fn cell(f: f64, n: usize) -> (usize, f64) {
+    let f = f.clamp(0.0, n.saturating_sub(1) as f64);
+    let i = (f.floor() as usize).min(n.saturating_sub(2));
+    (i, f - i as f64)
+}
+
+/// The monotone cubic Hermite interpolant of the samples `v` at `i + t` (`t` in [0, 1]):
+/// the slope at each sample is the weighted harmonic mean of its two secants, zero where
+/// they differ in sign (Fritsch and Carlson; one-sided at the ends). Reads `v[i - 1]` to
+/// `v[i + 2]` where they exist.
+fn hermite(v: &[f64], i: usize, t: f64) -> f64 {
+    let n = v.len();
+    if n < 2 {
+        return v.first().copied().unwrap_or(0.0);
+    }
+    let j = (i + 1).min(n - 1);
+    let secant = |k: usize| v[k + 1] - v[k];
+    let d = secant(i.min(n - 2));
+    let slope = |k: usize| -> f64 {
+        let left = (k > 0).then(|| secant(k - 1));
+        let right = (k + 1 < n).then(|| secant(k));
+        match (left, right) {
+            (Some(a), Some(b)) if a * b > 0.0 => 2.0 * a * b / (a + b),
+            (Some(_), Some(_)) => 0.0,
+            (Some(a), None) | (None, Some(a)) => a,
+            (None, None) => 0.0,
+        }
+    };
+    let (m0, m1) = (slope(i), slope(j));
+    let (t2, t3) = (t * t, t * t * t);
+    let h00 = 2.0 * t3 - 3.0 * t2 + 1.0;
+    let h10 = t3 - 2.0 * t2 + t;
+    let h01 = -2.0 * t3 + 3.0 * t2;
+    let h11 = t3 - t2;
+    h00 * v[i] + h10 * m0 + h01 * (v[i] + d) + h11 * m1
 }
 
 /// Runs a field graph (`z [1, r]`, `query [n, f]` -> `output [n, 1]`) of the model: the

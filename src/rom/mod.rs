@@ -860,6 +860,19 @@ pub struct Rom {
     region: Vec<bool>,
     lattice_depth: Vec<f64>,
     z: Vec<f32>,
+    /// The image's interpolation buffers, kept between frames.
+    scratch: RenderScratch,
+}
+
+/// [`render_lattice`]'s buffers: each image column's lattice cell and position in it, the
+/// lattice rows interpolated along x (`ny` rows of the image's width) and which of them
+/// this frame has filled, and one image column's values down the lattice.
+#[derive(Debug, Default)]
+struct RenderScratch {
+    cols: Vec<(usize, f64)>,
+    rows: Vec<f64>,
+    filled: Vec<bool>,
+    column: Vec<f64>,
 }
 
 /// The shipped model's directory, found relative to the plugin library (or this crate's
@@ -918,6 +931,7 @@ impl Rom {
             query: Vec::new(),
             region: Vec::new(),
             lattice_depth: Vec::new(),
+            scratch: RenderScratch::default(),
         })
     }
 
@@ -1388,8 +1402,9 @@ impl Rom {
     /// Renders the last inference's lattice onto `grid` by monotone cubic interpolation
     /// ([`render_lattice`]); the caller applies the depth rule with the full-resolution
     /// rigid surface.
-    pub fn render(&self, grid: &PixelGrid, out: &mut [f64]) {
-        render_lattice(&self.manifest.lattice, &self.lattice_depth, grid, out);
+    pub fn render(&mut self, grid: &PixelGrid, out: &mut [f64]) {
+        let lattice = &self.manifest.lattice;
+        render_lattice(lattice, &self.lattice_depth, grid, out, &mut self.scratch);
     }
 
     /// One sensor evaluation: observation of the solved coarse `gel` under `indenters`,
@@ -1448,31 +1463,45 @@ const _: fn() = || {
 /// bilinear interpolation kept the slope within a lattice cell and changed it at the lines
 /// (the rgb image showed the lattice as blocks; `tests/lattice_pattern.rs`). Beyond the
 /// outer lattice points the edge values repeat.
-fn render_lattice(spec: &LatticeSpec, lat: &[f64], grid: &PixelGrid, out: &mut [f64]) {
-    let (nx, ny) = (spec.nx, spec.ny);
+fn render_lattice(
+    spec: &LatticeSpec,
+    lat: &[f64],
+    grid: &PixelGrid,
+    out: &mut [f64],
+    scratch: &mut RenderScratch,
+) {
+    let (nx, ny, w) = (spec.nx, spec.ny, grid.width);
     let [lx, ly, _] = spec.size;
     let (px, py) = (lx / nx as f64, ly / ny as f64);
-    let cols: Vec<(usize, f64)> = (0..grid.width)
-        .map(|col| cell((grid.x(col) + 0.5 * lx) / px - 0.5, nx))
-        .collect();
-    // Each lattice row the image reads, interpolated along x once.
-    let mut rows: Vec<Option<Vec<f64>>> = vec![None; ny];
-    let mut column = vec![0.0; ny];
+    let RenderScratch {
+        cols,
+        rows,
+        filled,
+        column,
+    } = scratch;
+    cols.clear();
+    cols.extend((0..w).map(|col| cell((grid.x(col) + 0.5 * lx) / px - 0.5, nx)));
+    rows.resize(ny * w, 0.0);
+    filled.clear();
+    filled.resize(ny, false);
+    column.resize(ny, 0.0);
     for row in 0..grid.height {
         let (r, t) = cell((0.5 * ly - grid.y(row)) / py - 0.5, ny);
         let used = r.saturating_sub(1)..(r + 3).min(ny);
+        // Each lattice row the image reads, interpolated along x once.
         for k in used.clone() {
-            rows[k].get_or_insert_with(|| {
+            if !std::mem::replace(&mut filled[k], true) {
                 let line = &lat[k * nx..(k + 1) * nx];
-                cols.iter().map(|&(c, t)| hermite(line, c, t)).collect()
-            });
-        }
-        let dst = &mut out[row * grid.width..(row + 1) * grid.width];
-        for (col, v) in dst.iter_mut().enumerate() {
-            for k in used.clone() {
-                column[k] = rows[k].as_ref().expect("filled above")[col];
+                for (v, &(c, t)) in rows[k * w..(k + 1) * w].iter_mut().zip(cols.iter()) {
+                    *v = hermite(line, c, t);
+                }
             }
-            *v = hermite(&column, r, t);
+        }
+        for (col, v) in out[row * w..(row + 1) * w].iter_mut().enumerate() {
+            for k in used.clone() {
+                column[k] = rows[k * w + col];
+            }
+            *v = hermite(column, r, t);
         }
     }
 }

@@ -1950,19 +1950,6 @@ impl Equilibrium for LinearSolver {
             c.reset();
         }
     }
-
-    fn boxed_clone(&self) -> Box<dyn Equilibrium> {
-        Box::new(self.clone())
-    }
-
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
-    }
-
-    #[cfg(test)]
-    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
-        self
-    }
 }
 
 #[cfg(test)]

@@ -20,7 +20,7 @@
 //! pressure times `dx^2`), and the residual the constraint error `k |g|` of every loaded
 //! surface point.
 //!
-//! The material is chosen once per solve (`Relaxation::solve`, `TotalRelaxation::solve`):
+//! The material is chosen once per solve (`solver::relax_frame`, for both relaxations):
 //! the relaxation and its steps are generic over the [`ConstitutiveModel`].
 //!
 //! [`SolverOptions::damping`]: super::SolverOptions::damping
@@ -30,10 +30,10 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::contact::{self, ContactInput, SlotContact};
 use super::indenters::Sweep;
-use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-use super::solver::{Equilibrium, Frame};
+use super::materials::ConstitutiveModel;
+use super::solver::{relax_frame, Equilibrium, Frame, Relax};
 use super::transfer::{self, P2gInput, Particle};
-use super::{Gel, Material, Snapshot, SolveReport, Solver};
+use super::{Gel, Snapshot, SolveReport, Solver};
 
 /// A solve's change (largest particle displacement) must exceed this many times the
 /// tolerance times the gel's deformation (largest surface displacement, from the solve
@@ -98,38 +98,24 @@ impl Equilibrium for Relaxation {
     }
 
     fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport) {
-        gel.begin_relaxation(frame.sweep, report);
-        let (mu, lambda) = (gel.mu, gel.lambda);
-        match gel.params.material {
-            Material::FixedCorotated => gel.relax(
-                &FixedCorotatedModel { mu, lambda },
-                frame.sweep,
-                self,
-                report,
-            ),
-            Material::NeoHookean => {
-                gel.relax(&NeoHookeanModel { mu, lambda }, frame.sweep, self, report)
-            }
-        }
-        gel.finish_relaxation(report);
+        relax_frame(self, gel, frame, report);
     }
 
     fn reset(&mut self) {
         self.last_change.clear();
         self.last_motion.clear();
     }
+}
 
-    fn boxed_clone(&self) -> Box<dyn Equilibrium> {
-        Box::new(self.clone())
-    }
-
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
-    }
-
-    #[cfg(test)]
-    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
-        self
+impl Relax for Relaxation {
+    fn relax<M: ConstitutiveModel>(
+        &mut self,
+        gel: &mut Gel,
+        model: &M,
+        sweep: &Sweep,
+        report: &mut SolveReport,
+    ) {
+        gel.relax(model, sweep, self, report);
     }
 }
 

@@ -25,7 +25,8 @@
 use std::any::Any;
 
 use super::indenters::Sweep;
-use super::{Gel, Placed, SolveReport, Solver};
+use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
+use super::{Gel, Material, Placed, SolveReport, Solver};
 
 /// What a solver is given of one frame.
 pub(in crate::mpm) struct Frame<'a> {
@@ -40,7 +41,7 @@ pub(in crate::mpm) struct Frame<'a> {
 
 /// An equilibrium solver of a gel: one frame at a time, with the state it keeps between
 /// frames.
-pub(in crate::mpm) trait Equilibrium: Send + Sync {
+pub(in crate::mpm) trait Equilibrium: SolverCopy + Send + Sync {
     /// Which solver this is.
     fn kind(&self) -> Solver;
 
@@ -55,7 +56,12 @@ pub(in crate::mpm) trait Equilibrium: Send + Sync {
 
     /// Forgets every earlier frame: the next starts from the undeformed gel at rest.
     fn reset(&mut self);
+}
 
+/// What every solver has by being `Clone` (given to each by one blanket
+/// implementation): a copy of itself and its state, and a view for downcasting in the
+/// solvers' own code and tests.
+pub(in crate::mpm) trait SolverCopy {
     /// A copy of the solver and its state.
     fn boxed_clone(&self) -> Box<dyn Equilibrium>;
 
@@ -65,6 +71,58 @@ pub(in crate::mpm) trait Equilibrium: Send + Sync {
     /// For downcasting in tests.
     #[cfg(test)]
     fn as_any_mut(&mut self) -> &mut dyn Any;
+}
+
+impl<T: Equilibrium + Clone + 'static> SolverCopy for T {
+    fn boxed_clone(&self) -> Box<dyn Equilibrium> {
+        Box::new(self.clone())
+    }
+
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+
+    #[cfg(test)]
+    fn as_any_mut(&mut self) -> &mut dyn Any {
+        self
+    }
+}
+
+/// A relaxation, run with the constitutive model of the gel's material, which
+/// [`relax_frame`] chooses once per frame for both of them.
+pub(in crate::mpm) trait Relax {
+    /// Relaxes `gel` to equilibrium over `sweep` with `model`.
+    fn relax<M: ConstitutiveModel>(
+        &mut self,
+        gel: &mut Gel,
+        model: &M,
+        sweep: &Sweep,
+        report: &mut SolveReport,
+    );
+}
+
+/// A relaxation's frame: the region it moves, the relaxation with the gel's material, the
+/// bookkeeping after it.
+pub(in crate::mpm) fn relax_frame(
+    solver: &mut impl Relax,
+    gel: &mut Gel,
+    frame: &Frame<'_>,
+    report: &mut SolveReport,
+) {
+    gel.begin_relaxation(frame.sweep, report);
+    let (mu, lambda) = (gel.mu, gel.lambda);
+    match gel.params.material {
+        Material::FixedCorotated => solver.relax(
+            gel,
+            &FixedCorotatedModel { mu, lambda },
+            frame.sweep,
+            report,
+        ),
+        Material::NeoHookean => {
+            solver.relax(gel, &NeoHookeanModel { mu, lambda }, frame.sweep, report)
+        }
+    }
+    gel.finish_relaxation(report);
 }
 
 impl Clone for Box<dyn Equilibrium> {

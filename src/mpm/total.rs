@@ -30,10 +30,10 @@ use rayon::prelude::*;
 
 use super::contact;
 use super::indenters::Sweep;
-use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-use super::solver::{Equilibrium, Frame};
+use super::materials::ConstitutiveModel;
+use super::solver::{relax_frame, Equilibrium, Frame, Relax};
 use super::transfer::{self, ChunkStats, LayerStats, Node, Stencil};
-use super::{Gel, Material, Snapshot, SolveReport, Solver, J_MAX, J_MIN};
+use super::{Gel, Snapshot, SolveReport, Solver, J_MAX, J_MIN};
 
 /// A solve's change must exceed this many times the tolerance times the deformation for
 /// the next solve to extrapolate it (as the relaxation's `PREDICT_ABOVE`).
@@ -134,41 +134,27 @@ impl Equilibrium for TotalRelaxation {
     }
 
     fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport) {
-        gel.begin_relaxation(frame.sweep, report);
         if report.restarted || self.total.is_none() {
             self.total = Some(Box::new(Total::new(gel)));
         }
-        let total = self.total.as_mut().expect("built above");
-        let (mu, lambda) = (gel.mu, gel.lambda);
-        match gel.params.material {
-            Material::FixedCorotated => gel.relax_total(
-                &FixedCorotatedModel { mu, lambda },
-                frame.sweep,
-                total,
-                report,
-            ),
-            Material::NeoHookean => {
-                gel.relax_total(&NeoHookeanModel { mu, lambda }, frame.sweep, total, report)
-            }
-        }
-        gel.finish_relaxation(report);
+        relax_frame(self, gel, frame, report);
     }
 
     fn reset(&mut self) {
         self.total = None;
     }
+}
 
-    fn boxed_clone(&self) -> Box<dyn Equilibrium> {
-        Box::new(self.clone())
-    }
-
-    fn as_any(&self) -> &dyn std::any::Any {
-        self
-    }
-
-    #[cfg(test)]
-    fn as_any_mut(&mut self) -> &mut dyn std::any::Any {
-        self
+impl Relax for TotalRelaxation {
+    fn relax<M: ConstitutiveModel>(
+        &mut self,
+        gel: &mut Gel,
+        model: &M,
+        sweep: &Sweep,
+        report: &mut SolveReport,
+    ) {
+        let total = self.total.as_mut().expect("built by solve");
+        gel.relax_total(model, sweep, total, report);
     }
 }
 

@@ -21,7 +21,7 @@
 //!    other by a test; the tests here and in `newton/energy.rs` run every material that
 //!    `config::MATERIALS` names);
 //! 4. one arm in each table: the tables of `impl Material` below, the relaxation's choice
-//!    of model (`relax.rs`, `Relaxation::solve`) and the test's (`kirchhoff` here).
+//!    of model (`solver.rs`, `relax_frame`) and the test's (`kirchhoff` here).
 //!
 //! Every table is an exhaustive `match`, so the compiler names each arm a new material
 //! still lacks.
@@ -186,7 +186,7 @@ mod tests {
         out
     }
 
-    /// The relaxation's f32 Kirchhoff stress of `material`, as `Relaxation::solve`
+    /// The relaxation's f32 Kirchhoff stress of `material`, as `solver::relax_frame`
     /// builds its model.
     fn kirchhoff(
         material: Material,

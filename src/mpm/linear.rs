@@ -1862,12 +1862,7 @@ pub(super) struct LinearSolver {
 impl Gel {
     /// The linear solver's compliance, where the gel runs it and has built it.
     fn compliance(&self) -> Option<&Compliance> {
-        let s = self
-            .solver
-            .as_ref()?
-            .as_any()
-            .downcast_ref::<LinearSolver>()?;
-        s.compliance.as_deref()
+        self.own_solver::<LinearSolver>()?.compliance.as_deref()
     }
 }
 

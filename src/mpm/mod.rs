@@ -997,6 +997,19 @@ impl Moduli {
 /// The fixed quantities of every step (see the module docs, "Internal units and mass
 /// scaling", and `relax.rs` for the damping); `mu` in internal units. The region is the whole
 /// gel until a solve sets it.
+impl Gel {
+    /// The gel's own solver, where it is a `T`.
+    fn own_solver<T: Equilibrium + 'static>(&self) -> Option<&T> {
+        self.solver.as_ref()?.as_any().downcast_ref::<T>()
+    }
+
+    /// The gel's own solver, where it is a `T`.
+    #[cfg(test)]
+    fn own_solver_mut<T: Equilibrium + 'static>(&mut self) -> Option<&mut T> {
+        self.solver.as_mut()?.as_any_mut().downcast_mut::<T>()
+    }
+}
+
 /// The solver `kind`, with no frame solved and nothing built yet ([`Equilibrium::prepare`]
 /// builds what it can before the first frame). Which kind a gel gets is `choice.rs`'s.
 fn build_solver(kind: Solver) -> Box<dyn Equilibrium> {

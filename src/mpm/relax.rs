@@ -88,7 +88,7 @@ pub(super) struct Relaxation {
 impl Gel {
     /// The relaxation's state, where the gel runs it.
     pub(super) fn relaxation(&self) -> Option<&Relaxation> {
-        self.solver.as_ref()?.as_any().downcast_ref::<Relaxation>()
+        self.own_solver::<Relaxation>()
     }
 }
 

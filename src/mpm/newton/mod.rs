@@ -2238,21 +2238,13 @@ impl Gel {
     /// The Newton solver's state, where the gel runs Newton's method and has solved a
     /// frame.
     pub(in crate::mpm) fn newton(&self) -> Option<&Newton> {
-        let s = self
-            .solver
-            .as_ref()?
-            .as_any()
-            .downcast_ref::<NewtonSolver>()?;
-        s.state.as_deref()
+        self.own_solver::<NewtonSolver>()?.state.as_deref()
     }
 
     /// The Newton solver itself, where the gel runs Newton's method.
     #[cfg(test)]
     pub(in crate::mpm) fn newton_solver(&mut self) -> Option<&mut NewtonSolver> {
-        self.solver
-            .as_mut()?
-            .as_any_mut()
-            .downcast_mut::<NewtonSolver>()
+        self.own_solver_mut::<NewtonSolver>()
     }
 }
 

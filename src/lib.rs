@@ -17,6 +17,7 @@ pub mod mujoco;
 pub mod render;
 pub mod rom;
 pub mod sensor;
+pub mod state;
 pub mod visual;
 
 /// The root of the source checkout this library was built from (this crate's folder, the

@@ -118,8 +118,10 @@ use super::newton::{
 };
 use super::solver::{Equilibrium, Frame};
 use super::{
-    pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, Solver, LINEAR_UNKNOWNS,
+    pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, Solver, StateBounds,
+    LINEAR_UNKNOWNS,
 };
+use crate::state::{self, Io, Persist};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt;
 use faer::{Conj, MatMut, MatRef, Par};
@@ -1944,6 +1946,38 @@ impl Equilibrium for LinearSolver {
         if let Some(c) = self.compliance.as_mut() {
             c.reset();
         }
+    }
+
+    /// Whether the compliance is built (it is rebuilt from the gel, or read from the gel
+    /// cache, where a read state has one) and friction's history.
+    fn persist(&mut self, io: &mut Io<'_>, gel: &Gel, bounds: &StateBounds) -> bool {
+        let mut built = self.compliance.is_some();
+        built.persist(io);
+        if io.loading() && io.fault().is_none() && built != self.compliance.is_some() {
+            self.compliance = if built {
+                match Compliance::new(gel) {
+                    Ok(c) => Some(Box::new(c)),
+                    Err(e) => {
+                        io.fail(|| format!("the linear solver's compliance: {e}"));
+                        return true;
+                    }
+                }
+            } else {
+                None
+            };
+        }
+        if let Some(c) = self.compliance.as_mut() {
+            state::btree(io, &mut c.anchors, bounds.points, "the friction anchors");
+            state::hash(io, &mut c.lagged, bounds.points, "the lagged forces");
+            let columns = 3 * c.levels.len();
+            state::list(io, &mut c.last, columns, "the columns' displacement");
+            if io.loading() && !(c.last.is_empty() || c.last.len() == columns) {
+                let n = c.last.len();
+                io.fail(|| format!("the columns' displacement has {n} values, not {columns}"));
+                c.last.clear();
+            }
+        }
+        true
     }
 }
 

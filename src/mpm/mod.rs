@@ -91,6 +91,8 @@ mod region;
 mod relax;
 mod rotation;
 mod solver;
+mod state;
+pub use state::StateBounds;
 mod surface;
 mod total;
 mod transfer;

@@ -33,7 +33,8 @@ use super::indenters::Sweep;
 use super::materials::ConstitutiveModel;
 use super::solver::{relax_frame, Equilibrium, Frame, Relax};
 use super::transfer::{self, P2gInput, Particle};
-use super::{Gel, Snapshot, SolveReport, Solver};
+use super::{Gel, Snapshot, SolveReport, Solver, StateBounds};
+use crate::state::{self, Io};
 
 /// A solve's change (largest particle displacement) must exceed this many times the
 /// tolerance times the gel's deformation (largest surface displacement, from the solve
@@ -104,6 +105,23 @@ impl Equilibrium for Relaxation {
     fn reset(&mut self) {
         self.last_change.clear();
         self.last_motion.clear();
+    }
+
+    /// The secant memory: each particle's change over the last solve, or none.
+    fn persist(&mut self, io: &mut Io<'_>, _gel: &Gel, bounds: &StateBounds) -> bool {
+        state::list(
+            io,
+            &mut self.last_change,
+            bounds.particles,
+            "the secant memory",
+        );
+        state::list(
+            io,
+            &mut self.last_motion,
+            bounds.indenters,
+            "the secant motion",
+        );
+        true
     }
 }
 

@@ -26,7 +26,8 @@ use std::any::Any;
 
 use super::indenters::Sweep;
 use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-use super::{Gel, Material, Placed, SolveReport, Solver};
+use super::{Gel, Material, Placed, SolveReport, Solver, StateBounds};
+use crate::state::Io;
 
 /// What a solver is given of one frame.
 pub(in crate::mpm) struct Frame<'a> {
@@ -56,6 +57,13 @@ pub(in crate::mpm) trait Equilibrium: SolverCopy + Send + Sync {
 
     /// Forgets every earlier frame: the next starts from the undeformed gel at rest.
     fn reset(&mut self);
+
+    /// Writes or reads the state this solver keeps between frames ([`crate::state`]),
+    /// within `bounds`, for `gel`. Returns whether it is kept there: a solver whose state
+    /// is not (the default) starts a restored gel's next frame afresh.
+    fn persist(&mut self, _io: &mut Io<'_>, _gel: &Gel, _bounds: &StateBounds) -> bool {
+        false
+    }
 }
 
 /// What every solver has by being `Clone` (given to each by one blanket

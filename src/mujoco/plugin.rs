@@ -9,18 +9,22 @@
 
 use std::ffi::{c_char, c_int, c_void, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::sync::OnceLock;
+
+use nalgebra::Isometry3;
 
 use super::draw;
 use super::scene::{GatherIssues, SceneSpec};
 use super::sys;
 use super::view::{pose, Data, Model};
 use crate::config::{Config, RawConfig, ATTRIBUTES};
-use crate::geometry::Placed;
+use crate::geometry::{Placed, Sdf};
 use crate::mpm::Wrench;
 use crate::sensor::coupling::{reduced_mass, Coupling, Sample, STABLE_RATIO};
 use crate::sensor::TactileSensor;
+use crate::state::{Io, Persist};
 use crate::visual::{self, ArrowStyle, Surface, GEOM_BUDGET};
 
 /// The name the shim registers the plugin under (`TACROM_PLUGIN_NAME` in its header).
@@ -50,6 +54,51 @@ struct Instance {
     coupling: Coupling,
     /// Sensordata written by an evaluation that the passive stage had to run itself.
     scratch: Vec<f64>,
+    /// The scene's candidate shapes, by which the state names the indenters' shapes.
+    shapes: Vec<Arc<dyn Sdf>>,
+    /// The signature of the state this instance last wrote into `plugin_state` or took
+    /// from it ([`STATE_HEADER`]; zeros: a fresh gel).
+    stamp: [f64; 2],
+    /// How much of its `plugin_state` may hold non-zero numbers past the header: what the
+    /// last write filled, or all of it after a state was taken from there.
+    extent: usize,
+}
+
+/// Numbers ahead of an instance's state in `plugin_state`: its signature (a number drawn
+/// once per process and the write's serial number; both zero for a fresh gel) and whether
+/// the whole state follows (1) or the gel's solver keeps part of it elsewhere (0).
+const STATE_HEADER: usize = 3;
+
+/// Serial numbers of the states this process writes.
+static STATE_WRITES: AtomicU64 = AtomicU64::new(0);
+
+/// The number this process signs its states with: drawn once, a whole number in
+/// `[1, 2^52]`, so that a state written by another process is never taken for one's own.
+fn process_mark() -> f64 {
+    static MARK: OnceLock<f64> = OnceLock::new();
+    *MARK.get_or_init(|| {
+        use std::hash::BuildHasher;
+        let draw = std::collections::hash_map::RandomState::new().hash_one(std::process::id());
+        (draw >> 12) as f64 + 1.0
+    })
+}
+
+/// The length of the state of a sensor configured as `config` in a model of `ngeom` geoms
+/// (every geom a possible indenter): the header, the sensor's own and, with coupling, the
+/// coupling's memory and the poses of the last evaluation.
+fn state_len(config: &Config, ngeom: usize) -> usize {
+    let sensor = TactileSensor::state_len(config, ngeom);
+    let coupled = if config.coupling {
+        (4 + 2 * (1 + 10 * ngeom)) + (1 + 8 * ngeom)
+    } else {
+        0
+    };
+    if sensor + coupled == 0 {
+        // Nothing of the next frame depends on the last (rigid physics, uncoupled).
+        0
+    } else {
+        STATE_HEADER + sensor + coupled
+    }
 }
 
 impl Instance {
@@ -78,7 +127,140 @@ impl Instance {
             touching: self.touching,
             coupling: self.coupling.clone(),
             scratch: Vec::new(),
+            shapes: self.shapes.clone(),
+            stamp: self.stamp,
+            extent: self.extent,
         })
+    }
+
+    /// Back to the undeformed gel and a coupling without memory, as `mj_resetData` leaves
+    /// the sensor (its warnings keep their count).
+    fn fresh(&mut self) {
+        self.sensor.reset();
+        self.touching = false;
+        self.coupling = Coupling::default();
+        self.placed.clear();
+        self.geoms.clear();
+    }
+
+    /// Writes or reads what the next evaluation depends on ([`crate::state`]): the
+    /// sensor's state, the coupling's memory and the geoms and poses of the last
+    /// evaluation (which the passive stage compares its own with); geoms below `ngeom`.
+    fn persist(&mut self, io: &mut Io<'_>, ngeom: usize) -> bool {
+        let kept = self.sensor.persist(io, &self.shapes);
+        if !self.sensor.config().coupling {
+            return kept;
+        }
+        self.coupling.persist(io, ngeom);
+        let mut evaluated: Vec<(usize, Isometry3<f64>)> = self
+            .geoms
+            .iter()
+            .zip(&self.placed)
+            .map(|(&g, p)| (g, p.pose))
+            .collect();
+        let n = io.len(evaluated.len(), ngeom, "the evaluated geoms");
+        if io.loading() {
+            evaluated.resize(n, (0, Isometry3::identity()));
+        }
+        for (geom, pose) in &mut evaluated {
+            io.count(geom, ngeom, "an evaluated geom");
+            pose.persist(io);
+        }
+        if io.loading() && io.fault().is_none() {
+            self.geoms.clear();
+            self.placed.clear();
+            for (geom, pose) in evaluated {
+                let Some(shape) = self.scene.shape_of(geom) else {
+                    io.fail(|| format!("geom {geom} cannot press this sensor"));
+                    break;
+                };
+                self.geoms.push(geom);
+                self.placed.push(Placed { shape, pose });
+            }
+        }
+        kept
+    }
+
+    /// Takes the state in `plugin_state` where it is not the one this instance last wrote
+    /// or took (`mj_setState` put another there, or `mj_resetData` cleared it); a state
+    /// that cannot be taken leaves the gel undeformed, with the warning returned.
+    fn sync(&mut self, state: &[f64], ngeom: usize) -> Option<String> {
+        if state.len() < STATE_HEADER || state[..2] == self.stamp {
+            return None;
+        }
+        self.fresh();
+        self.stamp = [state[0], state[1]];
+        self.extent = state.len() - STATE_HEADER;
+        if self.stamp == [0.0; 2] {
+            return None;
+        }
+        let name = self.sensor.config().name.clone();
+        if state[2] != 1.0 {
+            return Some(format!(
+                "tacrom.tactile sensor '{name}': the restored state does not hold the gel's \
+                 solver state (Newton's method and the total relaxation keep theirs outside \
+                 MuJoCo's state); the gel restarts undeformed"
+            ));
+        }
+        let mut io = Io::load(&state[STATE_HEADER..]);
+        self.persist(&mut io, ngeom);
+        let fault = io.fault()?.to_owned();
+        self.fresh();
+        Some(format!(
+            "tacrom.tactile sensor '{name}': the state in plugin_state cannot be restored              ({fault}); the gel restarts undeformed"
+        ))
+    }
+
+    /// Writes this instance's state into `plugin_state`, signed anew; a warning where it
+    /// does not fit (then the header says the state is not whole).
+    fn store(&mut self, state: &mut [f64], ngeom: usize) -> Option<String> {
+        if state.len() < STATE_HEADER {
+            return None;
+        }
+        let (head, body) = state.split_at_mut(STATE_HEADER);
+        let declared = body.len();
+        let mut io = Io::save(body);
+        let mut kept = self.persist(&mut io, ngeom);
+        let mut warning = None;
+        if io.overflowed() {
+            kept = false;
+            warning = Some(format!(
+                "tacrom.tactile sensor '{}': its state needs {} numbers and declares {declared};                  mj_getState does not hold it",
+                self.sensor.config().name,
+                io.position(),
+            ));
+        }
+        // Zeros past the end of this state, where the last one reached further: equal
+        // histories give equal states.
+        let end = io.position().min(declared);
+        body[end..self.extent.clamp(end, declared)].fill(0.0);
+        self.extent = end;
+        let serial = STATE_WRITES.fetch_add(1, Ordering::Relaxed) + 1;
+        self.stamp = [process_mark(), serial as f64];
+        head.copy_from_slice(&[self.stamp[0], self.stamp[1], f64::from(u8::from(kept))]);
+        warning
+    }
+}
+
+/// This instance's part of `d`'s `plugin_state` (empty where it has none).
+///
+/// # Safety
+/// `d` must be a valid `mjData` of `m`; nothing else may hold a reference into its
+/// `plugin_state` while the slice lives.
+unsafe fn plugin_state<'a>(m: Model<'_>, d: *mut sys::mjData, instance: c_int) -> &'a mut [f64] {
+    let range = usize::try_from(instance).ok().and_then(|i| {
+        let adr = usize::try_from(*m.plugin_stateadr().get(i)?).ok()?;
+        let num = usize::try_from(*m.plugin_statenum().get(i)?).ok()?;
+        (adr + num <= m.npluginstate()).then_some((adr, num))
+    });
+    // SAFETY: valid data per the caller.
+    let base = unsafe { d.as_ref() }.map_or(std::ptr::null_mut(), |d| d.plugin_state);
+    match range {
+        Some((adr, num)) if !base.is_null() && num > 0 => {
+            // SAFETY: plugin_state holds npluginstate numbers; [adr, adr + num) lies in it.
+            unsafe { std::slice::from_raw_parts_mut(base.add(adr), num) }
+        }
+        _ => &mut [],
     }
 }
 
@@ -202,13 +384,24 @@ pub unsafe extern "C" fn tacrom_attributes(count: *mut c_int) -> *const *const c
     })
 }
 
-/// The sensor keeps no state in `plugin_state`: everything lives in `plugin_data`.
+/// The length of the sensor's state in `plugin_state` ([`state_len`]); 0 for a
+/// configuration that does not parse (`nsensordata` reports why).
 ///
 /// # Safety
 /// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
-pub unsafe extern "C" fn tacrom_nstate(_m: *const sys::mjModel, _instance: c_int) -> c_int {
-    guarded(0, || 0)
+pub unsafe extern "C" fn tacrom_nstate(m: *const sys::mjModel, instance: c_int) -> c_int {
+    guarded(0, || {
+        // SAFETY: MuJoCo passes a valid model (or null).
+        let Some(m) = (unsafe { m.as_ref() }).map(Model) else {
+            return 0;
+        };
+        let len = m.sensor_of_instance(instance).and_then(|sensor_id| {
+            let config = config_with(m, instance, sensor_id, Config::without_files).ok()?;
+            c_int::try_from(state_len(&config, m.ngeom())).ok()
+        });
+        len.unwrap_or(0)
+    })
 }
 
 /// The sensor's dimension; called at compile time, before `init`, so it validates the
@@ -269,6 +462,7 @@ pub unsafe extern "C" fn tacrom_init(
         let site = site_of(m, sensor_id, &config)?;
         let (scene, warnings) = SceneSpec::build(m, site, &config)?;
         let sensor = TactileSensor::new(config).map_err(|e| e.to_string())?;
+        let shapes = scene.shapes();
         let state = Box::new(Instance {
             sensor_id,
             scene,
@@ -279,6 +473,10 @@ pub unsafe extern "C" fn tacrom_init(
             touching: false,
             coupling: Coupling::default(),
             scratch: Vec::new(),
+            shapes,
+            stamp: [0.0; 2],
+            // Until `mj_resetData` clears it, plugin_state holds what the allocator left.
+            extent: usize::MAX,
         });
         let slot = plugin_slot(dr, instance)?;
         *slot = Box::into_raw(state) as usize;
@@ -363,26 +561,38 @@ pub unsafe extern "C" fn tacrom_copy(
     })
 }
 
-/// Restores the undeformed gel.
+/// Restores the undeformed gel, and marks the state in `plugin_state` as a fresh gel's.
 ///
 /// # Safety
 /// Called by MuJoCo (through the C shim) with valid pointers for this plugin instance.
 #[no_mangle]
 pub unsafe extern "C" fn tacrom_reset(
-    _m: *const sys::mjModel,
-    _plugin_state: *mut f64,
+    m: *const sys::mjModel,
+    plugin_state: *mut f64,
     plugin_data: *mut c_void,
-    _instance: c_int,
+    instance: c_int,
 ) {
     guarded((), || {
+        // SAFETY: MuJoCo passes a valid model (or null).
+        let declared = unsafe { m.as_ref() }.map_or(0, |m| {
+            let i = usize::try_from(instance).ok();
+            let num = i.and_then(|i| Model(m).plugin_statenum().get(i).copied());
+            num.and_then(|n| usize::try_from(n).ok()).unwrap_or(0)
+        });
+        if declared >= STATE_HEADER && !plugin_state.is_null() {
+            // SAFETY: MuJoCo passes this instance's part of plugin_state, `declared` long.
+            let state = unsafe { std::slice::from_raw_parts_mut(plugin_state, declared) };
+            // MuJoCo leaves plugin_state as the allocator gave it: the fresh gel's state
+            // is zeros, its header saying so.
+            state.fill(0.0);
+            state[..STATE_HEADER].copy_from_slice(&[0.0, 0.0, 1.0]);
+        }
         // SAFETY: `plugin_data` is this instance's pointer from tacrom_init (or null).
         if let Some(inst) = unsafe { (plugin_data as *mut Instance).as_mut() } {
-            inst.sensor.reset();
+            inst.fresh();
             inst.warnings_given = 0;
-            inst.touching = false;
-            inst.coupling = Coupling::default();
-            inst.placed.clear();
-            inst.geoms.clear();
+            inst.stamp = [0.0; 2];
+            inst.extent = 0;
         }
     });
 }
@@ -418,6 +628,9 @@ pub unsafe extern "C" fn tacrom_compute(
         let out = unsafe { std::slice::from_raw_parts_mut(data.0.sensordata.add(adr), dim) };
         out_ptr = Some((out.as_mut_ptr(), dim));
 
+        // SAFETY: valid data of this model; no other reference into plugin_state lives.
+        let state = unsafe { plugin_state(m, d, instance) };
+        let restored = inst.sync(state, m.ngeom());
         let issues = inst
             .scene
             .gather(m, data, &mut inst.placed, &mut inst.geoms);
@@ -427,15 +640,24 @@ pub unsafe extern "C" fn tacrom_compute(
         } else {
             Some(inst.sensor.evaluate(&inst.placed, out))
         };
+        // Kept after an evaluation that may have changed the gel; with coupling, after
+        // every one (the passive stage compares its poses with the ones just gathered).
+        let coupled = inst.sensor.config().coupling;
+        let stored = eval
+            .as_ref()
+            .filter(|e| e.changed || coupled)
+            .and_then(|_| inst.store(state, m.ngeom()));
         // Never hand non-finite numbers to MuJoCo.
         if !out.iter().all(|x| x.is_finite()) {
             out.fill(0.0);
         }
         inst.touching = eval.as_ref().is_some_and(|e| e.contact);
         let mut warnings = describe(&issues, inst.sensor.config());
+        warnings.extend(restored);
         if let Some(e) = eval {
             warnings.extend(e.warnings);
         }
+        warnings.extend(stored);
         Ok(inst.limit(warnings))
     });
     if status == ERROR {
@@ -478,6 +700,9 @@ pub unsafe extern "C" fn tacrom_passive(
         // before mj_applyFT writes through `d` below.
         let data = Data(unsafe { &*d });
         let (time, qfrc) = (data.0.time, data.0.qfrc_passive);
+        // SAFETY: valid data of this model; no other reference into plugin_state lives.
+        let state = unsafe { plugin_state(m, d, instance) };
+        let mut warnings: Vec<String> = inst.sync(state, m.ngeom()).into_iter().collect();
         let mut placed = Vec::new();
         let mut geoms = Vec::new();
         let issues = inst.scene.gather(m, data, &mut placed, &mut geoms);
@@ -487,9 +712,8 @@ pub unsafe extern "C" fn tacrom_passive(
             data.site_xmat(&m).get(9 * s..9 * s + 9).unwrap_or(&[]),
         );
         let Some(site) = site.filter(|_| !issues.nonfinite_site) else {
-            return Ok(None);
+            return Ok(inst.limit(warnings));
         };
-        let mut warnings = Vec::new();
         let evaluated = geoms == inst.geoms
             && placed
                 .iter()
@@ -570,6 +794,7 @@ pub unsafe extern "C" fn tacrom_passive(
                 );
             }
         }
+        warnings.extend(inst.store(state, m.ngeom()));
         Ok(inst.limit(warnings))
     })
 }

@@ -140,6 +140,20 @@ impl SceneSpec {
         self.site
     }
 
+    /// The candidates' shapes in order: the table by which a state names an indenter's
+    /// shape (the same in every `mjData` of the model).
+    pub fn shapes(&self) -> Vec<Arc<dyn Sdf>> {
+        self.candidates.iter().map(|c| c.shape.clone()).collect()
+    }
+
+    /// The shape of `geom`, where it is a candidate.
+    pub fn shape_of(&self, geom: usize) -> Option<Arc<dyn Sdf>> {
+        self.candidates
+            .iter()
+            .find(|c| c.geom == geom)
+            .map(|c| c.shape.clone())
+    }
+
     /// Fills `out` with the candidate geoms near the gel, posed in the sensor frame, and
     /// `geoms` with their ids. Geoms whose bounding sphere cannot reach the gel's bounding
     /// sphere cost one distance test.

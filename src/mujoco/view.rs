@@ -99,12 +99,21 @@ model_array! {
     name_sensoradr: i32, name_sensoradr, nsensor * 1;
     /// `plugin` (nplugin): the registry slot of each plugin instance.
     plugin: i32, plugin, nplugin * 1;
+    /// `plugin_stateadr` (nplugin): where each instance's state starts in `plugin_state`.
+    plugin_stateadr: i32, plugin_stateadr, nplugin * 1;
+    /// `plugin_statenum` (nplugin): the length of each instance's state.
+    plugin_statenum: i32, plugin_statenum, nplugin * 1;
 }
 
 impl<'a> Model<'a> {
     /// Number of geoms.
     pub fn ngeom(&self) -> usize {
         count(self.0.ngeom)
+    }
+
+    /// Total `plugin_state` length.
+    pub fn npluginstate(&self) -> usize {
+        count(self.0.npluginstate)
     }
 
     /// Total sensordata length.

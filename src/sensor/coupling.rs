@@ -11,6 +11,7 @@
 use nalgebra::Vector3;
 
 use crate::mpm::Wrench;
+use crate::state::{self, Io, Persist};
 
 /// Largest `stiffness * timestep^2 / mass` at which the explicit coupling is stable with
 /// a margin: the undamped limit of the integration is 4.
@@ -69,6 +70,24 @@ pub struct Instability {
 }
 
 impl Coupling {
+    /// Writes or reads the coupling's memory ([`crate::state`]): geoms below `geoms`, at
+    /// most `geoms` samples of each kind.
+    pub fn persist(&mut self, io: &mut Io<'_>, geoms: usize) {
+        state::option(io, &mut self.time, || 0.0);
+        state::option(io, &mut self.step, || 0.0);
+        for samples in [&mut self.last, &mut self.rates] {
+            let n = io.len(samples.len(), geoms, "the coupling's samples");
+            if io.loading() {
+                samples.resize(n, Sample::default());
+            }
+            for s in samples.iter_mut() {
+                io.count(&mut s.geom, geoms, "a coupled geom");
+                s.wrench.persist(io);
+                s.at.persist(io);
+            }
+        }
+    }
+
     /// Records the samples `now` at `time` and their rates over the step since the last
     /// evaluation (a geom missing then had no wrench and has no rate); the rates kept when
     /// the time has not moved (the same state evaluated again); zero after a step back in

@@ -13,13 +13,14 @@ use std::time::Instant;
 use nalgebra::Vector3;
 
 use crate::config::{Camera, Config};
-use crate::geometry::{Aabb, PixelGrid, Placed};
+use crate::geometry::{Aabb, PixelGrid, Placed, Sdf};
 use crate::mpm::{SolveReport, Wrench};
 use crate::render::markers::Markers;
 use crate::render::refraction::Refraction;
 use crate::render::rgb::RgbModel;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
+use crate::state::Io;
 
 pub mod coupling;
 pub mod models;
@@ -69,6 +70,9 @@ pub struct Evaluation {
     /// rule bounded it (m; 0 when it did not): no elastic gel can, so a value above the
     /// grid's resolution is an error of the model.
     pub bound_excess: f64,
+    /// Whether the evaluation may have changed the sensor's state (false for a frame
+    /// without contact on the undeformed gel, which does nothing).
+    pub changed: bool,
 }
 
 /// What the physics modes see of one frame: the indenters that can touch the gel, the
@@ -297,6 +301,21 @@ impl TactileSensor {
         self.model.wrenches(indenters)
     }
 
+    /// Writes or reads the state the next evaluation depends on ([`crate::state`]): the
+    /// gel's, where there is one (the images are computed afresh by each evaluation).
+    /// `shapes` names the indenters' shapes by index, the same table in meaning when
+    /// reading as when writing. Returns whether all of it is kept (see
+    /// [`crate::mpm::Gel::persist`]). A failed read leaves the sensor to be reset.
+    pub fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {
+        self.model.persist(io, shapes)
+    }
+
+    /// The most numbers [`TactileSensor::persist`] writes for `config` with at most
+    /// `indenters` indenters.
+    pub fn state_len(config: &Config, indenters: usize) -> usize {
+        models::state_len(config, indenters)
+    }
+
     /// Back to the undeformed gel.
     pub fn reset(&mut self) {
         self.model.reset();
@@ -325,7 +344,8 @@ impl TactileSensor {
             .cloned()
             .collect();
         eval.contact = !touching.is_empty();
-        if !eval.contact && self.model.at_rest() {
+        eval.changed = eval.contact || !self.model.at_rest();
+        if !eval.changed {
             // No contact and a flat gel: the outputs of the flat surface, nothing else
             // (every camera sees it alike).
             self.fields.flatten();

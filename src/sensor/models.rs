@@ -2,14 +2,17 @@
 //! surface indentation and a force. A new mode is one [`SurfaceModel`] implementation and
 //! one arm of [`build`].
 
+use std::sync::Arc;
+
 use nalgebra::Vector3;
 
 use super::outputs::Field;
 use super::{Evaluation, Scene, SensorError};
 use crate::config::{material_name, Config, Physics};
-use crate::geometry::{PixelGrid, Placed};
+use crate::geometry::{PixelGrid, Placed, Sdf};
 use crate::mpm::{Gel, GelParams, Solver, SolverOptions, Wrench, MISSED_FRACTION};
 use crate::rom::{Rom, RomOptions};
+use crate::state::{Io, Persist};
 
 /// A model of the gel's surface.
 pub trait SurfaceModel: Send + std::fmt::Debug {
@@ -73,6 +76,28 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
     /// A copy with the same state (for `mj_copyData`); fails rather than panics when a
     /// resource cannot be duplicated.
     fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError>;
+
+    /// Writes or reads the state the next frame depends on ([`crate::state`]; `shapes`
+    /// names the indenters' shapes by index). Returns whether all of it is kept there.
+    /// A model without a gel has none.
+    fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {
+        let _ = (io, shapes);
+        true
+    }
+}
+
+/// The most numbers the state of `config`'s model takes ([`SurfaceModel::persist`]) with
+/// at most `indenters` indenters.
+pub fn state_len(config: &Config, indenters: usize) -> usize {
+    match (config.physics, config.dx) {
+        (Physics::Rigid, _) | (_, None) => 0,
+        (Physics::Coarse | Physics::Fine | Physics::Rom, Some(dx)) => {
+            // The flags of `Mpm` and `Reduced` and the gel's own.
+            let (solver, fallback) = config.solver_choice(dx);
+            let bounds = Gel::bounds_of(&config.gel_params(dx), indenters);
+            8 + bounds.gel_len(solver, fallback)
+        }
+    }
 }
 
 /// The model `config` asks for (validated: a bad combination fails at model load).
@@ -312,6 +337,28 @@ impl SurfaceModel for Mpm {
     fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError> {
         Ok(Box::new(self.clone()))
     }
+
+    /// Whether the gel is deformed and whether it is built (a gel is made at its first
+    /// contact), then the gel's own state.
+    fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {
+        self.deformed.persist(io);
+        let mut built = self.gel.is_some();
+        built.persist(io);
+        if io.loading() && io.fault().is_none() && built != self.gel.is_some() {
+            self.gel = if built {
+                match Gel::new(self.params, self.options) {
+                    Ok(g) => Some(Box::new(g)),
+                    Err(e) => {
+                        io.fail(|| e.to_string());
+                        return true;
+                    }
+                }
+            } else {
+                None
+            };
+        }
+        self.gel.as_mut().map_or(true, |g| g.persist(io, shapes))
+    }
 }
 
 /// The coarse MPM gel and the reduced-order model restoring its fine detail
@@ -435,6 +482,14 @@ impl SurfaceModel for Reduced {
             force_factor: self.force_factor,
             decoded: self.decoded,
         }))
+    }
+
+    /// The coarse gel's state and the last decoding's force factor: the decoder itself
+    /// keeps nothing between frames.
+    fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {
+        self.force_factor.persist(io);
+        self.decoded.persist(io);
+        self.mpm.persist(io, shapes)
     }
 }
 

@@ -1,11 +1,15 @@
 """Sensor state per MjData through the real `mujoco` Python package: mj_resetData restores
-the undeformed gel after a frictional slide, mj_copyData carries a gel with history, and
-an off-centre press lands where the documented image layout says.
+the undeformed gel after a frictional slide, mj_copyData carries a gel with history,
+mj_getState / mj_setState (mjSTATE_PLUGIN) carry it exactly, mujoco.rollout in threads
+equals stepping alone, and an off-centre press lands where the documented image layout
+says.
 
 Each scene is cheap: a coarse gel, 32 x 24 images, presses of at most 1 mm."""
 
 import mujoco
+import mujoco.rollout
 import numpy as np
+import pytest
 
 import tacrom
 
@@ -36,7 +40,7 @@ SCENE = """
       <config key="physics" value="{physics}"/>
       <config key="outputs" value="{outputs}"/>
       <config key="resolution" value="{W} {H}"/>
-      <config key="friction" value="1.0"/>
+      <config key="friction" value="1.0"/>{extra}
     </plugin>
   </sensor>
 </mujoco>
@@ -50,8 +54,10 @@ HISTORY = [(0, 0, 0.5e-3), (0, 0, 1.0e-3), (0.5e-3, 0, 1.0e-3), (1.0e-3, 0, 1.0e
 SHALLOW = (1.5e-3, 0.2e-3, 0.2e-3)
 
 
-def model(physics="coarse", outputs="depth force", geom=SPHERE, lift=R):
-    xml = SCENE.format(lift=lift, geom=geom, physics=physics, outputs=outputs, W=W, H=H)
+def model(physics="coarse", outputs="depth force", geom=SPHERE, lift=R, **config):
+    extra = "".join(f'\n      <config key="{k}" value="{v}"/>' for k, v in config.items())
+    xml = SCENE.format(lift=lift, geom=geom, physics=physics, outputs=outputs, W=W, H=H,
+                       extra=extra)
     return mujoco.MjModel.from_xml_string(xml)
 
 
@@ -139,3 +145,128 @@ def test_off_centre_box_lands_at_documented_pixels():
         vx = (depth.sum(axis=0) * (x - cx) ** 2).sum() / total
         vy = (depth.sum(axis=1) * (y - cy) ** 2).sum() / total
         assert vx > 2 * vy, (physics, vx, vy)
+
+
+STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_PLUGIN
+
+# Every physics mode with each solver whose state MuJoCo's state holds: the relaxation (the
+# coarse gel's own, with the linear solver for the contacts it misses) and the linear
+# solver, each under rom too.
+KEPT = [("rigid", {}), ("coarse", {}), ("coarse", {"solver": "linear"}), ("rom", {}),
+        ("rom", {"solver": "linear"})]
+
+
+def get_state(m, d):
+    s = np.empty(mujoco.mj_stateSize(m, STATE))
+    mujoco.mj_getState(m, d, s, STATE)
+    return s
+
+
+@pytest.mark.parametrize("physics,config", KEPT, ids=lambda v: str(v))
+def test_a_restored_state_replays_the_original_bit_for_bit(physics, config):
+    """Catches: gel state outside MuJoCo's state (a restored MjData that forgets the
+    friction anchors, the deformed gel or the warm starts). Three frames of a frictional
+    press and slide; the state taken; four more frames (a slide, a lift to a shallow
+    press); a new MjData given the state with mj_setState, and the first MjData rewound to
+    it, replay them: equal to the last bit (the same deterministic computation from the
+    same state). A fresh gel pressed the same way differs, so the history is real."""
+    outputs = "depth" if physics == "rigid" else "depth force shear"
+    m = model(physics=physics, outputs=outputs, **config)
+    assert (m.npluginstate == 0) == (physics == "rigid"), m.npluginstate
+    d = mujoco.MjData(m)
+    for pose in HISTORY[:3]:
+        evaluate(m, d, pose)
+    saved = get_state(m, d)
+    rest = HISTORY[3:] + [SHALLOW]
+    original = [evaluate(m, d, pose) for pose in rest]
+    restored = mujoco.MjData(m)
+    mujoco.mj_setState(m, restored, saved, STATE)
+    for i, pose in enumerate(rest):
+        assert_same(original[i], evaluate(m, restored, pose), f"restored, frame {i}")
+    mujoco.mj_setState(m, d, saved, STATE)
+    for i, pose in enumerate(rest):
+        assert_same(original[i], evaluate(m, d, pose), f"rewound, frame {i}")
+    if physics != "rigid":
+        fresh = evaluate(m, mujoco.MjData(m), rest[0])
+        assert history_shows(original[0], fresh, rest[0][2])
+        # mj_resetData and a state of the fresh gel both give the fresh gel back.
+        mujoco.mj_resetData(m, d)
+        assert_same(fresh, evaluate(m, d, rest[0]), "after mj_resetData")
+        mujoco.mj_setState(m, d, get_state(m, mujoco.MjData(m)), STATE)
+        assert_same(fresh, evaluate(m, d, rest[0]), "a fresh gel's state")
+
+
+def test_a_state_that_does_not_fit_the_sensor_restarts_the_gel_with_a_warning(capfd):
+    """Catches: a crash or a NaN from a state that is not this sensor's (numbers written by
+    hand, another model's). Its plugin part overwritten with a list length beyond its
+    bound, then with NaN: the sensor warns, names the fault, and carries on from the
+    undeformed gel, equal to a fresh one."""
+    m = model()
+    d = mujoco.MjData(m)
+    for pose in HISTORY[:3]:
+        evaluate(m, d, pose)
+    saved = get_state(m, d)
+    fresh = evaluate(m, mujoco.MjData(m), HISTORY[3])
+    plugin = saved.size - m.npluginstate
+    for fill in (1e9, np.nan):
+        bad = saved.copy()
+        bad[plugin + 3:] = fill
+        other = mujoco.MjData(m)
+        mujoco.mj_setState(m, other, bad, STATE)
+        out = evaluate(m, other, HISTORY[3])
+        assert all(np.isfinite(v).all() for v in out.values())
+        assert_same(fresh, out, f"a state filled with {fill}")
+        err = capfd.readouterr().err
+        assert "'touch'" in err and "cannot be restored" in err, err
+
+
+@pytest.mark.parametrize("solver", ["newton", "total"])
+def test_solvers_whose_state_is_not_kept_say_so_and_restart(solver, capfd):
+    """Newton's method and the total relaxation keep their state outside MuJoCo's (see
+    docs/state.md): a restored state warns and the gel restarts undeformed, equal to a
+    fresh gel, rather than continuing from a gel it does not have."""
+    m = model(solver=solver, poisson="0.45")
+    d = mujoco.MjData(m)
+    for pose in HISTORY[:2]:
+        evaluate(m, d, pose)
+    saved = get_state(m, d)
+    restored = mujoco.MjData(m)
+    mujoco.mj_setState(m, restored, saved, STATE)
+    assert_same(evaluate(m, mujoco.MjData(m), HISTORY[2]), evaluate(m, restored, HISTORY[2]),
+                "restored vs fresh")
+    err = capfd.readouterr().err
+    assert "'touch'" in err and "restarts undeformed" in err, err
+
+
+def test_rollout_in_threads_equals_stepping_each_state_alone():
+    """Catches: plugin state that mujoco.rollout does not carry, or instances that share
+    state across threads. A sphere sliding at constant speed across the gel (no gravity,
+    no damping) from four initial states of one trajectory (one of them fresh, three with
+    a frictional history), rolled out five steps on two MjData in two threads: the
+    sensordata equal, to the last bit, those of stepping each state alone in a new
+    MjData."""
+    m = model(outputs="depth force")
+    m.opt.timestep = 0.005
+    d = mujoco.MjData(m)
+    d.qpos[:3] = (0, 0, 0.6e-3)
+    d.qvel[:3] = (0.1, 0.05, 0.02)
+    starts = []
+    for step in range(9):
+        if step % 3 == 0:
+            starts.append(get_state(m, d))
+        mujoco.mj_step(m, d)
+    starts.append(get_state(m, d))
+    starts = np.array(starts)
+    nstep = 5
+    # The rollout's states are mjSTATE_FULLPHYSICS, which holds mjSTATE_PLUGIN.
+    assert STATE == mujoco.mjtState.mjSTATE_FULLPHYSICS
+    _, sensordata = mujoco.rollout.rollout(
+        m, [mujoco.MjData(m), mujoco.MjData(m)], starts, nstep=nstep)
+    assert np.abs(sensordata).max() > 0
+    for b, start in enumerate(starts):
+        alone = mujoco.MjData(m)
+        mujoco.mj_setState(m, alone, start, STATE)
+        for t in range(nstep):
+            mujoco.mj_step(m, alone)
+            np.testing.assert_array_equal(sensordata[b, t], alone.sensordata,
+                                          err_msg=f"rollout {b}, step {t}")

@@ -385,7 +385,7 @@ struct ContactTerm {
 }
 
 /// A stick anchor: the indenter and the anchor point in its frame (m).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub(super) struct Anchor {
     pub(in crate::mpm) indenter: usize,
     pub(in crate::mpm) local: Point3<f64>,

@@ -1,6 +1,7 @@
 //! Sensor evaluation benchmarks: median and 90th-percentile time of one 320 x 240
 //! evaluation in a continuous moving press, per physics mode and indenter, and the median
-//! of its gel stage (solve and surface) alone.
+//! of its gel stage (solve and surface) alone, and of writing the sensor's state as the
+//! plugin writes it into MuJoCo's `plugin_state` after each such evaluation.
 //!
 //! `cargo bench --bench sensor` (add `-- --quick` for fewer frames, `-- --fine` to add the
 //! fine mode, a few frames only: it takes seconds to minutes per frame).
@@ -12,6 +13,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use tacrom::config::{Config, RawConfig};
 use tacrom::geometry::{load_mesh, MeshSdfOptions, Placed, Sdf, Sphere};
 use tacrom::sensor::TactileSensor;
+use tacrom::state::Io;
 
 fn pattern(name: &str) -> std::path::PathBuf {
     let shared = tacrom::pattern_dir().join(name);
@@ -27,6 +29,8 @@ struct Stats {
     p90_ms: f64,
     /// Median of the gel stage alone (solve and surface).
     physics_ms: f64,
+    /// Median of writing the state after the evaluation.
+    state_ms: f64,
 }
 
 fn quantile(t: &mut [f64], q: f64) -> f64 {
@@ -34,11 +38,12 @@ fn quantile(t: &mut [f64], q: f64) -> f64 {
     t[((t.len() - 1) as f64 * q).round() as usize] * 1e3
 }
 
-fn stats(mut t: Vec<f64>, mut physics: Vec<f64>) -> Stats {
+fn stats(mut t: Vec<f64>, mut physics: Vec<f64>, mut state: Vec<f64>) -> Stats {
     Stats {
         median_ms: quantile(&mut t, 0.5),
         p90_ms: quantile(&mut t, 0.9),
         physics_ms: quantile(&mut physics, 0.5),
+        state_ms: quantile(&mut state, 0.5),
     }
 }
 
@@ -49,6 +54,9 @@ fn press(config: &Config, shape: Arc<dyn Sdf>, lowest: f64, frames: usize) -> St
     let mut out = vec![0.0; config.sensordata_len()];
     let mut times = Vec::with_capacity(frames);
     let mut physics = Vec::with_capacity(frames);
+    let mut state = Vec::with_capacity(frames);
+    let shapes = [shape.clone()];
+    let mut buffer = vec![0.0; TactileSensor::state_len(config, shapes.len())];
     for f in 0..frames {
         let s = f as f64 / (frames - 1).max(1) as f64;
         let depth = 0.1e-3 + 0.9e-3 * s;
@@ -66,8 +74,14 @@ fn press(config: &Config, shape: Arc<dyn Sdf>, lowest: f64, frames: usize) -> St
         physics.push(eval.times.physics);
         assert!(eval.contact);
         std::hint::black_box(&out);
+        let t0 = Instant::now();
+        let mut io = Io::save(&mut buffer);
+        sensor.persist(&mut io, &shapes);
+        state.push(t0.elapsed().as_secs_f64());
+        assert!(!io.overflowed());
+        std::hint::black_box(&buffer);
     }
-    stats(times, physics)
+    stats(times, physics, state)
 }
 
 fn main() {
@@ -99,8 +113,8 @@ fn main() {
     let _ = Vector3::<f64>::zeros();
 
     println!(
-        "{:<14} {:<8} {:>8} {:>12} {:>12} {:>12}",
-        "mode", "indenter", "threads", "median ms", "p90 ms", "gel ms"
+        "{:<14} {:<8} {:>8} {:>12} {:>12} {:>12} {:>12}",
+        "mode", "indenter", "threads", "median ms", "p90 ms", "gel ms", "state ms"
     );
     // (label, physics, solver, frames).
     let mut modes = vec![
@@ -138,8 +152,8 @@ fn main() {
             ] {
                 let s = press(&config, shape, lowest, frames);
                 println!(
-                    "{label:<14} {name:<8} {threads:>8} {:>12.3} {:>12.3} {:>12.3}",
-                    s.median_ms, s.p90_ms, s.physics_ms
+                    "{label:<14} {name:<8} {threads:>8} {:>12.3} {:>12.3} {:>12.3} {:>12.3}",
+                    s.median_ms, s.p90_ms, s.physics_ms, s.state_ms
                 );
             }
         }

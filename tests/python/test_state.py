@@ -35,6 +35,7 @@ SCENE = """
       {geom}
     </body>
   </worldbody>
+  <keyframe><key name="start" qpos="0 0 0"/></keyframe>
   <sensor>
     <plugin name="touch" plugin="tacrom.tactile" objtype="site" objname="gel">
       <config key="physics" value="{physics}"/>
@@ -189,9 +190,13 @@ def test_a_restored_state_replays_the_original_bit_for_bit(physics, config):
     if physics != "rigid":
         fresh = evaluate(m, mujoco.MjData(m), rest[0])
         assert history_shows(original[0], fresh, rest[0][2])
-        # mj_resetData and a state of the fresh gel both give the fresh gel back.
+        # mj_resetData, mj_resetDataKeyframe and a state of the fresh gel each give the
+        # fresh gel back.
         mujoco.mj_resetData(m, d)
         assert_same(fresh, evaluate(m, d, rest[0]), "after mj_resetData")
+        mujoco.mj_setState(m, d, saved, STATE)
+        mujoco.mj_resetDataKeyframe(m, d, 0)
+        assert_same(fresh, evaluate(m, d, rest[0]), "after mj_resetDataKeyframe")
         mujoco.mj_setState(m, d, get_state(m, mujoco.MjData(m)), STATE)
         assert_same(fresh, evaluate(m, d, rest[0]), "a fresh gel's state")
 

@@ -89,7 +89,7 @@ fn process_mark() -> f64 {
 fn state_len(config: &Config, ngeom: usize) -> usize {
     let sensor = TactileSensor::state_len(config, ngeom);
     let coupled = if config.coupling {
-        (4 + 2 * (1 + 10 * ngeom)) + (1 + 8 * ngeom)
+        Coupling::state_len(ngeom) + (1 + 8 * ngeom)
     } else {
         0
     };

@@ -361,6 +361,15 @@ impl TactileSensor {
         for p in &touching {
             p.lower_surface(&self.grid, -t, 0.0, &mut self.zmin);
         }
+        if self.zmin.iter().any(|&z| z <= -t) {
+            eval.warnings.push(format!(
+                "tacrom.tactile sensor '{}': an indenter reaches the gel's base ({:.1} mm \
+                 below its face): no gel holds it there; give the sensor's body a collision \
+                 geom under the gel, or the indenter a lighter load",
+                self.config.name,
+                t * 1e3
+            ));
+        }
         let scene = Scene {
             indenters: &touching,
             grid: &self.grid,

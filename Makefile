@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability train-env gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz train-env gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -86,6 +86,18 @@ bench-micro: build
 # Hertz validation and solver cost per grid spacing, without the fine spacing.
 bench-mpm: build
 	$(CARGO) run --release --bin tacrom -- mpm
+
+# Coverage-guided fuzzing of the parsers and loaders (tacrom::fuzzing; libFuzzer through
+# cargo-fuzz, which needs the nightly toolchain and `cargo install cargo-fuzz`; not part of
+# `make test`, which replays the committed corpora through the same targets). Each target
+# runs FUZZ_RUNS inputs from fuzz/corpus/TARGET, keeping what it finds in fuzz/work/TARGET
+# and a crashing input in fuzz/artifacts/TARGET.
+FUZZ_RUNS ?= 1000000
+FUZZ_TARGETS ?= config mesh optics manifest state
+fuzz:
+	cd fuzz && for t in $(FUZZ_TARGETS); do mkdir -p work/$$t && \
+	  cargo +nightly fuzz run -O $$t work/$$t corpus/$$t -- -runs=$(FUZZ_RUNS) -max_len=16384 \
+	  -timeout=10 -rss_limit_mb=3000 -print_final_stats=1 || exit 1; done
 
 # The stability suite's table.
 stability: venv

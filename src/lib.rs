@@ -11,6 +11,7 @@
 
 pub mod attributes;
 pub mod config;
+pub mod fuzzing;
 pub mod geometry;
 pub mod mpm;
 pub mod mujoco;

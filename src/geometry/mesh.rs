@@ -477,13 +477,16 @@ impl Grid {
             None => extent.max() / options.cells_per_extent.max(1) as f64,
         };
         let dims_for = |h: f64| extent.map(|e| (e / h).ceil() + 2.0 * margin + 1.0);
+        // However large the cell, the margins keep (2 margin + 2)^3 nodes: a smaller cap
+        // could never be met (the loop ran forever).
+        let cap = (options.max_nodes as f64).max((2.0 * margin + 2.0).powi(3));
         loop {
             let d = dims_for(cell);
             let nodes = d.x * d.y * d.z;
-            if nodes <= options.max_nodes.max(64) as f64 {
+            if nodes <= cap {
                 break;
             }
-            cell *= (nodes / options.max_nodes.max(64) as f64).cbrt() * 1.0001;
+            cell *= (nodes / cap).cbrt() * 1.0001;
         }
         let d = dims_for(cell);
         let dims = [d.x as usize, d.y as usize, d.z as usize];
@@ -1351,6 +1354,22 @@ mod tests {
         let mesh = TriMesh::with_options(v, f, &opts).unwrap();
         let [x, y, z] = mesh.grid_dims();
         assert!(x * y * z <= 100_000);
+    }
+
+    #[test]
+    fn a_node_cap_below_the_margins_is_raised_to_them() {
+        // Found by the mesh fuzzer: 4096 nodes is below the 17^3 that 8 cells of margin
+        // keep at any cell size, and the cell grew forever.
+        let (v, f) = load_pattern("cone.stl");
+        let opts = MeshSdfOptions {
+            cells_per_extent: 8,
+            max_nodes: 4096,
+            ..Default::default()
+        };
+        let mesh = TriMesh::with_options(v, f, &opts).unwrap();
+        let [x, y, z] = mesh.grid_dims();
+        assert!(x * y * z <= 18 * 18 * 18, "{x} {y} {z}");
+        assert!(mesh.distance(&Point3::origin()).is_finite());
     }
 
     #[test]

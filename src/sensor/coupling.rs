@@ -223,7 +223,7 @@ impl Coupling {
                         // the step's start, which bounds the stored energy from below
                         // for a gel that stiffens as it is pressed.
                         let smooth =
-                            stiffness(rate, h).is_none_or(|k| !(k * h * h / mass > STABLE_RATIO));
+                            stiffness(rate, h).map_or(true, |k| !(k * h * h / mass > STABLE_RATIO));
                         let start = sample.wrench.force - h * rate.wrench.force;
                         let force = if smooth {
                             sample.wrench.force - 0.5 * h * rate.wrench.force

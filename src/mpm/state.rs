@@ -339,15 +339,23 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn a_gel_read_back_replays_the_original_bit_for_bit() {
-        for (solver, fallback) in [(Solver::Relaxation, true), (Solver::Linear, false)] {
-            let options = SolverOptions {
+    /// The solvers whose state is kept: the relaxation with its linear fallback, and the
+    /// linear solver, each on one thread.
+    fn solvers() -> [SolverOptions; 2] {
+        [(Solver::Relaxation, true), (Solver::Linear, false)].map(|(solver, fallback)| {
+            SolverOptions {
                 solver,
                 fallback,
                 threads: 1,
                 ..Default::default()
-            };
+            }
+        })
+    }
+
+    #[test]
+    fn a_gel_read_back_replays_the_original_bit_for_bit() {
+        for options in solvers() {
+            let (solver, fallback) = (options.solver, options.fallback);
             let s = shapes();
             let frames = frames(&s);
             let (head, tail) = frames.split_at(3);
@@ -403,13 +411,8 @@ mod tests {
     fn the_declared_length_holds_the_largest_state() {
         // A box pressing the whole face with friction and dragged (an anchor and a load
         // at every contact point), beside spheres: each list at its largest.
-        for (solver, fallback) in [(Solver::Relaxation, true), (Solver::Linear, false)] {
-            let options = SolverOptions {
-                solver,
-                fallback,
-                threads: 1,
-                ..Default::default()
-            };
+        for options in solvers() {
+            let (solver, fallback) = (options.solver, options.fallback);
             let s = shapes();
             let mut gel = Gel::new(params(), options).unwrap();
             for k in 0..3 {

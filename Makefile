@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz train-env gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -98,6 +98,15 @@ fuzz:
 	cd fuzz && for t in $(FUZZ_TARGETS); do mkdir -p work/$$t && \
 	  cargo +nightly fuzz run -O $$t work/$$t corpus/$$t -- -runs=$(FUZZ_RUNS) -max_len=16384 \
 	  -timeout=10 -rss_limit_mb=3000 -print_final_stats=1 || exit 1; done
+
+# Soak runs in real MuJoCo (not part of `make test`): SOAK_CYCLES load / evaluate / copy /
+# state / reset / free cycles and SOAK_EVALUATIONS random-walk evaluations per mode, with
+# the memory growth of each second half (examples/soak.py; docs/benchmarks.md).
+SOAK_CYCLES ?= 1000
+SOAK_EVALUATIONS ?= 100000
+SOAK_MODES ?= rigid coarse coarse-linear rom rom-linear
+soak: build
+	$(PY) examples/soak.py --modes $(SOAK_MODES) --cycles $(SOAK_CYCLES) --evaluations $(SOAK_EVALUATIONS)
 
 # The stability suite's table.
 stability: venv

@@ -1,0 +1,166 @@
+"""Soak runs of the plugin in real MuJoCo, one process (`make soak`; not part of `make test`):
+
+* **cycles**: per physics mode, CYCLES models loaded, an MjData made, pressed and
+  evaluated, copied (mj_copyData), its state saved and restored (mj_getState /
+  mj_setState), reset and freed; the process's resident memory is read after each
+  cycle, and its growth over the second half reported per cycle.
+* **walk**: per physics mode, EVALUATIONS sensor evaluations of a sphere on a random walk
+  over the gel (pressing 0 to 1.2 mm, sliding anywhere, jumping now and then), every
+  output checked finite; resident memory growth over the second half and the warnings the
+  sensor printed are reported.
+
+Prints a Markdown table per part. Exits non-zero where an output is not finite or memory
+grows by more than the issue's bounds (1 KiB per cycle, 1 MiB over a walk's second half).
+
+    .venv/bin/python examples/soak.py --cycles 1000 --evaluations 100000
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+
+import mujoco
+import numpy as np
+
+import tacrom  # noqa: F401  (loads the plugin)
+
+SCENE = """
+<mujoco>
+  <extension><plugin plugin="tacrom.tactile"/></extension>
+  <option gravity="0 0 0"/>
+  <worldbody>
+    <body name="sensor">
+      <geom name="pad" type="box" size="0.015 0.015 0.002" pos="0 0 -0.006"/>
+      <site name="gel"/>
+    </body>
+    <body name="indenter" pos="0 0 0.005">
+      <joint name="x" type="slide" axis="1 0 0"/>
+      <joint name="y" type="slide" axis="0 1 0"/>
+      <joint name="press" type="slide" axis="0 0 -1"/>
+      <geom type="sphere" size="0.005" contype="0" conaffinity="0"/>
+    </body>
+  </worldbody>
+  <sensor>
+    <plugin name="touch" plugin="tacrom.tactile" objtype="site" objname="gel">
+      <config key="physics" value="{physics}"/>
+      <config key="outputs" value="{outputs}"/>
+      <config key="resolution" value="64 48"/>
+      <config key="friction" value="0.5"/>{extra}
+    </plugin>
+  </sensor>
+</mujoco>
+"""
+
+MODES = {
+    "rigid": ("rigid", ""),
+    "coarse": ("coarse", ""),
+    "coarse-linear": ("coarse", '\n      <config key="solver" value="linear"/>'),
+    "rom": ("rom", ""),
+    "rom-linear": ("rom", '\n      <config key="solver" value="linear"/>'),
+}
+
+
+def xml(mode: str) -> str:
+    physics, extra = MODES[mode]
+    outputs = "depth rgb" if physics == "rigid" else "depth force shear pressure markers rgb"
+    return SCENE.format(physics=physics, outputs=outputs, extra=extra)
+
+
+def rss_kib() -> int:
+    """The process's resident memory (KiB)."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") // 1024
+
+
+def finite(d) -> bool:
+    return bool(np.isfinite(d.sensordata).all())
+
+
+def cycles(mode: str, n: int) -> tuple[float, float, bool]:
+    """KiB per cycle over the second half, seconds per cycle, all outputs finite."""
+    text = xml(mode)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    ok, half, start = True, None, time.perf_counter()
+    for k in range(n):
+        m = mujoco.MjModel.from_xml_string(text)
+        d = mujoco.MjData(m)
+        d.qpos[:3] = (0.001, -0.002, 0.5e-3)
+        mujoco.mj_forward(m, d)
+        copy = mujoco.MjData(m)
+        mujoco.mj_copyData(copy, m, d)
+        state = np.empty(mujoco.mj_stateSize(m, spec))
+        mujoco.mj_getState(m, d, state, spec)
+        mujoco.mj_setState(m, copy, state, spec)
+        mujoco.mj_forward(m, copy)
+        mujoco.mj_resetData(m, d)
+        mujoco.mj_forward(m, d)
+        ok &= finite(d) and finite(copy)
+        del copy, d, m
+        if k == n // 2:
+            half = rss_kib()
+    per = (rss_kib() - half) / max(n - n // 2 - 1, 1)
+    return per, (time.perf_counter() - start) / n, ok
+
+
+def walk(mode: str, n: int, seed: int = 0) -> tuple[float, float, bool]:
+    """KiB of growth over the second half, ms per evaluation, all outputs finite."""
+    rng = np.random.default_rng(seed)
+    m = mujoco.MjModel.from_xml_string(xml(mode))
+    d = mujoco.MjData(m)
+    pose = np.array([0.0, 0.0, 0.5e-3])
+    ok, half, start = True, None, time.perf_counter()
+    for k in range(n):
+        if rng.random() < 0.02:
+            pose = np.array([rng.uniform(-0.012, 0.012), rng.uniform(-0.012, 0.012), 0.0])
+        pose += rng.normal(0.0, [0.2e-3, 0.2e-3, 0.1e-3])
+        pose[:2] = np.clip(pose[:2], -0.016, 0.016)
+        pose[2] = np.clip(pose[2], -0.5e-3, 1.2e-3)
+        d.qpos[:3] = pose
+        mujoco.mj_forward(m, d)
+        ok &= finite(d)
+        if k == n // 2:
+            half = rss_kib()
+    return rss_kib() - half, 1e3 * (time.perf_counter() - start) / n, ok
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
+    parser.add_argument("--cycles", type=int, default=1000)
+    parser.add_argument("--evaluations", type=int, default=100_000)
+    args = parser.parse_args()
+    # The sensor's warnings go to stderr: count them in a file.
+    log = tempfile.TemporaryFile(mode="w+")
+    saved = os.dup(2)
+    failed = False
+    rows_c, rows_w = [], []
+    for mode in args.modes:
+        os.dup2(log.fileno(), 2)
+        per, secs, ok = cycles(mode, args.cycles)
+        grown, ms, ok_w = walk(mode, args.evaluations)
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        log.seek(0)
+        warnings = sum(1 for line in log if "tacrom.tactile" in line)
+        log.seek(0)
+        log.truncate()
+        rows_c.append(f"| {mode} | {args.cycles} | {secs * 1e3:.1f} | {per:.2f} | {ok} |")
+        rows_w.append(f"| {mode} | {args.evaluations} | {ms:.2f} | {grown} | {warnings} | {ok_w} |")
+        failed |= not ok or not ok_w or per > 1.0 or grown > 1024
+        print(rows_c[-1], rows_w[-1], file=sys.stderr, flush=True)
+    print("| mode | cycles | ms per cycle | KiB per cycle (second half) | finite |")
+    print("|---|---:|---:|---:|---|")
+    print("\n".join(rows_c))
+    print()
+    print("| mode | evaluations | ms per evaluation | KiB grown (second half) | warnings printed | finite |")
+    print("|---|---:|---:|---:|---:|---|")
+    print("\n".join(rows_w))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

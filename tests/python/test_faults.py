@@ -1,5 +1,6 @@
 """Faults from outside the plugin, through the real `mujoco` package: a model file
-truncated under a running sensor."""
+truncated under a running sensor, a gel cache folder that cannot be written, is full or
+holds garbage."""
 
 import copy
 import shutil
@@ -40,3 +41,55 @@ def test_a_model_file_truncated_under_a_running_sensor(press_xml, tmp_path):
     again = evaluate(m, d, 0.45e-3)
     assert np.isfinite(again["depth"]).all()
     assert again["force"][2] > after["force"][2]
+
+
+# A small gel on the linear solver, whose compliance the gel cache keeps: pressed in a
+# fresh process with the cache folder set by the environment; prints the force.
+CACHE_PROBE = """
+import sys
+sys.path.insert(0, {tests!r})
+import mujoco, numpy as np
+import tacrom
+from conftest import evaluate, with_config
+xml = with_config(open({press!r}).read(), physics="coarse", solver="linear",
+                  size="0.012 0.012 0.003", dx="0.001", outputs="depth force",
+                  resolution="32 32")
+m = mujoco.MjModel.from_xml_string(xml)
+out = evaluate(m, mujoco.MjData(m), 0.3e-3)
+assert np.isfinite(out["depth"]).all()
+print(repr(float(out["force"][2])))
+"""
+
+
+def test_a_cache_folder_that_cannot_be_written_or_holds_nothing_costs_no_sensor(tmp_path):
+    """Catches: a load that fails or crashes where the gel cache cannot be used. The same
+    small linear gel pressed in fresh processes with the cache folder (``$TACROM_CACHE``)
+    somewhere it cannot be made (under a regular file), capped at 0 MiB (full: every file
+    it writes is evicted), corrupt (every cache file overwritten with garbage) and usable:
+    each gives the same force to the last bit (the compliance is computed, or read back
+    bit for bit, whatever the folder allows)."""
+    import os
+    import subprocess
+    import sys
+
+    script = CACHE_PROBE.format(tests=str(ROOT / "tests" / "python"),
+                                press=str(ROOT / "examples" / "press.xml"))
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    usable = tmp_path / "cache"
+
+    def force(**env):
+        run = subprocess.run([sys.executable, "-c", script], env={**os.environ, **env},
+                             capture_output=True, text=True, timeout=600)
+        assert run.returncode == 0, run.stderr
+        return float(run.stdout.strip().splitlines()[-1])
+
+    fresh = force(TACROM_CACHE=str(usable))
+    assert fresh > 0
+    assert any(usable.iterdir()), "the usable cache holds the compliance"
+    assert force(TACROM_CACHE=str(usable)) == fresh
+    for f in usable.iterdir():
+        f.write_bytes(b"garbage" * 100)
+    assert force(TACROM_CACHE=str(usable)) == fresh
+    assert force(TACROM_CACHE=str(blocker / "cache")) == fresh
+    assert force(TACROM_CACHE=str(tmp_path / "full"), TACROM_CACHE_MB="0") == fresh

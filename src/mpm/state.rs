@@ -128,15 +128,7 @@ fn lattice_box(io: &mut Io<'_>, b: &mut Option<[usize; 4]>, [nx, ny]: [usize; 2]
 impl Gel {
     /// The counts that bound this gel's state with at most `indenters` indenters.
     pub fn state_bounds(&self, indenters: usize) -> StateBounds {
-        let [nx, ny, _] = self.layout.lattice;
-        let points = nx * ny * super::linear::SUBDIVISION.pow(2);
-        StateBounds {
-            particles: self.particles.len(),
-            slots: self.top.len(),
-            points,
-            columns: self.layout.dims[0] * self.layout.dims[1],
-            indenters,
-        }
+        Self::bounds_of(&self.params, indenters)
     }
 
     /// The counts that bound the state of a gel of `params`, built or not.

@@ -1206,57 +1206,80 @@ impl Rom {
         let t0 = Instant::now();
         self.z = self.encode(obs)?;
         self.compute_region(obs);
-        let t1 = Instant::now();
-        report.encode_s = (t1 - t0).as_secs_f64();
+        report.encode_s = t0.elapsed().as_secs_f64();
         if self.refine_enabled() {
-            let mut set = self.energy_set(obs);
-            report.energy_points = set.terms.len();
-            // The Jacobian graph at `z0`, kept for the refinement's first evaluation there.
-            let mut at_z0 = None;
-            if self.manifest.refinement.anchor_encoder && !set.terms.is_empty() {
-                // From the graph the refinement differentiates, so that `z0` is where the
-                // prediction term is zero for it (the dense decoder may be quantized).
-                let z0 = self.z.clone();
-                let (d0, j0) = self.decode_with_jacobian(&z0, &set.query)?;
-                for (t, &d) in set.terms.iter_mut().zip(&d0) {
-                    t.anchor = d as f64;
-                }
-                at_z0 = Some((z0, (d0, j0)));
+            self.refine(obs, &mut report)?;
+        }
+        let points = self.decode_region(obs, &mut report)?;
+        if self.pressure.is_some() {
+            let t = Instant::now();
+            self.infer_pressure(obs, &points)?;
+            report.decode_s += t.elapsed().as_secs_f64();
+        }
+        Ok(report)
+    }
+
+    /// The latent refinement: L-BFGS on the reduced energy from the encoder's `z`
+    /// (updated where it lowered the energy).
+    fn refine(&mut self, obs: &Observation, report: &mut RomReport) -> Result<(), RomError> {
+        let t1 = Instant::now();
+        let mut set = self.energy_set(obs);
+        report.energy_points = set.terms.len();
+        // The Jacobian graph at `z0`, kept for the refinement's first evaluation there.
+        let mut at_z0 = None;
+        if self.manifest.refinement.anchor_encoder && !set.terms.is_empty() {
+            // From the graph the refinement differentiates, so that `z0` is where the
+            // prediction term is zero for it (the dense decoder may be quantized).
+            let z0 = self.z.clone();
+            let (d0, j0) = self.decode_with_jacobian(&z0, &set.query)?;
+            for (t, &d) in set.terms.iter_mut().zip(&d0) {
+                t.anchor = d as f64;
             }
-            if !set.terms.is_empty() {
-                let r = self.manifest.latent;
-                let mut zf: Vec<f64> = self.z.iter().map(|&v| v as f64).collect();
-                let mut dd = vec![0.0; set.terms.len()];
-                let mut z32 = vec![0.0f32; r];
-                let options = self.manifest.refinement.lbfgs;
-                let lb = lbfgs::minimize(&mut zf, &options, |z, grad| {
-                    for (a, &b) in z32.iter_mut().zip(z) {
-                        *a = b as f32;
-                    }
-                    let (d, jac) = match at_z0.take() {
-                        Some((z0, known)) if z0 == z32 => known,
-                        _ => self.decode_with_jacobian(&z32, &set.query)?,
-                    };
-                    let e = Self::energy(&set, &d, &mut dd);
-                    grad.iter_mut().for_each(|g| *g = 0.0);
-                    for (k, &w) in dd.iter().enumerate() {
-                        if w != 0.0 {
-                            for (g, &j) in grad.iter_mut().zip(&jac[k * r..(k + 1) * r]) {
-                                *g += w * j as f64;
-                            }
+            at_z0 = Some((z0, (d0, j0)));
+        }
+        if !set.terms.is_empty() {
+            let r = self.manifest.latent;
+            let mut zf: Vec<f64> = self.z.iter().map(|&v| v as f64).collect();
+            let mut dd = vec![0.0; set.terms.len()];
+            let mut z32 = vec![0.0f32; r];
+            let options = self.manifest.refinement.lbfgs;
+            let lb = lbfgs::minimize(&mut zf, &options, |z, grad| {
+                for (a, &b) in z32.iter_mut().zip(z) {
+                    *a = b as f32;
+                }
+                let (d, jac) = match at_z0.take() {
+                    Some((z0, known)) if z0 == z32 => known,
+                    _ => self.decode_with_jacobian(&z32, &set.query)?,
+                };
+                let e = Self::energy(&set, &d, &mut dd);
+                grad.iter_mut().for_each(|g| *g = 0.0);
+                for (k, &w) in dd.iter().enumerate() {
+                    if w != 0.0 {
+                        for (g, &j) in grad.iter_mut().zip(&jac[k * r..(k + 1) * r]) {
+                            *g += w * j as f64;
                         }
                     }
-                    Ok::<f64, RomError>(e)
-                })?;
-                if lb.last.is_finite() && lb.last <= lb.initial {
-                    self.z = zf.iter().map(|&v| v as f32).collect();
                 }
-                report.refinement = Some(lb);
+                Ok::<f64, RomError>(e)
+            })?;
+            if lb.last.is_finite() && lb.last <= lb.initial {
+                self.z = zf.iter().map(|&v| v as f32).collect();
             }
+            report.refinement = Some(lb);
         }
+        report.refine_s += t1.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Dense decoding of the deformable region at the current `z` into the lattice depth,
+    /// bounded by the depth rule (the report's excesses and decoded points are this
+    /// decoding's); returns the decoded lattice points in the order of the query rows.
+    fn decode_region(
+        &mut self,
+        obs: &Observation,
+        report: &mut RomReport,
+    ) -> Result<Vec<usize>, RomError> {
         let t2 = Instant::now();
-        report.refine_s = (t2 - t1).as_secs_f64();
-        // Dense decoding on the region.
         let spec = self.manifest.lattice;
         self.query.clear();
         let mut points = Vec::new();
@@ -1284,11 +1307,8 @@ impl Rom {
             .fold(0.0, |m, (&d, &p)| m.max(p - d));
         report.bound_excess = obs.rule.apply(&mut self.lattice_depth, &obs.pen);
         report.decoded = points.len();
-        if self.pressure.is_some() {
-            self.infer_pressure(obs, &points)?;
-        }
-        report.decode_s = t2.elapsed().as_secs_f64();
-        Ok(report)
+        report.decode_s += t2.elapsed().as_secs_f64();
+        Ok(points)
     }
 
     /// Runs the pressure head at the lattice points `points` (the region's, in the order of

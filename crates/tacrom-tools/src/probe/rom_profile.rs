@@ -1,6 +1,7 @@
 //! Where a rom frame's time goes: `tacrom probe rom_profile [SOLVER]
-//! [THREADS]` presses a 5 mm sphere from 0.1 to 1.0 mm while sliding 1 mm in 20 frames at
-//! 320 x 240 (the sensor benchmark's press) and prints, per frame, the whole evaluation
+//! [THREADS] [WxH] [REFINE]` presses a 5 mm sphere from 0.1 to 1.0 mm while sliding 1 mm in 20 frames at
+//! 320 x 240 (the sensor benchmark's press; `WxH` another resolution, `REFINE` the `refine`
+//! attribute) and prints, per frame, the whole evaluation
 //! and its stages: gel solve, observation and encoder, refinement (with its L-BFGS
 //! evaluations and energy points), dense decoding and image.
 
@@ -15,7 +16,14 @@ use tacrom::sensor::TactileSensor;
 pub fn run(args: Vec<String>) {
     let solver = args.get(1).map_or("linear", |s| s.as_str());
     let threads = args.get(2).map_or("1", |s| s.as_str());
-    let raw = RawConfig::default()
+    let resolution = args
+        .get(3)
+        .map_or("320 240".to_string(), |s| s.replace('x', " "));
+    let mut raw = RawConfig::default().with("resolution", &resolution);
+    if let Some(refine) = args.get(4) {
+        raw = raw.with("refine", refine);
+    }
+    let raw = raw
         .with("physics", "rom")
         .with("solver", solver)
         .with("threads", threads);
@@ -32,7 +40,7 @@ pub fn run(args: Vec<String>) {
     };
     let dx = config.dx.expect("a gel");
     let mut gel = tacrom::mpm::Gel::new(config.gel_params(dx), options).expect("gel");
-    println!("frame   total  gel-solve  encode  refine(evals,points)  decode(points)");
+    println!("frame   total  gel-solve  encode  refine(evals,points)  decode(points)  sink um");
     let frames = 20;
     for f in 0..frames {
         let s = f as f64 / (frames - 1) as f64;
@@ -54,12 +62,13 @@ pub fn run(args: Vec<String>) {
         let rom = eval.rom.clone().unwrap_or_default();
         let evals = rom.refinement.as_ref().map_or(0, |r| r.evaluations);
         println!(
-            "{f:>5} {total:>7.2} {gel_ms:>8.2} {:>7.2} {:>7.2}({evals:>2},{:>4}) {:>7.2}({:>5})",
+            "{f:>5} {total:>7.2} {gel_ms:>8.2} {:>7.2} {:>7.2}({evals:>2},{:>4}) {:>7.2}({:>5}) {:>7.1}",
             rom.encode_s * 1e3,
             rom.refine_s * 1e3,
             rom.energy_points,
             rom.decode_s * 1e3,
-            rom.decoded
+            rom.decoded,
+            rom.bound_excess * 1e6
         );
     }
 }

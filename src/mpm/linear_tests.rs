@@ -497,6 +497,7 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
             caps: &caps,
             anchors: &anchors,
             warm: trial % 2 == 0,
+            residual: FRICTION_RESIDUAL,
         };
         let mut l = DVector::zeros(3 * k);
         let (f, _) = frictional_contact(&problem, &friction, &mut l).expect("solved");

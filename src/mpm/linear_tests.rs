@@ -470,8 +470,8 @@ fn friction_energy(
 /// On random problems (up to 8 columns, 3 loads each, and 30 points), the frictional
 /// contact returns the minimum of its convex energy: the loads balance the points'
 /// forces (the energy's gradient `G (l - W^T F)` vanishes) to 1e-8 of the loads, no
-/// point's friction exceeds its cap, and no random move of the loads lowers the energy.
-/// Without caps it carries no lateral load and its normal forces are the frictionless
+/// point's friction exceeds its cap, and no random move of the loads lowers the energy,
+/// whether the first step assumes every point stuck or not (`predict_stick`). Without caps it carries no lateral load and its normal forces are the frictionless
 /// solve's on the vertical block of the same compliance.
 #[test]
 fn the_frictional_contact_is_the_minimum_of_its_energy() {
@@ -498,6 +498,7 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
             anchors: &anchors,
             warm: trial % 2 == 0,
             residual: FRICTION_RESIDUAL,
+            predict_stick: trial % 3 == 0,
         };
         let mut l = DVector::zeros(3 * k);
         let (f, _) = frictional_contact(&problem, &friction, &mut l).expect("solved");

@@ -93,3 +93,84 @@ def test_a_cache_folder_that_cannot_be_written_or_holds_nothing_costs_no_sensor(
     assert force(TACROM_CACHE=str(usable)) == fresh
     assert force(TACROM_CACHE=str(blocker / "cache")) == fresh
     assert force(TACROM_CACHE=str(tmp_path / "full"), TACROM_CACHE_MB="0") == fresh
+
+
+def _varint(v: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte, v = v & 0x7F, v >> 7
+        if v == 0:
+            out.append(byte)
+            return bytes(out)
+        out.append(byte | 0x80)
+
+
+def _field(number: int, value) -> bytes:
+    """One protobuf field: an int (varint), or bytes / str (length-delimited)."""
+    if isinstance(value, int):
+        return _varint(number << 3) + _varint(value)
+    data = value.encode() if isinstance(value, str) else value
+    return _varint((number << 3) | 2) + _varint(len(data)) + data
+
+
+def _value_info(name: str, dims) -> bytes:
+    shape = b"".join(_field(1, _field(2, "N") if d < 0 else _field(1, d)) for d in dims)
+    tensor = _field(1, 1) + _field(2, shape)  # FLOAT
+    return _field(1, name) + _field(2, _field(1, tensor))
+
+
+def _int64s(name: str, values) -> bytes:
+    raw = b"".join(int(v).to_bytes(8, "little", signed=True) for v in values)
+    return _field(1, len(values)) + _field(2, 7) + _field(8, name) + _field(9, raw)
+
+
+def _node(op: str, inputs, output: str) -> bytes:
+    return b"".join(_field(1, i) for i in inputs) + _field(2, output) + _field(3, output) + _field(4, op)
+
+
+def failing_decoder(latent: int, features: int) -> bytes:
+    """An ONNX graph with the decoder's interface that ONNX Runtime cannot run for any
+    number of query points but 7 (``Reshape`` of the rows' sums to ``[7, 1]``); written as
+    protobuf field by field (as ``tests/rom_faults.rs`` does)."""
+    graph = (
+        _field(1, _node("ReduceSum", ["query", "axes"], "sum"))
+        + _field(1, _node("Reshape", ["sum", "rows"], "depth"))
+        + _field(2, "fails-unless-seven-rows")
+        + _field(5, _int64s("axes", [1]))
+        + _field(5, _int64s("rows", [7, 1]))
+        + _field(11, _value_info("z", [1, latent]))
+        + _field(11, _value_info("query", [-1, features]))
+        + _field(12, _value_info("depth", [-1, 1]))
+    )
+    return _field(1, 8) + _field(2, "tacrom-tests") + _field(7, graph) + _field(8, _field(1, "") + _field(2, 17))
+
+
+def test_onnx_runtime_failing_every_call_of_a_coupled_sensor(press_xml, tmp_path, capfd):
+    """Catches: an error from ONNX Runtime's run that crashes the host, leaves NaN in
+    ``sensordata`` or ``qfrc_passive``, or goes unreported. The shipped model with a decoder
+    that loads (its interface is the manifest's) but fails every call, on a gel that pushes
+    back (``coupling="on"``): MuJoCo steps on, the sensor warns naming the decoder and
+    falls back to the coarse surface, and its outputs and the gel's push-back stay finite."""
+    import json
+
+    model_dir = tmp_path / "rom"
+    shutil.copytree(ROOT / "models" / "rom-default", model_dir)
+    manifest = json.loads((model_dir / "manifest.json").read_text())
+    assert manifest["files"]["decoder"]["path"] == "decoder.onnx"
+    (model_dir / "decoder.onnx").write_bytes(
+        failing_decoder(manifest["latent"], manifest["query_features"]))
+    xml = with_config(press_xml, physics="rom", model=str(model_dir), outputs="depth force",
+                      resolution="64 48", coupling="on")
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    forces = []
+    for k in range(5):
+        out = evaluate(m, d, 0.1e-3 * (k + 1))
+        mujoco.mj_step(m, d)
+        assert np.isfinite(d.sensordata).all() and np.isfinite(d.qfrc_passive).all()
+        assert out["depth"].max() > 0
+        forces.append(out["force"][2])
+    assert all(b > a > 0 for a, b in zip(forces, forces[1:])), forces
+    err = capfd.readouterr().err
+    assert "'touch'" in err and "ONNX Runtime failed running decoder" in err, err
+    assert "coarse depth used" in err, err

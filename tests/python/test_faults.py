@@ -1,6 +1,6 @@
 """Faults from outside the plugin, through the real `mujoco` package: a model file
 truncated under a running sensor, a gel cache folder that cannot be written, is full or
-holds garbage."""
+holds garbage, ONNX Runtime failing every call of a coupled sensor's decoder."""
 
 import copy
 import shutil

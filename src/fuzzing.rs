@@ -182,6 +182,25 @@ fn shapes() -> &'static [Arc<dyn Sdf>] {
     SHAPES.get_or_init(|| vec![Arc::new(Sphere::new(2e-3)), Arc::new(Sphere::new(0.3e-3))])
 }
 
+/// Runs every file of the committed corpus `fuzz/corpus/NAME` through `target` (on the
+/// stable toolchain, as `make test` replays the corpora), panicking with the name of the
+/// first file it panics on.
+pub fn replay_corpus(name: &str, target: Target) {
+    let dir = crate::checkout_root().join("fuzz/corpus").join(name);
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .map(|e| e.expect("a corpus entry").path())
+        .filter(|p| p.is_file())
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no corpus for target {name}");
+    for file in files {
+        let data = std::fs::read(&file).expect("a corpus file");
+        let run = std::panic::catch_unwind(|| target(&data));
+        assert!(run.is_ok(), "target {name} panics on {}", file.display());
+    }
+}
+
 /// The state target's press: the larger sphere `depth` into the gel's centre.
 fn press(shapes: &[Arc<dyn Sdf>], depth: f64) -> Placed {
     Placed {
@@ -190,8 +209,9 @@ fn press(shapes: &[Arc<dyn Sdf>], depth: f64) -> Placed {
     }
 }
 
-/// This process's and thread's scratch folder for `target`.
-fn scratch(target: &str) -> PathBuf {
+/// This process's and thread's scratch folder for `target` (the command's targets use it
+/// too).
+pub fn scratch(target: &str) -> PathBuf {
     let thread = format!("{:?}", std::thread::current().id());
     let thread: String = thread.chars().filter(char::is_ascii_digit).collect();
     let dir = std::env::temp_dir().join(format!(

@@ -16,12 +16,12 @@
 //! folder (a name with a path separator or a leading dot is left out): it explores the
 //! list's contents, not the machine's file system.
 
-use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use crate::calibrate::fit::FitOptions;
 use crate::calibrate::synth::{synthesize, SynthOptions};
 use crate::calibrate::{calibrate, CalibrateOptions, PressList, PRESS_LIST};
+use tacrom::fuzzing::scratch;
 use tacrom::render::calibrated::CalibratedOptics;
 
 /// The fuzz targets of the command by name (the names of `fuzz/fuzz_targets/*.rs` and of
@@ -115,16 +115,4 @@ pub fn calibrate_input(data: &[u8]) -> Option<crate::calibrate::CalibrationRepor
     }
     CalibratedOptics::load(&out).expect("the optics a calibration wrote load back");
     Some(report)
-}
-
-/// A scratch folder of this process and thread for `target`.
-fn scratch(target: &str) -> PathBuf {
-    let thread = format!("{:?}", std::thread::current().id());
-    let thread: String = thread.chars().filter(char::is_ascii_digit).collect();
-    let dir = std::env::temp_dir().join(format!(
-        "tacrom-fuzz-{}-{thread}-{target}",
-        std::process::id()
-    ));
-    std::fs::create_dir_all(&dir).expect("scratch folder");
-    dir
 }

@@ -190,12 +190,16 @@ pub fn load_graph(
         // thread with spinning workers).
         .and_then(|b| b.with_intra_op_spinning(false).map_err(Into::into))
         .and_then(|b| b.with_inter_op_spinning(false).map_err(Into::into))
-        // No memory pattern: it plans the allocations per input shape and keeps every
-        // plan, and the decoder's rows (the deformed region's lattice points) change from
-        // frame to frame. Measured (`examples/soak.py --modes rom-linear --evaluations
-        // 20000`): the resident memory grew 288 and 292 KiB over the walk's second half
-        // with it, 4 KiB without, at 1.88 and 1.81 ms per evaluation.
-        .and_then(|b| b.with_memory_pattern(false).map_err(Into::into))
+        // No memory pattern for a graph with a dimension of any size: it plans the
+        // allocations per input shape and keeps every plan, and the decoder's rows (the
+        // deformed region's lattice points) change from frame to frame. Measured
+        // (`examples/soak.py --modes rom-linear --evaluations 20000`): the resident memory
+        // grew 288 and 292 KiB over the walk's second half with it, 4 KiB without. The
+        // encoder's one shape keeps its plan.
+        .and_then(|b| {
+            let varying = inputs.iter().any(|(_, shape)| shape.contains(&-1));
+            b.with_memory_pattern(!varying).map_err(Into::into)
+        })
         .and_then(|mut b| b.commit_from_file(path))
         .map_err(|e| bad(format!("cannot load: {e}")))?;
     for (kind, have, want) in [

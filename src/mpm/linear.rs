@@ -84,6 +84,15 @@
 //! carry over to the next frame (a reset forgets them). Without friction (`mu = 0`) none
 //! of this is built and the answer depends on the poses alone.
 //!
+//! Newton's method damps every step that changes which points stick: a held grasp that
+//! trembles by microns (every point a little past its stick radius at the frame's start)
+//! took 20 to 100 steps, a dense factorisation each, as the line search brought the points
+//! back to sticking a group at a time. A large warm solve that one Newton step does not
+//! finish is therefore *split* first ([`split_start`]: the alternating direction method
+//! of multipliers, which settles which points press, stick and slide in iterations of two
+//! triangular solves with one kept factor) and finished by Newton's method from there: the
+//! same minimum, in two to four steps.
+//!
 //! # Cost
 //!
 //! Every node column's responses are made with the gel: read from the gel cache
@@ -228,6 +237,9 @@ pub(crate) struct Compliance {
     /// [`LOCAL_SYSTEMS`]): a contact that loads the same columns as the frame before (a
     /// grasp held) builds and inverts nothing.
     locals: Vec<LocalSystem>,
+    /// Unknowns from which a frictional solve may split ([`SPLIT_UNKNOWNS`]; tests
+    /// compare with Newton's method alone).
+    split_unknowns: usize,
 }
 
 /// The dense systems of one set of node columns under a contact.
@@ -239,6 +251,19 @@ struct LocalSystem {
     /// Their compliance ([`Compliance::local_compliance`]) and its inverse.
     g: DMatrix<f64>,
     inverse: DMatrix<f64>,
+    /// The factor [`split_start`] made for these columns, kept for the next solve.
+    split: Option<SplitFactor>,
+}
+
+/// The factor of `G^-1 + rho W^T W` that [`split_start`] solves with, and the points'
+/// rows `W` and `rho` it was made for.
+#[derive(Clone)]
+struct SplitFactor {
+    rows: Vec<Columns>,
+    rho: f64,
+    /// In single precision: the iterations only start Newton's method, and their
+    /// triangular solves, which stream the factor, take half the time.
+    factor: DMatrix<f32>,
 }
 
 /// Sets of node columns whose dense systems are kept: the frictional problem's and the
@@ -404,6 +429,7 @@ impl Compliance {
             lagged: HashMap::new(),
             last: Vec::new(),
             locals: Vec::new(),
+            split_unknowns: SPLIT_UNKNOWNS,
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
         Ok((c, newton))
@@ -1032,6 +1058,7 @@ impl Compliance {
             lateral,
             g,
             inverse,
+            split: None,
         })
     }
 
@@ -1145,9 +1172,10 @@ impl Compliance {
             if local.is_empty() {
                 break;
             }
-            let Some(system) = self.take_local(&local, friction) else {
+            let Some(mut system) = self.take_local(&local, friction) else {
                 break;
             };
+            let mut kept = system.split.take();
             let d: Vec<f64> = cand.iter().map(|&i| delta[i]).collect();
             let eps: Vec<f64> = cand.iter().map(|&i| soft[i]).collect();
             let mut solved = true;
@@ -1245,8 +1273,11 @@ impl Compliance {
                         warm: lags > 0 || from_last,
                         residual: (INNER_RESIDUAL * tolerance).max(FRICTION_RESIDUAL),
                         predict_stick: PREDICT_STICK && lags == 0 && from_last,
+                        split: self.split_unknowns,
                     };
-                    let Some((f, steps)) = frictional_contact(&problem, &friction, &mut l) else {
+                    let Some((f, steps)) =
+                        frictional_contact(&problem, &friction, &mut kept, &mut l)
+                    else {
                         solved = false;
                         break;
                     };
@@ -1278,6 +1309,7 @@ impl Compliance {
                     None => solved = false,
                 }
             }
+            system.split = kept;
             self.put_local(system);
             if !solved {
                 break;
@@ -1536,6 +1568,18 @@ fn cholesky_solve(a: &DMatrix<f64>, b: &mut DVector<f64>) {
     );
 }
 
+/// [`cholesky_solve`] in single precision.
+fn cholesky_solve_f32(a: &DMatrix<f32>, b: &mut DVector<f32>) {
+    let n = a.nrows();
+    llt::solve::solve_in_place_with_conj(
+        MatRef::from_column_major_slice(a.as_slice(), n, n),
+        Conj::No,
+        MatMut::from_column_major_slice_mut(b.as_mut_slice(), n, 1),
+        Par::Seq,
+        MemStack::new(&mut MemBuffer::new(StackReq::EMPTY)),
+    );
+}
+
 /// One contact solve in the loads of the node columns under the contact: their
 /// compliance `g` (symmetric, positive definite) and its inverse, the points' rows of
 /// column weights `w`, the depths `delta` they must sink and their contact compliances
@@ -1736,6 +1780,9 @@ struct Friction<'a> {
     /// found the points that stick a few hundred per step, each step damped by the
     /// line search. See [`PREDICT_STICK`].
     predict_stick: bool,
+    /// Unknowns from which a warm solve that Newton's method does not finish in
+    /// [`SPLIT_AFTER`] steps is split ([`split_start`]).
+    split: usize,
 }
 
 /// The penalty contact with friction, in the node columns' loads `l` (+x, +y and
@@ -1754,14 +1801,31 @@ struct Friction<'a> {
 fn frictional_contact(
     p: &Problem,
     friction: &Friction,
+    kept: &mut Option<SplitFactor>,
     l: &mut DVector<f64>,
 ) -> Option<(Vec<Vector3<f64>>, usize)> {
     let mut total = 0;
     if friction.warm {
         let start = l.clone();
         let budget = WARM_NEWTON;
-        if let Some(answer) = minimise(p, friction, STICK, friction.residual, budget, l) {
+        // Newton's method first (a held grasp, a press moving on: one to three steps); if
+        // it is still changing which points stick, split, and finish with it.
+        let split = l.len() >= friction.split;
+        let first = if split { SPLIT_AFTER } else { budget };
+        if let Some(answer) = minimise(p, friction, STICK, friction.residual, first, l) {
             return Some(answer);
+        }
+        if split {
+            split_start(p, friction, STICK, kept, l);
+            let friction = &Friction {
+                predict_stick: false,
+                ..*friction
+            };
+            if let Some((f, steps)) =
+                minimise(p, friction, STICK, friction.residual, budget - first, l)
+            {
+                return Some((f, steps + first));
+            }
         }
         (*l, total) = (start, budget);
     }
@@ -1921,6 +1985,203 @@ fn minimise(
         }
     }
     None
+}
+
+/// Unknowns (three per node column) from which a warm frictional solve that Newton's
+/// method does not finish in [`SPLIT_AFTER`] steps is split ([`split_start`]): about 150
+/// node columns, where a Newton step's dense factorisation costs about a millisecond
+/// (on smaller contacts Newton's steps are cheap, and it runs as before).
+const SPLIT_UNKNOWNS: usize = 3 * 150;
+
+/// Newton steps of a warm frictional solve before it splits. `tacrom/GripperLift-v1` on
+/// the linear gel (100 steps of the grasp cycle, one thread; steps/s): split after 0
+/// steps 6.7, after 1 6.7, after 3 5.9. One step finishes a grasp held still.
+const SPLIT_AFTER: usize = 1;
+
+/// Iterations at most of [`split_start`]; the residual (relative to the points'
+/// displacements) at which it stops; the iterations in a row with at most
+/// [`SPLIT_CHANGES`] points changing between pressing or not, sticking or sliding, after
+/// which it hands over to Newton's method. Iterations of `tacrom/GripperLift-v1`'s splits
+/// (mean) and its steps/s: with no point changing for 10 iterations 102 and 6.1, two 64
+/// and 6.7, five 46 and 6.1 (fewer iterations leave Newton's method more steps).
+const SPLIT_ITERATIONS: usize = 200;
+const SPLIT_RESIDUAL: f64 = 1e-5;
+const SPLIT_SETTLED: usize = 10;
+const SPLIT_CHANGES: usize = 2;
+
+/// The stiffness of the springs that hold each point's copy to the gel in [`split_start`],
+/// in units of the gel's own stiffness at a point. `tacrom/GripperLift-v1` (steps/s):
+/// 1: 4.8 (with the split after 3 Newton steps), 3: 5.4, 10: 5.9, 30: 5.4, 100: 4.8, 300:
+/// 3.9.
+const SPLIT_STIFFNESS: f64 = 10.0;
+
+/// Over-relaxation of [`split_start`]'s iterations (1.5 to 1.8 is the usual range).
+const SPLIT_RELAXATION: f64 = 1.6;
+
+/// Starts [`minimise`]'s problem (stick radius `radius`) near its answer by the
+/// alternating direction method of multipliers, one factorisation for every iteration:
+/// the columns' displacements `v` (`v = G l`) and a copy `z_p` of each point's
+/// displacement, bound by `z_p = W_p v`. The gel's part (`v^T G^-1 v / 2` with the copies
+/// held by springs of stiffness `rho`) is one solve with the factor of `G^-1 + rho W^T W`;
+/// each point's part (its penalty and its friction, with the springs) is in closed form.
+/// Newton's method on this problem damps every step that changes which points stick, so
+/// a frame whose points start sliding (a held grasp trembling by microns) took 20 to 100
+/// steps, a factorisation each; here those choices cost an iteration of two triangular
+/// solves each. Updates `l`; returns the iterations.
+fn split_start(
+    p: &Problem,
+    friction: &Friction,
+    radius: f64,
+    kept: &mut Option<SplitFactor>,
+    l: &mut DVector<f64>,
+) -> usize {
+    let Problem {
+        g,
+        inverse,
+        w,
+        delta,
+        eps,
+    } = *p;
+    let Friction { caps, anchors, .. } = *friction;
+    let k = g.nrows();
+    let n = w.len();
+    let project = |v: &DVector<f64>| -> Vec<Vector3<f64>> {
+        w.iter()
+            .map(|row| {
+                let mut s = Vector3::zeros();
+                for &(c, wt) in row {
+                    let c = 3 * c as usize;
+                    s += Vector3::new(v[c], v[c + 1], v[c + 2]) * wt;
+                }
+                s
+            })
+            .collect()
+    };
+    let spread = |z: &[Vector3<f64>]| -> DVector<f64> {
+        let mut out = DVector::zeros(k);
+        for (row, z) in w.iter().zip(z) {
+            for &(c, wt) in row {
+                let c = 3 * c as usize;
+                for j in 0..3 {
+                    out[c + j] += wt * z[j];
+                }
+            }
+        }
+        out
+    };
+    // The springs' stiffness: about the gel's own at a point (its columns' stiffness
+    // shared among the points on them).
+    let mut weight = vec![0.0; k / 3];
+    for row in w {
+        for &(c, wt) in row {
+            weight[c as usize] += wt * wt;
+        }
+    }
+    let diagonal = (0..k).map(|i| inverse[(i, i)]).sum::<f64>() / k as f64;
+    let share =
+        weight.iter().sum::<f64>() / weight.iter().filter(|&&x| x > 0.0).count().max(1) as f64;
+    let rho = SPLIT_STIFFNESS * diagonal / share.max(1e-12);
+    if !kept.as_ref().is_some_and(|k| k.rho == rho && k.rows == w) {
+        *kept = None;
+        let mut factor = inverse.clone();
+        for row in w {
+            for &(a, wa) in row {
+                for &(b, wb) in row {
+                    for j in 0..3 {
+                        factor[(3 * a as usize + j, 3 * b as usize + j)] += rho * wa * wb;
+                    }
+                }
+            }
+        }
+        if cholesky(&mut factor).is_none() {
+            return 0;
+        }
+        *kept = Some(SplitFactor {
+            rows: w.to_vec(),
+            rho,
+            factor: factor.map(|x| x as f32),
+        });
+    }
+    let system = &kept.as_ref().expect("made above").factor;
+    // Each point's part: its displacement `z` nearest `q` against its penalty and friction.
+    // Also its state: pressed (1), sticking (2).
+    let prox = |i: usize, q: Vector3<f64>| -> (Vector3<f64>, u8) {
+        let mut z = q;
+        let mut state = 0;
+        if q.z < delta[i] {
+            z.z = (delta[i] / eps[i] + rho * q.z) / (1.0 / eps[i] + rho);
+            state |= 1;
+        }
+        if caps[i] > 0.0 {
+            let d = q.xy() - anchors[i];
+            let m = d.norm();
+            let xy = if m <= radius + caps[i] / rho {
+                state |= 2;
+                anchors[i] + d * (rho / (rho + caps[i] / radius))
+            } else {
+                anchors[i] + d * (1.0 - caps[i] / (rho * m))
+            };
+            z.x = xy.x;
+            z.y = xy.y;
+        }
+        (z, state)
+    };
+    let mut states = vec![0u8; n];
+    let mut settled = 0;
+    // Warm: the copies at the start's displacements, the multipliers its forces on the
+    // gel (scaled by `-1 / rho`), a fixed point where the start is the answer.
+    let mut v = product(g, l);
+    let mut z = project(&v);
+    let mut u: Vec<Vector3<f64>> = (0..n)
+        .map(|i| {
+            let s = z[i];
+            let mut f = Vector3::new(0.0, 0.0, ((delta[i] - s.z) / eps[i]).max(0.0));
+            if caps[i] > 0.0 {
+                let d = s.xy() - anchors[i];
+                let t = -d * (caps[i] / d.norm().max(radius));
+                f.x = t.x;
+                f.y = t.y;
+            }
+            -f / rho
+        })
+        .collect();
+    let mut iterations = 0;
+    for it in 0..SPLIT_ITERATIONS {
+        iterations = it + 1;
+        let target: Vec<Vector3<f64>> = z.iter().zip(&u).map(|(z, u)| z - u).collect();
+        let mut rhs = (spread(&target) * rho).map(|x| x as f32);
+        cholesky_solve_f32(system, &mut rhs);
+        v = rhs.map(f64::from);
+        let s = project(&v);
+        let mut primal: f64 = 0.0;
+        let mut dual: f64 = 0.0;
+        let mut scale: f64 = 0.0;
+        let mut changed = 0;
+        for i in 0..n {
+            let relaxed = s[i] * SPLIT_RELAXATION + z[i] * (1.0 - SPLIT_RELAXATION);
+            let (next, state) = prox(i, relaxed + u[i]);
+            changed += (state != states[i]) as usize;
+            states[i] = state;
+            u[i] += relaxed - next;
+            primal = primal.max((s[i] - next).amax());
+            dual = dual.max((next - z[i]).amax());
+            scale = scale.max(s[i].amax());
+            z[i] = next;
+        }
+        if primal <= SPLIT_RESIDUAL * scale && dual <= SPLIT_RESIDUAL * scale {
+            break;
+        }
+        settled = if changed <= SPLIT_CHANGES {
+            settled + 1
+        } else {
+            0
+        };
+        if settled >= SPLIT_SETTLED {
+            break;
+        }
+    }
+    *l = product(inverse, &v);
+    iterations
 }
 
 /// The linear solver ([`Solver::Linear`]): the surface compliance of the small-strain gel

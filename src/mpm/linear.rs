@@ -1822,9 +1822,11 @@ fn frictional_contact(
             return Some(answer);
         }
         if split {
-            split_start(p, friction, STICK, kept, l);
+            // (Where the start is already the answer, it is left to Newton's method as
+            // it came.)
+            let moved = split_start(p, friction, STICK, kept, l) > 0;
             let friction = &Friction {
-                predict_stick: false,
+                predict_stick: friction.predict_stick && !moved,
                 ..*friction
             };
             if let Some((f, steps)) =
@@ -2011,8 +2013,10 @@ const SPLIT_AFTER: usize = 1;
 /// [`SPLIT_CHANGES`] points changing between pressing or not, sticking or sliding, after
 /// which it hands over to Newton's method. Iterations of `tacrom/GripperLift-v1`'s splits
 /// (mean) and its steps/s: with no point changing for 10 iterations 102 and 6.1, two 64
-/// and 6.7, five 46 and 6.1 (fewer iterations leave Newton's method more steps).
-const SPLIT_ITERATIONS: usize = 200;
+/// and 6.7, five 46 and 6.1 (fewer iterations leave Newton's method more steps). At most
+/// 60, 100 or 200 iterations: `tacrom probe contact_size 1 24`'s shaken frames 73 / 80 /
+/// 82 ms, but its press 143 / 78 / 87 ms (16 / 5 / 5 Newton steps).
+const SPLIT_ITERATIONS: usize = 100;
 const SPLIT_RESIDUAL: f64 = 1e-5;
 const SPLIT_SETTLED: usize = 10;
 const SPLIT_CHANGES: usize = 2;
@@ -2035,7 +2039,8 @@ const SPLIT_RELAXATION: f64 = 1.6;
 /// Newton's method on this problem damps every step that changes which points stick, so
 /// a frame whose points start sliding (a held grasp trembling by microns) took 20 to 100
 /// steps, a factorisation each; here those choices cost an iteration of two triangular
-/// solves each. Updates `l`; returns the iterations.
+/// solves each. Updates `l`; returns the iterations (0: `l` is the answer already, to
+/// the iterations' precision, and left as it is).
 fn split_start(
     p: &Problem,
     friction: &Friction,
@@ -2138,7 +2143,8 @@ fn split_start(
     let mut settled = 0;
     // Warm: the copies at the start's displacements, the multipliers its forces on the
     // gel (scaled by `-1 / rho`), a fixed point where the start is the answer.
-    let mut v = product(g, l);
+    let start = product(g, l);
+    let mut v = start.clone();
     let mut z = project(&v);
     let mut u: Vec<Vector3<f64>> = (0..n)
         .map(|i| {
@@ -2153,13 +2159,18 @@ fn split_start(
             -f / rho
         })
         .collect();
+    // `(G^-1 + rho W^T W) v0`.
+    let base = &*l + spread(&z) * rho;
     let mut iterations = 0;
     for it in 0..SPLIT_ITERATIONS {
         iterations = it + 1;
         let target: Vec<Vector3<f64>> = z.iter().zip(&u).map(|(z, u)| z - u).collect();
-        let mut rhs = (spread(&target) * rho).map(|x| x as f32);
+        // In single precision, the change from the start only (`G^-1 v0 = l`): its
+        // error is a fraction of the change, not of the displacements (a start at the
+        // answer stays there).
+        let mut rhs = (spread(&target) * rho - &base).map(|x| x as f32);
         cholesky_solve_f32(system, &mut rhs);
-        v = rhs.map(f64::from);
+        v = &start + rhs.map(f64::from);
         let s = project(&v);
         let mut primal: f64 = 0.0;
         let mut dual: f64 = 0.0;
@@ -2177,6 +2188,10 @@ fn split_start(
             z[i] = next;
         }
         if primal <= SPLIT_RESIDUAL * scale && dual <= SPLIT_RESIDUAL * scale {
+            if it == 0 {
+                // The start is the answer (to the iterations' precision): kept as it is.
+                return 0;
+            }
             break;
         }
         settled = if changed <= SPLIT_CHANGES {
@@ -2188,7 +2203,7 @@ fn split_start(
             break;
         }
     }
-    *l = product(inverse, &v);
+    *l += product(inverse, &(v - start));
     iterations
 }
 

@@ -1811,13 +1811,7 @@ fn frictional_contact(
         // Newton's method first (a held grasp, a press moving on: one to three steps); if
         // it is still changing which points stick, split, and finish with it.
         let split = l.len() >= friction.split;
-        // A solve of the points that split last time splits at once.
-        let again = split && kept.as_ref().is_some_and(|k| k.rows == p.w);
-        let first = match (split, again) {
-            (false, _) => budget,
-            (true, false) => SPLIT_AFTER,
-            (true, true) => 0,
-        };
+        let first = if split { SPLIT_AFTER } else { budget };
         if let Some(answer) = minimise(p, friction, STICK, friction.residual, first, l) {
             return Some(answer);
         }
@@ -2001,11 +1995,13 @@ fn minimise(
 /// (on smaller contacts Newton's steps are cheap, and it runs as before).
 const SPLIT_UNKNOWNS: usize = 3 * 150;
 
-/// Newton steps of a warm frictional solve before it splits (none where the same points
-/// split in the solve before, whose factor is kept). `tacrom/GripperLift-v1` on the
-/// linear gel (100 steps of the grasp cycle, one thread; steps/s): split after 0 steps
-/// 6.7, after 1 6.7, after 3 5.9; at once where the same points split before, 7.6 and
-/// 7.7 against 8.2 and 8.0. One step finishes a grasp held still.
+/// Newton steps of a warm frictional solve before it splits. `tacrom/GripperLift-v1` on
+/// the linear gel (100 steps of the grasp cycle, one thread; steps/s): split after 0
+/// steps 6.7, after 1 6.7, after 3 5.9. One step finishes a grasp held still. (Splitting
+/// at once where the same points split in the solve before, whose factor is kept, ran
+/// 8.2 and 8.0 against 7.6 and 7.7, but made the path depend on what the kept factors
+/// hold, which MuJoCo's state does not carry: a restored state would not replay its
+/// frames bit for bit.)
 const SPLIT_AFTER: usize = 1;
 
 /// Iterations at most of [`split_start`]; the residual (relative to the points'

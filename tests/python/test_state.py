@@ -201,6 +201,33 @@ def test_a_restored_state_replays_the_original_bit_for_bit(physics, config):
         assert_same(fresh, evaluate(m, d, rest[0]), "a fresh gel's state")
 
 
+# A 24 mm box face (400 node columns under it) pressed 0.4 mm and then shaken by microns, as
+# a grasp held in MuJoCo: the linear solver's frictional solves of these frames are split
+# before Newton's method finishes them (see `a_shaken_grasp_splits_to_newtons_answer`).
+FACE = '<geom type="box" size="0.012 0.012 0.005" contype="0" conaffinity="0"/>'
+SHAKEN = [(0, 0, 0.2e-3), (0, 0, 0.4e-3), (3e-6, 1e-6, 0.401e-3), (-2e-6, 2e-6, 0.399e-3),
+          (1e-6, -3e-6, 0.4e-3), (2e-6, 1e-6, 0.4005e-3), (0, 0, 0.3e-3)]
+
+
+def test_a_restored_state_replays_a_shaken_grasp_on_the_linear_gel_bit_for_bit():
+    """Catches: a path through the linear solver's frictional solve that depends on what
+    MuJoCo's state does not carry (its kept factors, for one). The state taken after three
+    frames of the shaken face; a new MjData given it replays the next four frames equal to
+    the last bit."""
+    m = model(physics="coarse", outputs="depth force", geom=FACE, lift=0.005,
+              solver="linear")
+    d = mujoco.MjData(m)
+    for pose in SHAKEN[:3]:
+        evaluate(m, d, pose)
+    saved = get_state(m, d)
+    original = [evaluate(m, d, pose) for pose in SHAKEN[3:]]
+    assert original[0]["force"][2] > 0
+    restored = mujoco.MjData(m)
+    mujoco.mj_setState(m, restored, saved, STATE)
+    for i, pose in enumerate(SHAKEN[3:]):
+        assert_same(original[i], evaluate(m, restored, pose), f"restored, frame {i}")
+
+
 def test_a_state_that_does_not_fit_the_sensor_restarts_the_gel_with_a_warning(capfd):
     """Catches: a crash or a NaN from a state that is not this sensor's (numbers written by
     hand, another model's). Its plugin part overwritten with a list length beyond its

@@ -1992,7 +1992,10 @@ fn minimise(
 /// Unknowns (three per node column) from which a warm frictional solve that Newton's
 /// method does not finish in [`SPLIT_AFTER`] steps is split ([`split_start`]): about 150
 /// node columns, where a Newton step's dense factorisation costs about a millisecond
-/// (on smaller contacts Newton's steps are cheap, and it runs as before).
+/// (on smaller contacts Newton's steps are cheap, and it runs as before). From 40
+/// columns instead: `tacrom/GripperLift-v1` 6.9 / 6.8 -> 7.3 / 7.1 steps/s (its pad on the
+/// object's narrow side splits too), but `tacrom/Press-v1`'s sliding sphere 402 / 395 ->
+/// 347 / 343 (coarse on the linear gel, one thread).
 const SPLIT_UNKNOWNS: usize = 3 * 150;
 
 /// Newton steps of a warm frictional solve before it splits. `tacrom/GripperLift-v1` on

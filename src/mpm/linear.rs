@@ -1521,10 +1521,11 @@ fn spd_inverse(a: &DMatrix<f64>) -> Option<DMatrix<f64>> {
 }
 
 /// Overwrites the lower triangle of the symmetric positive definite `a` with its
-/// Cholesky factor (faer, in the calling thread's pool); `None` if it is not positive definite.
-fn cholesky(a: &mut DMatrix<f64>) -> Option<()> {
+/// Cholesky factor (faer, in the calling thread's pool; in double or single precision);
+/// `None` if it is not positive definite.
+fn cholesky<T: faer::traits::RealField + nalgebra::Scalar>(a: &mut DMatrix<T>) -> Option<()> {
     let n = a.nrows();
-    let mut mem = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f64>(
+    let mut mem = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<T>(
         n,
         par(),
         Default::default(),
@@ -1557,39 +1558,11 @@ fn product(a: &DMatrix<f64>, x: &DVector<f64>) -> DVector<f64> {
     out
 }
 
-/// Solves `a x = b` in place, `a` overwritten by [`cholesky`].
-fn cholesky_solve(a: &DMatrix<f64>, b: &mut DVector<f64>) {
-    let n = a.nrows();
-    llt::solve::solve_in_place_with_conj(
-        MatRef::from_column_major_slice(a.as_slice(), n, n),
-        Conj::No,
-        MatMut::from_column_major_slice_mut(b.as_mut_slice(), n, 1),
-        Par::Seq,
-        MemStack::new(&mut MemBuffer::new(StackReq::EMPTY)),
-    );
-}
-
-/// [`cholesky`] in single precision.
-fn cholesky_f32(a: &mut DMatrix<f32>) -> Option<()> {
-    let n = a.nrows();
-    let mut mem = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<f32>(
-        n,
-        par(),
-        Default::default(),
-    ));
-    llt::factor::cholesky_in_place(
-        MatMut::from_column_major_slice_mut(a.as_mut_slice(), n, n),
-        Default::default(),
-        par(),
-        MemStack::new(&mut mem),
-        Default::default(),
-    )
-    .ok()
-    .map(|_| ())
-}
-
-/// [`cholesky_solve`] in single precision.
-fn cholesky_solve_f32(a: &DMatrix<f32>, b: &mut DVector<f32>) {
+/// Solves `a x = b` in place, `a` overwritten by [`cholesky`] (either precision).
+fn cholesky_solve<T: faer::traits::RealField + nalgebra::Scalar>(
+    a: &DMatrix<T>,
+    b: &mut DVector<T>,
+) {
     let n = a.nrows();
     llt::solve::solve_in_place_with_conj(
         MatRef::from_column_major_slice(a.as_slice(), n, n),
@@ -1629,10 +1602,10 @@ impl Problem<'_> {
             // In single precision, with one step of refinement in double
             // ([`MIXED_UNKNOWNS`]).
             let mut low = system.map(|x| x as f32);
-            cholesky_f32(&mut low)?;
+            cholesky(&mut low)?;
             let solve = |b: &DVector<f64>| {
                 let mut x = b.map(|x| x as f32);
-                cholesky_solve_f32(&low, &mut x);
+                cholesky_solve(&low, &mut x);
                 x.map(f64::from)
             };
             let first = solve(&z);
@@ -1944,18 +1917,7 @@ fn minimise(
         }
         (at, out, e)
     };
-    let loads = |f: &[Vector3<f64>]| -> DVector<f64> {
-        let mut out = DVector::zeros(k);
-        for (row, f) in w.iter().zip(f) {
-            for &(c, wt) in row {
-                let c = 3 * c as usize;
-                for j in 0..3 {
-                    out[c + j] += wt * f[j];
-                }
-            }
-        }
-        out
-    };
+    let loads = |f: &[Vector3<f64>]| on_columns(w, f, k);
     let (mut s, mut f, mut e) = evaluate(l);
     for it in 0..budget {
         let wf = loads(&f);
@@ -2040,6 +2002,34 @@ fn minimise(
     None
 }
 
+/// The points' displacements `W v` from the columns' (three per column, rows `w`).
+fn at_points(w: &[Columns], v: &DVector<f64>) -> Vec<Vector3<f64>> {
+    w.iter()
+        .map(|row| {
+            let mut s = Vector3::zeros();
+            for &(c, wt) in row {
+                let c = 3 * c as usize;
+                s += Vector3::new(v[c], v[c + 1], v[c + 2]) * wt;
+            }
+            s
+        })
+        .collect()
+}
+
+/// The columns' loads `W^T f` (`k` unknowns) from the points' forces.
+fn on_columns(w: &[Columns], f: &[Vector3<f64>], k: usize) -> DVector<f64> {
+    let mut out = DVector::zeros(k);
+    for (row, f) in w.iter().zip(f) {
+        for &(c, wt) in row {
+            let c = 3 * c as usize;
+            for j in 0..3 {
+                out[c + j] += wt * f[j];
+            }
+        }
+    }
+    out
+}
+
 /// Unknowns (three per node column) from which a warm frictional solve that Newton's
 /// method does not finish in [`SPLIT_AFTER`] steps is split ([`split_start`]): about 150
 /// node columns, where a Newton step's dense factorisation costs about a millisecond
@@ -2108,30 +2098,8 @@ fn split_start(
     let Friction { caps, anchors, .. } = *friction;
     let k = g.nrows();
     let n = w.len();
-    let project = |v: &DVector<f64>| -> Vec<Vector3<f64>> {
-        w.iter()
-            .map(|row| {
-                let mut s = Vector3::zeros();
-                for &(c, wt) in row {
-                    let c = 3 * c as usize;
-                    s += Vector3::new(v[c], v[c + 1], v[c + 2]) * wt;
-                }
-                s
-            })
-            .collect()
-    };
-    let spread = |z: &[Vector3<f64>]| -> DVector<f64> {
-        let mut out = DVector::zeros(k);
-        for (row, z) in w.iter().zip(z) {
-            for &(c, wt) in row {
-                let c = 3 * c as usize;
-                for j in 0..3 {
-                    out[c + j] += wt * z[j];
-                }
-            }
-        }
-        out
-    };
+    let project = |v: &DVector<f64>| at_points(w, v);
+    let spread = |z: &[Vector3<f64>]| on_columns(w, z, k);
     // The springs' stiffness: about the gel's own at a point (its columns' stiffness
     // shared among the points on them).
     let mut weight = vec![0.0; k / 3];
@@ -2219,7 +2187,7 @@ fn split_start(
         // error is a fraction of the change, not of the displacements (a start at the
         // answer stays there).
         let mut rhs = (spread(&target) * rho - &base).map(|x| x as f32);
-        cholesky_solve_f32(system, &mut rhs);
+        cholesky_solve(system, &mut rhs);
         v = &start + rhs.map(f64::from);
         let s = project(&v);
         let mut primal: f64 = 0.0;

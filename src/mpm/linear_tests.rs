@@ -67,6 +67,38 @@ impl Noise {
         let delta: Vec<f64> = (0..m).map(|_| self.next()).collect();
         (g, rows, delta)
     }
+
+    /// A random frictional contact problem: [`Noise::problem`] with three loads on each of
+    /// `k` columns and `m` points, and the points' contact compliances, caps and anchors.
+    fn friction_problem(&mut self, k: usize, m: usize) -> FrictionProblem {
+        let (g, rows, delta) = self.problem(3 * k, k, m);
+        let eps = (0..m).map(|_| 0.02 + 0.01 * self.next()).collect();
+        let caps = (0..m).map(|_| (self.next() + 1.0) * 0.5).collect();
+        let anchors = (0..m)
+            .map(|_| Vector2::new(self.next(), self.next()) * 0.3)
+            .collect();
+        let inverse = spd_inverse(&g).expect("positive definite");
+        FrictionProblem {
+            g,
+            inverse,
+            rows,
+            delta,
+            eps,
+            caps,
+            anchors,
+        }
+    }
+}
+
+/// The data of a random frictional contact problem ([`Noise::friction_problem`]).
+struct FrictionProblem {
+    g: DMatrix<f64>,
+    inverse: DMatrix<f64>,
+    rows: Vec<Columns>,
+    delta: Vec<f64>,
+    eps: Vec<f64>,
+    caps: Vec<f64>,
+    anchors: Vec<Vector2<f64>>,
 }
 
 /// On random problems with up to 40 points on up to 12 columns (more points than columns,
@@ -479,13 +511,15 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
     for trial in 0..40 {
         let k = 1 + trial % 8;
         let m = 1 + (trial * 7) % 30;
-        let (g, rows, delta) = noise.problem(3 * k, k, m);
-        let eps: Vec<f64> = (0..m).map(|_| 0.02 + 0.01 * noise.next()).collect();
-        let caps: Vec<f64> = (0..m).map(|_| (noise.next() + 1.0) * 0.5).collect();
-        let anchors: Vec<Vector2<f64>> = (0..m)
-            .map(|_| Vector2::new(noise.next(), noise.next()) * 0.3)
-            .collect();
-        let inverse = spd_inverse(&g).expect("positive definite");
+        let FrictionProblem {
+            g,
+            inverse,
+            rows,
+            delta,
+            eps,
+            caps,
+            anchors,
+        } = noise.friction_problem(k, m);
         let problem = Problem {
             g: &g,
             inverse: &inverse,
@@ -571,13 +605,15 @@ fn splitting_first_finds_newtons_minimum() {
     for trial in 0..40 {
         let k = 1 + trial % 8;
         let m = 1 + (trial * 11) % 30;
-        let (g, rows, delta) = noise.problem(3 * k, k, m);
-        let eps: Vec<f64> = (0..m).map(|_| 0.02 + 0.01 * noise.next()).collect();
-        let caps: Vec<f64> = (0..m).map(|_| (noise.next() + 1.0) * 0.5).collect();
-        let anchors: Vec<Vector2<f64>> = (0..m)
-            .map(|_| Vector2::new(noise.next(), noise.next()) * 0.3)
-            .collect();
-        let inverse = spd_inverse(&g).expect("positive definite");
+        let FrictionProblem {
+            g,
+            inverse,
+            rows,
+            delta,
+            eps,
+            caps,
+            anchors,
+        } = noise.friction_problem(k, m);
         let problem = Problem {
             g: &g,
             inverse: &inverse,

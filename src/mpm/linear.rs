@@ -1895,25 +1895,14 @@ fn minimise(
     let evaluate = |l: &DVector<f64>| -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>, f64) {
         let v = product(g, l);
         let mut e = 0.5 * l.dot(&v);
-        let mut at = Vec::with_capacity(w.len());
+        let at = at_points(w, &v);
         let mut out = Vec::with_capacity(w.len());
-        for (i, row) in w.iter().enumerate() {
-            let mut s = Vector3::zeros();
-            for &(c, wt) in row {
-                let c = 3 * c as usize;
-                s += Vector3::new(v[c], v[c + 1], v[c + 2]) * wt;
-            }
-            let f = ((delta[i] - s.z) / eps[i]).max(0.0);
-            e += 0.5 * eps[i] * f * f;
-            let mut t = Vector2::zeros();
-            if caps[i] > 0.0 {
-                let d = s.xy() - anchors[i];
-                let y = d.norm();
-                e += caps[i] * smooth_slip(y, radius);
-                t = -d * (caps[i] / y.max(radius));
-            }
-            at.push(s);
-            out.push(Vector3::new(t.x, t.y, f));
+        for (i, s) in at.iter().enumerate() {
+            let (f, pressed, slipped) =
+                point_force(s, delta[i], eps[i], caps[i], &anchors[i], radius);
+            e += pressed;
+            e += slipped;
+            out.push(f);
         }
         (at, out, e)
     };
@@ -2014,6 +2003,29 @@ fn at_points(w: &[Columns], v: &DVector<f64>) -> Vec<Vector3<f64>> {
             s
         })
         .collect()
+}
+
+/// A point's force on the gel (+x, +y, downward) at displacement `s` (+x, +y, sinking)
+/// in [`minimise`]'s problem (depth `delta`, contact compliance `eps`, friction's `cap`
+/// and `anchor`, stick radius `radius`), and its penalty's and friction's energies.
+fn point_force(
+    s: &Vector3<f64>,
+    delta: f64,
+    eps: f64,
+    cap: f64,
+    anchor: &Vector2<f64>,
+    radius: f64,
+) -> (Vector3<f64>, f64, f64) {
+    let f = ((delta - s.z) / eps).max(0.0);
+    let mut t = Vector2::zeros();
+    let mut slipped = 0.0;
+    if cap > 0.0 {
+        let d = s.xy() - anchor;
+        let y = d.norm();
+        slipped = cap * smooth_slip(y, radius);
+        t = -d * (cap / y.max(radius));
+    }
+    (Vector3::new(t.x, t.y, f), 0.5 * eps * f * f, slipped)
 }
 
 /// The columns' loads `W^T f` (`k` unknowns) from the points' forces.
@@ -2165,17 +2177,7 @@ fn split_start(
     let mut v = start.clone();
     let mut z = project(&v);
     let mut u: Vec<Vector3<f64>> = (0..n)
-        .map(|i| {
-            let s = z[i];
-            let mut f = Vector3::new(0.0, 0.0, ((delta[i] - s.z) / eps[i]).max(0.0));
-            if caps[i] > 0.0 {
-                let d = s.xy() - anchors[i];
-                let t = -d * (caps[i] / d.norm().max(radius));
-                f.x = t.x;
-                f.y = t.y;
-            }
-            -f / rho
-        })
+        .map(|i| -point_force(&z[i], delta[i], eps[i], caps[i], &anchors[i], radius).0 / rho)
         .collect();
     // `(G^-1 + rho W^T W) v0`.
     let base = &*l + spread(&z) * rho;

@@ -126,7 +126,13 @@ fn main() {
             Some("linear"),
             if quick { 5 } else { 20 },
         ),
-        ("rom", "rom", None, if quick { 5 } else { 20 }),
+        (
+            "rom-relaxation",
+            "rom",
+            Some("relaxation"),
+            if quick { 5 } else { 20 },
+        ),
+        // `physics="rom"`'s default.
         (
             "rom-linear",
             "rom",

@@ -7,8 +7,9 @@ mode leaves them out.
     .venv/bin/python examples/demo.py --out out/demo --physics rigid coarse
     .venv/bin/python examples/demo.py --outputs depth      # depth images only
 
-A mode ending in ``-linear`` (``coarse-linear``, ``rom-linear``) is that mode with
-``solver="linear"``: the small-strain gel, and for rom the model shipped for it.
+A solver after a dash names the gel's solver: ``coarse-linear`` is the coarse mode with
+``solver="linear"`` (the small-strain gel, on which ``rom`` runs by default);
+``rom-relaxation`` is rom on the relaxation's gel with the model shipped for it.
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ HERE = pathlib.Path(__file__).resolve().parent
 
 def model_for(physics: str, outputs: list, xml_path: pathlib.Path) -> mujoco.MjModel:
     xml = xml_path.read_text()
-    base = physics.removesuffix("-linear")
-    solver = '<config key="solver" value="linear"/>' if base != physics else ""
+    base, _, solver = physics.partition("-")
+    solver = f'<config key="solver" value="{solver}"/>' if solver else ""
     xml = re.sub(
         r'<config key="physics" value="[^"]*"/>',
         f'<config key="physics" value="{base}"/>{solver}',

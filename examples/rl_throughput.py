@@ -48,11 +48,14 @@ def action(env_id: str, step: int, rng: np.random.Generator, policy: str) -> np.
 
 def make(env_id: str, physics: str, resolution, threads: int = 1):
     """A picklable maker of the environment: ``tacrom.envs:`` in the id makes Gymnasium
-    import (and so register) tacrom in a fresh worker process. ``coarse-linear`` is the
-    coarse gel with ``solver="linear"``; ``threads`` the sensors' own threads."""
+    import (and so register) tacrom in a fresh worker process. A solver after a dash names
+    the gel's solver (``coarse-linear``: the coarse gel with ``solver="linear"``;
+    ``rom-relaxation``: rom on the relaxation's model); ``threads`` the sensors' own
+    threads."""
     config = {"threads": threads} if threads != 1 else {}
-    if physics.endswith("-linear"):
-        physics, config = physics.removesuffix("-linear"), {**config, "solver": "linear"}
+    physics, _, solver = physics.partition("-")
+    if solver:
+        config = {**config, "solver": solver}
     kwargs = {"physics": physics, "sensor_config": config} if config else {"physics": physics}
     if resolution:
         kwargs["resolution"] = tuple(resolution)
@@ -100,7 +103,8 @@ def main() -> None:
         "--physics",
         nargs="+",
         default=["rigid", "coarse", "rom"],
-        help="modes: rigid, coarse, rom, fine, or coarse-linear (coarse with solver=linear)",
+        help="modes: rigid, coarse, rom, fine, or MODE-SOLVER (coarse-linear: coarse with "
+        "solver=linear; rom-relaxation: rom with solver=relaxation)",
     )
     parser.add_argument("--procs", nargs="+", type=int, default=[1, 2])
     parser.add_argument(

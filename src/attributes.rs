@@ -342,7 +342,8 @@ pub const MODEL: Attribute = Attribute {
     meaning: "directory of the reduced-order model (`rom`)",
     unit: "",
     default: Default::Depends(
-        "the shipped `models/rom-default` (`models/rom-linear` with `solver=\"linear\"`)",
+        "the shipped `models/rom-linear` on the linear solver (the default), \
+         `models/rom-default` with `solver=\"relaxation\"`",
     ),
     valid: Valid::Described("a directory with a `manifest.json` that serves this gel"),
 };
@@ -456,7 +457,8 @@ pub const SOLVER: Attribute = Attribute {
     unit: "",
     default: Default::Depends(
         "chosen from the gel (`newton` from Poisson 0.49, `relaxation` below it with \
-         `linear` for contacts it misses; `rom`: the model's recipe)",
+         `linear` for contacts it misses; `rom` with its shipped models: `linear`, with a \
+         model of your own: as for `coarse`, name the one its recipe needs)",
     ),
     valid: Valid::Words {
         words: &["relaxation", "newton", "total", "linear"],

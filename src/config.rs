@@ -286,8 +286,13 @@ impl Config {
 
     /// The gel's solver on a grid of spacing `dx` (m) and why ([`crate::mpm::choice`]).
     pub fn choice(&self, dx: f64) -> Choice {
-        let small_contacts = matches!(self.physics, Physics::Coarse | Physics::Rom);
-        crate::mpm::choose(&self.gel_params(dx), self.solver, small_contacts)
+        use crate::mpm::Role;
+        let role = match self.physics {
+            Physics::Rom if self.model.is_none() => Role::ShippedRom,
+            Physics::Coarse | Physics::Rom => Role::Coarse,
+            Physics::Rigid | Physics::Fine => Role::Reference,
+        };
+        crate::mpm::choose(&self.gel_params(dx), self.solver, role)
     }
 
     /// The fingerprint of the sources this configuration's results depend on: the
@@ -1044,7 +1049,8 @@ mod tests {
             ..GelParams::default()
         };
         for dx in [1.4e-3, 0.7e-3, 0.5e-3, 0.3e-3] {
-            let auto = |g: &GelParams| crate::mpm::choose(g, None, false).solver;
+            let auto =
+                |g: &GelParams| crate::mpm::choose(g, None, crate::mpm::Role::Reference).solver;
             assert_eq!(auto(&gel(0.43, dx)), Solver::Relaxation);
             assert_eq!(auto(&gel(0.48, dx)), Solver::Relaxation);
             assert_eq!(auto(&gel(0.49, dx)), Solver::Newton);

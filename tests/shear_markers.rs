@@ -12,6 +12,7 @@ use std::sync::{Arc, OnceLock};
 use nalgebra::Isometry3;
 use tacrom::config::{
     Config, RawConfig, ATTR_FRICTION, ATTR_MARKERS, ATTR_OUTPUTS, ATTR_PHYSICS, ATTR_RESOLUTION,
+    ATTR_SOLVER,
 };
 use tacrom::geometry::{Placed, Sdf, Sphere};
 use tacrom::mpm::{Gel, SolverOptions};
@@ -318,15 +319,20 @@ fn markers_rest_and_shear_vanishes_without_contact() {
 }
 
 // `rom` restores depth only: its shear and markers are its coarse gel's, the same as a
-// coarse sensor's on the same gel and frames.
+// coarse sensor's on the same gel and frames: the linear gel for the default, the
+// relaxation's for `solver="relaxation"`.
 #[test]
 fn rom_takes_shear_and_markers_from_its_coarse_gel() {
     let frames = slide(0.5e-3, 0.15e-3, 2);
-    let rom = Run::new(config("rom", "depth shear markers", &[])).frames(&frames);
-    let coarse = Run::new(config("coarse", "depth shear markers", &[])).frames(&frames);
-    assert_eq!(rom.output("shear"), coarse.output("shear"));
-    assert_eq!(rom.output("markers"), coarse.output("markers"));
-    assert_ne!(rom.output("depth"), coarse.output("depth"));
+    for (rom, coarse) in [(None, "linear"), (Some("relaxation"), "relaxation")] {
+        let rom: Vec<_> = rom.map(|s| (ATTR_SOLVER, s)).into_iter().collect();
+        let rom = Run::new(config("rom", "depth shear markers", &rom)).frames(&frames);
+        let coarse = [(ATTR_SOLVER, coarse)];
+        let coarse = Run::new(config("coarse", "depth shear markers", &coarse)).frames(&frames);
+        assert_eq!(rom.output("shear"), coarse.output("shear"));
+        assert_eq!(rom.output("markers"), coarse.output("markers"));
+        assert_ne!(rom.output("depth"), coarse.output("depth"));
+    }
 }
 
 // Rigid penetration has no gel displacement: asking it for shear or markers fails at load,

@@ -7,7 +7,8 @@
 //! measurements behind it in the constants' docs and in `docs/solvers.md`, "Which solver a
 //! gel gets".
 //!
-//! In short: a configuration that names a solver gets it; otherwise Newton's method from
+//! In short: a configuration that names a solver gets it; `rom` with its shipped models
+//! runs the linear solver wherever it factors; otherwise Newton's method from
 //! Poisson's ratio [`AUTO_NEWTON_POISSON`] on (where the relaxation stops at its iteration
 //! cap), dynamic relaxation below it; for `coarse` and `rom`, a frame whose contact the
 //! relaxation's surface points miss is solved by the linear solver (Newton's method on a
@@ -53,6 +54,23 @@ pub const MISSED_FRACTION: f64 = 0.05;
 /// to 1.98 times Hertz's force.
 pub const UNRESOLVED_POINTS: usize = 4;
 
+/// What a sensor's physics asks of its gel's solver when the configuration names none.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// A reference (`fine`): the automatic rule alone.
+    Reference,
+    /// `coarse`, and `rom` with a model of the user's (its recipe names the solver it
+    /// needs): the automatic rule with the per-frame fallback for small contacts.
+    Coarse,
+    /// `rom` with the shipped models: the linear gel (`models/rom-linear`) where it
+    /// factors; `models/rom-default` on the relaxation elsewhere. The linear gel's rom is
+    /// the most accurate mode of the full profile (depth 3.66 against 3.91 um, SSIM 0.9563
+    /// against 0.9534, shapes outside the training families 2.05 against 2.08 um, their
+    /// median force error 5.4 against 7.5 %) and the faster in both environments
+    /// (`docs/solvers.md`, "Which solver a gel gets").
+    ShippedRom,
+}
+
 /// A gel's solver and why it runs it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Choice {
@@ -85,16 +103,31 @@ impl std::fmt::Display for Choice {
 /// (a 1 mm press at 0.4 mm: 104.7 against 64.0 s); the benchmark's sequence of presses at
 /// 0.3 mm takes them the same time (363.5 against 378.4 s), at 9 times the memory
 /// (2.6 against 0.29 GB). See `docs/solvers.md`, "Which solver a gel gets".
-/// `named` is the solver a configuration names, if any; `small_contacts` asks for the
-/// per-frame fallback where the automatic rule picks the relaxation's family (the
-/// sensor's `coarse` and `rom`).
-pub fn choose(params: &GelParams, named: Option<Solver>, small_contacts: bool) -> Choice {
+/// `named` is the solver a configuration names, if any; `role` is what the sensor's
+/// physics asks of the gel ([`Role`]): the per-frame fallback where the automatic rule
+/// picks the relaxation's family (the sensor's `coarse` and `rom`), and for `rom` with
+/// its shipped models the linear gel wherever it factors ([`linear_fits`]) and the
+/// relaxation does not need Newton's method.
+pub fn choose(params: &GelParams, named: Option<Solver>, role: Role) -> Choice {
+    let small_contacts = role != Role::Reference;
     match named {
         Some(solver) => Choice {
             solver,
             fallback: false,
             why: "named by the configuration",
         },
+        None if role == Role::ShippedRom
+            && params.poisson < AUTO_NEWTON_POISSON
+            && linear_fits(params) =>
+        {
+            Choice {
+                solver: Solver::Linear,
+                fallback: false,
+                why: "rom's default: the linear gel where it factors, read by the shipped model \
+                      trained on it (the full profile's most accurate mode, and the fastest \
+                      in Press-v1 and GripperLift-v1)",
+            }
+        }
         None if params.poisson >= AUTO_NEWTON_POISSON => Choice {
             solver: Solver::Newton,
             fallback: small_contacts,

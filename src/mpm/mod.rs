@@ -107,8 +107,8 @@ use std::sync::Arc;
 use crate::geometry::{PixelGrid, Placed, Sdf};
 
 pub use choice::{
-    choose, Choice, AUTO_NEWTON_POISSON, COARSE_START_UNKNOWNS, LINEAR_UNKNOWNS, MISSED_FRACTION,
-    MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,
+    choose, Choice, Role, AUTO_NEWTON_POISSON, COARSE_START_UNKNOWNS, LINEAR_UNKNOWNS,
+    MISSED_FRACTION, MULTIGRID_UNKNOWNS, UNRESOLVED_POINTS,
 };
 use contact::{ActiveContact, SlotContact, StepIndenter};
 use indenters::{match_indenters, Sweep};

@@ -162,10 +162,11 @@ impl VolumeFactor {
 
 /// Format tag of the manifests this build reads.
 pub const FORMAT: &str = "tacrom-rom-1";
-/// Name of the shipped model's directory under `models/`: the one for the default coarse
-/// solve (the relaxation).
+/// Name of the shipped model's directory under `models/` for the relaxation's coarse
+/// solve (`solver="relaxation"`; the default before the linear gel's model became it).
 pub const DEFAULT_MODEL: &str = "rom-default";
-/// Name of the shipped model for the linear solver's coarse solve (`solver="linear"`).
+/// Name of the shipped model for the linear solver's coarse solve: `physics="rom"`'s
+/// default ([`crate::mpm::Role::ShippedRom`]).
 pub const LINEAR_MODEL: &str = "rom-linear";
 
 /// The shipped model (its directory's name under `models/`) trained on the coarse solve of

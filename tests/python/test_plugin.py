@@ -276,7 +276,8 @@ def test_attribute_table_names_every_attribute_and_its_defaults_apply(press_xml)
 
 def test_layout_names_the_gels_solver_and_why(press_xml):
     """The layout says which solver the plugin chose for the gel and the rule that chose it:
-    the automatic rule below and above Poisson 0.49, a named solver as named, none for rigid."""
+    the automatic rule below and above Poisson 0.49, a named solver as named, none for rigid,
+    the linear gel for rom's shipped models."""
     def solver(**config):
         model = mujoco.MjModel.from_xml_string(with_config(press_xml, outputs="depth", **config))
         return tacrom.layout(model, "touch")["solver"]
@@ -289,3 +290,9 @@ def test_layout_names_the_gels_solver_and_why(press_xml):
     named = solver(physics="coarse", solver="linear")
     assert named == {"name": "linear", "fallback": False, "why": "named by the configuration"}
     assert solver(physics="rigid") is None
+    # rom's default: the linear gel read by its own shipped model; the relaxation's rom
+    # when named.
+    rom = solver(physics="rom")
+    assert rom["name"] == "linear" and rom["fallback"] is False
+    assert "rom's default" in rom["why"]
+    assert solver(physics="rom", solver="relaxation")["name"] == "relaxation"

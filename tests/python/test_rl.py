@@ -60,6 +60,15 @@ def test_seeded_resets_give_identical_first_observations(env_id):
             assert np.array_equal(steps[0][0][key], steps[1][0][key]), key
 
 
+def test_press_defaults_to_the_sensors_default_physics():
+    """Press-v1 runs the sensor's default physics (rom, on the linear gel); GripperLift-v1
+    stays rigid by default (a grasp costs a gel far more per step: docs/rl.md)."""
+    press = gym.make("tacrom/Press-v1").unwrapped
+    assert press.physics == "rom" == tacrom.attribute_default("physics")
+    assert tacrom.layout(press.model, "touch")["solver"]["name"] == "linear"
+    assert gym.make("tacrom/GripperLift-v1").unwrapped.physics == "rigid"
+
+
 def test_seeds_choose_the_episode():
     env = gym.make("tacrom/GripperLift-v1")
     objects = {env.reset(seed=s)[1]["object"] for s in range(12)}

@@ -101,8 +101,8 @@ def test_the_wheel_holds_the_library_the_model_and_the_package(wheel):
 
 
 # Run in the fresh environment, from a folder outside the checkout: the press scene pressed
-# 0.8 mm (rigid, then rom with the wheel's models: "rom" the default solver's, "rom:linear"
-# the linear solver's), and the gripper environment from the wheel's scene.
+# 0.8 mm (rigid, then rom with the wheel's models: "rom" the default, the linear gel's,
+# "rom:relaxation" the relaxation's), and the gripper environment from the wheel's scene.
 SCRIPT = textwrap.dedent(
     """
     import json, pathlib, sys
@@ -193,18 +193,18 @@ def test_the_installed_wheel_presses_from_outside_the_checkout(wheel, tmp_path):
 
     outside = tmp_path / "elsewhere"
     outside.mkdir()
-    result = run_outside(python, outside, "rigid,rom,rom:linear", "gripper")
+    result = run_outside(python, outside, "rigid,rom,rom:relaxation", "gripper")
     installed = venv.resolve()
     assert pathlib.Path(result["tacrom"]).resolve().is_relative_to(installed), result
     assert pathlib.Path(result["library"]).resolve().is_relative_to(installed), result
     assert pathlib.Path(result["gripper_scene"]).resolve().is_relative_to(installed), result
-    assert result["rigid"] > 5e-4 and result["rom"] > 5e-4 and result["rom:linear"] > 5e-4, result
+    assert result["rigid"] > 5e-4 and result["rom"] > 5e-4 and result["rom:relaxation"] > 5e-4, result
     assert result["gripper_depth"] > 3e-4, result
 
     # The library reads the model inside the installed package (not the checkout's): with
-    # that copy broken, rom fails to load.
+    # that copy of rom's default (the linear gel's model) broken, rom fails to load.
     site = pathlib.Path(result["tacrom"]).parent
-    manifest = site / "models" / "rom-default" / "manifest.json"
+    manifest = site / "models" / "rom-linear" / "manifest.json"
     manifest.write_text("{}")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "TACROM_PLUGIN")}
     broken = subprocess.run(

@@ -304,9 +304,12 @@ pub struct StabilityArgs {
     /// MPM grid spacing [the mode's default].
     #[arg(long, value_name = "MM", value_parser = positive_mm)]
     pub dx: Option<f64>,
-    /// Equilibrium solver of the gel modes [relaxation].
+    /// Equilibrium solver of the gel modes [the gel's own choice].
     #[arg(long, value_name = "NAME", value_parser = solver_name)]
     pub solver: Option<tacrom::mpm::Solver>,
+    /// Reduced-order model directory of `rom` [the shipped one for its solver].
+    #[arg(long, value_name = "DIR")]
+    pub model: Option<std::path::PathBuf>,
 }
 
 /// The part of `tacrom mpm` to run.

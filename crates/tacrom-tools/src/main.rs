@@ -472,12 +472,15 @@ fn stability(a: StabilityArgs) -> Result<(), BenchError> {
         if let Some(solver) = a.solver {
             raw = raw.with("solver", solver.name());
         }
+        if let Some(model) = &a.model {
+            raw = raw.with("model", &model.display().to_string());
+        }
         Config::from_raw("stability", &raw).map_err(|e| BenchError::Config(e.to_string()))?;
         let rows: Vec<_> = cases
             .iter()
             .map(|case| {
                 progress.message(format!("{mode}: {}", case.name));
-                let row = tacrom_tools::stability::run_case(case, mode, dx, a.solver);
+                let row = tacrom_tools::stability::run_case(case, &raw);
                 progress.advance(1);
                 progress.line(&format!(
                     "  {mode}: {} {}",

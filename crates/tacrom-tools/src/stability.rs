@@ -302,23 +302,13 @@ pub fn cases(patterns: Option<&std::path::Path>) -> Result<Vec<Case>, String> {
     Ok(cases)
 }
 
-/// Runs `case` in `physics` mode (with `dx` and `solver` if given) and checks every
-/// frame.
-pub fn run_case(
-    case: &Case,
-    physics: &str,
-    dx: Option<f64>,
-    solver: Option<tacrom::mpm::Solver>,
-) -> Row {
-    let mut raw = RawConfig::default()
-        .with("physics", physics)
-        .with("resolution", RES);
-    if let Some(dx) = dx {
-        raw = raw.with("dx", &dx.to_string());
-    }
-    if let Some(solver) = solver {
-        raw = raw.with("solver", solver.name());
-    }
+/// Runs `case` on a sensor of the attributes `mode` (`physics`, and `dx`, `solver` or
+/// `model` where given) and checks every frame.
+pub fn run_case(case: &Case, mode: &RawConfig) -> Row {
+    let physics = mode
+        .get("physics")
+        .unwrap_or(tacrom::config::defaults::PHYSICS);
+    let mut raw = mode.clone().with("resolution", RES);
     for (a, v) in &case.config {
         raw = raw.with(a, v);
     }

@@ -91,13 +91,14 @@ class PressEnv(TactileEnv):
     centroid (m), NaN without contact. Episodes end by the time limit (50 steps when made
     with ``gymnasium.make``).
 
-    ``sensor_config``: further attributes of the sensor (``{"tolerance": "1e-2"}``;
-    docs/configuration.md).
+    ``physics``: the sensor's default, ``"rom"`` (on the linear gel, about 4 ms a step), or
+    ``"rigid"`` (no gel, a fraction of a millisecond) or ``"coarse"``. ``sensor_config``:
+    further attributes of the sensor (``{"tolerance": "1e-2"}``; docs/configuration.md).
     """
 
     def __init__(
         self,
-        physics: str = "rigid",
+        physics: str = "rom",
         resolution: tuple[int, int] = (64, 48),
         tactile_rgb: bool = False,
         render_mode: Optional[str] = None,

@@ -40,7 +40,7 @@ wheel: build
 	$(PY) python/build_wheel.py --out dist
 
 demo: build
-	$(PY) examples/demo.py --out out/demo --physics rigid coarse rom rom-relaxation
+	$(PY) examples/demo.py --out out/demo --physics rigid coarse rom rom-default
 	$(PY) examples/gripper.py --out out/gripper --physics rigid --resolution 64 48
 	$(PY) examples/rest.py --physics coarse --seconds 0.3
 

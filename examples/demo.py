@@ -7,9 +7,10 @@ mode leaves them out.
     .venv/bin/python examples/demo.py --out out/demo --physics rigid coarse
     .venv/bin/python examples/demo.py --outputs depth      # depth images only
 
-A solver after a dash names the gel's solver: ``coarse-linear`` is the coarse mode with
-``solver="linear"`` (the small-strain gel, on which ``rom`` runs by default);
-``rom-relaxation`` is rom on the relaxation's gel with the model shipped for it.
+A mode may name a solver or one of rom's shipped models after a dash (``examples/modes.py``):
+``coarse-linear`` is the coarse mode with ``solver="linear"`` (the small-strain gel, on
+which ``rom`` runs by default); ``rom-default`` is rom with ``model="rom-default"``, on the
+relaxation's gel, as ``physics="rom"`` ran before.
 """
 
 from __future__ import annotations
@@ -24,17 +25,20 @@ import mujoco
 import numpy as np
 
 import tacrom
+from modes import mode_config
 
 HERE = pathlib.Path(__file__).resolve().parent
 
 
 def model_for(physics: str, outputs: list, xml_path: pathlib.Path) -> mujoco.MjModel:
     xml = xml_path.read_text()
-    base, _, solver = physics.partition("-")
-    solver = f'<config key="solver" value="{solver}"/>' if solver else ""
+    config = mode_config(physics)
+    extra = "".join(
+        f'<config key="{k}" value="{v}"/>' for k, v in config.items() if k != "physics"
+    )
     xml = re.sub(
         r'<config key="physics" value="[^"]*"/>',
-        f'<config key="physics" value="{base}"/>{solver}',
+        f'<config key="physics" value="{config["physics"]}"/>{extra}',
         xml,
     )
     value = " ".join(outputs)

@@ -27,6 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 import tacrom  # noqa: F401  (registers the environments)
+from modes import mode_config
 
 GRIPPER_CYCLE = (
     [(0.0, -1.0, -1.0)] * 15
@@ -48,14 +49,14 @@ def action(env_id: str, step: int, rng: np.random.Generator, policy: str) -> np.
 
 def make(env_id: str, physics: str, resolution, threads: int = 1):
     """A picklable maker of the environment: ``tacrom.envs:`` in the id makes Gymnasium
-    import (and so register) tacrom in a fresh worker process. A solver after a dash names
-    the gel's solver (``coarse-linear``: the coarse gel with ``solver="linear"``;
-    ``rom-relaxation``: rom on the relaxation's model); ``threads`` the sensors' own
-    threads."""
+    import (and so register) tacrom in a fresh worker process. After a dash, a solver's
+    name names the gel's solver (``coarse-linear``: the coarse gel with
+    ``solver="linear"``), anything else rom's shipped model (``rom-default``:
+    ``model="rom-default"``, rom on the relaxation as it was before the linear gel);
+    ``threads`` the sensors' own threads."""
     config = {"threads": threads} if threads != 1 else {}
-    physics, _, solver = physics.partition("-")
-    if solver:
-        config = {**config, "solver": solver}
+    config.update(mode_config(physics))
+    physics = config.pop("physics")
     kwargs = {"physics": physics, "sensor_config": config} if config else {"physics": physics}
     if resolution:
         kwargs["resolution"] = tuple(resolution)
@@ -103,8 +104,8 @@ def main() -> None:
         "--physics",
         nargs="+",
         default=["rigid", "coarse", "rom"],
-        help="modes: rigid, coarse, rom, fine, or MODE-SOLVER (coarse-linear: coarse with "
-        "solver=linear; rom-relaxation: rom with solver=relaxation)",
+        help="modes: rigid, coarse, rom, fine, MODE-SOLVER (coarse-linear: coarse with "
+        "solver=linear) or rom-MODEL (rom-default: rom with model=rom-default)",
     )
     parser.add_argument("--procs", nargs="+", type=int, default=[1, 2])
     parser.add_argument(

@@ -342,10 +342,14 @@ pub const MODEL: Attribute = Attribute {
     meaning: "directory of the reduced-order model (`rom`)",
     unit: "",
     default: Default::Depends(
-        "the shipped `models/rom-linear` on the linear solver (the default), \
-         `models/rom-default` with `solver=\"relaxation\"`",
+        "the shipped `rom-linear`, on the linear solver (`rom-default`, the relaxation's, \
+         with `solver=\"relaxation\"`)",
     ),
-    valid: Valid::Described("a directory with a `manifest.json` that serves this gel"),
+    valid: Valid::Described(
+        "a directory with a `manifest.json` that serves this gel, or a shipped model's \
+         name: `rom-linear`, `rom-default` (the relaxation's, with the linear solver for \
+         contacts it misses: `physics=\"rom\"` as it was before the linear gel)",
+    ),
 };
 
 /// `refine`.

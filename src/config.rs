@@ -287,8 +287,12 @@ impl Config {
     /// The gel's solver on a grid of spacing `dx` (m) and why ([`crate::mpm::choice`]).
     pub fn choice(&self, dx: f64) -> Choice {
         use crate::mpm::Role;
+        // rom's own default model, unnamed or named by its shipped name.
+        let linear_model = std::path::Path::new(crate::rom::LINEAR_MODEL);
         let role = match self.physics {
-            Physics::Rom if self.model.is_none() => Role::ShippedRom,
+            Physics::Rom if self.model.as_deref().is_none_or(|m| m == linear_model) => {
+                Role::ShippedRom
+            }
             Physics::Coarse | Physics::Rom => Role::Coarse,
             Physics::Rigid | Physics::Fine => Role::Reference,
         };

@@ -166,7 +166,7 @@ fn sphere_forces_of(raw: RawConfig, r: f64, depths: &[f64]) -> Vec<f64> {
 /// coarse gel it decodes (the relaxation, named: a coarse sensor that names no solver may
 /// solve a frame by another) and at most 10 % for each radius at 0.43, 12 % at 0.3 and
 /// 0.48 (measured in the message: 5.6 to 11.5 %). The model is the relaxation's
-/// (`models/rom-default`, named by its directory, so its gel keeps the fallback); the
+/// (`model="rom-default"`, so its gel keeps the fallback); the
 /// default rom on the linear gel has its own test below (the linear coarse gel is within
 /// 4 to 10 % of Hertz itself on these spheres, so "closer than coarse" is not its claim).
 /// At 0.48 the frames of small contacts, which the linear solver takes over, came out
@@ -176,8 +176,7 @@ fn sphere_forces_of(raw: RawConfig, r: f64, depths: &[f64]) -> Vec<f64> {
 fn rom_force_follows_the_decoded_surface_closer_to_hertz_than_coarse() {
     let depths = [0.1e-3, 0.2e-3, 0.3e-3, 0.5e-3];
     let (e, h) = (1.19e5, 0.004);
-    let model = tacrom::rom::default_model_dir().expect("models/rom-default");
-    let model = model.display().to_string();
+    let model = "rom-default";
     for (nu, bound) in [(0.43, 0.10), (0.3, 0.12), (0.48, 0.12)] {
         for r in [2e-3, 5e-3] {
             let gel = |physics: &str| {
@@ -186,7 +185,7 @@ fn rom_force_follows_the_decoded_surface_closer_to_hertz_than_coarse() {
                     .with(ATTR_FRICTION, "0")
                     .with(ATTR_POISSON, &nu.to_string())
             };
-            let rom = sphere_forces_of(gel("rom").with(ATTR_MODEL, &model), r, &depths);
+            let rom = sphere_forces_of(gel("rom").with(ATTR_MODEL, model), r, &depths);
             let coarse = gel("coarse").with(ATTR_SOLVER, "relaxation");
             let coarse = sphere_forces_of(coarse, r, &depths);
             let err = |f: &[f64]| {
@@ -216,7 +215,7 @@ fn rom_force_follows_the_decoded_surface_closer_to_hertz_than_coarse() {
 /// A contact the relaxation misses (a 0.5 mm sphere pressed 0.3 mm between the coarse
 /// gel's top particles) is carried by rom. Its default runs on the linear gel, whose small
 /// contacts follow Hertz (within 10 %: measured 1.07 with the model's force factor); rom
-/// on the relaxation's model (`models/rom-default` named, no solver) solves such a frame
+/// on the relaxation's model (`model="rom-default"`, no solver) solves such a frame
 /// by the linear solver and reports its force (the decoded surface's volume factor is
 /// fitted to the relaxation's surface; measured 1.01 of Hertz), where the relaxation
 /// alone reports none.
@@ -229,11 +228,10 @@ fn rom_carries_a_contact_the_relaxation_misses() {
         (rom / hertz - 1.0).abs() < 0.1,
         "the default rom: {rom} N against Hertz's {hertz}"
     );
-    let shipped = tacrom::rom::default_model_dir().expect("models/rom-default");
     let named = RawConfig::default()
         .with(ATTR_PHYSICS, "rom")
         .with(ATTR_FRICTION, "0")
-        .with(ATTR_MODEL, &shipped.display().to_string());
+        .with(ATTR_MODEL, "rom-default");
     let fallback = sphere_forces_of(named, r, &[d])[0];
     let linear = sphere_forces("coarse", Some("linear"), r, &[d])[0];
     let relaxation = sphere_forces("rom", Some("relaxation"), r, &[d])[0];
@@ -441,10 +439,21 @@ fn the_linear_solver_gets_its_own_shipped_model() {
     let default = Config::from_raw("touch", &RawConfig::default()).unwrap();
     let choice = default.choice(default.dx.unwrap());
     assert_eq!((choice.solver, choice.fallback), (Solver::Linear, false));
-    let own = RawConfig::default().with(ATTR_MODEL, "models/rom-default");
-    let own = Config::from_raw("touch", &own).unwrap();
-    let choice = own.choice(own.dx.unwrap());
-    assert_eq!((choice.solver, choice.fallback), (Solver::Relaxation, true));
+    let choice = |model: &str| {
+        let c = Config::from_raw("touch", &RawConfig::default().with(ATTR_MODEL, model)).unwrap();
+        let choice = c.choice(c.dx.unwrap());
+        (choice.solver, choice.fallback)
+    };
+    assert_eq!(choice("models/rom-default"), (Solver::Relaxation, true));
+    // The shipped models by name: the default's, and the relaxation's as rom ran before.
+    assert_eq!(choice("rom-linear"), (Solver::Linear, false));
+    assert_eq!(choice("rom-default"), (Solver::Relaxation, true));
+    for name in ["rom-linear", "rom-default"] {
+        let raw = RawConfig::default()
+            .with(ATTR_RESOLUTION, "32 24")
+            .with(ATTR_MODEL, name);
+        presses_a_sphere(Config::from_raw("touch", &raw).unwrap());
+    }
     let raw = RawConfig::default()
         .with(ATTR_RESOLUTION, "160 120")
         .with(ATTR_SOLVER, "linear");

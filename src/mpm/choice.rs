@@ -59,11 +59,13 @@ pub const UNRESOLVED_POINTS: usize = 4;
 pub enum Role {
     /// A reference (`fine`): the automatic rule alone.
     Reference,
-    /// `coarse`, and `rom` with a model of the user's (its recipe names the solver it
-    /// needs): the automatic rule with the per-frame fallback for small contacts.
+    /// `coarse`, and `rom` with another model (`model="rom-default"`, the relaxation's, or
+    /// one of the user's, whose recipe names the solver it needs): the automatic rule with
+    /// the per-frame fallback for small contacts.
     Coarse,
-    /// `rom` with the shipped models: the linear gel (`models/rom-linear`) where it
-    /// factors; `models/rom-default` on the relaxation elsewhere. The linear gel's rom is
+    /// `rom` with its default model, unnamed or named `model="rom-linear"`: the linear gel
+    /// (`models/rom-linear`) where it factors; the relaxation's rule elsewhere (where the
+    /// shipped models serve no gel). The linear gel's rom is
     /// the most accurate mode of the full profile (depth 3.66 against 3.91 um, SSIM 0.9563
     /// against 0.9534, shapes outside the training families 2.05 against 2.08 um, their
     /// median force error 5.4 against 7.5 %) and the faster in both environments

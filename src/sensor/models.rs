@@ -493,13 +493,24 @@ impl SurfaceModel for Reduced {
     }
 }
 
-/// Loads the reduced-order model of a `physics="rom"` sensor: the `model` directory or the
-/// shipped one for its solver, checked against the sensor's gel and coarse solve.
+/// The directory a `model` value names: the directory itself, or, for a bare name that is
+/// no directory here, the shipped model of that name (`rom-default`, `rom-linear`) where
+/// there is one.
+fn model_dir(value: &std::path::Path) -> std::path::PathBuf {
+    let bare = value.components().count() == 1 && !value.is_dir();
+    bare.then(|| value.to_str().and_then(crate::rom::shipped_model_dir))
+        .flatten()
+        .unwrap_or_else(|| value.to_path_buf())
+}
+
+/// Loads the reduced-order model of a `physics="rom"` sensor: the `model` directory (or
+/// shipped model's name) or the shipped one for its solver, checked against the sensor's
+/// gel and coarse solve.
 fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
     let attr = crate::config::ATTR_MODEL;
     let shipped = crate::rom::shipped_model(solver.name());
     let dir = match &config.model {
-        Some(d) => d.clone(),
+        Some(d) => model_dir(d),
         None => crate::rom::shipped_model_dir(shipped).ok_or_else(|| {
             format!(
                 "attribute '{attr}': the shipped model models/{shipped} was not found beside \

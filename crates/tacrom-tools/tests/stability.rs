@@ -116,18 +116,17 @@ fn coarse_survives_every_case() {
     }
 }
 
-/// The relaxation's shipped model (`models/rom-default`, named by its directory, so that
-/// its gel runs the relaxation with the linear solver for contacts it misses) serves any
+/// The relaxation's shipped model (`model="rom-default"`, so that its gel runs the
+/// relaxation with the linear solver for contacts it misses) serves any
 /// Young's modulus (the coarse depth it reads does not depend on it) and the Poisson's
 /// ratios it was validated on, 0.3 to 0.48 (manifest `materials`): the cases at 0.49 and
 /// 0.499 must be refused at load with both values named; every other case, Young's
 /// modulus 1e4 to 1e7 Pa and Poisson 0.3 included, must pass.
 #[test]
 fn rom_survives_every_case_and_refuses_other_materials() {
-    let model = tacrom::rom::default_model_dir().expect("models/rom-default");
     let mode = RawConfig::default()
         .with("physics", "rom")
-        .with("model", &model.display().to_string());
+        .with("model", "rom-default");
     let ran = refuses_exactly(
         rows_of(&mode),
         &["Poisson 0.49, 1 mm", "Poisson 0.499, 1 mm"],

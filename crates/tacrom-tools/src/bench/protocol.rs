@@ -20,14 +20,11 @@ use tacrom::sensor::TactileSensor;
 pub const MODES: &[(&str, &[(&str, &str)])] = &[
     ("rigid", &[("physics", "rigid")]),
     ("coarse", &[("physics", "coarse")]),
-    // rom on the relaxation's coarse gel, its model named by its directory
-    // (`models/rom-default`: the gel keeps the linear solver for contacts it misses), as
-    // `physics="rom"` ran before its default moved to the linear gel; the labels keep
-    // their meaning across the committed baselines and reports.
-    (
-        "rom",
-        &[("physics", "rom"), ("model", "models/rom-default")],
-    ),
+    // rom on the relaxation's coarse gel, its shipped model named (`model="rom-default"`:
+    // the gel keeps the linear solver for contacts it misses), as `physics="rom"` ran
+    // before its default moved to the linear gel; the labels keep their meaning across the
+    // committed baselines and reports.
+    ("rom", &[("physics", "rom"), ("model", "rom-default")]),
     // The linear solver's coarse gel, and rom on it (`models/rom-linear`): `physics="rom"`'s
     // default.
     (
@@ -48,7 +45,7 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
         "rom-tol1e-3",
         &[
             ("physics", "rom"),
-            ("model", "models/rom-default"),
+            ("model", "rom-default"),
             ("tolerance", "1e-3"),
         ],
     ),
@@ -56,7 +53,7 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
         "rom-tol1e-2",
         &[
             ("physics", "rom"),
-            ("model", "models/rom-default"),
+            ("model", "rom-default"),
             ("tolerance", "1e-2"),
         ],
     ),
@@ -66,7 +63,7 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
         "rom-norefine",
         &[
             ("physics", "rom"),
-            ("model", "models/rom-default"),
+            ("model", "rom-default"),
             ("refine", "false"),
         ],
     ),
@@ -74,7 +71,7 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
         "rom-refine",
         &[
             ("physics", "rom"),
-            ("model", "models/rom-default"),
+            ("model", "rom-default"),
             ("refine", "true"),
         ],
     ),

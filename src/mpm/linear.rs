@@ -252,6 +252,9 @@ struct LocalSystem {
     /// Their compliance ([`Compliance::local_compliance`]) and its inverse.
     g: DMatrix<f64>,
     inverse: DMatrix<f64>,
+    /// `inverse` in single precision, for a frictional solve of [`MIXED_UNKNOWNS`] or
+    /// more ([`Problem::stiff_descent`]).
+    inverse32: Option<DMatrix<f32>>,
     /// The factor [`split_start`] made for these columns, kept for the next solve.
     split: Option<SplitFactor>,
 }
@@ -1054,11 +1057,16 @@ impl Compliance {
         }
         let g = self.local_compliance(local, lateral);
         let inverse = spd_inverse(&g)?;
+        // The frictional solve's Newton steps assemble their systems on it in single
+        // precision from [`MIXED_UNKNOWNS`] on.
+        let inverse32 =
+            (lateral && inverse.nrows() >= MIXED_UNKNOWNS).then(|| inverse.map(|x| x as f32));
         Some(LocalSystem {
             local: local.to_vec(),
             lateral,
             g,
             inverse,
+            inverse32,
             split: None,
         })
     }
@@ -1190,6 +1198,7 @@ impl Compliance {
                     let problem = Problem {
                         g: &vertical.g,
                         inverse: &vertical.inverse,
+                        inverse32: None,
                         w: &rows,
                         delta: &d,
                         eps: &eps,
@@ -1214,6 +1223,7 @@ impl Compliance {
             let problem = Problem {
                 g: &system.g,
                 inverse: &system.inverse,
+                inverse32: system.inverse32.as_ref(),
                 w: &rows,
                 delta: &d,
                 eps: &eps,
@@ -1580,6 +1590,8 @@ fn cholesky_solve<T: faer::traits::RealField + nalgebra::Scalar>(
 struct Problem<'a> {
     g: &'a DMatrix<f64>,
     inverse: &'a DMatrix<f64>,
+    /// `inverse` in single precision, where kept ([`Problem::stiff_descent`]).
+    inverse32: Option<&'a DMatrix<f32>>,
     w: &'a [Columns],
     delta: &'a [f64],
     eps: &'a [f64],
@@ -1588,42 +1600,113 @@ struct Problem<'a> {
 impl Problem<'_> {
     /// The Newton step `d` of `(I + W^T Phi'' W G) d = -r` (`Phi''` the points'
     /// stiffness, positive semi-definite, already added to `system = G^-1 + W^T Phi''
-    /// W`): `d = G^-1 z` with `system z = -r`, symmetric positive definite; and the
-    /// energy's slope along it, `(G r) . d`. Where round-off spoils the Newton direction,
-    /// the gradient's own.
-    fn descent(
-        &self,
-        mut system: DMatrix<f64>,
-        r: &DVector<f64>,
-        mixed: bool,
-    ) -> Option<(DVector<f64>, f64)> {
+    /// W`): `d = G^-1 z` with `system z = -r`, symmetric positive definite; the columns'
+    /// sinking along it, `G d = z`; and the energy's slope along it, `(G r) . d = r . z`
+    /// (`G` symmetric). Where round-off spoils the Newton direction, the gradient's own
+    /// (`-r`, `-G r`).
+    fn descent(&self, mut system: DMatrix<f64>, r: &DVector<f64>) -> Option<Descent> {
         let mut z = -r;
-        if mixed && system.nrows() >= MIXED_UNKNOWNS {
-            // In single precision, with one step of refinement in double
-            // ([`MIXED_UNKNOWNS`]).
-            let mut low = system.map(|x| x as f32);
-            cholesky(&mut low)?;
-            let solve = |b: &DVector<f64>| {
-                let mut x = b.map(|x| x as f32);
-                cholesky_solve(&low, &mut x);
-                x.map(f64::from)
-            };
-            let first = solve(&z);
-            let residual = &z - product(&system, &first);
-            z = first + solve(&residual);
-        } else {
-            cholesky(&mut system)?;
-            cholesky_solve(&system, &mut z);
+        cholesky(&mut system)?;
+        cholesky_solve(&system, &mut z);
+        Some(self.along(r, z))
+    }
+
+    /// [`Problem::descent`] with the system `G^-1 + W^T Phi'' W` given by the points'
+    /// stiffnesses `stiff` (`(point, Phi''_p)`, the points without one left out). From
+    /// [`MIXED_UNKNOWNS`] on it is assembled and factored in single precision, on a copy
+    /// of `G^-1` in single precision (`inverse32`, or made here), and the direction
+    /// refined once in double with the system's product taken as `G^-1 x` plus the points'
+    /// `W^T Phi'' W x`: the double-precision system is never formed.
+    fn stiff_descent(&self, stiff: &[(usize, Matrix3<f64>)], r: &DVector<f64>) -> Option<Descent> {
+        let k = self.inverse.nrows();
+        if k < MIXED_UNKNOWNS {
+            let mut system = self.inverse.clone();
+            add_stiffness(&mut system, self.w, stiff, |x| x);
+            return self.descent(system, r);
         }
-        let step = product(self.inverse, &z);
-        let gr = product(self.g, r);
-        let slope = gr.dot(&step);
+        let mut low = match self.inverse32 {
+            Some(low) => low.clone(),
+            None => self.inverse.map(|x| x as f32),
+        };
+        add_stiffness(&mut low, self.w, stiff, |x| x as f32);
+        cholesky(&mut low)?;
+        let solve = |b: &DVector<f64>| {
+            let mut x = b.map(|x| x as f32);
+            cholesky_solve(&low, &mut x);
+            x.map(f64::from)
+        };
+        let z = -r;
+        let first = solve(&z);
+        let mut applied = product(self.inverse, &first);
+        let at = at_points(self.w, &first);
+        for &(i, h) in stiff {
+            let t = h * at[i];
+            for &(c, wt) in &self.w[i] {
+                let c = 3 * c as usize;
+                for j in 0..3 {
+                    applied[c + j] += wt * t[j];
+                }
+            }
+        }
+        let residual = &z - applied;
+        let z = first + solve(&residual);
+        Some(self.along(r, z))
+    }
+
+    /// The descent `d = G^-1 z` for the solution `z` of the Newton system with right-hand
+    /// side `-r`, or the gradient's where round-off spoils it.
+    fn along(&self, r: &DVector<f64>, z: DVector<f64>) -> Descent {
+        let slope = r.dot(&z);
         if slope < 0.0 {
-            Some((step, slope))
+            let step = product(self.inverse, &z);
+            Descent {
+                step,
+                sinking: z,
+                slope,
+            }
         } else {
-            Some((-r, -gr.dot(r)))
+            self.gradient(r)
         }
     }
+
+    /// The descent along `-r` (the energy's gradient in the metric of `G^-1`).
+    fn gradient(&self, r: &DVector<f64>) -> Descent {
+        let gr = product(self.g, r);
+        Descent {
+            slope: -gr.dot(r),
+            step: -r,
+            sinking: -gr,
+        }
+    }
+}
+
+/// Adds each point's stiffness `Phi''_p` of `stiff` (`(point, Phi''_p)`) to `system` on its
+/// columns (rows `w`, three unknowns per column): `system += W_p^T Phi''_p W_p`, in the
+/// precision `cast` gives.
+fn add_stiffness<T: nalgebra::RealField + Copy>(
+    system: &mut DMatrix<T>,
+    w: &[Columns],
+    stiff: &[(usize, Matrix3<f64>)],
+    cast: impl Fn(f64) -> T,
+) {
+    for &(i, h) in stiff {
+        let row = &w[i];
+        let h = h.map(&cast);
+        for &(a, wa) in row {
+            for &(b, wb) in row {
+                let mut block = system.fixed_view_mut::<3, 3>(3 * a as usize, 3 * b as usize);
+                block += h * cast(wa * wb);
+            }
+        }
+    }
+}
+
+/// A descent direction of the columns' loads: the step `d`, the columns' sinking along it
+/// `G d` (so that a trial along it needs no product with `G`), and the energy's slope.
+struct Descent {
+    step: DVector<f64>,
+    sinking: DVector<f64>,
+    slope: f64,
 }
 
 /// Newton iterations at most per contact solve.
@@ -1711,6 +1794,7 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
         w,
         delta,
         eps,
+        ..
     } = *p;
     let k = g.nrows();
     // The forces at `l` and the energy there, from one product `G l`.
@@ -1755,7 +1839,7 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
                 }
             }
         }
-        let (step, slope) = p.descent(system, &r, false)?;
+        let Descent { step, slope, .. } = p.descent(system, &r)?;
         let before: Vec<bool> = f.iter().map(|&f| f > 0.0).collect();
         let mut alpha = 1.0;
         let mut accepted = false;
@@ -1883,19 +1967,15 @@ fn minimise(
     l: &mut DVector<f64>,
 ) -> Option<(Vec<Vector3<f64>>, usize)> {
     let Problem {
-        g,
-        inverse,
-        w,
-        delta,
-        eps,
+        g, w, delta, eps, ..
     } = *p;
     let Friction { caps, anchors, .. } = *friction;
     let k = g.nrows();
-    // The points' displacements and forces at `l` and the energy there, from one `G l`.
-    let evaluate = |l: &DVector<f64>| -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>, f64) {
-        let v = product(g, l);
-        let mut e = 0.5 * l.dot(&v);
-        let at = at_points(w, &v);
+    // The points' displacements and forces at loads `l` whose columns sink `v = G l`, and
+    // the energy there.
+    let evaluate = |l: &DVector<f64>, v: &DVector<f64>| {
+        let mut e = 0.5 * l.dot(v);
+        let at = at_points(w, v);
         let mut out = Vec::with_capacity(w.len());
         for (i, s) in at.iter().enumerate() {
             let (f, pressed, slipped) =
@@ -1907,7 +1987,10 @@ fn minimise(
         (at, out, e)
     };
     let loads = |f: &[Vector3<f64>]| on_columns(w, f, k);
-    let (mut s, mut f, mut e) = evaluate(l);
+    // The columns' sinking, carried along each step's own (`G d`, from the descent): one
+    // product with `G` a solve, not one a trial.
+    let mut v = product(g, l);
+    let (mut s, mut f, mut e) = evaluate(l, &v);
     for it in 0..budget {
         let wf = loads(&f);
         let r = &*l - &wf;
@@ -1918,10 +2001,10 @@ fn minimise(
         // The frame's first step assumes every point with a cap stuck (see
         // [`Friction::predict_stick`]).
         let predict = it == 0 && friction.predict_stick;
-        // `G^-1 + W^T Phi'' W`, with each point's stiffness (penalty where it presses,
-        // friction's where it carries a cap) on its columns: symmetric positive definite.
-        let mut system = inverse.clone();
-        for (i, row) in w.iter().enumerate() {
+        // Each point's stiffness (penalty where it presses, friction's where it carries a
+        // cap), for the system `G^-1 + W^T Phi'' W`: symmetric positive definite.
+        let mut stiff = Vec::with_capacity(w.len());
+        for i in 0..w.len() {
             let mut h = Matrix3::zeros();
             if f[i].z > 0.0 {
                 h[(2, 2)] = 1.0 / eps[i];
@@ -1937,17 +2020,11 @@ fn minimise(
                 };
                 h.fixed_view_mut::<2, 2>(0, 0).copy_from(&t);
             }
-            if h == Matrix3::zeros() {
-                continue;
-            }
-            for &(a, wa) in row {
-                for &(b, wb) in row {
-                    let mut block = system.fixed_view_mut::<3, 3>(3 * a as usize, 3 * b as usize);
-                    block += h * (wa * wb);
-                }
+            if h != Matrix3::zeros() {
+                stiff.push((i, h));
             }
         }
-        let (step, slope) = if predict {
+        let step = if predict {
             // Each capped point's friction a spring of the stick stiffness to its anchor,
             // uncapped: the step to where they all stick, taken where it descends the
             // energy (else the gradient's own).
@@ -1960,24 +2037,30 @@ fn minimise(
                     false => f[i],
                 })
                 .collect();
-            let (step, _) = p.descent(system, &(&*l - loads(&stuck)), true)?;
-            let gr = product(g, &r);
-            match gr.dot(&step) {
-                slope if slope < 0.0 => (step, slope),
-                _ => (-&r, -gr.dot(&r)),
+            // Its slope on this frame's energy: `(G r) . d = r . G d`.
+            let d = p.stiff_descent(&stiff, &(&*l - loads(&stuck)))?;
+            match r.dot(&d.sinking) {
+                slope if slope < 0.0 => Descent { slope, ..d },
+                _ => p.gradient(&r),
             }
         } else {
-            p.descent(system, &r, true)?
+            p.stiff_descent(&stiff, &r)?
         };
+        let Descent {
+            step,
+            sinking,
+            slope,
+        } = step;
         let mut alpha = 1.0;
         let mut accepted = false;
         for _ in 0..MAX_HALVINGS {
             let trial = &*l + &step * alpha;
-            let (st, ft, et) = evaluate(&trial);
+            let vt = &v + &sinking * alpha;
+            let (st, ft, et) = evaluate(&trial, &vt);
             if takes(e, et, alpha, slope, || {
                 (&trial - loads(&ft)).amax() < r.amax()
             }) {
-                (*l, s, f, e) = (trial, st, ft, et);
+                (*l, v, s, f, e) = (trial, vt, st, ft, et);
                 accepted = true;
                 break;
             }
@@ -2106,6 +2189,7 @@ fn split_start(
         w,
         delta,
         eps,
+        ..
     } = *p;
     let Friction { caps, anchors, .. } = *friction;
     let k = g.nrows();

@@ -126,6 +126,7 @@ fn the_penalty_contact_solves_the_complementarity_problem() {
         let problem = Problem {
             g: &g,
             inverse: &inverse,
+            inverse32: None,
             w: &rows,
             delta: &delta,
             eps: &eps,
@@ -523,6 +524,7 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
         let problem = Problem {
             g: &g,
             inverse: &inverse,
+            inverse32: None,
             w: &rows,
             delta: &delta,
             eps: &eps,
@@ -579,6 +581,7 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
         let problem = Problem {
             g: &vertical,
             inverse: &inverse,
+            inverse32: None,
             ..problem
         };
         let (fz, _) = penalty_contact(&problem, &mut lz).expect("solved");
@@ -617,6 +620,7 @@ fn splitting_first_finds_newtons_minimum() {
         let problem = Problem {
             g: &g,
             inverse: &inverse,
+            inverse32: None,
             w: &rows,
             delta: &delta,
             eps: &eps,
@@ -1010,6 +1014,7 @@ fn a_whole_pad_pressed_by_a_box_face_converges() {
     let problem = Problem {
         g: &g,
         inverse: &inverse,
+        inverse32: None,
         w: &rows,
         delta: &delta,
         eps: &eps,

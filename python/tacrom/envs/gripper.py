@@ -67,7 +67,7 @@ class GripperLiftEnv(TactileEnv):
     up). Episodes end by the time limit (100 steps, 4 s, when made with ``gymnasium.make``).
 
     ``physics``: ``"rigid"`` by default (no gel: a grasp's fingertip gels cost the sensor's
-    default ``"rom"`` about 140 ms a step, docs/rl.md), ``"coarse"`` or ``"rom"``.
+    default ``"rom"`` about 120 ms a step, docs/rl.md), ``"coarse"`` or ``"rom"``.
     ``sensor_config``: further attributes of both sensors (``{"tolerance": "1e-2"}``,
     ``{"threads": 2}``; docs/configuration.md).
     """

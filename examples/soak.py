@@ -59,8 +59,10 @@ MODES = {
     "rigid": ("rigid", ""),
     "coarse": ("coarse", ""),
     "coarse-linear": ("coarse", '\n      <config key="solver" value="linear"/>'),
+    # rom's default: the linear gel with its own model.
     "rom": ("rom", ""),
-    "rom-linear": ("rom", '\n      <config key="solver" value="linear"/>'),
+    # rom on the relaxation, as it ran before its default became the linear gel.
+    "rom-default": ("rom", '\n      <config key="model" value="rom-default"/>'),
 }
 
 

@@ -152,9 +152,10 @@ STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_PLUGIN
 
 # Every physics mode with each solver whose state MuJoCo's state holds: the relaxation (the
 # coarse gel's own, with the linear solver for the contacts it misses) and the linear
-# solver, each under rom too.
+# solver, each under rom too (rom's default is the linear gel; the relaxation's rom is
+# model="rom-default").
 KEPT = [("rigid", {}), ("coarse", {}), ("coarse", {"solver": "linear"}), ("rom", {}),
-        ("rom", {"solver": "linear"})]
+        ("rom", {"model": "rom-default"})]
 
 
 def get_state(m, d):

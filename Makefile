@@ -93,7 +93,7 @@ bench-mpm: build
 # runs FUZZ_RUNS inputs from fuzz/corpus/TARGET, keeping what it finds in fuzz/work/TARGET
 # and a crashing input in fuzz/artifacts/TARGET.
 FUZZ_RUNS ?= 1000000
-FUZZ_TARGETS ?= config mesh optics manifest state presses
+FUZZ_TARGETS ?= config mesh optics manifest graph state presses
 fuzz:
 	cd fuzz && for t in $(FUZZ_TARGETS); do mkdir -p work/$$t && \
 	  cargo +nightly fuzz run -O $$t work/$$t corpus/$$t -- -runs=$(FUZZ_RUNS) -max_len=16384 \

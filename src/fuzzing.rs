@@ -3,9 +3,9 @@
 //!
 //! Each target takes arbitrary bytes and runs one parser or loader the way the plugin runs
 //! it on a user's input: the MJCF attributes, an OBJ or STL mesh, an optics file and its
-//! background PNG, a reduced-order model's manifest, a state given to `mj_setState`. A
-//! parser may refuse its input; a panic, an abort, a hang or a non-finite value where the
-//! parser accepted its input is a finding.
+//! background PNG, a reduced-order model's manifest and an ONNX graph it names, a state
+//! given to `mj_setState`. A parser may refuse its input; a panic, an abort, a hang or a
+//! non-finite value where the parser accepted its input is a finding.
 
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
@@ -29,6 +29,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("mesh", mesh),
     ("optics", optics),
     ("manifest", manifest),
+    ("graph", graph),
     ("state", state),
 ];
 
@@ -111,6 +112,26 @@ pub fn manifest(data: &[u8]) {
     let dir = scratch("manifest");
     std::fs::write(dir.join("manifest.json"), data).expect("scratch file");
     let _ = Manifest::load(&dir);
+}
+
+/// An ONNX graph file as a model directory names it, with a small decoder's interface
+/// (`z` `[1, 4]` and `query` `[N, 3]` in, `depth` `[N, 1]` out): loaded by ONNX Runtime and
+/// checked against the interface as a model's graphs are; one that loads is run once, on
+/// three query rows, as a frame runs the decoder. Either may fail with an error; neither
+/// may panic or abort the process.
+pub fn graph(data: &[u8]) {
+    let path = scratch("graph").join("graph.onnx");
+    std::fs::write(&path, data).expect("scratch file");
+    let inputs = [
+        ("z".to_owned(), vec![1, 4]),
+        ("query".to_owned(), vec![-1, 3]),
+    ];
+    let outputs = [("depth".to_owned(), vec![-1, 1])];
+    let Ok(mut graph) = crate::rom::runtime::load_graph(&path, &inputs, &outputs, 1) else {
+        return;
+    };
+    let (z, query) = ([0.1f32, -0.2, 0.3, 0.0], [0.5f32; 9]);
+    let _ = crate::rom::run_field(&mut graph, "decoder", "depth", &z, &query, 3, 3);
 }
 
 /// A state given to `mj_setState`: the bytes as little-endian `f64` (or, for an odd first
@@ -237,4 +258,50 @@ fn valid_png() -> &'static [u8] {
             .expect("a PNG in memory");
         out.into_inner()
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::rom::runtime::load_graph;
+
+    /// The graph target's seeds are what they say: the two small decoders load with the
+    /// interface and run (`seed-sum`: each query row's sum; `seed-matmul`: `query w` plus
+    /// the latent's sum), the one that reshapes to seven rows loads and fails at run time
+    /// with an error, and the ones with another output's name or type, an input no node
+    /// makes, an unknown operator or no graph at all are refused at load with an error.
+    #[test]
+    fn the_graph_seeds_load_run_or_fail_as_named() {
+        let dir = crate::checkout_root().join("fuzz/corpus/graph");
+        let inputs = [
+            ("z".to_owned(), vec![1, 4]),
+            ("query".to_owned(), vec![-1, 3]),
+        ];
+        let outputs = [("depth".to_owned(), vec![-1, 1])];
+        let load = |name: &str| load_graph(&dir.join(name), &inputs, &outputs, 1);
+        let z = [0.1f32, -0.2, 0.3, 0.0];
+        let query = [1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0, 0.5, 0.5, 0.5];
+        let run = |name: &str| {
+            let mut graph = load(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+            crate::rom::run_field(&mut graph, "decoder", "depth", &z, &query, 3, 3)
+        };
+        assert_eq!(run("seed-sum").unwrap(), [6.0, 15.0, 1.5]);
+        let zsum: f32 = z.iter().sum();
+        let expected = [4.5 + zsum, 9.0 + zsum, 0.75 + zsum];
+        let got = run("seed-matmul").unwrap();
+        assert!(
+            got.iter().zip(expected).all(|(a, b)| (a - b).abs() < 1e-6),
+            "{got:?}"
+        );
+        assert!(run("seed-seven-rows").is_err());
+        for name in [
+            "seed-wrong-output-name",
+            "seed-int-output",
+            "seed-missing-node-input",
+            "seed-unknown-op",
+            "seed-empty",
+            "seed-text",
+        ] {
+            assert!(load(name).is_err(), "{name} loaded");
+        }
+    }
 }

@@ -1568,7 +1568,7 @@ fn hermite(v: &[f64], i: usize, t: f64) -> f64 {
 
 /// Runs a field graph (`z [1, r]`, `query [n, f]` -> `output [n, 1]`) of the model: the
 /// decoder or the pressure head.
-fn run_field(
+pub(crate) fn run_field(
     graph: &mut Graph,
     name: &'static str,
     output: &str,

@@ -1,0 +1,100 @@
+//! Heap allocations per sensor evaluation in steady state: a sphere (R 5 mm) slid along x
+//! while pressed 0.5 mm, at 64 x 48 (`tacrom/Press-v1`'s images) and 320 x 240, per
+//! physics mode; the first 20 frames warm up (the gel, its caches, ONNX Runtime's buffers),
+//! the next 40 are counted. Counts every call of the global allocator (`alloc`, `realloc`)
+//! in this process, ONNX Runtime's own allocations through the C library excluded.
+//!
+//! `cargo bench --bench allocations`
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+
+use nalgebra::Isometry3;
+use tacrom::config::{Config, RawConfig};
+use tacrom::geometry::{Placed, Sdf, Sphere};
+use tacrom::sensor::TactileSensor;
+
+/// The system allocator, counting calls and bytes.
+struct Counting;
+
+static CALLS: AtomicUsize = AtomicUsize::new(0);
+static BYTES: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        CALLS.fetch_add(1, Ordering::Relaxed);
+        BYTES.fetch_add(layout.size(), Ordering::Relaxed);
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        CALLS.fetch_add(1, Ordering::Relaxed);
+        BYTES.fetch_add(new_size, Ordering::Relaxed);
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+const WARM: usize = 20;
+const COUNTED: usize = 40;
+
+fn main() {
+    let modes: [(&str, &[(&str, &str)]); 5] = [
+        ("rigid", &[("physics", "rigid")]),
+        ("coarse", &[("physics", "coarse")]),
+        (
+            "coarse-linear",
+            &[("physics", "coarse"), ("solver", "linear")],
+        ),
+        ("rom (default)", &[("physics", "rom")]),
+        (
+            "rom-default",
+            &[("physics", "rom"), ("model", "rom-default")],
+        ),
+    ];
+    println!(
+        "{:<14} {:>9} {:>16} {:>16}",
+        "mode", "image", "allocations/frame", "KiB/frame"
+    );
+    let ball: Arc<dyn Sdf> = Arc::new(Sphere::new(0.005));
+    for (label, attributes) in modes {
+        for resolution in ["64 48", "320 240"] {
+            let mut raw = RawConfig::default()
+                .with("resolution", resolution)
+                .with("outputs", "depth");
+            for (a, v) in attributes {
+                raw = raw.with(a, v);
+            }
+            let config = Config::from_raw("bench", &raw).expect("config");
+            let mut sensor = TactileSensor::new(config.clone()).expect("sensor");
+            let mut out = vec![0.0; config.sensordata_len()];
+            let mut counted = (0, 0);
+            for frame in 0..WARM + COUNTED {
+                let x = -2e-3 + 4e-3 * frame as f64 / (WARM + COUNTED) as f64;
+                let placed = [Placed {
+                    shape: ball.clone(),
+                    pose: Isometry3::translation(x, 0.0, 0.005 - 0.5e-3),
+                }];
+                let (calls, bytes) = (CALLS.load(Ordering::Relaxed), BYTES.load(Ordering::Relaxed));
+                let _ = sensor.evaluate(&placed, &mut out);
+                if frame >= WARM {
+                    counted.0 += CALLS.load(Ordering::Relaxed) - calls;
+                    counted.1 += BYTES.load(Ordering::Relaxed) - bytes;
+                }
+            }
+            println!(
+                "{label:<14} {:>9} {:>16.0} {:>16.1}",
+                resolution.replace(' ', "x"),
+                counted.0 as f64 / COUNTED as f64,
+                counted.1 as f64 / COUNTED as f64 / 1024.0
+            );
+        }
+    }
+}

@@ -255,6 +255,9 @@ struct LocalSystem {
     /// `inverse` in single precision, for a frictional solve of [`MIXED_UNKNOWNS`] or
     /// more ([`Problem::stiff_descent`]).
     inverse32: Option<DMatrix<f32>>,
+    /// The matrices the contact solves on these columns assemble and factor their
+    /// systems in, kept so that a frame's Newton steps do not allocate them.
+    scratch: Workspace,
     /// The factor [`split_start`] made for these columns, kept for the next solve.
     split: Option<SplitFactor>,
 }
@@ -1067,6 +1070,7 @@ impl Compliance {
             g,
             inverse,
             inverse32,
+            scratch: Workspace::default(),
             split: None,
         })
     }
@@ -1199,6 +1203,7 @@ impl Compliance {
                         g: &vertical.g,
                         inverse: &vertical.inverse,
                         inverse32: None,
+                        scratch: &vertical.scratch,
                         w: &rows,
                         delta: &d,
                         eps: &eps,
@@ -1224,6 +1229,7 @@ impl Compliance {
                 g: &system.g,
                 inverse: &system.inverse,
                 inverse32: system.inverse32.as_ref(),
+                scratch: &system.scratch,
                 w: &rows,
                 delta: &d,
                 eps: &eps,
@@ -1592,6 +1598,8 @@ struct Problem<'a> {
     inverse: &'a DMatrix<f64>,
     /// `inverse` in single precision, where kept ([`Problem::stiff_descent`]).
     inverse32: Option<&'a DMatrix<f32>>,
+    /// The matrices Newton's steps assemble their systems in ([`Problem::system_in`]).
+    scratch: &'a Workspace,
     w: &'a [Columns],
     delta: &'a [f64],
     eps: &'a [f64],
@@ -1604,11 +1612,26 @@ impl Problem<'_> {
     /// sinking along it, `G d = z`; and the energy's slope along it, `(G r) . d = r . z`
     /// (`G` symmetric). Where round-off spoils the Newton direction, the gradient's own
     /// (`-r`, `-G r`).
-    fn descent(&self, mut system: DMatrix<f64>, r: &DVector<f64>) -> Option<Descent> {
+    fn descent(&self, system: &mut DMatrix<f64>, r: &DVector<f64>) -> Option<Descent> {
         let mut z = -r;
-        cholesky(&mut system)?;
-        cholesky_solve(&system, &mut z);
+        cholesky(system)?;
+        cholesky_solve(system, &mut z);
         Some(self.along(r, z))
+    }
+
+    /// The kept matrix of `scratch`'s precision, set to `G^-1` (`inverse` in single
+    /// precision where kept): the system a Newton step assembles and factors in place,
+    /// without allocating it anew at every step.
+    fn system_in<'s, T: nalgebra::Scalar + Copy>(
+        scratch: &'s mut DMatrix<T>,
+        from: &DMatrix<T>,
+    ) -> &'s mut DMatrix<T> {
+        if scratch.shape() == from.shape() {
+            scratch.copy_from(from);
+        } else {
+            *scratch = from.clone();
+        }
+        scratch
     }
 
     /// [`Problem::descent`] with the system `G^-1 + W^T Phi'' W` given by the points'
@@ -1619,20 +1642,27 @@ impl Problem<'_> {
     /// `W^T Phi'' W x`: the double-precision system is never formed.
     fn stiff_descent(&self, stiff: &[(usize, Matrix3<f64>)], r: &DVector<f64>) -> Option<Descent> {
         let k = self.inverse.nrows();
+        let mut scratch = self.scratch.lock();
         if k < MIXED_UNKNOWNS {
-            let mut system = self.inverse.clone();
-            add_stiffness(&mut system, self.w, stiff, |x| x);
+            let system = Self::system_in(&mut scratch.double, self.inverse);
+            add_stiffness(system, self.w, stiff, |x| x);
             return self.descent(system, r);
         }
-        let mut low = match self.inverse32 {
-            Some(low) => low.clone(),
-            None => self.inverse.map(|x| x as f32),
+        let made;
+        let inverse32 = match self.inverse32 {
+            Some(low) => low,
+            None => {
+                made = self.inverse.map(|x| x as f32);
+                &made
+            }
         };
-        add_stiffness(&mut low, self.w, stiff, |x| x as f32);
-        cholesky(&mut low)?;
+        let low = Self::system_in(&mut scratch.single, inverse32);
+        add_stiffness(low, self.w, stiff, |x| x as f32);
+        cholesky(low)?;
+        let low = &*low;
         let solve = |b: &DVector<f64>| {
             let mut x = b.map(|x| x as f32);
-            cholesky_solve(&low, &mut x);
+            cholesky_solve(low, &mut x);
             x.map(f64::from)
         };
         let z = -r;
@@ -1698,6 +1728,32 @@ fn add_stiffness<T: nalgebra::RealField + Copy>(
                 block += h * cast(wa * wb);
             }
         }
+    }
+}
+
+/// The matrices a contact solve's Newton steps assemble and factor their systems in, in
+/// double and single precision (empty until first used).
+#[derive(Default)]
+pub(super) struct Scratch {
+    double: DMatrix<f64>,
+    single: DMatrix<f32>,
+}
+
+/// A [`Scratch`] kept with a set of columns' systems. Its contents are overwritten before
+/// every use, so a copy of the gel starts with an empty one.
+#[derive(Default)]
+pub(super) struct Workspace(Mutex<Scratch>);
+
+impl Workspace {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Scratch> {
+        // A poisoned lock left matrices that are overwritten before use anyway.
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+impl Clone for Workspace {
+    fn clone(&self) -> Self {
+        Self::default()
     }
 }
 
@@ -1831,7 +1887,8 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
         if r.amax() <= 1e-12 * scale || scale == 0.0 {
             return Some((f, it));
         }
-        let mut system = inverse.clone();
+        let mut scratch = p.scratch.lock();
+        let system = Problem::system_in(&mut scratch.double, inverse);
         for ((row, _), eps) in w.iter().zip(&f).zip(eps).filter(|((_, &f), _)| f > 0.0) {
             for &(a, wa) in row {
                 for &(b, wb) in row {
@@ -1840,6 +1897,7 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
             }
         }
         let Descent { step, slope, .. } = p.descent(system, &r)?;
+        drop(scratch);
         let before: Vec<bool> = f.iter().map(|&f| f > 0.0).collect();
         let mut alpha = 1.0;
         let mut accepted = false;

@@ -127,6 +127,7 @@ fn the_penalty_contact_solves_the_complementarity_problem() {
             g: &g,
             inverse: &inverse,
             inverse32: None,
+            scratch: &Workspace::default(),
             w: &rows,
             delta: &delta,
             eps: &eps,
@@ -525,6 +526,7 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
             g: &g,
             inverse: &inverse,
             inverse32: None,
+            scratch: &Workspace::default(),
             w: &rows,
             delta: &delta,
             eps: &eps,
@@ -582,6 +584,7 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
             g: &vertical,
             inverse: &inverse,
             inverse32: None,
+            scratch: &Workspace::default(),
             ..problem
         };
         let (fz, _) = penalty_contact(&problem, &mut lz).expect("solved");
@@ -621,6 +624,7 @@ fn splitting_first_finds_newtons_minimum() {
             g: &g,
             inverse: &inverse,
             inverse32: None,
+            scratch: &Workspace::default(),
             w: &rows,
             delta: &delta,
             eps: &eps,
@@ -1015,6 +1019,7 @@ fn a_whole_pad_pressed_by_a_box_face_converges() {
         g: &g,
         inverse: &inverse,
         inverse32: None,
+        scratch: &Workspace::default(),
         w: &rows,
         delta: &delta,
         eps: &eps,

@@ -65,11 +65,11 @@ pub enum Role {
     Coarse,
     /// `rom` with its default model, unnamed or named `model="rom-linear"`: the linear gel
     /// (`models/rom-linear`) where it factors; the relaxation's rule elsewhere (where the
-    /// shipped models serve no gel). The linear gel's rom is
-    /// the most accurate mode of the full profile (depth 3.66 against 3.91 um, SSIM 0.9563
-    /// against 0.9534, shapes outside the training families 2.05 against 2.08 um, their
-    /// median force error 5.4 against 7.5 %) and the faster in both environments
-    /// (`docs/solvers.md`, "Which solver a gel gets").
+    /// shipped models serve no gel). The linear gel's rom is the most accurate mode of the
+    /// full profile (depth 3.66 against 3.91 um, SSIM 0.9563 against 0.9534, shapes outside
+    /// the training families 2.05 against 2.08 um, their median force error 5.4 against
+    /// 7.5 %) and the faster rom in both environments (`docs/modes.md`, "The default: rom
+    /// on the linear gel").
     ShippedRom,
 }
 
@@ -126,8 +126,8 @@ pub fn choose(params: &GelParams, named: Option<Solver>, role: Role) -> Choice {
                 solver: Solver::Linear,
                 fallback: false,
                 why: "rom's default: the linear gel where it factors, read by the shipped model \
-                      trained on it (the full profile's most accurate mode, and the fastest \
-                      in Press-v1 and GripperLift-v1)",
+                      trained on it (the full profile's most accurate mode, and rom's faster \
+                      gel in Press-v1 and GripperLift-v1)",
             }
         }
         None if params.poisson >= AUTO_NEWTON_POISSON => Choice {

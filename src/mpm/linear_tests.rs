@@ -101,6 +101,22 @@ struct FrictionProblem {
     anchors: Vec<Vector2<f64>>,
 }
 
+impl FrictionProblem {
+    /// The problem as the solvers take it, their systems assembled in `scratch` (no
+    /// single-precision inverse kept: it is made where a problem is large enough).
+    fn problem<'a>(&'a self, scratch: &'a Workspace) -> Problem<'a> {
+        Problem {
+            g: &self.g,
+            inverse: &self.inverse,
+            inverse32: None,
+            scratch,
+            w: &self.rows,
+            delta: &self.delta,
+            eps: &self.eps,
+        }
+    }
+}
+
 /// On random problems with up to 40 points on up to 12 columns (more points than columns,
 /// as on the gel), the penalty contact meets the complementarity conditions of
 /// `H = eps I + W G W^T` to round-off and finds the unique solution that projected
@@ -513,24 +529,18 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
     for trial in 0..40 {
         let k = 1 + trial % 8;
         let m = 1 + (trial * 7) % 30;
+        let random = noise.friction_problem(k, m);
+        let scratch = Workspace::default();
+        let problem = random.problem(&scratch);
         let FrictionProblem {
             g,
-            inverse,
             rows,
             delta,
             eps,
             caps,
             anchors,
-        } = noise.friction_problem(k, m);
-        let problem = Problem {
-            g: &g,
-            inverse: &inverse,
-            inverse32: None,
-            scratch: &Workspace::default(),
-            w: &rows,
-            delta: &delta,
-            eps: &eps,
-        };
+            ..
+        } = &random;
         let friction = Friction {
             caps: &caps,
             anchors: &anchors,
@@ -611,27 +621,12 @@ fn splitting_first_finds_newtons_minimum() {
     for trial in 0..40 {
         let k = 1 + trial % 8;
         let m = 1 + (trial * 11) % 30;
-        let FrictionProblem {
-            g,
-            inverse,
-            rows,
-            delta,
-            eps,
-            caps,
-            anchors,
-        } = noise.friction_problem(k, m);
-        let problem = Problem {
-            g: &g,
-            inverse: &inverse,
-            inverse32: None,
-            scratch: &Workspace::default(),
-            w: &rows,
-            delta: &delta,
-            eps: &eps,
-        };
+        let random = noise.friction_problem(k, m);
+        let scratch = Workspace::default();
+        let problem = random.problem(&scratch);
         let friction = Friction {
-            caps: &caps,
-            anchors: &anchors,
+            caps: &random.caps,
+            anchors: &random.anchors,
             warm: false,
             residual: FRICTION_RESIDUAL,
             predict_stick: false,

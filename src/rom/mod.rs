@@ -876,9 +876,10 @@ struct RenderScratch {
     column: Vec<f64>,
 }
 
-/// The shipped model's directory, found relative to the plugin library (or this crate's
-/// source tree): `models/rom-default` beside the library, in the Python package's `_lib`,
-/// or at the root of the checkout that built it.
+/// The directory of the shipped `models/rom-default` (the relaxation's model, [`DEFAULT_MODEL`];
+/// `physics="rom"`'s default is [`LINEAR_MODEL`] since), found relative to the plugin
+/// library (or this crate's source tree): beside the library, in the Python package's
+/// `_lib`, or at the root of the checkout that built it.
 pub fn default_model_dir() -> Option<PathBuf> {
     shipped_model_dir(DEFAULT_MODEL)
 }

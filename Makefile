@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -54,7 +54,7 @@ test-rust: venv
 test-python: build
 	$(PY) -m pytest tests/python -q
 
-test: build test-rust test-python bench-quick
+test: build test-rust test-python bench-quick real-check
 
 # The press benchmark (error against run time of every mode; docs/benchmarks.md).
 bench: build
@@ -276,3 +276,46 @@ eval-rom: build
 test-train: train-env
 	$(CARGO) build --release -p tacrom-tools --bin tacrom
 	PYTHONPATH=training $(PY_TRAIN) -m pytest -q -p no:cacheprovider training/tests
+
+# --- Real presses (realdata/README.md): Taxim, the baseline renderer of
+# realdata/taxim_render.py, in its own .venv-taxim (JAX on the CPU; not part of `make test`).
+VENV_TAXIM := .venv-taxim
+
+$(VENV_TAXIM)/.installed: realdata/requirements-taxim.txt
+	python3 -m venv $(VENV_TAXIM)
+	$(VENV_TAXIM)/bin/pip install -q -r realdata/requirements-taxim.txt
+	touch $@
+
+taxim-env: $(VENV_TAXIM)/.installed
+
+# The real GelSight Mini presses as a calibration folder (downloads the pinned taxim wheel
+# once into target/real/cache; realdata/README.md).
+REAL_MINI := target/real/gelsight-mini
+CALIBRATE_MINI := --mirror --holdout 3 --detect --threshold 20
+
+real-data: venv
+	$(PY) realdata/gelsight_mini.py prepare $(REAL_MINI)
+
+# The shipped preset sensors/gelsight-mini: optics and gel fitted to every press but every
+# third (held out), docs/calibration.md. A few minutes on two threads.
+sensor-gelsight-mini: real-data
+	$(CARGO) run --release --bin tacrom -- calibrate $(REAL_MINI) $(CALIBRATE_MINI) --gel \
+		--thickness 1,1.25,1.5 --poisson 0.3,0.43,0.48 --threads 2 \
+		--out sensors/gelsight-mini/optics.json
+	cp $(REAL_MINI)/LICENSE-taxim sensors/gelsight-mini/LICENSE-taxim
+
+# The held-out real presses against the preset (and the background, rigid, the default
+# gel), checked against the committed table: fails on a regression of more than 0.005 in
+# MAE or SSIM.
+real-check: real-data
+	$(CARGO) run --release --bin tacrom -- compare $(REAL_MINI) $(CALIBRATE_MINI) \
+		--sensor gelsight-mini --baseline sensors/gelsight-mini/real-table.json
+
+# Rewrites that table and the figure docs/real-mini.png, with Taxim's images when they
+# were rendered (realdata/README.md: at the same centres and fitted depths).
+real-table: real-data
+	$(CARGO) run --release --bin tacrom -- compare $(REAL_MINI) $(CALIBRATE_MINI) \
+		--sensor gelsight-mini --with-defaults --json sensors/gelsight-mini/real-table.json \
+		--figure docs/real-mini.png \
+		$$(test -d target/real/taxim-fit && echo --row taxim=@target/real/taxim-fit) \
+		$$(test -d target/real/taxim-fit-shadow && echo --row taxim-shadow=@target/real/taxim-fit-shadow)

@@ -77,6 +77,7 @@ fn export_header(source: &Path, header: &Path) {
             "c_int" => "int",
             "*mut c_int" => "int*",
             "*mut c_char" => "char*",
+            "*const c_char" => "const char*",
             "*const *const c_char" => "const char* const*",
             "*mut c_void" => "void*",
             "*mut f64" => "mjtNum*",

@@ -1,7 +1,8 @@
 """Builds the tacrom wheel: the Python package with the plugin library
 (``tacrom/_lib/libtacrom.so``), the shipped reduced-order models
 (``tacrom/models/rom-default`` and, for ``solver="linear"``, ``tacrom/models/rom-linear``:
-manifests and the ONNX files they name) and the environments' scenes
+manifests and the ONNX files they name), the shipped sensors (``tacrom/sensors``:
+``gelsight-mini``'s sensor file, optics and licence) and the environments' scenes
 (``tacrom/envs/assets``: ``examples/gripper.xml`` and its mesh).
 
     .venv/bin/python python/build_wheel.py --out dist      # what `make wheel` runs
@@ -26,6 +27,21 @@ import tempfile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 MODELS = ("rom-default", "rom-linear")
+SENSORS = ("gelsight-mini",)
+
+
+def sensor_files(sensor_dir: pathlib.Path) -> list[pathlib.Path]:
+    """What of a shipped sensor the run time needs: its sensor file, the optics file it
+    names and that file's background image, and its licences."""
+    sensor = sensor_dir / "sensor.json"
+    if not sensor.is_file():
+        raise SystemExit(f"no {sensor_dir.name} sensor in {sensor_dir.parent}")
+    files = [sensor] + sorted(sensor_dir.glob("LICENSE*"))
+    optics_name = json.loads(sensor.read_text())["attributes"].get("optics")
+    if optics_name:
+        optics = sensor_dir / optics_name
+        files += [optics, sensor_dir / json.loads(optics.read_text())["background"]]
+    return files
 
 
 def model_files(model_dir: pathlib.Path) -> list[pathlib.Path]:
@@ -56,6 +72,11 @@ def stage(dest: pathlib.Path) -> None:
         model_dir.mkdir(parents=True)
         for f in model_files(ROOT / "models" / model):
             shutil.copy2(f, model_dir / f.name)
+    for sensor in SENSORS:
+        sensor_dir = dest / "tacrom" / "sensors" / sensor
+        sensor_dir.mkdir(parents=True)
+        for f in sensor_files(ROOT / "sensors" / sensor):
+            shutil.copy2(f, sensor_dir / f.name)
     assets = dest / "tacrom" / "envs" / "assets"
     (assets / "meshes").mkdir(parents=True)
     shutil.copy2(ROOT / "examples" / "gripper.xml", assets / "gripper.xml")

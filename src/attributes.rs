@@ -220,6 +220,21 @@ impl Valid {
     }
 }
 
+/// `sensor`.
+pub const SENSOR: Attribute = Attribute {
+    name: "sensor",
+    meaning: "a whole sensor from one file (written by `tacrom calibrate --gel`): its \
+              attributes become this sensor's defaults, and those given beside it override \
+              them",
+    unit: "",
+    default: Default::Depends("none: the defaults of this table"),
+    valid: Valid::Described(
+        "a sensor file or a folder holding `sensor.json` (relative to the working \
+         directory; paths inside it relative to the file), or a shipped sensor's name: \
+         `gelsight-mini`",
+    ),
+};
+
 /// `physics`.
 pub const PHYSICS: Attribute = Attribute {
     name: "physics",
@@ -432,6 +447,19 @@ pub const INDEX: Attribute = Attribute {
     valid: Valid::Range(Range::closed(1.0, 3.0)),
 };
 
+/// `view`.
+pub const VIEW: Attribute = Attribute {
+    name: "view",
+    meaning: "the side the images are seen from: the indenter's, or the camera's under the \
+              gel (columns mirrored, as a real sensor's camera records them)",
+    unit: "",
+    default: Default::Text("indenter"),
+    valid: Valid::Words {
+        words: &["indenter", "camera"],
+        several: false,
+    },
+};
+
 /// `coupling`.
 pub const COUPLING: Attribute = Attribute {
     name: "coupling",
@@ -472,9 +500,9 @@ pub const SOLVER: Attribute = Attribute {
 
 /// Every attribute the plugin declares to MuJoCo, in table order.
 pub const TABLE: &[Attribute] = &[
-    PHYSICS, OUTPUTS, RESOLUTION, FOV, SIZE, INDENTERS, YOUNG, POISSON, DENSITY, FRICTION, DX,
-    THREADS, MODEL, REFINE, TOLERANCE, MATERIAL, MARKERS, OPTICS, CAMERA, INDEX, COUPLING, DAMPING,
-    SOLVER,
+    SENSOR, PHYSICS, OUTPUTS, RESOLUTION, FOV, SIZE, INDENTERS, YOUNG, POISSON, DENSITY, FRICTION,
+    DX, THREADS, MODEL, REFINE, TOLERANCE, MATERIAL, MARKERS, OPTICS, CAMERA, VIEW, INDEX,
+    COUPLING, DAMPING, SOLVER,
 ];
 
 /// The attributes' names, in table order (what MuJoCo is told).
@@ -638,6 +666,7 @@ mod tests {
             .map(|r| r["name"].as_str().unwrap())
             .collect();
         assert_eq!(names, NAMES);
-        assert_eq!(v[6]["default"], "1.19e5");
+        let young = names.iter().position(|&n| n == YOUNG.name).unwrap();
+        assert_eq!(v[young]["default"], "1.19e5");
     }
 }

@@ -15,6 +15,10 @@ use crate::mpm::{Choice, GelParams, Material, Solver};
 use crate::render::calibrated::CalibratedOptics;
 pub use crate::render::refraction::Camera;
 
+/// `sensor`: [`attributes::SENSOR`].
+pub const ATTR_SENSOR: &str = attributes::SENSOR.name;
+/// `view`: [`attributes::VIEW`].
+pub const ATTR_VIEW: &str = attributes::VIEW.name;
 /// `physics`: [`attributes::PHYSICS`].
 pub const ATTR_PHYSICS: &str = attributes::PHYSICS.name;
 /// `outputs`: [`attributes::OUTPUTS`].
@@ -157,11 +161,25 @@ impl Physics {
 
 pub use crate::sensor::outputs::{Layout, Output, Seen};
 
+/// The side the images are seen from (`view`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum View {
+    /// From the indenter's side: row 0 at +y, column 0 at -x.
+    #[default]
+    Indenter,
+    /// From the camera under the gel: row 0 at +y, column 0 at +x (the indenter's view
+    /// mirrored left-right, as a real sensor's camera records it).
+    Camera,
+}
+
 /// The text of each attribute, as found in the MJCF; `None` when absent or empty.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct RawConfig {
     /// `(attribute, value)` pairs with non-empty values.
     pub values: Vec<(String, String)>,
+    /// The sensor file (`sensor`) whose attributes fill those the MJCF does not give, and
+    /// the attributes it gave ([`RawConfig::with_sensor_file`]).
+    from_file: Option<(std::path::PathBuf, Vec<String>)>,
 }
 
 impl RawConfig {
@@ -176,7 +194,33 @@ impl RawConfig {
                     .map(|v| (a.to_owned(), v))
             })
             .collect();
-        Self { values }
+        Self {
+            values,
+            from_file: None,
+        }
+    }
+
+    /// These attributes over the sensor file `file`'s: each attribute the file gives and
+    /// these do not is added, marked as the file's (for messages).
+    pub fn with_sensor_file(&self, file: &crate::sensor_file::SensorFile) -> RawConfig {
+        let mut merged = self.clone();
+        let mut given = Vec::new();
+        for (a, v) in &file.attributes {
+            if self.get(a).is_none() {
+                merged.values.push((a.clone(), v.clone()));
+                given.push(a.clone());
+            }
+        }
+        merged.from_file = Some((file.path.clone(), given));
+        merged
+    }
+
+    /// The sensor file that gave `attribute`'s value, if one did.
+    pub fn file_of(&self, attribute: &str) -> Option<&std::path::Path> {
+        self.from_file
+            .as_ref()
+            .filter(|(_, given)| given.iter().any(|a| a == attribute))
+            .map(|(path, _)| path.as_path())
     }
 
     /// The text of `attribute`, if given.
@@ -256,6 +300,8 @@ pub struct Config {
     pub optics: Option<Arc<CalibratedOptics>>,
     /// The camera under the gel.
     pub camera: Camera,
+    /// The side the images are seen from.
+    pub view: View,
     /// The gel's refractive index relative to the camera's medium.
     pub index: f64,
     /// Whether the gel's contact force is applied back to the bodies (`coupling`).
@@ -336,6 +382,18 @@ impl Config {
     }
 
     fn parse(name: &str, raw: &RawConfig, read_files: bool) -> Result<Config, ConfigError> {
+        // A sensor file gives the attributes the MJCF leaves out (read at compile time
+        // too: it may set the resolution or the outputs, and so the sensordata's size).
+        let merged;
+        let raw = match raw.get(ATTR_SENSOR) {
+            None => raw,
+            Some(value) => {
+                let file = crate::sensor_file::SensorFile::read(value)
+                    .map_err(|e| Parser { name, raw }.error(ATTR_SENSOR, e))?;
+                merged = raw.with_sensor_file(&file);
+                &merged
+            }
+        };
         let p = Parser { name, raw };
 
         let physics = p.physics()?;
@@ -439,6 +497,11 @@ impl Config {
             ));
         }
         let index = p.ranged::<1>(&attributes::INDEX, [defaults::INDEX])?[0];
+        let view = match raw.get(ATTR_VIEW).map(str::trim) {
+            None | Some("indenter") => View::Indenter,
+            Some("camera") => View::Camera,
+            Some(_) => return Err(p.error(ATTR_VIEW, "expected indenter or camera")),
+        };
         let coupling = match raw.get(ATTR_COUPLING).map(str::trim) {
             None | Some("off") => false,
             Some("on") => true,
@@ -489,6 +552,7 @@ impl Config {
             markers,
             optics,
             camera,
+            view,
             index,
             coupling,
             damping,
@@ -529,11 +593,15 @@ struct Parser<'a> {
 
 impl Parser<'_> {
     fn error(&self, attribute: &str, reason: impl fmt::Display) -> ConfigError {
+        let reason = match self.raw.file_of(attribute) {
+            Some(file) => format!("{reason} (the value of the sensor file {})", file.display()),
+            None => reason.to_string(),
+        };
         ConfigError {
             sensor: self.name.to_owned(),
             attribute: attribute.to_owned(),
             value: self.raw.get(attribute).unwrap_or("").to_owned(),
-            reason: reason.to_string(),
+            reason,
         }
     }
 
@@ -1117,6 +1185,76 @@ mod tests {
             .unwrap();
         let json = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
         (path, json)
+    }
+
+    /// A sensor file beside its optics, in a scratch folder of this test process.
+    fn sensor_file(name: &str, attributes: serde_json::Value) -> std::path::PathBuf {
+        let (optics, _) = optics_file(name);
+        let path = optics.parent().unwrap().join(crate::sensor_file::FILE_NAME);
+        let text =
+            serde_json::json!({"format": crate::sensor_file::FORMAT, "attributes": attributes});
+        std::fs::write(&path, text.to_string()).unwrap();
+        path
+    }
+
+    /// The file's attributes are the defaults; the MJCF's override them; its optics path is
+    /// the file's folder's; its folder names it as well as the file.
+    #[test]
+    fn a_sensor_file_gives_the_defaults_that_the_mjcf_overrides() {
+        let path = sensor_file(
+            "sensor-file",
+            serde_json::json!({"size": [0.02, 0.015, 0.002], "poisson": 0.45,
+                               "resolution": "40 30", "outputs": "depth rgb",
+                               "optics": "optics.json", "view": "camera"}),
+        );
+        let file = path.to_str().unwrap();
+        let c = parse(&[(ATTR_SENSOR, file), (ATTR_POISSON, "0.3")]).unwrap();
+        assert_eq!(c.size, [0.02, 0.015, 0.002]);
+        assert_eq!(c.poisson, 0.3);
+        assert_eq!((c.width, c.height), (40, 30));
+        assert_eq!(c.view, View::Camera);
+        assert!(c.optics.is_some());
+        let folder = path.parent().unwrap().to_str().unwrap();
+        assert_eq!(parse(&[(ATTR_SENSOR, folder)]).unwrap().poisson, 0.45);
+        // The same sizes at compile time, without reading the optics.
+        let raw = RawConfig::default().with(ATTR_SENSOR, file);
+        let early = Config::without_files("touch", &raw).unwrap();
+        assert_eq!(early.sensordata_len(), c.sensordata_len());
+    }
+
+    /// A bad value in a sensor file is refused naming the attribute, the value and the
+    /// file; a missing or malformed file names `sensor`.
+    #[test]
+    fn a_bad_sensor_file_names_the_sensor_the_attribute_and_the_fault() {
+        let path = sensor_file("sensor-bad", serde_json::json!({"poisson": 0.7}));
+        let e = parse(&[(ATTR_SENSOR, path.to_str().unwrap())]).unwrap_err();
+        assert_eq!(
+            (e.sensor.as_str(), e.attribute.as_str(), e.value.as_str()),
+            ("touch", ATTR_POISSON, "0.7")
+        );
+        assert!(e.reason.contains(path.to_str().unwrap()), "{e}");
+        // Given beside the file, the same value is the MJCF's, not the file's.
+        let e = parse(&[(ATTR_SENSOR, path.to_str().unwrap()), (ATTR_POISSON, "0.8")]).unwrap_err();
+        assert!(!e.reason.contains("sensor file"), "{e}");
+        let e = parse(&[(ATTR_SENSOR, "/no/such/file.json")]).unwrap_err();
+        assert_eq!(e.attribute, ATTR_SENSOR);
+        std::fs::write(
+            &path,
+            "{\"format\": \"tacrom-sensor-1\", \"attributes\": {\"yung\": 1}}",
+        )
+        .unwrap();
+        let e = parse(&[(ATTR_SENSOR, path.to_str().unwrap())]).unwrap_err();
+        assert_eq!(e.attribute, ATTR_SENSOR);
+        assert!(e.reason.contains("yung"), "{e}");
+    }
+
+    /// The shipped sensors load by name.
+    #[test]
+    fn the_shipped_sensors_load_by_name() {
+        for name in crate::sensor_file::SHIPPED {
+            let c = parse(&[(ATTR_SENSOR, name), (ATTR_OUTPUTS, "depth rgb")]);
+            assert!(c.is_ok(), "{name}: {c:?}");
+        }
     }
 
     #[test]

@@ -18,6 +18,7 @@ pub mod mujoco;
 pub mod render;
 pub mod rom;
 pub mod sensor;
+pub mod sensor_file;
 pub mod state;
 pub mod visual;
 
@@ -28,6 +29,21 @@ pub mod visual;
 pub fn checkout_root() -> &'static std::path::Path {
     static ROOT: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
     ROOT.get_or_init(|| std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")))
+}
+
+/// The shipped folder `kind/name` (`models/rom-linear`, `sensors/gelsight-mini`) that
+/// holds `file`: looked for beside the plugin library first, walking up from its folder
+/// (an installed wheel keeps `tacrom/models` and `tacrom/sensors` above `tacrom/_lib`),
+/// then in the checkout it was built from.
+pub fn shipped_dir(kind: &str, name: &str, file: &str) -> Option<std::path::PathBuf> {
+    let mut candidates = Vec::new();
+    if let Some(lib) = rom::runtime::own_library_path() {
+        for dir in lib.ancestors().skip(1).take(4) {
+            candidates.push(dir.join(kind).join(name));
+        }
+    }
+    candidates.push(checkout_root().join(kind).join(name));
+    candidates.into_iter().find(|d| d.join(file).is_file())
 }
 
 /// The benchmark meshes (`../shared/indenters/patterns` beside the checkout) when present,

@@ -94,3 +94,60 @@ fn every_outputs_buffer_is_copied_reset_and_cleared_without_contact() {
         );
     }
 }
+
+/// `view="camera"` mirrors every image output left-right, exactly, and the markers'
+/// columns with it; vectors (force) and the markers' displacements are the gel's, the same
+/// in both views. Pressed off-centre, so that the mirror is not the image itself.
+#[test]
+fn the_camera_view_mirrors_every_image_and_nothing_else() {
+    use tacrom::config::ATTR_VIEW;
+    use tacrom::sensor::outputs::Shape;
+    let (w, h) = (24, 18);
+    for output in TABLE {
+        let physics = if output.spec().needs_gel {
+            "coarse"
+        } else {
+            "rigid"
+        };
+        let name = output.name();
+        let run = |view: &str| {
+            let raw = RawConfig::default()
+                .with(ATTR_PHYSICS, physics)
+                .with(ATTR_OUTPUTS, name)
+                .with(ATTR_RESOLUTION, "24 18")
+                .with(ATTR_VIEW, view);
+            let mut s = TactileSensor::new(Config::from_raw("touch", &raw).unwrap()).unwrap();
+            eval(&mut s, &ball(2.5e-3, 0.4e-3))
+        };
+        let (indenter, camera) = (run("indenter"), run("camera"));
+        match output.spec().shape {
+            Shape::Image { channels } => {
+                assert_ne!(
+                    indenter, camera,
+                    "{name}: an off-centre press is not symmetric"
+                );
+                for r in 0..h {
+                    for c in 0..w {
+                        for k in 0..channels {
+                            let a = indenter[(r * w + c) * channels + k];
+                            let b = camera[(r * w + (w - 1 - c)) * channels + k];
+                            assert_eq!(a, b, "{name}: pixel ({r}, {c}) channel {k}");
+                        }
+                    }
+                }
+            }
+            Shape::PerMarker(n) => {
+                for (a, b) in indenter.chunks_exact(n).zip(camera.chunks_exact(n)) {
+                    // Mirrored by one subtraction: equal to its rounding.
+                    let mirrored = (w - 1) as f64 - b[0];
+                    assert!(
+                        (a[0] - mirrored).abs() < 1e-12,
+                        "{name}: the marker's column"
+                    );
+                    assert_eq!(a[1..], b[1..], "{name}: its row and displacement");
+                }
+            }
+            Shape::Vector(_) => assert_eq!(indenter, camera, "{name}"),
+        }
+    }
+}

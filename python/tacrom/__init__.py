@@ -31,7 +31,7 @@ import os
 import pathlib
 import struct
 import zlib
-from typing import Dict, Optional
+from typing import Dict, Mapping, Optional
 
 import numpy as np
 
@@ -89,6 +89,8 @@ def load(path: Optional[os.PathLike] = None) -> pathlib.Path:
     _lib.tacrom_output_table.argtypes = [ctypes.c_char_p, ctypes.c_int]
     _lib.tacrom_attribute_table.restype = ctypes.c_int
     _lib.tacrom_attribute_table.argtypes = [ctypes.c_char_p, ctypes.c_int]
+    _lib.tacrom_sensor_file.restype = ctypes.c_int
+    _lib.tacrom_sensor_file.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_int]
     return lib_path
 
 
@@ -138,6 +140,31 @@ def attribute_table() -> list:
     MJCF, or in words where it depends on other attributes; ``valid`` in words)."""
     load()
     return _json_from(_lib.tacrom_attribute_table, "tacrom attribute table")
+
+
+def sensor_file(value: str) -> Dict[str, str]:
+    """The attributes a sensor file gives (``sensor="..."``: a file, its folder, or a shipped
+    sensor's name such as ``"gelsight-mini"``), as MJCF text, paths relative to the working
+    directory, with the file's own path under ``"path"``. Raises ``ValueError`` naming the
+    fault of a missing or bad file."""
+    load()
+    return _json_from(
+        lambda buf, size: _lib.tacrom_sensor_file(str(value).encode(), buf, size),
+        f"sensor file {value!r}",
+    )
+
+
+def attribute(config: Mapping[str, object], name: str) -> str:
+    """The value attribute ``name`` takes in a sensor configured by ``config`` (MJCF
+    attributes as a mapping): as ``config`` gives it, else as its sensor file
+    (``config["sensor"]``) gives it, else its default."""
+    if config.get(name):
+        return str(config[name])
+    if config.get("sensor"):
+        given = sensor_file(str(config["sensor"]))
+        if name in given:
+            return given[name]
+    return attribute_default(name)
 
 
 def attribute_default(name: str) -> str:

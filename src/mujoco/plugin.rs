@@ -963,6 +963,44 @@ pub unsafe extern "C" fn tacrom_attribute_table(buf: *mut c_char, len: c_int) ->
     })
 }
 
+/// The attributes of the sensor file that the `sensor` attribute's value `value` names
+/// ([`crate::sensor_file`]), as a JSON object of MJCF text (paths relative to the working
+/// directory) with the file's path under `"path"`, written as [`tacrom_output_table`]
+/// writes the output table; on a missing or bad file, the reason, NUL-terminated, and -1.
+///
+/// # Safety
+/// `value` must be a NUL-terminated string; `buf` must hold `len` bytes.
+#[no_mangle]
+pub unsafe extern "C" fn tacrom_sensor_file(
+    value: *const c_char,
+    buf: *mut c_char,
+    len: c_int,
+) -> c_int {
+    guarded(ERROR, || {
+        if value.is_null() {
+            write_msg(buf, len, "no sensor file named");
+            return ERROR;
+        }
+        // SAFETY: the caller passes a NUL-terminated string.
+        let value = unsafe { std::ffi::CStr::from_ptr(value) }.to_string_lossy();
+        match crate::sensor_file::SensorFile::read(&value) {
+            Ok(file) => {
+                let mut a: serde_json::Map<String, serde_json::Value> = file
+                    .attributes
+                    .into_iter()
+                    .map(|(k, v)| (k, serde_json::Value::String(v)))
+                    .collect();
+                a.insert("path".into(), file.path.display().to_string().into());
+                json_into(buf, len, &serde_json::Value::Object(a).to_string())
+            }
+            Err(e) => {
+                write_msg(buf, len, &e);
+                ERROR
+            }
+        }
+    })
+}
+
 /// Writes `json` NUL-terminated into `buf` when it fits in `len` bytes; returns its
 /// length without the NUL.
 fn json_into(buf: *mut c_char, len: c_int, json: &str) -> c_int {

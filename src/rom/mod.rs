@@ -886,16 +886,7 @@ pub fn default_model_dir() -> Option<PathBuf> {
 
 /// The directory of the shipped model `name` (see [`default_model_dir`]).
 pub fn shipped_model_dir(name: &str) -> Option<PathBuf> {
-    let mut candidates = Vec::new();
-    if let Some(lib) = runtime::own_library_path() {
-        for dir in lib.ancestors().skip(1).take(4) {
-            candidates.push(dir.join("models").join(name));
-        }
-    }
-    candidates.push(crate::checkout_root().join("models").join(name));
-    candidates
-        .into_iter()
-        .find(|d| d.join("manifest.json").is_file())
+    crate::shipped_dir("models", name, "manifest.json")
 }
 
 impl Rom {

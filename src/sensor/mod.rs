@@ -466,7 +466,32 @@ impl TactileSensor {
                 }
                 _ => (spec.write)(&frame, slot),
             }
+            if self.config.view == crate::config::View::Camera {
+                match spec.shape {
+                    Shape::Image { channels } => mirror_columns(slot, self.config.width, channels),
+                    Shape::PerMarker(values) => {
+                        // The marker's column, as the mirrored image shows it.
+                        let last = self.config.width as f64 - 1.0;
+                        slot.chunks_exact_mut(values)
+                            .for_each(|m| m[0] = last - m[0]);
+                    }
+                    _ => {}
+                }
+            }
             at += n;
+        }
+    }
+}
+
+/// Mirrors an image (rows of `width` pixels of `channels` values) left-right in place: the
+/// indenter's view as the camera under the gel sees it (`view="camera"`).
+fn mirror_columns(image: &mut [f64], width: usize, channels: usize) {
+    for row in image.chunks_exact_mut(width * channels) {
+        for c in 0..width / 2 {
+            let (a, b) = (c * channels, (width - 1 - c) * channels);
+            for k in 0..channels {
+                row.swap(a + k, b + k);
+            }
         }
     }
 }

@@ -82,6 +82,9 @@ def test_the_wheel_holds_the_library_the_model_and_the_package(wheel):
         "tacrom/models/rom-linear/encoder.onnx",
         "tacrom/models/rom-linear/decoder_int8.onnx",
         "tacrom/models/rom-linear/decoder_jacobian.onnx",
+        "tacrom/sensors/gelsight-mini/sensor.json",
+        "tacrom/sensors/gelsight-mini/optics.json",
+        "tacrom/sensors/gelsight-mini/LICENSE-taxim",
     ]:
         assert name in names, name
     # Training artefacts stay out, and so does the float decoder that rom-linear's 8-bit

@@ -58,6 +58,10 @@ pub enum Command {
     /// Fit the rgb output's optics (gradient-to-colour table and background) to ball
     /// presses, or write a synthetic press set.
     Calibrate(CalibrateArgs),
+    /// A sensor file's images against a device's own ball presses: per row (background,
+    /// rigid, the sensor file's gel, other gels, other renderers' images) MAE, SSIM and
+    /// PSNR over each held-out press's region and its whole image.
+    Compare(CompareArgs),
     /// Developer measurements of one solver question each (`tacrom probe --help` lists
     /// them; each probe's module doc says its arguments).
     Probe(ProbeArgs),
@@ -563,6 +567,29 @@ pub struct CalibrateArgs {
     /// image: flip them (and given centres) first.
     #[arg(long)]
     pub mirror: bool,
+    /// Detect every contact from its image, even where presses.json gives one (hand-drawn
+    /// circles on real images can be off by a fifth of their radius).
+    #[arg(long, conflicts_with = "synthesize")]
+    pub detect: bool,
+    /// Fit the gel too (thickness and Poisson's ratio, from the imprint around each
+    /// contact) and write a sensor file, sensor.json, beside the optics.
+    #[arg(long, conflicts_with = "synthesize")]
+    pub gel: bool,
+    /// The gel thicknesses to try (mm, ascending) [1,1.5,2,3,4,5].
+    #[arg(long, value_name = "MM,...", value_delimiter = ',', requires = "gel",
+          value_parser = positive)]
+    pub thickness: Vec<f64>,
+    /// The Poisson's ratios to try (ascending) [0.3,0.38,0.43,0.46,0.48].
+    #[arg(long, value_name = "NU,...", value_delimiter = ',', requires = "gel",
+          value_parser = non_negative)]
+    pub poisson: Vec<f64>,
+    /// The gel fit's grid spacing, every candidate's (mm) [the thinnest over 2].
+    #[arg(long, value_name = "MM", requires = "gel", value_parser = positive)]
+    pub dx: Option<f64>,
+    /// Solver threads of the gel fit.
+    #[arg(long, value_name = "N", default_value_t = 1, requires = "gel",
+          value_parser = at_least_one)]
+    pub threads: usize,
     /// Write a synthetic press set into DIR instead (built-in optics, rigid ball caps).
     #[arg(long, value_name = "DIR")]
     pub synthesize: Option<PathBuf>,
@@ -584,6 +611,59 @@ pub struct CalibrateArgs {
     /// Leave the contacts out of the synthetic presses.json (calibrate detects them).
     #[arg(long, requires = "synthesize")]
     pub no_contact: bool,
+}
+
+/// Options of `tacrom compare` (crates/tacrom-tools/src/calibrate/compare.rs).
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// The calibration folder (presses.json, background.png, the press images).
+    #[arg(value_name = "DIR")]
+    pub input: PathBuf,
+    /// The sensor file (or its folder, or a shipped sensor's name).
+    #[arg(long, value_name = "FILE")]
+    pub sensor: String,
+    /// Score every K-th press (those `tacrom calibrate --holdout K` held out); 0 or 1: all.
+    #[arg(long, value_name = "K", default_value_t = calibrate::DEFAULT_HOLDOUT)]
+    pub holdout: usize,
+    /// The images are as the camera sees them: flip them first.
+    #[arg(long)]
+    pub mirror: bool,
+    /// Detect every contact from its image, even where presses.json gives one.
+    #[arg(long)]
+    pub detect: bool,
+    /// Contact detection threshold (grey levels).
+    #[arg(long, value_name = "LEVELS", default_value_t = calibrate::contact::DEFAULT_THRESHOLD,
+          value_parser = positive)]
+    pub threshold: f64,
+    /// A row: LABEL=ATTR:VALUE,... (the sensor file's sensor with these attributes;
+    /// gel:default leaves its gel to the defaults) or LABEL=@DIR (another renderer's images
+    /// of the same names) [background, rigid, the sensor file, coarse and rom on the
+    /// default gel].
+    #[arg(long = "row", value_name = "SPEC")]
+    pub rows: Vec<String>,
+    /// Add the default rows before the --row ones.
+    #[arg(long)]
+    pub with_defaults: bool,
+    /// Solver threads.
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = at_least_one)]
+    pub threads: usize,
+    /// Write the table as JSON here too.
+    #[arg(long, value_name = "FILE")]
+    pub json: Option<PathBuf>,
+    /// Write a figure here (PNG): for the first --figure-presses presses, the real image
+    /// beside each row's, cropped around the press.
+    #[arg(long, value_name = "FILE")]
+    pub figure: Option<PathBuf>,
+    /// Presses in the figure.
+    #[arg(long, value_name = "N", default_value_t = 3)]
+    pub figure_presses: usize,
+    /// Fail when a row is worse than this table (JSON of --json) by more than --tolerance
+    /// in MAE or SSIM (region or image).
+    #[arg(long, value_name = "FILE")]
+    pub baseline: Option<PathBuf>,
+    /// The regression --baseline tolerates.
+    #[arg(long, value_name = "X", default_value_t = 0.005, value_parser = non_negative)]
+    pub tolerance: f64,
 }
 
 #[cfg(test)]

@@ -13,8 +13,8 @@ use tacrom_tools::bench::plot::depth_image;
 use tacrom_tools::bench::protocol::Indenter;
 use tacrom_tools::bench::{BenchError, BenchOptions, IndenterSource};
 use tacrom_tools::cli::{
-    BenchArgs, CalibrateArgs, Cli, Command, EvalRomArgs, GenDataArgs, MpmArgs, MpmPart, RenderArgs,
-    RomFeaturesArgs, StabilityArgs,
+    BenchArgs, CalibrateArgs, Cli, Command, CompareArgs, EvalRomArgs, GenDataArgs, MpmArgs,
+    MpmPart, RenderArgs, RomFeaturesArgs, StabilityArgs,
 };
 use tacrom_tools::progress::Progress;
 
@@ -28,6 +28,7 @@ fn main() -> ExitCode {
         Command::EvalRom(a) => eval_rom(a),
         Command::RomFeatures(a) => rom_features(a),
         Command::Calibrate(a) => calibrate(a),
+        Command::Compare(a) => compare(a),
         Command::DocTables(a) => doc_tables(a),
         Command::Probe(a) => {
             tacrom_tools::probe::run(&a.name, a.args);
@@ -453,8 +454,83 @@ fn calibrate(a: CalibrateArgs) -> Result<(), BenchError> {
     o.edge_margin = a.edge_margin;
     o.threshold = a.threshold;
     o.mirror = a.mirror;
+    o.detect = a.detect;
+    if a.gel {
+        let mut search = cal::gel::GelSearch {
+            threads: a.threads,
+            dx: a.dx.map(|d| d * 1e-3),
+            ..Default::default()
+        };
+        if !a.thickness.is_empty() {
+            search.thicknesses = a.thickness.iter().map(|t| t * 1e-3).collect();
+        }
+        if !a.poisson.is_empty() {
+            search.poissons = a.poisson;
+        }
+        o.gel = Some(search);
+    }
     let report = cal::calibrate(&o).map_err(usage)?;
     print!("{}", cal::markdown(&report));
+    Ok(())
+}
+
+fn compare(a: CompareArgs) -> Result<(), BenchError> {
+    use tacrom_tools::calibrate::compare::{self as cmp, Row};
+    let usage = BenchError::Usage;
+    let mut rows = if a.rows.is_empty() || a.with_defaults {
+        Row::defaults()
+    } else {
+        Vec::new()
+    };
+    for spec in &a.rows {
+        rows.push(Row::parse(spec).map_err(usage)?);
+    }
+    let sensor = tacrom::sensor_file::locate(&a.sensor)
+        .map_err(|e| usage(format!("--sensor {}: {e}", a.sensor)))?;
+    let o = cmp::CompareOptions {
+        input: a.input,
+        sensor,
+        holdout: a.holdout,
+        mirror: a.mirror,
+        detect: a.detect,
+        threshold: a.threshold,
+        rows,
+        threads: a.threads,
+        figure_presses: if a.figure.is_some() {
+            a.figure_presses
+        } else {
+            0
+        },
+    };
+    let (table, figure) = cmp::compare_with_figure(&o).map_err(|e| usage(e.to_string()))?;
+    if let Some(path) = &a.figure {
+        figure.write(path, 160).map_err(|e| usage(e.to_string()))?;
+        println!("Figure: {} ({})", path.display(), figure.labels.join(" | "));
+    }
+    print!("{}", cmp::markdown(&table));
+    let json = serde_json::to_string_pretty(&table).expect("a table of numbers and text");
+    if let Some(path) = &a.json {
+        std::fs::write(path, json + "\n").map_err(|e| usage(format!("{}: {e}", path.display())))?;
+    }
+    if let Some(path) = &a.baseline {
+        let text =
+            std::fs::read_to_string(path).map_err(|e| usage(format!("{}: {e}", path.display())))?;
+        let baseline: cmp::Table =
+            serde_json::from_str(&text).map_err(|e| usage(format!("{}: {e}", path.display())))?;
+        let worse = cmp::regressions(&table, &baseline, a.tolerance);
+        if !worse.is_empty() {
+            return Err(usage(format!(
+                "worse than {}:\n  {}",
+                path.display(),
+                worse.join("\n  ")
+            )));
+        }
+        println!(
+            "\nNo row worse than {} by more than {}.",
+            path.display(),
+            a.tolerance
+        );
+    }
     Ok(())
 }
 

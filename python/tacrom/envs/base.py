@@ -40,16 +40,18 @@ def configure_sensors(
     spec: mujoco.MjSpec,
     sensors: Sequence[str],
     *,
-    physics: str,
+    physics: Optional[str],
     resolution: tuple[int, int],
     outputs: Sequence[str],
     extra: Optional[Mapping[str, object]] = None,
 ) -> float:
     """Sets ``physics``, ``resolution`` and ``outputs`` of the named tacrom sensors in
-    ``spec``, and any other attributes given in ``extra`` (such as ``tolerance`` or
-    ``threads``, docs/configuration.md); the rest stay as the scene has them.
+    ``spec``, and any other attributes given in ``extra`` (such as ``tolerance``,
+    ``threads`` or ``sensor``, a sensor file or a shipped sensor's name such as
+    ``"gelsight-mini"``; docs/configuration.md); the rest stay as the scene has them.
+    ``physics=None`` leaves it to the sensor file (or the scene, or the default).
     Returns the thickest of their gels (m), the bound of their depth images."""
-    if physics not in PHYSICS:
+    if physics is not None and physics not in PHYSICS:
         raise ValueError(f"physics must be one of {PHYSICS}, not {physics!r}")
     width, height = (int(v) for v in resolution)
     found = {s.name: s for s in spec.sensors}
@@ -60,9 +62,14 @@ def configure_sensors(
         plugin = found[name].plugin
         config = dict(plugin.config)
         config.update({str(k): str(v) for k, v in (extra or {}).items()})
-        config.update(physics=physics, resolution=f"{width} {height}", outputs=" ".join(outputs))
+        config.update(resolution=f"{width} {height}", outputs=" ".join(outputs))
+        if physics is not None:
+            config["physics"] = physics
+        elif "sensor" in (extra or {}):
+            # The scene's own physics gives way to the sensor file's.
+            config.pop("physics", None)
         plugin.config = config
-        size = config.get("size") or tacrom.attribute_default("size")
+        size = tacrom.attribute(config, "size")
         thickness = max(thickness, float(size.split()[2]))
     return thickness
 

@@ -68,8 +68,9 @@ class GripperLiftEnv(TactileEnv):
 
     ``physics``: ``"rigid"`` by default (no gel: a grasp's fingertip gels cost the sensor's
     default ``"rom"`` about 120 ms a step, docs/rl.md), ``"coarse"`` or ``"rom"``.
-    ``sensor_config``: further attributes of both sensors (``{"tolerance": "1e-2"}``,
-    ``{"threads": 2}``; docs/configuration.md).
+    ``sensor``: a sensor file or a shipped sensor's name for both fingertips (the scene's
+    is ``"gelsight-mini"``). ``sensor_config``: further attributes of both sensors
+    (``{"tolerance": "1e-2"}``, ``{"threads": 2}``; docs/configuration.md).
     """
 
     def __init__(
@@ -83,6 +84,7 @@ class GripperLiftEnv(TactileEnv):
         frame_skip: int = 20,
         render_size: tuple[int, int] = (320, 240),
         sensor_config: Optional[dict] = None,
+        sensor: Optional[str] = None,
     ) -> None:
         if object != "random" and object not in OBJECTS:
             raise ValueError(f"object must be 'random' or one of {OBJECTS}, not {object!r}")
@@ -94,7 +96,7 @@ class GripperLiftEnv(TactileEnv):
             physics=physics,
             resolution=resolution,
             outputs=outputs,
-            extra=sensor_config,
+            extra={**(sensor_config or {}), **({"sensor": sensor} if sensor else {})},
         )
         super().__init__(
             spec.compile(),

@@ -9,6 +9,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+import tacrom
 from tacrom.envs.base import TactileEnv, configure_sensors
 
 #: The press scene: a sphere (R = 5 mm) on two slide joints ("x" along the gel, "press"
@@ -53,7 +54,7 @@ MAX_PRESS = 0.001
 
 
 def press_model(
-    physics: str, resolution: tuple[int, int], outputs=("depth",), sensor_config=None
+    physics: Optional[str], resolution: tuple[int, int], outputs=("depth",), sensor_config=None
 ) -> tuple[mujoco.MjModel, float]:
     """The press scene compiled with its sensor ``touch`` configured; returns the model and
     the gel's thickness (m)."""
@@ -92,13 +93,15 @@ class PressEnv(TactileEnv):
     with ``gymnasium.make``).
 
     ``physics``: the sensor's default, ``"rom"`` (on the linear gel, about 4 ms a step), or
-    ``"rigid"`` (no gel, a fraction of a millisecond) or ``"coarse"``. ``sensor_config``:
-    further attributes of the sensor (``{"tolerance": "1e-2"}``; docs/configuration.md).
+    ``"rigid"`` (no gel, a fraction of a millisecond) or ``"coarse"``. ``sensor``: a sensor
+    file or a shipped sensor's name (``"gelsight-mini"``): its gel, camera and optics, and
+    its physics unless ``physics`` is given. ``sensor_config``: further attributes of the
+    sensor (``{"tolerance": "1e-2"}``; docs/configuration.md).
     """
 
     def __init__(
         self,
-        physics: str = "rom",
+        physics: Optional[str] = None,
         resolution: tuple[int, int] = (64, 48),
         tactile_rgb: bool = False,
         render_mode: Optional[str] = None,
@@ -106,9 +109,15 @@ class PressEnv(TactileEnv):
         frame_skip: int = 25,
         render_size: tuple[int, int] = (320, 240),
         sensor_config: Optional[dict] = None,
+        sensor: Optional[str] = None,
     ) -> None:
         outputs = ["depth", "rgb"] if tactile_rgb else ["depth"]
-        model, thickness = press_model(physics, resolution, outputs, sensor_config)
+        config = dict(sensor_config or {})
+        if sensor is not None:
+            config["sensor"] = sensor
+        elif physics is None:
+            physics = "rom"
+        model, thickness = press_model(physics, resolution, outputs, config)
         super().__init__(
             model,
             ["touch"],
@@ -119,9 +128,9 @@ class PressEnv(TactileEnv):
             render_size=render_size,
             camera="side",
         )
-        self.physics = physics
+        self.physics = physics or tacrom.attribute(config, "physics")
         self.target_x = float(target_x)
-        self._fov_x = 0.024
+        self._fov_x = float(tacrom.attribute(config, "fov").split()[0])
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.observation_space = gym.spaces.Dict(
             {

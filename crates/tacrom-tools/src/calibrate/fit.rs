@@ -113,6 +113,40 @@ pub fn press_samples(
     }
 }
 
+/// Appends the samples a simulated surface gives: each pixel of `mask` (away from the
+/// image's border) gives the gradient of the depth image `depth` (m, `press`'s grid) by
+/// central differences, as the sensor's renderer takes it, and the colour change of
+/// `press`'s image against `background` there. Where the simulated gel matches the real
+/// one, these extend the contact's samples to the imprint around it.
+pub fn surface_samples(
+    background: &RgbImage,
+    press: &Press,
+    depth: &[f64],
+    mask: &[bool],
+    out: &mut Vec<Sample>,
+) {
+    let (w, h) = (press.image.width, press.image.height);
+    let step = 0.5 / press.pixel_size;
+    for r in 1..h.saturating_sub(1) {
+        for c in 1..w.saturating_sub(1) {
+            let i = r * w + c;
+            if !mask[i] {
+                continue;
+            }
+            // Row r - 1 is towards +y.
+            let gradient = [
+                (depth[i + 1] - depth[i - 1]) * step,
+                (depth[i - w] - depth[i + w]) * step,
+            ];
+            let (img, bg) = (press.image.pixel(r, c), background.pixel(r, c));
+            out.push(Sample {
+                gradient,
+                change: [0, 1, 2].map(|k| img[k] - bg[k]),
+            });
+        }
+    }
+}
+
 /// How to fit the table.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct FitOptions {

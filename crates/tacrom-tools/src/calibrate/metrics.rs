@@ -74,6 +74,26 @@ pub fn mae(a: &[f64], b: &[f64], mask: Option<&[bool]>) -> f64 {
     }
 }
 
+/// Peak signal-to-noise ratio (dB) of two `(H, W, 3)` images on the 0..255 scale over the
+/// pixels where `mask` holds (all when `None`): `10 log10(255^2 / MSE)`; infinite for
+/// equal images.
+pub fn psnr(a: &[f64], b: &[f64], mask: Option<&[bool]>) -> f64 {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (i, (pa, pb)) in a
+        .chunks_exact(CHANNELS)
+        .zip(b.chunks_exact(CHANNELS))
+        .enumerate()
+    {
+        if mask.is_some_and(|m| !m[i]) {
+            continue;
+        }
+        sum += (0..CHANNELS).map(|k| (pa[k] - pb[k]).powi(2)).sum::<f64>();
+        count += CHANNELS;
+    }
+    let mse = sum / count.max(1) as f64;
+    10.0 * (FULL_SCALE * FULL_SCALE / mse).log10()
+}
+
 /// The grey image (ITU-R BT.601 luma) of an `(H, W, 3)` image.
 pub fn grey(rgb: &[f64]) -> Vec<f64> {
     rgb.chunks_exact(CHANNELS)
@@ -81,7 +101,8 @@ pub fn grey(rgb: &[f64]) -> Vec<f64> {
         .collect()
 }
 
-fn mean(values: &[f64], mask: Option<&[bool]>) -> f64 {
+/// The mean of `values` where `mask` holds (1 over no values: the SSIM of nothing).
+pub fn mean(values: &[f64], mask: Option<&[bool]>) -> f64 {
     let (mut sum, mut count) = (0.0, 0usize);
     for (i, v) in values.iter().enumerate() {
         if mask.map_or(true, |m| m[i]) {
@@ -202,5 +223,9 @@ mod tests {
         assert!((mae(&a, &b, None) - 1.0).abs() < 1e-12);
         let mask = [true, false, false, false];
         assert!((mae(&a, &b, Some(&mask)) - 1.0).abs() < 1e-12);
+        // PSNR of that offset: MSE 3 (9 over three channels), 10 log10(255^2 / 3).
+        let expected = 10.0 * (255.0f64 * 255.0 / 3.0).log10();
+        assert!((psnr(&a, &b, None) - expected).abs() < 1e-9);
+        assert!(psnr(&a, &a, None).is_infinite());
     }
 }

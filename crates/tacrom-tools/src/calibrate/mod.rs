@@ -33,8 +33,10 @@
 //! the centre of column `c`; a press without `center_px` or `contact_radius_px` has them
 //! detected ([`contact::detect`]).
 
+pub mod compare;
 pub mod contact;
 pub mod fit;
+pub mod gel;
 pub mod metrics;
 pub mod synth;
 
@@ -82,7 +84,7 @@ pub enum CalibrateError {
     Usage(String),
 }
 
-fn file_error(path: &Path, message: impl std::fmt::Display) -> CalibrateError {
+pub(crate) fn file_error(path: &Path, message: impl std::fmt::Display) -> CalibrateError {
     CalibrateError::File {
         path: path.to_owned(),
         message: message.to_string(),
@@ -136,6 +138,8 @@ pub struct Press {
     pub pixel_size: f64,
     /// The contact circle (pixels).
     pub contact: Contact,
+    /// The circle `presses.json` gives, when it gives one.
+    pub given: Option<Contact>,
     /// Whether the contact was detected (not given).
     pub detected: bool,
 }
@@ -162,7 +166,7 @@ pub struct PressSet {
 }
 
 /// Flips an image left-right (camera view to the sensor's view).
-fn mirrored(img: &RgbImage) -> RgbImage {
+pub(crate) fn mirrored(img: &RgbImage) -> RgbImage {
     let mut data = Vec::with_capacity(img.data.len());
     for r in 0..img.height {
         for c in (0..img.width).rev() {
@@ -180,6 +184,18 @@ fn mirrored(img: &RgbImage) -> RgbImage {
 /// image; detects the contacts not given (`threshold`: [`contact::detect`]). With
 /// `mirror`, every image is flipped left-right first, and given centres with it.
 pub fn read_set(dir: &Path, mirror: bool, threshold: f64) -> Result<PressSet, CalibrateError> {
+    read_set_detecting(dir, mirror, threshold, false)
+}
+
+/// [`read_set`], with `detect_all` detecting every press's contact from its image even
+/// where `presses.json` gives one (kept as [`Press::given`]): hand-drawn circles on real
+/// images can be off by a fifth of their radius.
+pub fn read_set_detecting(
+    dir: &Path,
+    mirror: bool,
+    threshold: f64,
+    detect_all: bool,
+) -> Result<PressSet, CalibrateError> {
     let list_path = dir.join(PRESS_LIST);
     let text = std::fs::read_to_string(&list_path).map_err(|e| file_error(&list_path, e))?;
     let list: PressList = serde_json::from_str(&text).map_err(|e| file_error(&list_path, e))?;
@@ -224,8 +240,12 @@ pub fn read_set(dir: &Path, mirror: bool, threshold: f64) -> Result<PressSet, Ca
                 r,
             ]
         });
+        let given = match (centre, entry.contact_radius_px) {
+            (Some(centre), Some(radius)) => Some(Contact { centre, radius }),
+            _ => None,
+        };
         let detected = match (centre, entry.contact_radius_px) {
-            (Some(_), Some(_)) => None,
+            (Some(_), Some(_)) if !detect_all => None,
             _ => Some(
                 contact::detect(&background, &image, threshold).ok_or_else(|| {
                     bad(format!(
@@ -235,11 +255,14 @@ pub fn read_set(dir: &Path, mirror: bool, threshold: f64) -> Result<PressSet, Ca
                 })?,
             ),
         };
-        let contact = Contact {
-            centre: centre.unwrap_or_else(|| detected.unwrap().centre),
-            radius: entry
-                .contact_radius_px
-                .unwrap_or_else(|| detected.unwrap().radius),
+        // What the list gives, unless every contact is detected; the rest detected.
+        let contact = match detected {
+            Some(d) if detect_all => d,
+            Some(d) => Contact {
+                centre: centre.unwrap_or(d.centre),
+                radius: entry.contact_radius_px.unwrap_or(d.radius),
+            },
+            None => given.expect("detected where not given"),
         };
         let (ball_radius, pixel_size) = (entry.ball_radius_mm * 1e-3, entry.pixel_size_mm * 1e-3);
         if !(contact.centre.iter().all(|v| v.is_finite()) && positive(contact.radius)) {
@@ -258,6 +281,7 @@ pub fn read_set(dir: &Path, mirror: bool, threshold: f64) -> Result<PressSet, Ca
             ball_radius,
             pixel_size,
             contact,
+            given,
             detected: detected.is_some(),
         });
     }
@@ -284,6 +308,10 @@ pub struct CalibrateOptions {
     pub threshold: f64,
     /// Flip the images left-right first.
     pub mirror: bool,
+    /// Detect every contact from its image, even where `presses.json` gives one.
+    pub detect: bool,
+    /// Fit the gel too, over these candidates, and write a sensor file beside the optics.
+    pub gel: Option<gel::GelSearch>,
 }
 
 impl CalibrateOptions {
@@ -297,6 +325,8 @@ impl CalibrateOptions {
             edge_margin: DEFAULT_EDGE_MARGIN,
             threshold: contact::DEFAULT_THRESHOLD,
             mirror: false,
+            detect: false,
+            gel: None,
         }
     }
 }
@@ -331,6 +361,8 @@ pub struct CalibrationReport {
     pub held_out: Option<metrics::ImageErrors>,
     /// Mean errors of the presses fitted.
     pub training: metrics::ImageErrors,
+    /// The gel fitted to the presses not held out, and the sensor file written, when asked.
+    pub gel: Option<(gel::GelFit, PathBuf)>,
 }
 
 /// The image `press` would show through `optics` (its background of the press's size):
@@ -346,7 +378,7 @@ pub fn rerender(optics: &CalibratedOptics, press: &Press) -> Vec<f64> {
 /// Calibrates from the folder of `o`: fits the table to the presses not held out, writes
 /// the optics file and reports the errors of every press re-rendered through it.
 pub fn calibrate(o: &CalibrateOptions) -> Result<CalibrationReport, CalibrateError> {
-    let set = read_set(&o.input, o.mirror, o.threshold)?;
+    let set = read_set_detecting(&o.input, o.mirror, o.threshold, o.detect)?;
     let held_out = |i: usize| o.holdout > 0 && (i + 1) % o.holdout == 0;
     let mut samples = Vec::new();
     let mut counts = Vec::with_capacity(set.presses.len());
@@ -367,9 +399,43 @@ pub fn calibrate(o: &CalibrateOptions) -> Result<CalibrationReport, CalibrateErr
             o.edge_margin
         )));
     }
-    let (table, fit_report) = fit::fit_table(&samples, &o.fit).map_err(CalibrateError::Usage)?;
-    let optics = CalibratedOptics::new(table, set.background.clone())
-        .map_err(|e| CalibrateError::Usage(format!("the background: {e}")))?;
+    let (table, mut fit_report) =
+        fit::fit_table(&samples, &o.fit).map_err(CalibrateError::Usage)?;
+    let with_background = |table| {
+        CalibratedOptics::new(table, set.background.clone())
+            .map_err(|e| CalibrateError::Usage(format!("the background: {e}")))
+    };
+    let mut optics = with_background(table)?;
+    // The gel, fitted to the presses not held out, and its own table, fitted to its
+    // imprints around the contacts as well as inside them.
+    let gel_fit = match &o.gel {
+        None => None,
+        Some(search) => {
+            let fitted: Vec<&Press> = set
+                .presses
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| !held_out(*i))
+                .map(|(_, p)| p)
+                .collect();
+            let progress = |g: &gel::GelScore| {
+                eprintln!(
+                    "gel T {:.2} mm, Poisson {:.3}: region MAE {:.3}",
+                    g.gel.thickness * 1e3,
+                    g.gel.poisson,
+                    g.mae
+                )
+            };
+            let mut fit = gel::fit_gel(&fitted, &set.background, &optics, &o.fit, search, progress)
+                .map_err(CalibrateError::Usage)?;
+            // The optics are the best gel's own table.
+            if let Some((table, report)) = fit.table.take() {
+                optics = with_background(table)?;
+                fit_report = report;
+            }
+            Some(fit)
+        }
+    };
     let presses: Vec<PressReport> = set
         .presses
         .iter()
@@ -395,16 +461,47 @@ pub fn calibrate(o: &CalibrateOptions) -> Result<CalibrationReport, CalibrateErr
             .collect();
         metrics::ImageErrors::mean(&rows)
     };
+    let folder = o.out.parent().filter(|p| !p.as_os_str().is_empty());
+    if let Some(parent) = folder {
+        std::fs::create_dir_all(parent).map_err(|e| file_error(parent, e))?;
+    }
+    let gel = match gel_fit {
+        None => None,
+        Some(fit) => {
+            let path = folder
+                .unwrap_or(Path::new("."))
+                .join(tacrom::sensor_file::FILE_NAME);
+            let grid = set.presses[0].grid();
+            let mut attributes: Vec<(String, String)> = gel::gel_attributes(fit.best, &grid)
+                .into_iter()
+                .map(|(k, v)| (k.to_owned(), v))
+                .collect();
+            let optics_name = o.out.file_name().unwrap_or_default().to_string_lossy();
+            attributes.push(("optics".into(), optics_name.into_owned()));
+            if o.mirror {
+                attributes.push(("view".into(), "camera".into()));
+            }
+            let text = tacrom::sensor_file::to_json(
+                &attributes,
+                &format!(
+                    "fitted by tacrom calibrate {} to the ball presses of {}",
+                    env!("CARGO_PKG_VERSION"),
+                    o.input.display()
+                ),
+                serde_json::json!({"gel": fit, "holdout": o.holdout, "mirror": o.mirror}),
+            );
+            std::fs::write(&path, text).map_err(|e| file_error(&path, e))?;
+            Some((fit, path))
+        }
+    };
     let report = CalibrationReport {
         out: o.out.clone(),
         held_out: mean_of(true),
         training: mean_of(false).unwrap_or_default(),
         presses,
         fit: fit_report,
+        gel,
     };
-    if let Some(parent) = o.out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent).map_err(|e| file_error(parent, e))?;
-    }
     let provenance = serde_json::json!({
         "tool": format!("tacrom calibrate {}", env!("CARGO_PKG_VERSION")),
         "input": o.input.display().to_string(),

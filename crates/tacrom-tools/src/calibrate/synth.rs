@@ -25,6 +25,10 @@ pub struct SynthOptions {
     pub seed: u64,
     /// Write each press's contact into `presses.json` (else it must be detected).
     pub with_contact: bool,
+    /// Press this gel (the linear coarse gel of [`super::gel`], each press to the depth of
+    /// the rigid cap of its contact circle) instead of rendering the rigid cap: a set whose
+    /// gel a calibration must recover.
+    pub gel: Option<super::gel::GelShape>,
 }
 
 impl SynthOptions {
@@ -38,6 +42,7 @@ impl SynthOptions {
             pixel_size: 0.075e-3,
             seed: 1,
             with_contact: true,
+            gel: None,
         }
     }
 }
@@ -127,10 +132,24 @@ pub fn synthesize(o: &SynthOptions) -> Result<Vec<(PressEntry, Contact)>, Calibr
     render(&optics, &grid, &flat, &mut background);
     write_png8(&o.out.join("background.png"), w, h, &background)?;
     let mut presses = Vec::with_capacity(o.presses);
+    let mut gel = match o.gel {
+        Some(g) => Some(super::gel::PressModel::new(g, &grid, 1).map_err(CalibrateError::Usage)?),
+        None => None,
+    };
     for i in 0..o.presses {
         let (radius, contact) = press(o.seed, i, o.resolution, o.pixel_size);
         let name = format!("press_{i:03}.png");
-        let img = render_press(&optics, &grid, radius, &contact);
+        let img = match &mut gel {
+            None => render_press(&optics, &grid, radius, &contact),
+            Some(model) => {
+                let a = contact.radius * o.pixel_size;
+                let depth = radius - (radius * radius - a * a).sqrt();
+                let surface = model.press(radius, &contact, depth).to_vec();
+                let mut out = vec![0.0; CHANNELS * w * h];
+                render(&optics, &grid, &surface, &mut out);
+                out
+            }
+        };
         write_png8(&o.out.join(&name), w, h, &img)?;
         let entry = PressEntry {
             image: name,

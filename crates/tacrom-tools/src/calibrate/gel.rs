@@ -1,0 +1,498 @@
+//! The gel behind a device's images, fitted to its ball presses (`tacrom calibrate --gel`).
+//!
+//! Inside the contact circle every gel shows the ball; what tells gels apart is the
+//! imprint around it: a thick or compressible gel sags wide around the ball, a thin one
+//! bonded to its window barely moves beside it. Pressed by a rigid body to a given depth, a
+//! linear elastic gel's surface does not depend on its Young's modulus, only on its
+//! thickness `T` and Poisson's ratio `nu` (and the press): so images alone, without forces,
+//! fix `T` and `nu`, and the modulus only where forces are known.
+//!
+//! Each press's depth is unknown: it is fitted from its own imprint, the depth whose image
+//! through the optics is closest (mean absolute error over the press's region, [`REGION`]
+//! radii of its circle) to the press's image, by a golden-section search over a bracket
+//! around the rigid cap's depth. A gel is scored through a table of its own: the depths
+//! found through the optics of the contacts alone, the table refitted to the gel's imprints
+//! there, the depths found again through that table, and the presses' mean error at them
+//! ([`fit_gel`]). The gel is the best of a grid of thicknesses and Poisson's ratios,
+//! refined along each axis by a golden-section search between the best's neighbours.
+//!
+//! The gel is simulated as the sensor runs it: `physics="coarse"` on the linear solver,
+//! every candidate on one grid spacing ([`CELLS_THROUGH`] cells through the thinnest), a
+//! gel [`MARGIN`] wider than the image on every side. What it recovers and where it does
+//! not: docs/calibration.md.
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use serde::Serialize;
+use tacrom::config::{Config, RawConfig};
+use tacrom::geometry::{PixelGrid, Placed, Sdf, Sphere};
+use tacrom::render::calibrated::{CalibratedOptics, RgbImage};
+use tacrom::render::rgb::CHANNELS;
+use tacrom::sensor::TactileSensor;
+
+use super::{Contact, Press};
+
+/// The region a press is scored over: this many contact radii around its centre (the
+/// contact and the imprint around it).
+pub const REGION: f64 = 1.5;
+/// Grid cells through the thinnest gel of a search: its grid spacing is every candidate's,
+/// so that the candidates differ in their gel, not in their discretisation (with a spacing
+/// that follows the thickness, the score jumps between neighbouring thicknesses by more
+/// than their gels differ). Two, the coarse mode's least: finer grids of the GelSight
+/// Mini's image exceed the linear solver's unknowns below 1.5 mm, and at 1 mm the real
+/// presses' error did not move with 3 or 4 cells (docs/calibration.md).
+pub const CELLS_THROUGH: f64 = 2.0;
+/// The gel's lateral margin beyond the image on each side (m): several thicknesses, so
+/// that its free sides do not shape the imprint.
+pub const MARGIN: f64 = 1e-3;
+/// The depth search's bracket, as multiples of the rigid cap's depth `R - sqrt(R^2 - a^2)`.
+const DEPTH_BRACKET: [f64; 2] = [0.4, 1.6];
+/// Golden-section steps of each axis's refinement of the gel: the bracket between the best
+/// grid point's neighbours shrinks to 0.618^5 = 9 % of its width.
+const REFINE_STEPS: usize = 5;
+/// Golden-section steps of the depth search: the bracket shrinks to 0.618^n of its width
+/// (1.2 times the cap's depth, to 0.4 % of it after 12).
+const DEPTH_STEPS: usize = 12;
+
+/// A gel candidate.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct GelShape {
+    /// Thickness (m).
+    pub thickness: f64,
+    /// Poisson's ratio.
+    pub poisson: f64,
+    /// The grid spacing it is simulated on (m).
+    pub dx: f64,
+}
+
+/// The attributes of the sensor that simulates `gel` behind images like `grid`'s: the
+/// coarse gel on the linear solver, [`CELLS_THROUGH`] cells through, [`MARGIN`] wider than
+/// the image, depth as its output.
+pub fn gel_attributes(gel: GelShape, grid: &PixelGrid) -> Vec<(&'static str, String)> {
+    let n = |x: f64| format!("{x:.6e}");
+    vec![
+        ("physics", "coarse".into()),
+        ("solver", "linear".into()),
+        (
+            "size",
+            format!(
+                "{} {} {}",
+                n(grid.fov_x + 2.0 * MARGIN),
+                n(grid.fov_y + 2.0 * MARGIN),
+                n(gel.thickness)
+            ),
+        ),
+        ("fov", format!("{} {}", n(grid.fov_x), n(grid.fov_y))),
+        ("resolution", format!("{} {}", grid.width, grid.height)),
+        ("poisson", format!("{}", gel.poisson)),
+        ("dx", n(gel.dx)),
+    ]
+}
+
+/// One press simulated on one gel.
+pub struct PressModel {
+    sensor: TactileSensor,
+    out: Vec<f64>,
+    grid: PixelGrid,
+}
+
+impl PressModel {
+    /// A sensor simulating `gel` behind images like `grid`'s, on `threads` threads, its
+    /// depth image as output.
+    pub fn new(gel: GelShape, grid: &PixelGrid, threads: usize) -> Result<Self, String> {
+        let mut raw = RawConfig::default()
+            .with("outputs", "depth")
+            .with("threads", &threads.to_string());
+        for (k, v) in gel_attributes(gel, grid) {
+            raw = raw.with(k, &v);
+        }
+        Self::from_raw(&raw, grid)
+    }
+
+    /// The sensor `raw` configures, its images like `grid`'s.
+    pub fn from_raw(raw: &RawConfig, grid: &PixelGrid) -> Result<Self, String> {
+        let config = Config::from_raw("calibration", raw).map_err(|e| e.to_string())?;
+        if (config.width, config.height) != (grid.width, grid.height) {
+            return Err(format!(
+                "the sensor's images are {} x {} pixels, the presses' {} x {}",
+                config.width, config.height, grid.width, grid.height
+            ));
+        }
+        let out = vec![0.0; config.sensordata_len()];
+        let sensor = TactileSensor::new(config).map_err(|e| e.to_string())?;
+        Ok(PressModel {
+            sensor,
+            out,
+            grid: *grid,
+        })
+    }
+
+    /// The sensor's data (its outputs in order) with a ball of `radius` centred over
+    /// `contact`'s centre, its lowest point `depth` below the gel's face; each press starts
+    /// from the undeformed gel (a new press, not the last one moved).
+    pub fn press(&mut self, radius: f64, contact: &Contact, depth: f64) -> &[f64] {
+        let px = self.grid.fov_x / self.grid.width as f64;
+        let x = -0.5 * self.grid.fov_x + (contact.centre[0] + 0.5) * px;
+        let y = 0.5 * self.grid.fov_y - (contact.centre[1] + 0.5) * px;
+        let ball: Arc<dyn Sdf> = Arc::new(Sphere::new(radius));
+        let placed = [Placed {
+            shape: ball,
+            pose: Isometry3::from_parts(
+                Translation3::new(x, y, radius - depth),
+                UnitQuaternion::identity(),
+            ),
+        }];
+        self.sensor.reset();
+        self.sensor.evaluate(&placed, &mut self.out);
+        &self.out
+    }
+}
+
+/// The pixels of `press`'s region: [`REGION`] radii of the circle `presses.json` gives (a
+/// region that does not depend on what is scored), or of its contact where none is given.
+pub fn region(press: &Press) -> Vec<bool> {
+    let circle = press.given.unwrap_or(press.contact);
+    let c = Contact {
+        radius: REGION * circle.radius,
+        ..circle
+    };
+    c.mask(press.image.width, press.image.height)
+}
+
+/// Mean absolute colour difference (0..255, all channels) of `optics`' image of `depth`
+/// against `press`'s image over the pixels of `mask`.
+pub fn region_error(
+    optics: &CalibratedOptics,
+    grid: &PixelGrid,
+    depth: &[f64],
+    press: &Press,
+    mask: &[bool],
+    scratch: &mut Vec<f64>,
+) -> f64 {
+    scratch.resize(CHANNELS * grid.width * grid.height, 0.0);
+    tacrom::render::rgb::render_calibrated(optics, grid, depth, scratch);
+    super::metrics::mae(scratch, &press.image.data, Some(mask))
+}
+
+/// The depth of the rigid cap whose contact circle is `press`'s (m).
+pub fn cap_depth(press: &Press) -> f64 {
+    let a = press.contact.radius * press.pixel_size;
+    let r = press.ball_radius;
+    r - (r * r - a * a).max(0.0).sqrt()
+}
+
+/// Golden-section minimum of `f` over `[lo, hi]` in `steps` steps: the best point seen
+/// and its value.
+pub fn golden(mut f: impl FnMut(f64) -> f64, lo: f64, hi: f64, steps: usize) -> (f64, f64) {
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut a, mut b) = (lo, hi);
+    let mut c = b - g * (b - a);
+    let mut d = a + g * (b - a);
+    let (mut fc, mut fd) = (f(c), f(d));
+    for _ in 0..steps {
+        if fc <= fd {
+            b = d;
+            d = c;
+            fd = fc;
+            c = b - g * (b - a);
+            fc = f(c);
+        } else {
+            a = c;
+            c = d;
+            fc = fd;
+            d = a + g * (b - a);
+            fd = f(d);
+        }
+    }
+    if fc <= fd {
+        (c, fc)
+    } else {
+        (d, fd)
+    }
+}
+
+/// A press's best depth on one gel and its error there.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct PressFit {
+    /// The depth (m).
+    pub depth: f64,
+    /// Region MAE at that depth (0..255).
+    pub mae: f64,
+}
+
+/// Each press's depth fitted from its imprint on `gel`, with the region error there.
+pub fn fit_depths(
+    gel: GelShape,
+    presses: &[&Press],
+    optics: &CalibratedOptics,
+    threads: usize,
+) -> Result<Vec<PressFit>, String> {
+    let Some(first) = presses.first() else {
+        return Ok(Vec::new());
+    };
+    let grid = first.grid();
+    let mut model = PressModel::new(gel, &grid, threads)?;
+    let mut scratch = Vec::new();
+    let mut fits = Vec::with_capacity(presses.len());
+    for press in presses {
+        if press.grid() != grid {
+            return Err(format!("{}: not the first press's image size", press.name));
+        }
+        let mask = region(press);
+        let cap = cap_depth(press);
+        let (depth, mae) = golden(
+            |d| {
+                let image = model.press(press.ball_radius, &press.contact, d).to_vec();
+                region_error(optics, &grid, &image, press, &mask, &mut scratch)
+            },
+            DEPTH_BRACKET[0] * cap,
+            DEPTH_BRACKET[1] * cap,
+            DEPTH_STEPS,
+        );
+        fits.push(PressFit { depth, mae });
+    }
+    Ok(fits)
+}
+
+/// The optics' table refitted to the imprints of `gel` (each press at its depth in
+/// `fits`): every pixel of each press's region gives the simulated surface's gradient and
+/// the image's colour change there ([`super::fit::surface_samples`]), so that the table no
+/// longer takes the imprint around a contact for the ball's own slopes.
+pub fn surface_table(
+    presses: &[&Press],
+    background: &RgbImage,
+    gel: GelShape,
+    fits: &[PressFit],
+    options: &super::fit::FitOptions,
+    threads: usize,
+) -> Result<
+    (
+        tacrom::render::calibrated::GradientTable,
+        super::fit::FitReport,
+    ),
+    String,
+> {
+    let Some(first) = presses.first() else {
+        return Err("no presses".into());
+    };
+    let grid = first.grid();
+    let mut model = PressModel::new(gel, &grid, threads)?;
+    let mut samples = Vec::new();
+    for (press, fit) in presses.iter().zip(fits) {
+        let depth = model
+            .press(press.ball_radius, &press.contact, fit.depth)
+            .to_vec();
+        super::fit::surface_samples(background, press, &depth, &region(press), &mut samples);
+    }
+    super::fit::fit_table(&samples, options)
+}
+
+/// The gels a fit tries.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GelSearch {
+    /// Thicknesses (m), ascending.
+    pub thicknesses: Vec<f64>,
+    /// Poisson's ratios, ascending.
+    pub poissons: Vec<f64>,
+    /// Solver threads.
+    pub threads: usize,
+    /// Grid spacing of every candidate (m); `None`: the thinnest over [`CELLS_THROUGH`].
+    pub dx: Option<f64>,
+}
+
+impl Default for GelSearch {
+    /// Thickness 1 to 5 mm, Poisson's ratio 0.3 to 0.48 (the linear solver's range), one
+    /// thread.
+    fn default() -> Self {
+        GelSearch {
+            thicknesses: vec![1e-3, 1.5e-3, 2e-3, 3e-3, 4e-3, 5e-3],
+            poissons: vec![0.3, 0.38, 0.43, 0.46, 0.48],
+            threads: 1,
+            dx: None,
+        }
+    }
+}
+
+/// One gel of the search and its score.
+#[derive(Clone, Debug, Serialize)]
+pub struct GelScore {
+    /// The gel.
+    pub gel: GelShape,
+    /// Mean region MAE of the presses at their best depths through the gel's own table
+    /// (0..255).
+    pub mae: f64,
+}
+
+/// The gel fit: the grid's scores and the best gel, its presses and its table.
+#[derive(Clone, Debug, Serialize)]
+pub struct GelFit {
+    /// Every gel tried, in the order searched (the grid, then the refined gel).
+    pub grid: Vec<GelScore>,
+    /// The best gel.
+    pub best: GelShape,
+    /// The best gel's presses.
+    pub presses: Vec<PressFit>,
+    /// Their mean region MAE.
+    pub mae: f64,
+    /// The best gel's table.
+    #[serde(skip)]
+    pub table: Option<(
+        tacrom::render::calibrated::GradientTable,
+        super::fit::FitReport,
+    )>,
+}
+
+/// A gel's score, as [`fit_gel`] takes it: each press's depth found through `first` (the
+/// optics of the contacts alone), the table refitted to this gel's imprints at those
+/// depths ([`surface_table`]), the depths found again through that table, and their mean
+/// region MAE.
+fn score_gel(
+    gel: GelShape,
+    presses: &[&Press],
+    background: &RgbImage,
+    first: &CalibratedOptics,
+    options: &super::fit::FitOptions,
+    threads: usize,
+) -> Result<GelFit, String> {
+    let fits = fit_depths(gel, presses, first, threads)?;
+    let (table, report) = surface_table(presses, background, gel, &fits, options, threads)?;
+    let own =
+        CalibratedOptics::new(table.clone(), background.clone()).map_err(|e| e.to_string())?;
+    let fits = fit_depths(gel, presses, &own, threads)?;
+    let mae = fits.iter().map(|f| f.mae).sum::<f64>() / fits.len().max(1) as f64;
+    Ok(GelFit {
+        grid: Vec::new(),
+        best: gel,
+        presses: fits,
+        mae,
+        table: Some((table, report)),
+    })
+}
+
+/// Fits the gel over `search`'s grid to `presses` over `background`; `first`: optics
+/// fitted to the contacts alone, which find each press's depth before a gel's own table
+/// does; `progress` sees each gel's score.
+///
+/// Each gel is scored through a table fitted to its own imprints, never through another
+/// gel's: a table fitted to one gel's imprints favours that gel (alternating the two fits
+/// stays where it starts), while through its own table the gel whose imprints make colour
+/// a single function of slope scores best. The best gel of the grid is refined along each
+/// axis by a golden-section search between its neighbours; the best gel scored is the fit.
+pub fn fit_gel(
+    presses: &[&Press],
+    background: &RgbImage,
+    first: &CalibratedOptics,
+    options: &super::fit::FitOptions,
+    search: &GelSearch,
+    mut progress: impl FnMut(&GelScore),
+) -> Result<GelFit, String> {
+    let (thicknesses, poissons, threads) = (&search.thicknesses, &search.poissons, search.threads);
+    if thicknesses.is_empty() || poissons.is_empty() || presses.is_empty() {
+        return Err("no gels or no presses to fit".into());
+    }
+    let dx = search
+        .dx
+        .unwrap_or(thicknesses.iter().copied().fold(f64::INFINITY, f64::min) / CELLS_THROUGH);
+    let mut scores = Vec::new();
+    let mut grid = vec![vec![f64::INFINITY; poissons.len()]; thicknesses.len()];
+    let mut best: Option<GelFit> = None;
+    let mut consider = |fit: GelFit, scores: &mut Vec<GelScore>| {
+        let score = GelScore {
+            gel: fit.best,
+            mae: fit.mae,
+        };
+        progress(&score);
+        scores.push(score);
+        if best.as_ref().is_none_or(|b| fit.mae < b.mae) {
+            best = Some(fit);
+        }
+    };
+    for (i, &thickness) in thicknesses.iter().enumerate() {
+        for (j, &poisson) in poissons.iter().enumerate() {
+            let gel = GelShape {
+                thickness,
+                poisson,
+                dx,
+            };
+            let fit = score_gel(gel, presses, background, first, options, threads)?;
+            grid[i][j] = fit.mae;
+            consider(fit, &mut scores);
+        }
+    }
+    let (bi, bj) = (0..thicknesses.len())
+        .flat_map(|i| (0..poissons.len()).map(move |j| (i, j)))
+        .min_by(|a, b| grid[a.0][a.1].total_cmp(&grid[b.0][b.1]))
+        .expect("a non-empty grid");
+    // Refined along each axis in turn (thickness, then Poisson's ratio) by a golden-section
+    // search between the best's grid neighbours.
+    let bracket = |values: &[f64], k: usize| {
+        (
+            values[k.saturating_sub(1)],
+            values[(k + 1).min(values.len() - 1)],
+        )
+    };
+    let mut at = GelShape {
+        thickness: thicknesses[bi],
+        poisson: poissons[bj],
+        dx,
+    };
+    for axis in 0..2 {
+        let (lo, hi) = if axis == 0 {
+            bracket(thicknesses, bi)
+        } else {
+            bracket(poissons, bj)
+        };
+        if hi <= lo {
+            continue;
+        }
+        let mut failure = None;
+        let (x, _) = golden(
+            |x| {
+                let gel = if axis == 0 {
+                    GelShape { thickness: x, ..at }
+                } else {
+                    GelShape { poisson: x, ..at }
+                };
+                match score_gel(gel, presses, background, first, options, threads) {
+                    Ok(fit) => {
+                        let mae = fit.mae;
+                        consider(fit, &mut scores);
+                        mae
+                    }
+                    Err(e) => {
+                        failure = Some(e);
+                        f64::INFINITY
+                    }
+                }
+            },
+            lo,
+            hi,
+            REFINE_STEPS,
+        );
+        if let Some(e) = failure {
+            return Err(e);
+        }
+        if axis == 0 {
+            at.thickness = x;
+        } else {
+            at.poisson = x;
+        }
+    }
+    let mut fit = best.expect("a non-empty grid");
+    fit.grid = scores;
+    Ok(fit)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The golden section finds a parabola's minimum to its bracket's final width.
+    #[test]
+    fn golden_section_finds_a_minimum() {
+        let (x, fx) = golden(|x| (x - 0.3).powi(2) + 1.0, 0.0, 1.0, 30);
+        assert!((x - 0.3).abs() < 1e-6, "{x}");
+        assert!((fx - 1.0).abs() < 1e-12);
+    }
+}

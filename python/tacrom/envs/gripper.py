@@ -68,8 +68,9 @@ class GripperLiftEnv(TactileEnv):
 
     ``physics``: ``"rigid"`` by default (no gel: a grasp's fingertip gels cost the sensor's
     default ``"rom"`` about 120 ms a step, docs/rl.md), ``"coarse"`` or ``"rom"``.
-    ``sensor``: a sensor file or a shipped sensor's name for both fingertips (the scene's
-    is ``"gelsight-mini"``). ``sensor_config``: further attributes of both sensors
+    ``sensor``: a sensor file or a shipped sensor's name for both fingertips
+    (``"gelsight-mini"``: its gel, window and optics; the grasp was designed for the
+    default 4 mm gel). ``sensor_config``: further attributes of both sensors
     (``{"tolerance": "1e-2"}``, ``{"threads": 2}``; docs/configuration.md).
     """
 

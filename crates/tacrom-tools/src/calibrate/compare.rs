@@ -385,7 +385,9 @@ pub fn compare_with_figure(o: &CompareOptions) -> Result<(Table, Figure), Calibr
                 let mut model = match model {
                     Ok(m) => m,
                     Err(e) => {
-                        result.refused = Some(e);
+                        // Paths of the checkout as the user sees them, not this machine's.
+                        let root = format!("{}/", tacrom::checkout_root().display());
+                        result.refused = Some(e.replace(&root, ""));
                         rows.push(result);
                         continue;
                     }

@@ -22,11 +22,24 @@ fn ball(x: f64, depth: f64) -> Vec<Placed> {
 }
 
 fn config(physics: &str, output: &str) -> Config {
-    let raw = RawConfig::default()
+    Config::from_raw("touch", &raw(physics, output)).expect("valid configuration")
+}
+
+/// The attributes of [`config`].
+fn raw(physics: &str, output: &str) -> RawConfig {
+    RawConfig::default()
         .with(ATTR_PHYSICS, physics)
         .with(ATTR_OUTPUTS, output)
-        .with(ATTR_RESOLUTION, "24 18");
-    Config::from_raw("touch", &raw).expect("valid configuration")
+        .with(ATTR_RESOLUTION, "24 18")
+}
+
+/// The physics an output is tested with: the least that computes it.
+fn physics_for(output: tacrom::sensor::outputs::Output) -> &'static str {
+    if output.spec().needs_gel {
+        "coarse"
+    } else {
+        "rigid"
+    }
 }
 
 fn eval(sensor: &mut TactileSensor, indenters: &[Placed]) -> Vec<f64> {
@@ -39,11 +52,7 @@ fn eval(sensor: &mut TactileSensor, indenters: &[Placed]) -> Vec<f64> {
 #[test]
 fn every_outputs_buffer_is_copied_reset_and_cleared_without_contact() {
     for output in TABLE {
-        let physics = if output.spec().needs_gel {
-            "coarse"
-        } else {
-            "rigid"
-        };
+        let physics = physics_for(output);
         let name = output.name();
         let fresh = {
             let mut s = TactileSensor::new(config(physics, name)).unwrap();
@@ -104,18 +113,10 @@ fn the_camera_view_mirrors_every_image_and_nothing_else() {
     use tacrom::sensor::outputs::Shape;
     let (w, h) = (24, 18);
     for output in TABLE {
-        let physics = if output.spec().needs_gel {
-            "coarse"
-        } else {
-            "rigid"
-        };
+        let physics = physics_for(output);
         let name = output.name();
         let run = |view: &str| {
-            let raw = RawConfig::default()
-                .with(ATTR_PHYSICS, physics)
-                .with(ATTR_OUTPUTS, name)
-                .with(ATTR_RESOLUTION, "24 18")
-                .with(ATTR_VIEW, view);
+            let raw = raw(physics, name).with(ATTR_VIEW, view);
             let mut s = TactileSensor::new(Config::from_raw("touch", &raw).unwrap()).unwrap();
             eval(&mut s, &ball(2.5e-3, 0.4e-3))
         };

@@ -52,9 +52,14 @@ impl ImageErrors {
     }
 }
 
-/// Mean absolute difference of two `(H, W, 3)` images over the pixels where `mask` holds
-/// (all of them when `None`); 0 over no pixels.
-pub fn mae(a: &[f64], b: &[f64], mask: Option<&[bool]>) -> f64 {
+/// The mean of `per_value(a - b)` over every channel of the pixels of two `(H, W, 3)`
+/// images where `mask` holds (all of them when `None`); `None` over no pixels.
+fn masked_mean(
+    a: &[f64],
+    b: &[f64],
+    mask: Option<&[bool]>,
+    per_value: fn(f64) -> f64,
+) -> Option<f64> {
     let (mut sum, mut count) = (0.0, 0usize);
     for (i, (pa, pb)) in a
         .chunks_exact(CHANNELS)
@@ -64,33 +69,23 @@ pub fn mae(a: &[f64], b: &[f64], mask: Option<&[bool]>) -> f64 {
         if mask.is_some_and(|m| !m[i]) {
             continue;
         }
-        sum += (0..CHANNELS).map(|k| (pa[k] - pb[k]).abs()).sum::<f64>();
+        sum += (0..CHANNELS).map(|k| per_value(pa[k] - pb[k])).sum::<f64>();
         count += CHANNELS;
     }
-    if count == 0 {
-        0.0
-    } else {
-        sum / count as f64
-    }
+    (count > 0).then(|| sum / count as f64)
+}
+
+/// Mean absolute difference of two `(H, W, 3)` images over the pixels where `mask` holds
+/// (all of them when `None`); 0 over no pixels.
+pub fn mae(a: &[f64], b: &[f64], mask: Option<&[bool]>) -> f64 {
+    masked_mean(a, b, mask, f64::abs).unwrap_or(0.0)
 }
 
 /// Peak signal-to-noise ratio (dB) of two `(H, W, 3)` images on the 0..255 scale over the
 /// pixels where `mask` holds (all when `None`): `10 log10(255^2 / MSE)`; infinite for
-/// equal images.
+/// equal images (and over no pixels).
 pub fn psnr(a: &[f64], b: &[f64], mask: Option<&[bool]>) -> f64 {
-    let (mut sum, mut count) = (0.0, 0usize);
-    for (i, (pa, pb)) in a
-        .chunks_exact(CHANNELS)
-        .zip(b.chunks_exact(CHANNELS))
-        .enumerate()
-    {
-        if mask.is_some_and(|m| !m[i]) {
-            continue;
-        }
-        sum += (0..CHANNELS).map(|k| (pa[k] - pb[k]).powi(2)).sum::<f64>();
-        count += CHANNELS;
-    }
-    let mse = sum / count.max(1) as f64;
+    let mse = masked_mean(a, b, mask, |d| d * d).unwrap_or(0.0);
     10.0 * (FULL_SCALE * FULL_SCALE / mse).log10()
 }
 

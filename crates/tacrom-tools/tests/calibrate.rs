@@ -241,6 +241,8 @@ fn a_broken_press_set_is_refused_naming_the_fault() {
     assert!(e.contains("press 0") && e.contains("positive"), "{e}");
     let e = with(&|j| j["presses"][0]["contact_radius"] = 3.0.into());
     assert!(e.contains("unknown field `contact_radius`"), "{e}");
+    let e = with(&|j| j["presses"][1]["depth_mm"] = (-0.2).into());
+    assert!(e.contains("press 1") && e.contains("depth_mm"), "{e}");
     let e = with(&|j| j["presses"] = serde_json::json!([]));
     assert!(e.contains("no presses"), "{e}");
     // A press of another size than the background.

@@ -403,7 +403,10 @@ pub fn compare_with_figure(o: &CompareOptions) -> Result<(Table, Figure), Calibr
                         times.push(t.elapsed().as_secs_f64());
                         mae(rgb, &p.image.data, Some(&mask))
                     };
-                    let (depth, _) = golden(&mut score, 0.4 * cap, 1.6 * cap, 12);
+                    let depth = match p.depth {
+                        Some(d) => d,
+                        None => golden(&mut score, 0.4 * cap, 1.6 * cap, 12).0,
+                    };
                     let rgb = model.press(p.ball_radius, &p.contact, depth)[pixels..].to_vec();
                     keep(&mut figure, i, &rgb);
                     result

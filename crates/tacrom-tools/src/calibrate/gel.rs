@@ -5,10 +5,10 @@
 //! bonded to its window barely moves beside it. Pressed by a rigid body to a given depth, a
 //! linear elastic gel's surface does not depend on its Young's modulus, only on its
 //! thickness `T` and Poisson's ratio `nu` (and the press): so images alone, without forces,
-//! fix `T` and `nu`, and the modulus only where forces are known.
+//! fix `T` and `nu`; the modulus needs forces, which this fit does not take.
 //!
-//! Each press's depth is unknown: it is fitted from its own imprint, the depth whose image
-//! through the optics is closest (mean absolute error over the press's region, [`REGION`]
+//! Each press's depth, unless `presses.json` gives it (`depth_mm`), is fitted from its own
+//! imprint, the depth whose image through the optics is closest (mean absolute error over the press's region, [`REGION`]
 //! radii of its circle) to the press's image, by a golden-section search over a bracket
 //! around the rigid cap's depth. A gel is scored through a table of its own: the depths
 //! found through the optics of the contacts alone, the table refitted to the gel's imprints
@@ -251,15 +251,20 @@ pub fn fit_depths(
         }
         let mask = region_of(press, FIT_REGION);
         let cap = cap_depth(press);
-        let (depth, mae) = golden(
-            |d| {
-                let image = model.press(press.ball_radius, &press.contact, d).to_vec();
-                region_error(optics, &grid, &image, press, &mask, &mut scratch)
-            },
-            DEPTH_BRACKET[0] * cap,
-            DEPTH_BRACKET[1] * cap,
-            DEPTH_STEPS,
-        );
+        let mut error = |d: f64| {
+            let image = model.press(press.ball_radius, &press.contact, d).to_vec();
+            region_error(optics, &grid, &image, press, &mask, &mut scratch)
+        };
+        // A depth given with the press is used as it is.
+        let (depth, mae) = match press.depth {
+            Some(d) => (d, error(d)),
+            None => golden(
+                &mut error,
+                DEPTH_BRACKET[0] * cap,
+                DEPTH_BRACKET[1] * cap,
+                DEPTH_STEPS,
+            ),
+        };
         fits.push(PressFit { depth, mae });
     }
     Ok(fits)

@@ -123,6 +123,10 @@ pub struct PressEntry {
     /// Contact radius (pixels); detected when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact_radius_px: Option<f64>,
+    /// How deep the ball's lowest point went below the gel's face (mm), where it is known;
+    /// the gel fit and `tacrom compare` find it from the imprint when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_mm: Option<f64>,
 }
 
 /// A press ready for fitting: its image, ball, pixel size and contact.
@@ -140,6 +144,8 @@ pub struct Press {
     pub contact: Contact,
     /// The circle `presses.json` gives, when it gives one.
     pub given: Option<Contact>,
+    /// The press's depth (m), when `presses.json` gives it.
+    pub depth: Option<f64>,
     /// Whether the contact was detected (not given).
     pub detected: bool,
 }
@@ -268,6 +274,15 @@ pub fn read_set_detecting(
         if !(contact.centre.iter().all(|v| v.is_finite()) && positive(contact.radius)) {
             return Err(bad(format!("contact {contact:?}: not a circle")));
         }
+        if let Some(d) = entry
+            .depth_mm
+            .filter(|d| !(d.is_finite() && *d > 0.0 && *d < entry.ball_radius_mm))
+        {
+            return Err(bad(format!(
+                "depth_mm = {d} must be positive and below the ball radius {} mm",
+                entry.ball_radius_mm
+            )));
+        }
         if contact.radius * pixel_size >= ball_radius {
             return Err(bad(format!(
                 "contact radius {:.3} mm is not below the ball radius {} mm",
@@ -282,6 +297,7 @@ pub fn read_set_detecting(
             pixel_size,
             contact,
             given,
+            depth: entry.depth_mm.map(|d| d * 1e-3),
             detected: detected.is_some(),
         });
     }

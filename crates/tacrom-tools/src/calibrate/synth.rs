@@ -29,6 +29,8 @@ pub struct SynthOptions {
     /// the rigid cap of its contact circle) instead of rendering the rigid cap: a set whose
     /// gel a calibration must recover.
     pub gel: Option<super::gel::GelShape>,
+    /// Write each press's depth into `presses.json` (else the gel fit finds it).
+    pub with_depth: bool,
 }
 
 impl SynthOptions {
@@ -43,6 +45,7 @@ impl SynthOptions {
             seed: 1,
             with_contact: true,
             gel: None,
+            with_depth: false,
         }
     }
 }
@@ -139,11 +142,11 @@ pub fn synthesize(o: &SynthOptions) -> Result<Vec<(PressEntry, Contact)>, Calibr
     for i in 0..o.presses {
         let (radius, contact) = press(o.seed, i, o.resolution, o.pixel_size);
         let name = format!("press_{i:03}.png");
+        let a = contact.radius * o.pixel_size;
+        let depth = radius - (radius * radius - a * a).sqrt();
         let img = match &mut gel {
             None => render_press(&optics, &grid, radius, &contact),
             Some(model) => {
-                let a = contact.radius * o.pixel_size;
-                let depth = radius - (radius * radius - a * a).sqrt();
                 let surface = model.press(radius, &contact, depth).to_vec();
                 let mut out = vec![0.0; CHANNELS * w * h];
                 render(&optics, &grid, &surface, &mut out);
@@ -157,6 +160,7 @@ pub fn synthesize(o: &SynthOptions) -> Result<Vec<(PressEntry, Contact)>, Calibr
             pixel_size_mm: o.pixel_size * 1e3,
             center_px: o.with_contact.then_some(contact.centre),
             contact_radius_px: o.with_contact.then_some(contact.radius),
+            depth_mm: o.with_depth.then_some(depth * 1e3),
         };
         presses.push((entry, contact));
     }

@@ -19,7 +19,7 @@ use tacrom::config::RawConfig;
 use tacrom::render::calibrated::RgbImage;
 use tacrom::render::rgb::FULL_SCALE;
 
-use super::gel::{cap_depth, golden, region, PressModel};
+use super::gel::{press_depth, region, PressModel};
 use super::metrics::{grey, mae, mean, psnr, ssim_map};
 use super::{file_error, mirrored, read_set_detecting, CalibrateError, Press};
 
@@ -396,17 +396,12 @@ pub fn compare_with_figure(o: &CompareOptions) -> Result<(Table, Figure), Calibr
                 let mut times = Vec::new();
                 for (i, p) in scored.iter().enumerate() {
                     let mask = region(p);
-                    let cap = cap_depth(p);
-                    let mut score = |d: f64| {
+                    let (depth, _) = press_depth(p, |d| {
                         let t = std::time::Instant::now();
                         let rgb = &model.press(p.ball_radius, &p.contact, d)[pixels..];
                         times.push(t.elapsed().as_secs_f64());
                         mae(rgb, &p.image.data, Some(&mask))
-                    };
-                    let depth = match p.depth {
-                        Some(d) => d,
-                        None => golden(&mut score, 0.4 * cap, 1.6 * cap, 12).0,
-                    };
+                    });
                     let rgb = model.press(p.ball_radius, &p.contact, depth)[pixels..].to_vec();
                     keep(&mut figure, i, &rgb);
                     result

@@ -222,6 +222,24 @@ pub fn golden(mut f: impl FnMut(f64) -> f64, lo: f64, hi: f64, steps: usize) -> 
     }
 }
 
+/// `press`'s depth and `error` there: the depth `presses.json` gives, or else the one of
+/// least `error` (m to error), by a golden-section search over [`DEPTH_BRACKET`] times the
+/// rigid cap's depth. The one depth search of the gel fit and of `tacrom compare`.
+pub fn press_depth(press: &Press, mut error: impl FnMut(f64) -> f64) -> (f64, f64) {
+    match press.depth {
+        Some(d) => (d, error(d)),
+        None => {
+            let cap = cap_depth(press);
+            golden(
+                error,
+                DEPTH_BRACKET[0] * cap,
+                DEPTH_BRACKET[1] * cap,
+                DEPTH_STEPS,
+            )
+        }
+    }
+}
+
 /// A press's best depth on one gel and its error there.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct PressFit {
@@ -250,21 +268,10 @@ pub fn fit_depths(
             return Err(format!("{}: not the first press's image size", press.name));
         }
         let mask = region_of(press, FIT_REGION);
-        let cap = cap_depth(press);
-        let mut error = |d: f64| {
+        let (depth, mae) = press_depth(press, |d| {
             let image = model.press(press.ball_radius, &press.contact, d).to_vec();
             region_error(optics, &grid, &image, press, &mask, &mut scratch)
-        };
-        // A depth given with the press is used as it is.
-        let (depth, mae) = match press.depth {
-            Some(d) => (d, error(d)),
-            None => golden(
-                &mut error,
-                DEPTH_BRACKET[0] * cap,
-                DEPTH_BRACKET[1] * cap,
-                DEPTH_STEPS,
-            ),
-        };
+        });
         fits.push(PressFit { depth, mae });
     }
     Ok(fits)

@@ -14,6 +14,7 @@ pub mod overshoot;
 pub mod poisson;
 pub mod ridge;
 pub mod rom_profile;
+pub mod rom_region;
 pub mod small;
 
 /// A probe: its name and its entry point (`args[0]` is the name).
@@ -31,11 +32,12 @@ const PROBES: &[Probe] = &[
     ("poisson", poisson::run),
     ("ridge", ridge::run),
     ("rom_profile", rom_profile::run),
+    ("rom_region", rom_region::run),
     ("small", small::run),
 ];
 
 /// The probes' names, for the command line.
-pub const NAMES: [&str; 12] = [
+pub const NAMES: [&str; 13] = [
     "contact_size",
     "deep",
     "fine_press",
@@ -47,6 +49,7 @@ pub const NAMES: [&str; 12] = [
     "poisson",
     "ridge",
     "rom_profile",
+    "rom_region",
     "small",
 ];
 

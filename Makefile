@@ -201,7 +201,7 @@ $(ROM_LINEAR_SHAPES_MERGED)/dataset.json:
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge $(ROM_LINEAR_SHAPES_MERGED) $(ROM_SHAPES_DATA) $(ROM_LINEAR_DATA)
 train-linear: train-env $(ROM_LINEAR_MERGED)/dataset.json $(ROM_LINEAR_SHAPES_MERGED)/dataset.json
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_SHAPES_MERGED) --steps $(ROM_STEPS) \
-		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --out models/rom-linear
+		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 --out models/rom-linear
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear
 train-linear-seeds: train-env $(ROM_LINEAR_MERGED)/dataset.json
@@ -300,8 +300,8 @@ real-data: venv
 # third (held out), docs/calibration.md. A few minutes on two threads.
 sensor-gelsight-mini: real-data
 	$(CARGO) run --release --bin tacrom -- calibrate $(REAL_MINI) $(CALIBRATE_MINI) --gel \
-		--thickness 1,1.25,1.5 --poisson 0.3,0.43,0.48 --threads 2 \
-		--out sensors/gelsight-mini/optics.json
+		--thickness 1,1.25,1.5 --poisson 0.3,0.43,0.48 --blur 0,0.05,0.1,0.15,0.2,0.3 \
+		--threads 2 --out sensors/gelsight-mini/optics.json
 	cp $(REAL_MINI)/LICENSE-taxim sensors/gelsight-mini/LICENSE-taxim
 
 # The held-out real presses against the preset (and the background, rigid, the default

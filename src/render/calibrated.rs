@@ -48,6 +48,11 @@
 //!   `gx = -Gx + 2 Gx i / (nx - 1)`, `gy = -Gy + 2 Gy j / (ny - 1)`; positive and finite;
 //! * `table[j][i] = [dr, dg, db]`: the colour change at node `(i, j)` on the 0..255 scale,
 //!   `ny` rows of `nx` entries, each finite and within +-255;
+//! * `blur` (optional, metres, default 0): the standard deviation of a Gaussian blur of
+//!   the depth image before its gradient is taken ([`super::rgb::blur_depth`]): what the
+//!   camera's focus and the membrane's coating smooth of a real imprint (its contact edge
+//!   shows no rim). Finite, from 0 to [`MAX_BLUR`]; the table is fitted through the same
+//!   blur (`tacrom calibrate --blur`);
 //! * other keys (`calibration`: how the table was made) are ignored.
 
 use std::fmt;
@@ -65,6 +70,8 @@ pub const VERSION: u32 = 1;
 pub const MAX_BINS: usize = 1025;
 /// Largest background image side accepted (pixels).
 pub const MAX_BACKGROUND_SIDE: u32 = 16384;
+/// Largest `blur` accepted (m): a millimetre, several times a GelSight's imprint detail.
+pub const MAX_BLUR: f64 = 1e-3;
 
 /// An optics file as stored (see the module documentation).
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -81,9 +88,16 @@ pub struct OpticsFile {
     pub range: [f64; 2],
     /// `table[j][i]`: colour change at node `(i, j)`.
     pub table: Vec<Vec<[f64; 3]>>,
+    /// Standard deviation of the depth image's Gaussian blur before shading (m; 0: none).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub blur: f64,
     /// How the table was made (presses, fit, held-out errors): not read by the sensor.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<serde_json::Value>,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// Why an optics file could not be read or written.
@@ -410,6 +424,8 @@ impl GradientTable {
 pub struct CalibratedOptics {
     table: GradientTable,
     background: RgbImage,
+    /// The depth image's blur before shading (m; 0: none).
+    blur: f64,
     /// The file it was read from, for messages.
     source: Option<PathBuf>,
 }
@@ -419,6 +435,7 @@ impl fmt::Debug for CalibratedOptics {
         f.debug_struct("CalibratedOptics")
             .field("table", &self.table)
             .field("background", &self.background)
+            .field("blur", &self.blur)
             .field("source", &self.source)
             .finish()
     }
@@ -446,8 +463,25 @@ impl CalibratedOptics {
         Ok(CalibratedOptics {
             table,
             background,
+            blur: 0.0,
             source: None,
         })
+    }
+
+    /// The same model with the depth image blurred by a Gaussian of standard deviation
+    /// `blur` (m) before shading; an error unless it is finite and within 0 to [`MAX_BLUR`].
+    pub fn with_blur(self, blur: f64) -> Result<Self, String> {
+        if !(blur.is_finite() && (0.0..=MAX_BLUR).contains(&blur)) {
+            return Err(format!(
+                "blur = {blur} m; must be finite and within 0 to {MAX_BLUR} m"
+            ));
+        }
+        Ok(CalibratedOptics { blur, ..self })
+    }
+
+    /// The depth image's blur before shading (m; 0: none).
+    pub fn blur(&self) -> f64 {
+        self.blur
     }
 
     /// Reads an optics file and its background (see the module documentation), checking
@@ -499,7 +533,9 @@ impl CalibratedOptics {
                 path: background_path.clone(),
                 reason,
             })?;
-        let mut optics = CalibratedOptics::new(table, background).map_err(invalid)?;
+        let mut optics = CalibratedOptics::new(table, background)
+            .and_then(|o| o.with_blur(file.blur))
+            .map_err(invalid)?;
         optics.source = Some(path.to_owned());
         Ok(optics)
     }
@@ -546,6 +582,7 @@ impl CalibratedOptics {
             bins: self.table.bins,
             range: self.table.range,
             table,
+            blur: self.blur,
             calibration,
         };
         let text =
@@ -559,6 +596,7 @@ impl CalibratedOptics {
         CalibratedOptics {
             table: self.table.clone(),
             background: self.background.resampled(width, height),
+            blur: self.blur,
             source: self.source.clone(),
         }
     }
@@ -765,5 +803,35 @@ mod tests {
         for (a, b) in back.background().data.iter().zip(&background.data) {
             assert!((a - b).abs() <= 0.5 / 257.0 + 1e-12, "{a} vs {b}");
         }
+        assert_eq!(back.blur(), 0.0);
+        // A blur is saved and read back; a file without one reads as none (above).
+        let blurred = optics.with_blur(1.5e-4).unwrap();
+        blurred.save(&path, None).unwrap();
+        assert_eq!(CalibratedOptics::load(&path).unwrap().blur(), 1.5e-4);
+    }
+
+    /// A blur that is negative, not finite or above [`MAX_BLUR`] is refused, by the model
+    /// and in a file (naming the file and the key).
+    #[test]
+    fn a_bad_blur_is_refused() {
+        let table = table_of([3, 3], [0.5, 0.5], |_, _| [1.0, 2.0, 3.0]);
+        let background = RgbImage::uniform(4, 3, [100.0, 110.0, 120.0]);
+        let optics = CalibratedOptics::new(table, background).unwrap();
+        for bad in [-1e-6, f64::NAN, f64::INFINITY, 2.0 * MAX_BLUR] {
+            assert!(optics.clone().with_blur(bad).is_err(), "{bad}");
+        }
+        assert!(optics.clone().with_blur(MAX_BLUR).is_ok());
+        let dir = scratch("badblur");
+        let path = dir.join("optics.json");
+        optics.save(&path, None).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        json["blur"] = serde_json::json!(-0.001);
+        std::fs::write(&path, json.to_string()).unwrap();
+        let e = CalibratedOptics::load(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("optics.json") && e.contains("blur = -0.001"),
+            "{e}"
+        );
     }
 }

@@ -288,8 +288,10 @@ pub fn render(optics: &Optics, grid: &PixelGrid, depth: &[f64], out: &mut [f64])
 
 /// Renders the RGB image of the depth image `depth` (as [`render`]) through the calibrated
 /// model `optics`: at each pixel its background plus the table's colour change at the
-/// pixel's depth gradient, clamped to `[0, 255]`; the background where the surface is flat
-/// or the gradient not finite. Allocates nothing.
+/// pixel's depth gradient (of the depth blurred by the optics' [`CalibratedOptics::blur`]
+/// first, [`blur_depth`]), clamped to `[0, 255]`; the background where the surface is flat
+/// or the gradient not finite. Allocates nothing, unless the optics blur (then the blurred
+/// image).
 ///
 /// # Panics
 /// If `depth` does not hold `H * W` values, `out` `3 * H * W`, or the background is not
@@ -306,7 +308,114 @@ pub fn render_calibrated(
         (grid.width, grid.height),
         "background of the image's size"
     );
-    shade_image(optics, grid, depth, out);
+    if optics.blur() > 0.0 {
+        let mut blurred = Vec::new();
+        blur_depth(grid, depth, optics.blur(), &mut blurred);
+        shade_image(optics, grid, &blurred, out);
+    } else {
+        shade_image(optics, grid, depth, out);
+    }
+}
+
+/// The depth image `depth` on `grid` (row-major) blurred by a Gaussian of standard
+/// deviation `sigma` (m) into `out` (resized): separable, each axis in its own pixel
+/// pitch, truncated at three standard deviations, its weights renormalised over the
+/// pixels inside the image with a finite depth (so a flat image stays flat and the edges
+/// are not darkened); non-finite pixels count as missing. A blur of under a hundredth of
+/// a pixel along an axis leaves that axis as it is.
+pub fn blur_depth(grid: &PixelGrid, depth: &[f64], sigma: f64, out: &mut Vec<f64>) {
+    let (w, h) = (grid.width, grid.height);
+    assert_eq!(depth.len(), w * h, "depth image of {w} x {h} pixels");
+    // The kernel along an axis of `n` pixels over `fov`: its taps from -reach to reach.
+    let kernel = |fov: f64, n: usize| -> Vec<f64> {
+        let s = sigma / (fov / n.max(1) as f64);
+        if !(s >= 0.01) {
+            return vec![1.0];
+        }
+        let reach = (3.0 * s).ceil() as usize;
+        (0..=2 * reach)
+            .map(|k| (-0.5 * ((k as f64 - reach as f64) / s).powi(2)).exp())
+            .collect()
+    };
+    let (kx, ky) = (kernel(grid.fov_x, w), kernel(grid.fov_y, h));
+    // Each position's taps inside the line of `n` (`lo..=hi` of the kernel) and its
+    // weights' reciprocal sum there.
+    let taps = |k: &[f64], n: usize| -> Vec<(usize, usize, f64)> {
+        let reach = k.len() / 2;
+        (0..n)
+            .map(|i| {
+                let lo = reach.saturating_sub(i);
+                let hi = (reach + (n - 1 - i)).min(k.len() - 1);
+                (lo, hi, 1.0 / k[lo..=hi].iter().sum::<f64>())
+            })
+            .collect()
+    };
+    out.clear();
+    out.resize(w * h, 0.0);
+    if !depth.iter().all(|v| v.is_finite()) {
+        blur_missing(depth, w, h, &kx, &ky, out);
+        return;
+    }
+    // Along the rows, then down the columns a whole row at a time.
+    let mut rows = vec![0.0; w * h];
+    let (tx, ty) = (taps(&kx, w), taps(&ky, h));
+    let (rx, ry) = (kx.len() / 2, ky.len() / 2);
+    for (line, to) in depth.chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+        for (i, (v, &(lo, hi, norm))) in to.iter_mut().zip(&tx).enumerate() {
+            let from = &line[i + lo - rx..=i + hi - rx];
+            *v = kx[lo..=hi]
+                .iter()
+                .zip(from)
+                .map(|(k, d)| k * d)
+                .sum::<f64>()
+                * norm;
+        }
+    }
+    for (r, (to, &(lo, hi, norm))) in out.chunks_exact_mut(w).zip(&ty).enumerate() {
+        for k in lo..=hi {
+            let from = &rows[(r + k - ry) * w..(r + k - ry + 1) * w];
+            let wk = ky[k] * norm;
+            for (v, d) in to.iter_mut().zip(from) {
+                *v += wk * d;
+            }
+        }
+    }
+}
+
+/// [`blur_depth`] of an image with non-finite pixels: they count as missing (each
+/// pixel's weights renormalised over the finite ones; a pixel with none is NaN).
+fn blur_missing(depth: &[f64], w: usize, h: usize, kx: &[f64], ky: &[f64], out: &mut [f64]) {
+    // One pass along rows (`stride` 1) or columns (`stride` w) from `from` into `to`.
+    let pass = |from: &[f64], to: &mut [f64], k: &[f64], along: usize, stride: usize| {
+        let reach = (k.len() / 2) as isize;
+        let lines = from.len() / along.max(1);
+        for line in 0..lines {
+            let at = |i: usize| {
+                if stride == 1 {
+                    line * along + i
+                } else {
+                    i * stride + line
+                }
+            };
+            for i in 0..along {
+                let (mut sum, mut weight) = (0.0, 0.0);
+                let lo = (i as isize - reach).max(0) as usize;
+                let hi = ((i as isize + reach) as usize).min(along - 1);
+                for j in lo..=hi {
+                    let v = from[at(j)];
+                    if v.is_finite() {
+                        let wk = k[(j as isize - i as isize + reach) as usize];
+                        sum += wk * v;
+                        weight += wk;
+                    }
+                }
+                to[at(i)] = if weight > 0.0 { sum / weight } else { f64::NAN };
+            }
+        }
+    };
+    let mut rows = vec![0.0; w * h];
+    pass(depth, &mut rows, kx, w, 1);
+    pass(&rows, out, ky, h, w);
 }
 
 /// The optical model of a sensor's `rgb` output: the built-in shading, or a calibration
@@ -685,6 +794,75 @@ mod tests {
                 }
                 last = change;
             }
+        }
+    }
+
+    /// The depth blur: no blur leaves the image as it is; a flat image stays flat to
+    /// round-off, edges included; a Gaussian bump of standard deviation `s0` blurred by
+    /// `s` is the Gaussian of variance `s0^2 + s^2` holding the same volume (its peak
+    /// `s0^2 / (s0^2 + s^2)` of the bump's), to the sampling's error; pixels of another
+    /// pitch along y take the blur in their own pitch.
+    #[test]
+    fn the_depth_blur_is_a_gaussian_in_metres() {
+        let g = PixelGrid {
+            width: 120,
+            height: 60,
+            fov_x: 12e-3,
+            fov_y: 12e-3,
+        };
+        let (px, py) = (g.fov_x / 120.0, g.fov_y / 60.0);
+        let mut out = Vec::new();
+        let ramp: Vec<f64> = (0..g.width * g.height).map(|i| i as f64 * 1e-7).collect();
+        blur_depth(&g, &ramp, 0.0, &mut out);
+        assert_eq!(out, ramp);
+        let flat = vec![3e-4; g.width * g.height];
+        blur_depth(&g, &flat, 0.5e-3, &mut out);
+        assert!(
+            out.iter().all(|v| (v - 3e-4).abs() < 1e-18),
+            "a flat image moved"
+        );
+        let (s0, s) = (0.4e-3, 0.3e-3);
+        let bump = image(&g, |x, y| 1e-4 * (-(x * x + y * y) / (2.0 * s0 * s0)).exp());
+        blur_depth(&g, &bump, s, &mut out);
+        let peak = out.iter().copied().fold(0.0, f64::max);
+        // (The pixels nearest the centre lie half a pixel from it along each axis.)
+        let sd = (s0 * s0 + s * s).sqrt();
+        let off = (0.25 * (px * px + py * py)) / (2.0 * sd * sd);
+        let expected = 1e-4 * s0 * s0 / (sd * sd) * (-off).exp();
+        assert!(
+            (peak / expected - 1.0).abs() < 0.01,
+            "peak {peak} against {expected}"
+        );
+        let volume = |v: &[f64]| v.iter().sum::<f64>() * px * py;
+        assert!((volume(&out) / volume(&bump) - 1.0).abs() < 1e-9);
+        // A non-finite pixel counts as missing: its neighbours stay finite, and elsewhere
+        // the image is what the finite image's blur gives.
+        let mut holed = bump.clone();
+        holed[5 * g.width + 7] = f64::NAN;
+        let mut around = Vec::new();
+        blur_depth(&g, &holed, s, &mut around);
+        assert!(around.iter().all(|v| v.is_finite()));
+        let far = out
+            .iter()
+            .zip(&around)
+            .enumerate()
+            .filter(|(i, _)| i / g.width > 20)
+            .map(|(_, (a, b))| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(far < 1e-18, "{far}");
+        // Across the blurred bump's centre, along x and along y, its width in metres.
+        let (r0, c0) = (g.height / 2, g.width / 2);
+        for (k, step) in [(1usize, px), (g.width, py)] {
+            let centre = r0 * g.width + c0;
+            let n = (sd / step).round() as usize;
+            let measured = out[centre - n * k] / out[centre];
+            let d = n as f64 * step;
+            // Pixel centres sit half a pixel from the bump's centre along each axis.
+            let predicted = (-(d * d - d * step) / (2.0 * sd * sd)).exp();
+            assert!(
+                (measured / predicted - 1.0).abs() < 0.02,
+                "stride {k}: {measured} against {predicted}"
+            );
         }
     }
 

@@ -67,7 +67,7 @@ def recipe(dataset):
 
 
 def export_model(model, spec, dataset, out, training=None, data=None, validation=None, refinement=True,
-                 region_eps_mm=1e-3):
+                 region_eps_mm=1e-3, region_grow=4):
     os.makedirs(out, exist_ok=True)
     r = model.decoder.latent
     z = torch.zeros(1, r)
@@ -101,7 +101,7 @@ def export_model(model, spec, dataset, out, training=None, data=None, validation
         "encoder_input": E,
         "query_features": F,
         "coarse_feature": spec.coarse_index,
-        "region": {"eps_mm": region_eps_mm, "grow": 4},
+        "region": {"eps_mm": region_eps_mm, "grow": region_grow},
         "files": {
             "encoder": {"path": "encoder.onnx", "inputs": {"observation": [1, E]}, "outputs": {"z": [1, r]}},
             "decoder": {"path": "decoder.onnx", "inputs": {"z": [1, r], "query": [-1, F]},

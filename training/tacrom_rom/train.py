@@ -277,6 +277,10 @@ def main(argv=None):
     p.add_argument("--region-eps-mm", type=float, default=REGION_EPS_MM,
                    help="coarse depth above which the manifest's deformable region starts at run time "
                         "(training uses 1e-3 mm; the linear gel's slow fall-off wants 0.01)")
+    p.add_argument("--region-grow", type=int, default=REGION_GROW,
+                   help="lattice steps the manifest's deformable region is grown by at run time (training "
+                        "samples the region grown by %(default)s; rom-linear decodes 2, as accurate on the full "
+                        "profile at 15 %% less decoder time: docs/rom.md)")
     p.add_argument("--max-seconds", type=float, default=None, help="stop training after this wall time")
     p.add_argument("--validation-per-family", type=int, default=2,
                    help="held-out pairs of each held-out family copied into the model for tests")
@@ -363,7 +367,8 @@ def main(argv=None):
     model_ds = dict(ds, fine_dx=fine_ds["fine_dx"]) if references else ds
     export_model(model, spec, model_ds, a.out, training=training, data=data_info,
                  validation={"held_out": val, "train_subset": train_m},
-                 refinement=not a.no_refinement, region_eps_mm=a.region_eps_mm)
+                 refinement=not a.no_refinement, region_eps_mm=a.region_eps_mm,
+                 region_grow=a.region_grow)
     write_validation_pairs(a.out, spec, arrays, metas, va, a.validation_per_family)
     print(f"wrote {a.out} in {seconds:.0f}s of training", flush=True)
 

@@ -583,6 +583,12 @@ pub struct CalibrateArgs {
     #[arg(long, value_name = "NU,...", value_delimiter = ',', requires = "gel",
           value_parser = non_negative)]
     pub poisson: Vec<f64>,
+    /// Depth blurs of the optics to try with the fitted gel (mm, standard deviations; 0:
+    /// none): the one whose images match the presses' imprints best (region SSIM) is
+    /// written into the optics, its table fitted through it [no blur].
+    #[arg(long, value_name = "MM,...", value_delimiter = ',', requires = "gel",
+          value_parser = non_negative)]
+    pub blur: Vec<f64>,
     /// The gel fit's grid spacing, every candidate's (mm) [the thinnest over 2].
     #[arg(long, value_name = "MM", requires = "gel", value_parser = positive)]
     pub dx: Option<f64>,

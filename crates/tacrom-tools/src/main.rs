@@ -467,6 +467,7 @@ fn calibrate(a: CalibrateArgs) -> Result<(), BenchError> {
         if !a.poisson.is_empty() {
             search.poissons = a.poisson;
         }
+        search.blurs = a.blur.iter().map(|b| b * 1e-3).collect();
         o.gel = Some(search);
     }
     let report = cal::calibrate(&o).map_err(usage)?;

@@ -286,6 +286,7 @@ pub fn surface_table(
     background: &RgbImage,
     gel: GelShape,
     fits: &[PressFit],
+    blur: f64,
     options: &super::fit::FitOptions,
     threads: usize,
 ) -> Result<
@@ -301,12 +302,12 @@ pub fn surface_table(
     let grid = first.grid();
     let mut model = PressModel::new(gel, &grid, threads)?;
     let mut samples = Vec::new();
+    let mut blurred = Vec::new();
     for (press, fit) in presses.iter().zip(fits) {
-        let depth = model
-            .press(press.ball_radius, &press.contact, fit.depth)
-            .to_vec();
+        let depth = model.press(press.ball_radius, &press.contact, fit.depth);
+        tacrom::render::rgb::blur_depth(&grid, depth, blur, &mut blurred);
         let mask = region_of(press, FIT_REGION);
-        super::fit::surface_samples(background, press, &depth, &mask, &mut samples);
+        super::fit::surface_samples(background, press, &blurred, &mask, &mut samples);
     }
     super::fit::fit_table(&samples, options)
 }
@@ -322,6 +323,9 @@ pub struct GelSearch {
     pub threads: usize,
     /// Grid spacing of every candidate (m); `None`: the thinnest over [`CELLS_THROUGH`].
     pub dx: Option<f64>,
+    /// The optics' depth blurs to try with the best gel (m, [`fit_blur`]); none, or only 0:
+    /// no blur.
+    pub blurs: Vec<f64>,
 }
 
 impl Default for GelSearch {
@@ -333,6 +337,7 @@ impl Default for GelSearch {
             poissons: vec![0.3, 0.38, 0.43, 0.46, 0.48],
             threads: 1,
             dx: None,
+            blurs: Vec::new(),
         }
     }
 }
@@ -358,7 +363,11 @@ pub struct GelFit {
     pub presses: Vec<PressFit>,
     /// Their mean region MAE.
     pub mae: f64,
-    /// The best gel's table.
+    /// Each depth blur tried with the best gel ([`fit_blur`]; empty where none was).
+    pub blurs: Vec<BlurScore>,
+    /// The blur of the optics (m): the best of `blurs`, or 0.
+    pub blur: f64,
+    /// The best gel's table (through `blur`).
     #[serde(skip)]
     pub table: Option<(
         tacrom::render::calibrated::GradientTable,
@@ -379,7 +388,7 @@ fn score_gel(
     threads: usize,
 ) -> Result<GelFit, String> {
     let fits = fit_depths(gel, presses, first, threads)?;
-    let (table, report) = surface_table(presses, background, gel, &fits, options, threads)?;
+    let (table, report) = surface_table(presses, background, gel, &fits, 0.0, options, threads)?;
     let own =
         CalibratedOptics::new(table.clone(), background.clone()).map_err(|e| e.to_string())?;
     let fits = fit_depths(gel, presses, &own, threads)?;
@@ -389,8 +398,82 @@ fn score_gel(
         best: gel,
         presses: fits,
         mae,
+        blurs: Vec::new(),
+        blur: 0.0,
         table: Some((table, report)),
     })
+}
+
+/// One depth blur of [`fit_blur`] and its scores over the fitted presses.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct BlurScore {
+    /// The blur's standard deviation (m).
+    pub blur: f64,
+    /// Mean region MAE of the presses at their best depths through the blur's own table
+    /// (0..255).
+    pub mae: f64,
+    /// Mean region SSIM of the grey images there ([`super::compare::Scores`]).
+    pub ssim: f64,
+}
+
+/// The optics' depth blur for `gel`, over the candidates `blurs` (m): each scored as a gel
+/// is ([`score_gel`]: the depths found through `first`, the table refitted to the gel's
+/// imprints seen through the blur, the depths found again through that table and blur),
+/// by the presses' mean region SSIM, the structure of the imprint that a mean error
+/// barely weighs (the real imprint has no rim at its contact edge, the simulated one
+/// does). Returns every candidate's score and the fit of the best, its table through it.
+#[allow(clippy::too_many_arguments)]
+pub fn fit_blur(
+    gel: GelShape,
+    presses: &[&Press],
+    background: &RgbImage,
+    first: &CalibratedOptics,
+    options: &super::fit::FitOptions,
+    blurs: &[f64],
+    threads: usize,
+    mut progress: impl FnMut(&BlurScore),
+) -> Result<(Vec<BlurScore>, GelFit), String> {
+    let Some(grid) = presses.first().map(|p| p.grid()) else {
+        return Err("no presses to fit".into());
+    };
+    let start = fit_depths(gel, presses, first, threads)?;
+    let mut model = PressModel::new(gel, &grid, threads)?;
+    let mut scores = Vec::new();
+    let mut best: Option<(f64, GelFit)> = None;
+    for &blur in blurs {
+        let (table, report) =
+            surface_table(presses, background, gel, &start, blur, options, threads)?;
+        let own = CalibratedOptics::new(table.clone(), background.clone())
+            .and_then(|o| o.with_blur(blur))?;
+        let fits = fit_depths(gel, presses, &own, threads)?;
+        let n = fits.len().max(1) as f64;
+        let mae = fits.iter().map(|f| f.mae).sum::<f64>() / n;
+        let mut rendered = vec![0.0; CHANNELS * grid.width * grid.height];
+        let mut ssim = 0.0;
+        for (press, fit) in presses.iter().zip(&fits) {
+            let depth = model.press(press.ball_radius, &press.contact, fit.depth);
+            tacrom::render::rgb::render_calibrated(&own, &grid, depth, &mut rendered);
+            ssim += super::compare::Scores::of(&rendered, press).ssim_region / n;
+        }
+        let score = BlurScore { blur, mae, ssim };
+        progress(&score);
+        scores.push(score);
+        if best.as_ref().map_or(true, |(s, _)| ssim > *s) {
+            let fit = GelFit {
+                grid: Vec::new(),
+                best: gel,
+                presses: fits,
+                mae,
+                blurs: Vec::new(),
+                blur,
+                table: Some((table, report)),
+            };
+            best = Some((ssim, fit));
+        }
+    }
+    let (_, mut fit) = best.ok_or("no blurs to try")?;
+    fit.blurs = scores.clone();
+    Ok((scores, fit))
 }
 
 /// Fits the gel over `search`'s grid to `presses` over `background`; `first`: optics
@@ -504,6 +587,30 @@ pub fn fit_gel(
     }
     let mut fit = best.expect("a non-empty grid");
     fit.grid = scores;
+    if search.blurs.iter().any(|&b| b != 0.0) {
+        let progress = |b: &BlurScore| {
+            eprintln!(
+                "blur {:.3} mm: region MAE {:.3}, SSIM {:.4}",
+                b.blur * 1e3,
+                b.mae,
+                b.ssim
+            )
+        };
+        let (_, blurred) = fit_blur(
+            fit.best,
+            presses,
+            background,
+            first,
+            options,
+            &search.blurs,
+            threads,
+            progress,
+        )?;
+        fit = GelFit {
+            grid: fit.grid,
+            ..blurred
+        };
+    }
     Ok(fit)
 }
 

@@ -444,9 +444,11 @@ pub fn calibrate(o: &CalibrateOptions) -> Result<CalibrationReport, CalibrateErr
             };
             let mut fit = gel::fit_gel(&fitted, &set.background, &optics, &o.fit, search, progress)
                 .map_err(CalibrateError::Usage)?;
-            // The optics are the best gel's own table.
+            // The optics are the best gel's own table, through its blur.
             if let Some((table, report)) = fit.table.take() {
-                optics = with_background(table)?;
+                optics = with_background(table)?
+                    .with_blur(fit.blur)
+                    .map_err(CalibrateError::Usage)?;
                 fit_report = report;
             }
             Some(fit)

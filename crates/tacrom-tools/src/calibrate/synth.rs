@@ -31,6 +31,10 @@ pub struct SynthOptions {
     pub gel: Option<super::gel::GelShape>,
     /// Write each press's depth into `presses.json` (else the gel fit finds it).
     pub with_depth: bool,
+    /// Blur each press's depth image by a Gaussian of this standard deviation (m) before
+    /// shading it ([`tacrom::render::rgb::blur_depth`]): a set whose optics' blur a
+    /// calibration must recover.
+    pub blur: f64,
 }
 
 impl SynthOptions {
@@ -46,6 +50,7 @@ impl SynthOptions {
             with_contact: true,
             gel: None,
             with_depth: false,
+            blur: 0.0,
         }
     }
 }
@@ -144,15 +149,14 @@ pub fn synthesize(o: &SynthOptions) -> Result<Vec<(PressEntry, Contact)>, Calibr
         let name = format!("press_{i:03}.png");
         let a = contact.radius * o.pixel_size;
         let depth = radius - (radius * radius - a * a).sqrt();
-        let img = match &mut gel {
-            None => render_press(&optics, &grid, radius, &contact),
-            Some(model) => {
-                let surface = model.press(radius, &contact, depth).to_vec();
-                let mut out = vec![0.0; CHANNELS * w * h];
-                render(&optics, &grid, &surface, &mut out);
-                out
-            }
+        let surface = match &mut gel {
+            None => fit::ball_depth(&grid, radius, &contact),
+            Some(model) => model.press(radius, &contact, depth).to_vec(),
         };
+        let mut blurred = Vec::new();
+        tacrom::render::rgb::blur_depth(&grid, &surface, o.blur, &mut blurred);
+        let mut img = vec![0.0; CHANNELS * w * h];
+        render(&optics, &grid, &blurred, &mut img);
         write_png8(&o.out.join(&name), w, h, &img)?;
         let entry = PressEntry {
             image: name,

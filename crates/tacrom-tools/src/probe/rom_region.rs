@@ -42,7 +42,7 @@ pub fn run(_args: Vec<String>) {
                 dx: 0.0014,
                 ..Default::default()
             };
-            let mut gel = tacrom::mpm::Gel::new(params, options.clone()).expect("gel");
+            let mut gel = tacrom::mpm::Gel::new(params, options).expect("gel");
             let placed = [Placed {
                 shape: shape.clone(),
                 pose: Isometry3::from_parts(

@@ -73,3 +73,15 @@ pub const PHYSICS_FINGERPRINT: &str = env!("TACROM_PHYSICS_FINGERPRINT");
 /// the physics but the other solvers and the unit tests): what a relaxation result
 /// depends on ([`config::Config::physics_fingerprint`]).
 pub const RELAXATION_FINGERPRINT: &str = env!("TACROM_RELAXATION_FINGERPRINT");
+
+/// A reproducible stream of uniform numbers in `[0, 1)` from `seed` (a linear congruential
+/// generator, 53 bits of its state), for tests that draw random cases.
+#[cfg(test)]
+pub(crate) fn test_uniform(mut seed: u64) -> impl FnMut() -> f64 {
+    move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    }
+}

@@ -385,13 +385,7 @@ mod tests {
     /// (from the coarse depth and from the penetration), grown 0 to 6 times.
     #[test]
     fn the_region_is_its_seeds_grown_by_the_four_neighbours() {
-        let mut seed = 7u64;
-        let mut random = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut random = crate::test_uniform(7);
         for (nx, ny) in [(1, 1), (1, 9), (9, 1), (5, 7), (23, 17)] {
             for density in [0.0, 0.01, 0.1, 0.5] {
                 let spec = LatticeSpec {

@@ -1677,13 +1677,7 @@ mod tests {
     /// than the lattice, covering part of it or all.
     #[test]
     fn the_lattice_image_equals_its_definition_bit_for_bit() {
-        let mut seed = 12345u64;
-        let mut random = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut random = crate::test_uniform(12345);
         for (nx, ny) in [(1, 1), (1, 5), (5, 1), (2, 2), (7, 4), (9, 9)] {
             let spec = LatticeSpec::with_pitch(
                 [0.03, 0.03 * ny as f64 / nx as f64, 0.004],

@@ -334,33 +334,20 @@ fn mirror_flips_camera_images_back_to_the_sensors_orientation() {
 #[test]
 fn a_gel_fit_recovers_the_thickness_and_poissons_ratio_of_synthetic_presses() {
     use cal::gel::{GelSearch, GelShape};
-    // Synthesized on a finer grid than the fit's, so that the fit does not find its own
-    // discretisation.
+    // Synthesized on the fit's own grid spacing (above).
     let truth = GelShape {
         thickness: 1.8e-3,
         poisson: 0.4,
         dx: 0.5e-3,
     };
-    let dir = scratch("gel-fit");
-    let o = synth::SynthOptions {
-        presses: 6,
-        resolution: [120, 90],
-        pixel_size: 0.1e-3,
-        seed: 3,
-        gel: Some(truth),
-        ..synth::SynthOptions::new(dir.clone())
-    };
-    synth::synthesize(&o).unwrap();
-    let mut c = cal::CalibrateOptions::new(dir.clone());
-    c.holdout = 3;
-    c.gel = Some(GelSearch {
+    let search = GelSearch {
         thicknesses: vec![1e-3, 1.5e-3, 2.5e-3],
         poissons: vec![0.3, 0.4, 0.48],
         threads: 1,
         dx: Some(0.5e-3),
         blurs: Vec::new(),
-    });
-    let report = cal::calibrate(&c).unwrap();
+    };
+    let (report, _) = calibrate_synthetic_gel("gel-fit", truth, 0.1e-3, 3, 0.0, search);
     let (fit, path) = report.gel.expect("a gel fit");
     // The fitted gel's images match the presses' to their 8-bit rounding (a quarter of a
     // grey level on average over the regions; the grid's worst gel: several levels).
@@ -390,6 +377,35 @@ fn a_gel_fit_recovers_the_thickness_and_poissons_ratio_of_synthetic_presses() {
     assert!(config.optics.is_some());
 }
 
+/// Calibrates, over the gels and blurs of `search` with every third press held out, six
+/// synthetic presses (120 x 90 pixels of `pixel_size`, seed `seed`) into `gel`, each depth
+/// image blurred by `blur` (m) before its built-in shading; returns the report and the
+/// set's folder (scratch `name`).
+fn calibrate_synthetic_gel(
+    name: &str,
+    gel: cal::gel::GelShape,
+    pixel_size: f64,
+    seed: u64,
+    blur: f64,
+    search: cal::gel::GelSearch,
+) -> (cal::CalibrationReport, PathBuf) {
+    let dir = scratch(name);
+    let o = synth::SynthOptions {
+        presses: 6,
+        resolution: [120, 90],
+        pixel_size,
+        seed,
+        gel: Some(gel),
+        blur,
+        ..synth::SynthOptions::new(dir.clone())
+    };
+    synth::synthesize(&o).unwrap();
+    let mut c = cal::CalibrateOptions::new(dir.clone());
+    c.holdout = 3;
+    c.gel = Some(search);
+    (cal::calibrate(&c).unwrap(), dir)
+}
+
 /// Presses whose depth images were blurred before shading (0.2 mm, four pixels) give their
 /// blur back: of the candidates 0, 0.1, 0.2 and 0.4 mm the fit picks 0.2 (its images match
 /// the presses' structure best, region SSIM), writes it into the optics, and its table,
@@ -402,27 +418,14 @@ fn a_blur_fit_recovers_the_blur_of_synthetic_presses() {
         poisson: 0.43,
         dx: 0.5e-3,
     };
-    let dir = scratch("blur-fit");
-    let o = synth::SynthOptions {
-        presses: 6,
-        resolution: [120, 90],
-        pixel_size: 0.05e-3,
-        seed: 5,
-        gel: Some(gel),
-        blur: 0.2e-3,
-        ..synth::SynthOptions::new(dir.clone())
-    };
-    synth::synthesize(&o).unwrap();
-    let mut c = cal::CalibrateOptions::new(dir.clone());
-    c.holdout = 3;
-    c.gel = Some(GelSearch {
+    let search = GelSearch {
         thicknesses: vec![gel.thickness],
         poissons: vec![gel.poisson],
         threads: 1,
         dx: Some(gel.dx),
         blurs: vec![0.0, 0.1e-3, 0.2e-3, 0.4e-3],
-    });
-    let report = cal::calibrate(&c).unwrap();
+    };
+    let (report, dir) = calibrate_synthetic_gel("blur-fit", gel, 0.05e-3, 5, 0.2e-3, search);
     let (fit, _) = report.gel.expect("a gel fit");
     let ssim: Vec<f64> = fit.blurs.iter().map(|b| b.ssim).collect();
     assert_eq!(fit.blur, 0.2e-3, "region SSIM per blur {ssim:?}");

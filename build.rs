@@ -159,7 +159,11 @@ fn export_header(source: &Path, header: &Path) {
 /// FNV-1a (64 bit) of every source file of the physics (`src/mpm`, `src/geometry`,
 /// `src/sensor*`, `src/render*`), in path order, exported as `TACROM_PHYSICS_FINGERPRINT`:
 /// the benchmark's reference cache and the reduced-order model's recipe name the solver
-/// by it, so a change to the solver invalidates what was computed with the old one.
+/// by it, so a change to the solver invalidates what was computed with the old one. The
+/// files that only turn a solved surface into an RGB or marker image (`render/rgb.rs`,
+/// `render/calibrated.rs`, `render/markers.rs`) are left out of both fingerprints: what
+/// they name (a reference's depth and force, a gel's compliance) does not pass through
+/// them, and a change to the optics recomputed hours of reference presses.
 ///
 /// `TACROM_RELAXATION_FINGERPRINT` is the same hash over the files a gel solved by dynamic
 /// relaxation alone runs: all of them but the other solvers' (`mpm/newton/`,
@@ -215,6 +219,12 @@ fn physics_fingerprint(crate_dir: &Path) {
         }
     }
     files.sort();
+    files.retain(|f| {
+        let rel = f.strip_prefix(&src).unwrap_or(f);
+        !["render/rgb.rs", "render/calibrated.rs", "render/markers.rs"]
+            .iter()
+            .any(|image_only| rel == Path::new(image_only))
+    });
     let all = fnv(&src, files.iter());
     println!("cargo:rustc-env=TACROM_PHYSICS_FINGERPRINT={all:016x}");
     let relaxation_runs = |f: &&PathBuf| {

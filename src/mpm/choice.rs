@@ -3,9 +3,9 @@
 //! A gel runs one of the solvers of [`Solver`]. The choice is made here, once per gel
 //! ([`choose`]) and, for the frames whose contact the gel's particles cannot carry, once
 //! per frame ([`frame_fallback`]); Newton's method picks its linear method per region here
-//! too ([`newton_multigrid`]). Each rule gives its reason ([`Choice::why`]), with the
-//! measurements behind it in the constants' docs and in `docs/solvers.md`, "Which solver a
-//! gel gets".
+//! too ([`newton_multigrid`]). Each rule gives its reason ([`Choice::why`]); the
+//! measurements behind the rules and their constants are in `docs/solvers.md`, "Which
+//! solver a gel gets" and the sections each constant names.
 //!
 //! In short: a configuration that names a solver gets it; `rom` with its shipped models
 //! runs the linear solver wherever it factors; otherwise Newton's method from
@@ -22,36 +22,39 @@ pub const AUTO_NEWTON_POISSON: f64 = 0.49;
 
 /// Unknowns of a Newton region above which [`Linear::Automatic`] preconditions with the
 /// two-grid cycle instead of factoring: between the default gel's regions at 0.7 mm
-/// (about 19,600 unknowns; the factorisation a little faster) and 0.6 mm (about 31,000;
-/// the two-grid cycle about twice as fast: `docs/solvers.md`, "Friction's sliding points").
+/// (about 19,600 unknowns), where the factorisation is the faster, and 0.6 mm (about
+/// 31,000), where the two-grid cycle is (measured: `docs/solvers.md`, "Friction's sliding
+/// points: a majorizing stiffness; the two-grid cycle from 0.6 mm").
 pub const MULTIGRID_UNKNOWNS: usize = 25_000;
 
 /// Unknowns of a gel above which Newton's method starts each frame from a gel twice as
 /// coarse ([`SolverOptions::coarse_start_above`]) and nests its solve in it: the default
 /// gel at 0.7 mm (about 40,000 unknowns) and finer, not at 1.0 mm (about 14,000). It was
-/// 60,000 (0.5 mm and finer) before the nested solve; with it, a 5 mm sphere pressed 0.1,
-/// 0.2 and 0.3 mm at 0.7 mm takes 8.3 s against 18.3 s (`docs/solvers.md`, "A nested
-/// solve").
+/// 60,000 (0.5 mm and finer) before the nested solve, which made the 0.7 mm gel's presses
+/// faster too (measured: `docs/solvers.md`, "A nested solve: the fine grid only near the
+/// contact").
 pub const COARSE_START_UNKNOWNS: usize = 20_000;
 
 /// Most unknowns (three per grid node, an upper bound) [`Solver::Linear`] factors: the
-/// default gel at 1.0 mm (22,869), not at 0.7 mm (57,132), where the first contact took
-/// 3.5 to 4.4 s (the factorisation and the first node columns) and the process 640 MB.
+/// default gel at 1.0 mm (22,869), not at 0.7 mm (57,132), where the factorisation and
+/// the node columns cost seconds and hundreds of megabytes (measured: `docs/solvers.md`,
+/// "The linear solver: a coarse frame in milliseconds").
 pub const LINEAR_UNKNOWNS: usize = 30_000;
 
 /// Penetration, as a fraction of the contact points' spacing `s`, above which a gel that
 /// carries no force has missed a contact that fell between its contact points (the
 /// sensor warns; [`SolverOptions::fallback`] solves the frame again). A smooth
 /// body of radius `R` can sink `s^2 / 4R` between four points untouched (26 um for a 5 mm
-/// sphere on the coarse gel, where a ball landing on it reached 18 um for a step); 5 % of
-/// `s` (36 um there) stays silent for bodies of radius above 5 `s`, and catches a 0.5 mm
-/// sphere or a cone tip, which sink up to 0.25 mm untouched.
+/// sphere on the coarse gel); 5 % of `s` (36 um there) stays silent for bodies of radius
+/// above 5 `s`, such as a ball landing on the gel, and catches a 0.5 mm sphere or a cone
+/// tip, which sink up to 0.25 mm untouched (measured: `docs/solvers.md`, "What the
+/// relaxation's answer depends on").
 pub const MISSED_FRACTION: f64 = 0.05;
 
 /// Top-surface points in an indenter's rigid footprint at most with which the relaxation
 /// does not resolve a contact (see [`SolverOptions::fallback`]): with one or two of its
-/// points in contact, the 0.5 mm sphere carried 0.13 to 0.65 and the 1 and 2 mm spheres up
-/// to 1.98 times Hertz's force.
+/// points in contact, small spheres carried far too little or far too much force
+/// (measured: `docs/solvers.md`, "What the relaxation's answer depends on").
 pub const UNRESOLVED_POINTS: usize = 4;
 
 /// What a sensor's physics asks of its gel's solver when the configuration names none.
@@ -66,9 +69,8 @@ pub enum Role {
     /// `rom` with its default model, unnamed or named `model="rom-linear"`: the linear gel
     /// (`models/rom-linear`) where it factors; the relaxation's rule elsewhere (where the
     /// shipped models serve no gel). The linear gel's rom is the most accurate mode of the
-    /// full profile (depth 3.66 against 3.91 um, SSIM 0.9563 against 0.9534, shapes outside
-    /// the training families 2.05 against 2.08 um, their median force error 5.4 against
-    /// 7.5 %) and the faster rom in both environments (`docs/modes.md`, "The default: rom
+    /// full profile in depth and SSIM, on shapes outside the training families too, and
+    /// the faster rom in both environments (measured: `docs/modes.md`, "The default: rom
     /// on the linear gel").
     ShippedRom,
 }
@@ -97,14 +99,11 @@ impl std::fmt::Display for Choice {
 
 /// The automatic rule, for a gel whose configuration names no solver: Newton's method where dynamic
 /// relaxation does not reach equilibrium within its iteration cap, a Poisson's ratio
-/// of at least [`AUTO_NEWTON_POISSON`] (`tacrom mpm --only work`: at 0.49 one frame in
-/// four stops at the cap, at 0.499 every frame; Newton converges in 17 to 47 steps at
-/// every ratio on the coarse grid, in 28 to 38 at 0.499 and 0.5 mm), on every grid;
-/// relaxation everywhere else. On the fine grids Newton is faster on a continued press
-/// (two 0.1 mm steps at 0.3 mm: 48.7 against 87.7 s) and slower on one from rest
-/// (a 1 mm press at 0.4 mm: 104.7 against 64.0 s); the benchmark's sequence of presses at
-/// 0.3 mm takes them the same time (363.5 against 378.4 s), at 9 times the memory
-/// (2.6 against 0.29 GB). See `docs/solvers.md`, "Which solver a gel gets".
+/// of at least [`AUTO_NEWTON_POISSON`], on every grid (Newton's method converges there,
+/// the relaxation stops at its cap); relaxation everywhere else. On the fine grids
+/// Newton is faster on a continued press and slower on one from rest, and the
+/// benchmark's sequence of presses at 0.3 mm takes them about the same time at several
+/// times the memory (measured: `docs/solvers.md`, "Which solver a gel gets").
 /// `named` is the solver a configuration names, if any; `role` is what the sensor's
 /// physics asks of the gel ([`Role`]): the per-frame fallback where the automatic rule
 /// picks the relaxation's family (the sensor's `coarse` and `rom`), and for `rom` with

@@ -43,7 +43,8 @@ pub(crate) const CONTACT_BAND: f32 = 1.0;
 
 /// Penalty stiffness `k` (internal units: `M dx` per cell of penetration). About the
 /// stiffness of the elastic half-space under one surface particle; stable with the
-/// explicit step (4x this measured stable and within 0.3 % of the same force).
+/// explicit step, with room to spare (measured: `docs/solvers.md`, "A wide flat contact
+/// on a finer grid: the multipliers' gain").
 const STIFFNESS: f32 = 1.0;
 
 /// Multiplier gain `k_i / k` of the augmented Lagrangian update on a layer at most
@@ -56,12 +57,11 @@ const MULTIPLIER_GAIN: f32 = 0.25;
 /// multiplier through the layer's slowest modes, whose period in steps grows with the
 /// number of cells through the layer. An integral gain that is fine on the coarse grid
 /// (2.9 cells) drives a slow oscillation of a wide contact patch on the fine grid (13
-/// cells): at dx = 0.3 mm, a 0.5 mm sphere press hit the iteration cap 36 % above Hertz
-/// with the gain 0.25. Scaling the gain with the slowest mode's rate keeps the loop as
-/// damped at every resolution; at equilibrium the gain plays no part. Too low a gain
-/// costs steps instead: with 3.2 here (0.06 at 0.3 mm) the fine Hertz presses took 726 to
-/// 9244 steps, with 6.4 (0.12) 275 to 3386 and the same forces within 0.5 points, and a
-/// moving press at dx = 0.7 mm 138 instead of 258 steps per frame.
+/// cells), which ends at the iteration cap far from equilibrium. Scaling the gain with
+/// the slowest mode's rate keeps the loop as damped at every resolution; at equilibrium
+/// the gain plays no part. Too low a gain costs steps instead, so the gain starts to fall
+/// only above this thickness (measured: `docs/solvers.md`, "A wide flat contact on a
+/// finer grid: the multipliers' gain").
 const GAIN_CELLS: f32 = 6.4;
 
 /// The multiplier gain `k_i / k` for a layer `cells` thick.

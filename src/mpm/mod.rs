@@ -24,7 +24,8 @@
 //!
 //! Inside the solver lengths are in cells (`dx`), time in steps (`dt = 1`) and stresses
 //! in units of the P-wave modulus `M = lambda + 2 mu`, and everything is f32 (values of
-//! order one; f64 measured no more accurate at the solver tolerance and half as fast).
+//! order one; f64 is no more accurate at the solver tolerance, and slower; measured:
+//! `docs/solvers.md`, "Two solvers and a third").
 //! The density is a free parameter at equilibrium, so it is chosen (mass scaling) to make
 //! the P-wave speed `c_p = sqrt(M / rho)` exactly `cfl` cells per step: `rho' = 1 / cfl^2`.
 //! The CFL condition `c_p dt <= cfl dx` then holds by construction and the number of steps

@@ -12,15 +12,14 @@ pub const J_MAX: f64 = 5.0;
 
 /// Smallest Poisson's ratio at which [`SolverOptions::fbar`] applies: below it there is
 /// no locking to cure, and the one-step-behind smoothing of `J` over the 27-node stencil
-/// only softens a contact narrower than a few cells (measured: -14 % force, 18x more
-/// iterations, R = 5 mm sphere at d = 0.2 mm, dx = 1.4 mm, Poisson 0.43).
+/// only softens a contact narrower than a few cells (measured: `docs/solvers.md`, "Two
+/// solvers and a third").
 pub const FBAR_POISSON: f64 = 0.45;
 
 /// Default [`SolverOptions::active_margin`] (gel thicknesses). The surface of a bonded
-/// layer settles within about one thickness of a contact (measured at dx = 0.7 mm, a
-/// 0.5 mm sphere press: 29 um of indentation 2 mm beyond the contact edge, 1.2 um at
-/// 3 mm, none beyond), so the rigid wall 1.5 thicknesses out changes little; see
-/// `tacrom mpm` for the measured effect on force and cost.
+/// layer settles within about one thickness of a contact, so the rigid wall 1.5
+/// thicknesses out changes little (measured: `docs/solvers.md`, "Two solvers and a
+/// third").
 pub const ACTIVE_MARGIN: f64 = 1.5;
 
 /// Layer thickness (cells) above which the iteration cap grows in proportion to it.
@@ -28,9 +27,8 @@ pub const ACTIVE_MARGIN: f64 = 1.5;
 /// Both rates that bound the solve fall as one over the cells through the layer: the
 /// slowest elastic mode (`omega_1`, see `mpm/relax.rs`) and the contact multipliers'
 /// gain (`contact::multiplier_gain`). A fixed cap that the coarse grid (2.9 cells) never
-/// reaches then cuts off the fine grid (13 cells) before it converges: measured at
-/// dx = 0.3 mm, a cold press to 0.4 mm took 2216 steps and the next, to 0.5 mm, was
-/// still converging at 3000.
+/// reaches then cuts off the fine grid (13 cells) before it converges (measured:
+/// `docs/solvers.md`, "A wide flat contact on a finer grid: the multipliers' gain").
 pub const CAP_CELLS: f64 = 3.2;
 
 /// Largest number of particles accepted (memory guard, about 0.3 GB).
@@ -147,11 +145,11 @@ pub enum Linear {
     Multigrid,
 }
 
-/// Default [`SolverOptions::nested_margin`] (gel thicknesses). At 0.5 mm a 5 mm sphere's
-/// force was within 0.1 % of the whole gel's with the nested margin at 0.25, 0.5 or 1
-/// thickness (a rigid wall half a thickness out: 0.7 to 1.8 % above it); half a
-/// thickness keeps the coarse field a millimetre or more from the footprint's edge
-/// (`docs/solvers.md`, "A nested solve").
+/// Default [`SolverOptions::nested_margin`] (gel thicknesses). A nested solve's force
+/// barely depends on its margin from a quarter of a thickness to one, where a rigid wall
+/// that close stiffens the gel; half a thickness keeps the coarse field a millimetre or
+/// more from the footprint's edge (measured: `docs/solvers.md`, "A nested solve: the fine
+/// grid only near the contact").
 pub const NESTED_MARGIN: f64 = 0.5;
 
 /// How [`Gel::solve`] finds the equilibrium.

@@ -10,11 +10,10 @@
 //! keeps its state and is not scattered; the grid nodes that have one of its particles
 //! in their support are held fixed, a rigid wall around the active box. A solve whose
 //! indenters reach no contact point of the undeformed gel does not run: the undeformed
-//! gel is its equilibrium ([`Gel::solve`]). Measured on the coarse grid
-//! (`tests.rs`): images within 0.6 % of the peak depth and forces within 0.8 % of the
-//! whole gel's, with 45 % of the particles; at dx = 0.7 mm, 35 % of the particles and
-//! Hertz force errors 0.3 to 0.9 points higher. `f64::INFINITY` solves the whole gel
-//! every time.
+//! gel is its equilibrium ([`Gel::solve`]). Its images and forces stay close to the whole
+//! gel's with about half of the particles or fewer (measured: `docs/configuration.md`,
+//! "The scene", and `docs/solvers.md`, "Two solvers and a third"). `f64::INFINITY` solves
+//! the whole gel every time.
 //!
 //! [`SolverOptions::active_margin`]: super::SolverOptions::active_margin
 

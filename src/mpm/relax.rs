@@ -7,9 +7,9 @@
 //! from the previous equilibrium (warm start) with zero velocity, moved on by the secant
 //! predictor when the indenters move on along their last path ([`Gel::predict`]: the
 //! active particles' last change of position and `F`, scaled by how far along that path
-//! they move now; it halves the steps of a steady moving press at tolerance 1e-3 and
-//! brings the force nearer a tight solve's). It stops when the
-//! largest out-of-balance nodal force (stress plus contact force left after the
+//! they move now; it saves steps on a steady moving press and brings the force nearer a
+//! tight solve's; measured: `docs/solvers.md`, "Two solvers and a third"). It stops when
+//! the largest out-of-balance nodal force (stress plus contact force left after the
 //! constraints, plus the damping force) divided by the force scale is below
 //! [`SolverOptions::tolerance`], or after [`Gel::iteration_cap`] steps. The
 //! force scale is the largest nodal reaction (bonded nodes, contact load) of this step or
@@ -47,17 +47,17 @@ const PREDICT_ABOVE: f64 = 10.0;
 /// The multipliers integrate the gap with a gain that falls with the number of cells
 /// through the layer ([`contact::multiplier_gain`]), chosen on spheres for speed. A wide
 /// flat contact answers a multiplier change through the layer's uniform compression, a
-/// stiffer loop: at dx = 0.7 mm the pattern `flat_slab` (a 16 mm square face) pressed
-/// 0.1 mm oscillated with the residual between 0.2 and 0.9 for all 5,357 steps of the
-/// cap and ended at 0.40 N frictionless and 3.54 N with friction 0.5, where Newton's
-/// method gives 1.46 N. Halving the gain whenever a
-/// window of steps brings no progress ends the oscillation; a solve whose residual at
-/// least halves from one window to the next, or stays within [`STALLED`] times the
-/// tolerance, is untouched (and the gain plays no part in the equilibrium).
+/// stiffer loop, which on a finer grid oscillated until the iteration cap far from
+/// equilibrium (measured: `docs/solvers.md`, "A wide flat contact on a finer grid: the
+/// multipliers' gain"). Halving the gain whenever a window of steps brings no progress
+/// ends the oscillation; a solve whose residual at least halves from one window to the
+/// next, or stays within [`STALLED`] times the tolerance, is untouched (and the gain
+/// plays no part in the equilibrium).
 const GAIN_WINDOW: usize = 500;
 
 /// A window of steps counts as stalled only while its least residual is above this many
-/// times the tolerance (the relaxation's slow creep sits at 2 to 4 times it).
+/// times the tolerance, above where the relaxation's slow creep sits (measured:
+/// `docs/solvers.md`, "A wide flat contact on a finer grid: the multipliers' gain").
 const STALLED: f64 = 10.0;
 
 /// The gain is halved at most down to this fraction.

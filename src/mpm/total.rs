@@ -41,13 +41,10 @@ const PREDICT_ABOVE: f64 = 10.0;
 
 /// Weight of each step's gap in the low-pass filtered gap the contact multipliers
 /// integrate (`ContactInput::filter`). The multiplier loop is less damped here than in the
-/// updated-Lagrangian relaxation (no APIC transfer smooths the nodal velocities): with the
-/// relaxation's gain on the raw gap, a 0.3 mm press on the coarse grid oscillated with a
-/// period of about 200 steps and growing amplitude, and one at dx 0.7 mm too at half that
-/// gain. Filtering the gap keeps the loop stable at the relaxation's gain; measured (Hertz
-/// presses 0.1 to 0.5 mm, steps): 168 / 89 / 125 / 95 / 91 at 1.4 mm, 155 / 180 / 198 /
-/// 192 / 256 at 0.7 mm, against 169 / 110 / 131 / 154 / 137 and 166 / 216 / 318 / 613 /
-/// 862 with half the gain unfiltered (a weight of 0.1 with twice the gain oscillated).
+/// updated-Lagrangian relaxation (no APIC transfer smooths the nodal velocities): on the
+/// raw gap it oscillated with growing amplitude at the relaxation's gain, and half that
+/// gain cost steps. Filtering the gap keeps the loop stable at the relaxation's gain
+/// (measured: `docs/solvers.md`, "What the relaxation's answer depends on").
 const GAP_FILTER: f32 = 0.3;
 
 /// The nodal state of the total-Lagrangian relaxation.

@@ -41,9 +41,9 @@
 //! * contact: a penalty on the surface passing into the indenters, on the points `C`
 //!   (stride `refinement.contact_stride`) where the indenters pierce the undeformed gel,
 //!   and on the surface sinking below the deepest indenter point anywhere. Both are
-//!   violations of the contact problem the indenters pose, which the decoder makes (8 um
-//!   at a press's worst lattice point on the held-out presses) and the depth rule then
-//!   removes pointwise.
+//!   violations of the contact problem the indenters pose, which the decoder makes and
+//!   the depth rule then removes pointwise (measured: `docs/rom.md`, "Reduced-order model
+//!   on held-out families").
 //!
 //! The gradient is exact: `dE/dz = J^T dE/dd`, with `J = dd/dz` from the exported graph
 //! `decoder_jacobian.onnx` (an explicit backward pass of the decoder, checked against
@@ -107,7 +107,8 @@ pub const VOLUME_RATIO: [f64; 2] = [0.25, 4.0];
 /// The factor of `rom`'s force from the decoded surface's displaced volume (manifest
 /// `force`): `volume_factor`, or, for a model of several Poisson's ratios, its `by_poisson`
 /// table interpolated linearly in Poisson's ratio and held beyond its ends (the linear
-/// coarse gel's own constant rises from about 1.08 at Poisson 0.3 to 1.6 at 0.48).
+/// coarse gel's own constant rises with Poisson's ratio; measured: `docs/rom.md`,
+/// "Against the held-out families").
 #[derive(Clone, Debug, PartialEq)]
 pub struct VolumeFactor {
     /// The factor of the training gel (of all presses, for a table).
@@ -962,12 +963,12 @@ impl Rom {
     ///   the coarse one's (on the lattice, over the whole face) times the manifest's
     ///   [`VolumeFactor`] at the gel's Poisson's ratio. On a bonded layer the total normal
     ///   force is close to proportional to the surface's displaced volume, with a constant
-    ///   of the gel and its grid that barely depends on the indenter (1.65 to 1.79 in units
-    ///   of `M / h` over spheres, a punch and a bar on the coarse grid); the manifest's
-    ///   factor, measured on the training presses, takes out the coarse grid's own
-    ///   constant. A pressure head then shapes the pressure image only: on the held-out
-    ///   presses its own force was no closer to the reference's in the median, and further
-    ///   from Hertz on the spheres (`docs/rom.md`, "Force and pressure");
+    ///   of the gel and its grid that barely depends on the indenter (`F = (M / h) V / r`;
+    ///   measured: `docs/rom.md`, "Force"); the manifest's factor, measured on the
+    ///   training presses, takes out the coarse grid's own constant. A pressure head then
+    ///   shapes the pressure image only: on the held-out presses its own force was no
+    ///   closer to the reference's in the median, and further from Hertz on the spheres
+    ///   (`docs/rom.md`, "Force and pressure: the pressure head");
     /// * else for a model with a pressure head that ran ([`Rom::lattice_pressure`]): the
     ///   head's force ([`Rom::pressure_force`]) over the coarse one ([`Rom::head_factor`]);
     /// * 1 for a model with neither, or where the ratio falls outside [`VOLUME_RATIO`]: the

@@ -10,12 +10,14 @@
 //! The gel is passive: it gives a body back at most the work the body did on it. An
 //! explicit coupling applies over each step the force of the step's start, so a body
 //! pressing into a stiffening gel does less work on it than the force it meets on the way
-//! back does on the body: a 2 kg ball dropped 2 cm onto the default gel at the 2 ms step
-//! left with 1.5 J from 0.39. Each geom therefore keeps an account of the work it did on
-//! the gel (observed over each step from the force applied and the displacement that
-//! followed); the force is scaled down where the work it would do over the next step at
-//! the body's present velocity exceeds that account (a time-domain passivity controller). Everything here is plain arithmetic on samples; the MuJoCo layer
-//! (`mujoco::plugin`) gathers the samples, looks up the masses and applies the result.
+//! back does on the body, and a heavy ball left with several times the energy it brought
+//! (measured: `docs/rl.md`, "The gel that pushes back"). Each geom therefore keeps an
+//! account of the work it did on the gel (observed over each step from the force applied
+//! and the displacement that followed); the force is scaled down where the work it would
+//! do over the next step at the body's present velocity exceeds that account (a
+//! time-domain passivity controller). Everything here is plain arithmetic on samples; the
+//! MuJoCo layer (`mujoco::plugin`) gathers the samples, looks up the masses and applies
+//! the result.
 
 use nalgebra::Vector3;
 
@@ -324,8 +326,8 @@ pub fn stiffness(rate: &Sample, h: f64) -> Option<f64> {
 /// down where it would make the gel pull the body towards it (a gel pushes only), and
 /// where it exceeds `mass * |v| / h`, the force that stops the relative velocity
 /// `v = rate.at` of the bodies (reduced mass `mass`) within the step `h`: an explicit
-/// damper stronger than that overshoots and grows (measured: a 2 g ball with 10 ms
-/// blows up at 2 ms steps without this cap).
+/// damper stronger than that overshoots and grows, as it did for a light ball at the
+/// default damping (measured: `docs/rl.md`, "The gel that pushes back").
 pub fn kelvin_voigt(w: &Wrench, rate: &Sample, tau: f64, mass: f64, h: Option<f64>) -> Wrench {
     let (df, dt) = (rate.wrench.force * tau, rate.wrench.torque * tau);
     let mut s = 1.0f64;

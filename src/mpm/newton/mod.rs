@@ -18,11 +18,9 @@
 //! lock, and the gel is continuous in Poisson's ratio across the threshold. The whole
 //! volume term on the cells alone (as the relaxation's F-bar smooths all of `J`) left the
 //! coarse grid far too soft: the cell points miss volume changes that the particles see,
-//! and those were held by the shear modulus only (frictionless spheres at Poisson 0.48
-//! and 0.499, dx = 1.4 mm: 0.50 to 0.82 of Hertz on the bonded layer, against 0.83 to
-//! 1.05 at 0.449; split as here, 0.83 to 1.05 at every ratio from 0.45 to 0.499). The
-//! particles keeping more (the `lambda` of 0.47 or 0.49) locked a small contact: 1.7 to
-//! 2.1 times Hertz at a 0.1 mm press of a 2 mm sphere.
+//! and those were held by the shear modulus only. The particles keeping more (the
+//! `lambda` of 0.47 or 0.49) locked a small contact (measured: `docs/solvers.md`, "Two
+//! solvers and a third").
 //!
 //! # Energy
 //!
@@ -105,17 +103,17 @@
 //! evenly over the substeps (one with). Away from the contact the field is smooth and
 //! the coarse grid resolves it; the fine grid is needed only where the contact is. The
 //! region's two-grid cycle is kept however few its unknowns (its Newton steps are those
-//! the fine gels are measured on; the factorisation's forcing term took twice as many
-//! here). Where the coarse gel's solve does not converge, the nodes outside stay where
-//! they were. `a_nested_solve_agrees_with_the_whole_gel`; `docs/solvers.md`, "A nested
-//! solve". The coarse gel itself is not nested: nested in its own coarse start, the
-//! fine gel's boundary would read that one's field (0.24 % off in force at 0.3 mm).
+//! the fine gels are measured on; the factorisation's forcing term took more here).
+//! Where the coarse gel's solve does not converge, the nodes outside stay where they
+//! were. `a_nested_solve_agrees_with_the_whole_gel`. The coarse gel itself is not nested:
+//! nested in its own coarse start, the fine gel's boundary would read that one's field
+//! (measured: `docs/solvers.md`, "A nested solve: the fine grid only near the contact").
 //!
 //! Contact acts on the top surface only: a body pressed deeper than its own radius can
 //! take surface points around itself (they are pushed out along the nearest distance,
-//! which past its centre points up), so its force drops to zero or below. A 0.3 mm
-//! sphere pressed 0.5 to 0.8 mm into the coarse gel shows it, before the sub-grid
-//! compliance as after; bodies pressed less than their radius are not affected.
+//! which past its centre points up), so its force drops to zero or below, before the
+//! sub-grid compliance as after; bodies pressed less than their radius are not affected
+//! (measured: `docs/solvers.md`, "What the relaxation's answer depends on").
 
 pub(in crate::mpm) mod energy;
 mod multigrid;
@@ -203,8 +201,9 @@ const MAX_OUTER: usize = 6;
 /// the line search and the next step absorb it): that of the two-grid cycle's solves, and
 /// the tightest of those that reuse an earlier factorisation, whose forcing term lies
 /// between this and [`LOOSEST_FORCING`] ([`forcing`]). The two-grid cycle is rebuilt at
-/// every Newton step, so a looser solve that takes more steps costs more there (at dx =
-/// 0.5 mm, 36 -> 56 Newton steps and 38 -> 42 s for a 0.3 mm press in three steps).
+/// every Newton step, so a looser solve that takes more steps costs more there
+/// (measured: `docs/solvers.md`, "Cheaper Newton steps: the forcing term, the line
+/// search, the cycle's sweeps").
 const FORCING: f64 = 1e-2;
 
 /// The loosest forcing term, that of a minimisation's first step.
@@ -220,10 +219,8 @@ const KEPT_SYSTEMS: usize = 4;
 
 /// Two-grid cycles of earlier regions kept for reuse: one, so that a contact that moves
 /// back and forth between two regions builds neither again. A fine press's region
-/// changes with every frame, and the cycles of four earlier regions were half of its
-/// memory: the benchmark's sequence of presses at 0.3 mm (0.1 to 0.5 mm and 1.0 mm)
-/// peaked at 3.8 GB with four, 2.6 GB with one and 1.9 GB with none, in the same Newton
-/// steps to the same forces (at 0.5 mm: 858 and 767 MB, 59.9 and 57.0 s).
+/// changes with every frame, so more kept cycles hold memory for the same Newton steps
+/// to the same forces (measured: `docs/solvers.md`, "Which solver a gel gets").
 const KEPT_TWO_GRIDS: usize = 1;
 
 /// Fraction of the largest nodal displacement above which a node counts as displaced: the
@@ -243,12 +240,12 @@ const MULTIGRID_ITERATIONS: usize = 200;
 
 /// The two-grid cycle's coarse level is factored afresh at a minimisation's first step
 /// and after a solve that took more conjugate gradient iterations than this; otherwise
-/// only the smoother's contact is refreshed ([`TwoGrid::build`]). At dx = 0.3 mm the
-/// coarse factorisation cost about eight iterations, at 0.5 mm about one; solves take
-/// 4 to 8 iterations with a fresh one and a few more with one some steps old. At 0.3 mm
-/// the coarse level is now smoothed, not factored, and a refresh takes 0.24 s instead
-/// of 2.8; refreshing it at every step there still took no less time (129.6 against
-/// 123.8 s for `fine_press -- dx=0.3e-3 solver=newton depths=0.1,0.2`).
+/// only the smoother's contact is refreshed ([`TwoGrid::build`]). A coarse level some
+/// steps old costs iterations, not accuracy, and a rule by counts keeps the answer
+/// independent of timing and threads; refreshing it at every step did not pay, even
+/// smoothed rather than factored (measured: `docs/solvers.md`, "The contact penalty in
+/// physical units; the coarse level refactored after slow solves" and "Three levels: the
+/// 0.6 mm level smoothed, not factored").
 const REFACTOR_COARSE_ABOVE: usize = 12;
 
 /// Quadratic B-spline weights and derivatives along each axis at a point (cells).
@@ -971,9 +968,9 @@ impl Newton {
     /// cells: the node's position, or the nearest point of the gel (`size`: its width,
     /// length and thickness, centred in x and y, the top at z = 0) for a node outside it.
     /// Outside the gel the field comes from nodes that only the edge's particles reach,
-    /// which the minimum leaves loosely set: read there, a nested solve's surface on a
-    /// small gel was 4 to 6 % of the peak off at its corner, read at the gel's edge 1.6 to
-    /// 2 % (the coarse gel's own error at its free edge, as large as a rigid wall's there).
+    /// which the minimum leaves loosely set; read at the gel's edge, a nested solve's
+    /// surface is off by the coarse gel's own error at its free edge (measured:
+    /// `docs/solvers.md`, "A nested solve: the fine grid only near the contact").
     fn at_node(&self, fine: &Newton, k: u32, size: &[f64; 3]) -> Vector3<f64> {
         let [_, d1, d2] = fine.dims;
         let node = fine.free_nodes[k as usize] as usize;
@@ -1176,9 +1173,9 @@ impl Newton {
     /// and also along it, where the exact one is zero. The exact model is linear along
     /// the slip, so a step that took a point back towards its anchor carried it past the
     /// anchor as far as the gel's pull reached, and the line search halved the whole step
-    /// for it (a 0.1 mm press step at dx = 0.5 mm: 28 Newton steps, most of them cut to
-    /// a half to an eighth, against 12 without friction). The energy and its gradient are
-    /// exact, so the minimum is the same.
+    /// for it (measured: `docs/solvers.md`, "Friction's sliding points: a majorizing
+    /// stiffness; the two-grid cycle from 0.6 mm"). The energy and its gradient are exact,
+    /// so the minimum is the same.
     fn contact_term(
         &self,
         c: &ContactPoint,
@@ -1438,9 +1435,10 @@ impl Newton {
     /// minimisation goes on with them, as long as each refresh changes them less than the
     /// one before (and at most [`MAX_OUTER`] times; never on a near-incompressible gel,
     /// see below); otherwise they stay as they are, for the outer loop of
-    /// [`Self::substep`]. So the lag converges with the minimisation, not after it: on the
-    /// moving press of `tacrom mpm` one minimisation to a state the first lag left 60 to
-    /// 120 % off, and three to five more after it, took 12 to 23 Newton steps a frame. A
+    /// [`Self::substep`]. So the lag converges with the minimisation, not after it: a
+    /// whole minimisation to a state that the first refresh then moved far, and several
+    /// more after it, took more Newton steps a frame (measured: `docs/solvers.md`, "Fewer
+    /// Newton steps: friction lagged within the minimisation, and the coarse start"). A
     /// refresh from a state farther from equilibrium (residual 0.3) meets penalty forces
     /// of a transient penetration and diverges on a slide. Each run of steps with one lag
     /// is one entry of `history`, its energy non-increasing. Returns the final relative
@@ -1825,18 +1823,17 @@ impl Newton {
 
     /// [`Newton::substep`] from the indenters' poses `starts` to `indenters`, taken again
     /// as two halves (each split in turn, up to `splits` times) when it stalls far from
-    /// equilibrium: a press of a ridged mesh 1 mm into the coarse gel in one substep
+    /// equilibrium: a press of a ridged mesh deep into the coarse gel in one substep
     /// carried its lattice points deep into the ridges, where the distance pushes them
-    /// out sideways, and ended with 87 N and `det F` at its clamp where the relaxation
-    /// and two half substeps give 4.6 N. A tried substep's work stays counted in
-    /// `report`; its state and its verdict on convergence are undone. `span`: the share of
-    /// the substep's motion at its start and end (`[0, 1]`; the halves of a split take
-    /// their halves of it).
+    /// out sideways, and ended far from the relaxation's force with `det F` at its clamp.
+    /// A tried substep's work stays counted in `report`; its state and its verdict on
+    /// convergence are undone. `span`: the share of the substep's motion at its start and
+    /// end (`[0, 1]`; the halves of a split take their halves of it).
     ///
     /// `Err(residual)` when a substep stalls at the last split: the state is then that of
-    /// its start, the last equilibrium found, and the caller goes no further (the same
-    /// ridged mesh pressed 1.9 mm deep near the gel's edge, the grid crushed under its
-    /// ridges, had ended at 743 N).
+    /// its start, the last equilibrium found, and the caller goes no further (a grid
+    /// crushed under a ridged mesh had ended at a force no gel carries). Measured:
+    /// `docs/solvers.md`, "A Newton substep that stalls".
     fn substep_split(
         &mut self,
         indenters: &[StepIndenter],
@@ -1917,9 +1914,9 @@ impl Newton {
     /// the indenters deeper than the solution does, over a wider patch than the one in
     /// contact at the solution, and Newton's method then sheds the extra contact points
     /// a ring per step; a prediction starts it near the solution's contact patch. On a
-    /// steady moving press the secant prediction is the better one: at 0.5 mm the coarse
-    /// start's, taken wherever its energy was the lower (always), made a median frame 38
-    /// s (24 Newton steps) against 21 s (19).
+    /// steady moving press the secant prediction is the better one, though the coarse
+    /// start's has the lower energy (measured: `docs/solvers.md`, "Fewer Newton steps:
+    /// friction lagged within the minimisation, and the coarse start").
     fn predict(&mut self, motion: &[Vector3<f64>], indenters: &[StepIndenter]) {
         let coarse = std::mem::take(&mut self.coarse_step);
         let (s, change) = if coarse.len() == self.u.len() {

@@ -29,13 +29,12 @@
 //! smoother at every step and in the coarse level when the last solve took many
 //! iterations (see `REFACTOR_COARSE_ABOVE` in `mod.rs`).
 //!
-//! Smoothers tried on `the_two_grid_cycle_cuts_the_iterations` (conjugate gradients to
-//! 1e-6; the block diagonal alone: 326 iterations): damped Jacobi and Chebyshev on the
-//! node blocks did worse than Gauss-Seidel by nodes (the highest frequencies of quadratic
-//! B-splines, which the basis averages out, and nodes whose spline barely reaches into
-//! the gel have small eigenvalues that a pointwise smoother does not reach); Gauss-Seidel
-//! by nodes, 68 iterations; by patches, 22 (17 for the contact load as right-hand side,
-//! against 80).
+//! Smoothers tried on `the_two_grid_cycle_cuts_the_iterations`: damped Jacobi and
+//! Chebyshev on the node blocks did worse than Gauss-Seidel by nodes, and Gauss-Seidel by
+//! patches did best (the highest frequencies of quadratic B-splines, which the basis
+//! averages out, and nodes whose spline barely reaches into the gel have small eigenvalues
+//! that a pointwise smoother does not reach; a patch holds those modes whole). Measured:
+//! `docs/solvers.md`, "Newton's linear solves on fine grids".
 
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -421,11 +420,9 @@ impl Smoother {
     /// the patches after it). The sweeps are bound by reading the blocks, so the blocks
     /// between patches are read in single precision, in the order the sweeps take them
     /// (copied at each [`Self::prepare`]): the cycle is then that of a Hessian rounded off
-    /// the patches' diagonal blocks, still symmetric and as good a preconditioner (the
-    /// same conjugate gradient iterations to the last one at dx = 0.5 mm). Old and new,
-    /// one thread, a 5 mm sphere pressed 0.1 and 0.2 mm at dx = 0.5 mm: 26.8 -> 22.5 s;
-    /// the sweeps alone over every block, by slot, took about as long as with half of
-    /// them skipped.
+    /// the patches' diagonal blocks, still symmetric and as good a preconditioner
+    /// (measured: `docs/solvers.md`, "Cheaper Newton steps: the forcing term, the line
+    /// search, the cycle's sweeps").
     fn cycle(
         &mut self,
         r: &[f64],
@@ -527,8 +524,9 @@ impl Prolongation {
 
 /// The coarse level's operator smoothed rather than factored, with a factored level of
 /// twice its spacing below it; used where the coarse level has more than
-/// [`MULTIGRID_UNKNOWNS`] unknowns (the rule of the fine grid's own factorisation). At dx =
-/// 0.3 mm that is the 0.6 mm level's 27,648, whose factorisation took 2.8 s a build.
+/// [`MULTIGRID_UNKNOWNS`] unknowns (the rule of the fine grid's own factorisation): at dx =
+/// 0.3 mm the 0.6 mm level's 27,648, whose factorisation was most of a build (measured:
+/// `docs/solvers.md`, "Three levels: the 0.6 mm level smoothed, not factored").
 #[derive(Clone)]
 struct Smoothed {
     smoother: Smoother,
@@ -773,11 +771,12 @@ impl TwoGrid {
     /// The cycle is only the preconditioner of conjugate gradients, whose products are the
     /// present Hessian's, so a gel's part a few Newton steps old costs iterations, not
     /// accuracy; the contact changes far more from step to step (points enter and leave,
-    /// with the penalty's stiffness). The gel's part is most of the work: at dx = 0.5 mm
-    /// about 0.9 s of a 1.05 s build, on one thread. With `coarse` false (and not
-    /// `elastic`) only the smoother's contact is refreshed, and the coarse operator and
-    /// its factorisation stay those of the last build that refreshed them: at dx = 0.3
-    /// mm that factorisation was about 2.8 s of a 3.3 s build.
+    /// with the penalty's stiffness). The gel's part is most of the work. With `coarse`
+    /// false (and not `elastic`) only the smoother's contact is refreshed, and the coarse
+    /// operator and its factorisation stay those of the last build that refreshed them,
+    /// the larger part of a build on a fine grid (measured: `docs/solvers.md`, "Newton's
+    /// linear solves on fine grids" and "The contact penalty in physical units; the
+    /// coarse level refactored after slow solves").
     pub fn build(
         &mut self,
         newton: &Newton,

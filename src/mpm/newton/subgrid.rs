@@ -3,8 +3,7 @@
 //!
 //! The gel's surface is the quadratic B-spline field of the grid's nodes, which cannot
 //! bend over much less than a cell: under a load on a patch much smaller than that the
-//! grid deflects about as it does under a point load, and is too stiff (a 0.5 mm sphere
-//! pressed 0.1 mm into the coarse gel carried 2.8 times Hertz's force). What it misses is
+//! grid deflects about as it does under a point load, and is too stiff. What it misses is
 //! measured once per gel ([`Newton::calibrate_subgrid`]): with the rest stiffness
 //! factored, uniform unit loads on the contact lattice points within discs of growing
 //! radius `r` near the gel's centre give the grid's mean deflection per unit load
@@ -27,11 +26,11 @@
 //! measured from them swing between too small and too large. Patches the grid resolves
 //! keep their penalty exactly.
 //!
-//! [`SERIES_SHARE`] is measured, not derived: the full deficit `C - C_g` made the 0.5 mm
-//! sphere and the cone both come out at 0.5 to 0.75 of their analytic forces (the grid's
-//! response to a curved indenter is softer than to the disc load it is calibrated with),
-//! half of it brings both within 20 % (docs/solvers.md, "Small contacts"). It was chosen on the
-//! 0.5 mm sphere and holds for the cone, a 2 mm sphere and four placements on the lattice.
+//! [`SERIES_SHARE`] is measured, not derived: the grid's response to a curved indenter is
+//! softer than to the disc load it is calibrated with, so the full deficit `C - C_g` made
+//! small contacts too soft. The share was chosen on the 0.5 mm sphere and holds for the
+//! cone, a 2 mm sphere and four placements on the lattice (measured: `docs/solvers.md`,
+//! "What the relaxation's answer depends on").
 //!
 //! A contact too small to reach any lattice point at all (a sharp tip pressed less than
 //! the lattice's spacing into the gel) is found by sampling the surface more finely

@@ -1,7 +1,8 @@
 //! Time of the gel's depth image (the inverse map from pixels to surface points) after a
-//! press: `tacrom probe image_time [SOLVER] [DEPTH_MM] [THREADS]`
-//! (defaults: linear, 0.5, 1). Prints the median of 20 images at 320 x 240 and a checksum
-//! of the image's bits.
+//! press: `tacrom probe image_time [SOLVER] [DEPTH_MM] [THREADS] [lattice]` (defaults:
+//! linear, 0.5, 1). Prints the median of 20 images at 320 x 240 (with `lattice`: on rom's
+//! 100 x 100 lattice over the whole 30 mm gel, its observation's coarse depth) and a
+//! checksum of the image's bits.
 
 use nalgebra::Isometry3;
 use std::sync::Arc;
@@ -28,13 +29,21 @@ pub fn run(args: Vec<String>) {
         shape: ball,
         pose: Isometry3::translation(0.0, 0.0, 5e-3 - depth),
     }]);
-    let grid = PixelGrid {
-        width: 320,
-        height: 240,
-        fov_x: 0.024,
-        fov_y: 0.018,
+    let grid = match args.get(4).map(|s| s.as_str()) {
+        Some("lattice") => PixelGrid {
+            width: 100,
+            height: 100,
+            fov_x: 0.03,
+            fov_y: 0.03,
+        },
+        _ => PixelGrid {
+            width: 320,
+            height: 240,
+            fov_x: 0.024,
+            fov_y: 0.018,
+        },
     };
-    let mut out = vec![0.0; 320 * 240];
+    let mut out = vec![0.0; grid.width * grid.height];
     let mut times = Vec::new();
     for _ in 0..20 {
         let t0 = Instant::now();

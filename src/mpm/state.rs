@@ -31,6 +31,8 @@ pub struct StateBounds {
     pub points: usize,
     /// Node columns.
     pub columns: usize,
+    /// Grid nodes.
+    pub nodes: usize,
     /// Indenters a frame can hold.
     pub indenters: usize,
 }
@@ -44,6 +46,7 @@ impl StateBounds {
             slots: s,
             points: l,
             columns: c,
+            nodes: g,
             indenters: i,
         } = *self;
         let header = 16;
@@ -54,12 +57,14 @@ impl StateBounds {
         let prev = 1 + 8 * i;
         // Each solver's own: the secant memory (per particle and per indenter), one
         // linear solver's history (anchors, lagged forces, the columns' mean
-        // displacement); nothing of the others (their state is not kept).
+        // displacement), the total relaxation's nodal displacements and secant memory
+        // (per node and per indenter); nothing of Newton's (its state is not kept).
         let solver_len = |kind: Solver| {
             1 + match kind {
                 Solver::Relaxation => 2 + 12 * n + 3 * i,
                 Solver::Linear => 4 + 5 * l + 4 * l + 3 * c,
-                Solver::Newton | Solver::Total => 0,
+                Solver::Total => 1 + 3 * g + (1 + 3 * g) + (1 + 3 * i),
+                Solver::Newton => 0,
             }
         };
         let fallback = if fallback {
@@ -140,6 +145,7 @@ impl Gel {
             slots: nx * ny,
             points: nx * ny * super::linear::SUBDIVISION.pow(2),
             columns: layout.dims[0] * layout.dims[1],
+            nodes: layout.dims.iter().product(),
             indenters,
         }
     }
@@ -147,8 +153,8 @@ impl Gel {
     /// Writes or reads the gel's state ([`crate::state`]); `shapes` names the indenters'
     /// shapes by their index (the same table when reading as when writing, in meaning:
     /// the scene's candidate shapes in order). Returns whether the whole state was kept:
-    /// false where a solver keeps its state outside it (Newton's method, the total
-    /// relaxation), whose replay then starts from the undeformed gel.
+    /// false where a solver keeps its state outside it (Newton's method), whose replay
+    /// then starts from the undeformed gel.
     ///
     /// A read that fails leaves the gel to be reset by the caller.
     pub fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {

@@ -33,7 +33,8 @@ use super::indenters::Sweep;
 use super::materials::ConstitutiveModel;
 use super::solver::{relax_frame, Equilibrium, Frame, Relax};
 use super::transfer::{self, ChunkStats, LayerStats, Node, Stencil};
-use super::{Gel, Snapshot, SolveReport, Solver, J_MAX, J_MIN};
+use super::{Gel, Snapshot, SolveReport, Solver, StateBounds, J_MAX, J_MIN};
+use crate::state::{self, Io, Persist};
 
 /// A solve's change must exceed this many times the tolerance times the deformation for
 /// the next solve to extrapolate it (as the relaxation's `PREDICT_ABOVE`).
@@ -139,6 +140,43 @@ impl Equilibrium for TotalRelaxation {
 
     fn reset(&mut self) {
         self.total = None;
+    }
+
+    /// Whether the nodal state is built, and where it is: the nodal displacements (the
+    /// velocities start every frame at zero) and the secant memory. What depends on the
+    /// gel alone (masses, rest stencils) is built again from it.
+    fn persist(&mut self, io: &mut Io<'_>, gel: &Gel, bounds: &StateBounds) -> bool {
+        let mut built = self.total.is_some();
+        built.persist(io);
+        if io.loading() && io.fault().is_none() {
+            match (built, self.total.is_some()) {
+                (true, false) => self.total = Some(Box::new(Total::new(gel))),
+                (false, true) => self.total = None,
+                _ => {}
+            }
+        }
+        if let Some(total) = self.total.as_mut() {
+            state::each(io, &mut total.u);
+            state::list(
+                io,
+                &mut total.last_du,
+                bounds.nodes,
+                "the total relaxation's secant memory",
+            );
+            state::list(
+                io,
+                &mut total.last_motion,
+                bounds.indenters,
+                "the total relaxation's secant motion",
+            );
+            let (memory, nodes) = (total.last_du.len(), total.u.len());
+            if io.loading() && memory != 0 && memory != nodes {
+                io.fail(|| {
+                    format!("the total relaxation's secant memory holds {memory} of {nodes} nodes")
+                });
+            }
+        }
+        true
     }
 }
 
@@ -406,5 +444,84 @@ impl Gel {
                 .collect_into_vec(layer_stats);
             f
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Placed, Sdf, Sphere};
+    use crate::mpm::{GelParams, SolverOptions};
+    use nalgebra::Isometry3;
+    use std::sync::Arc;
+
+    fn gel() -> Gel {
+        let options = SolverOptions {
+            solver: Solver::Total,
+            ..Default::default()
+        };
+        Gel::new(GelParams::default(), options).expect("gel")
+    }
+
+    fn press(gel: &mut Gel, ball: &Arc<dyn Sdf>, x: f64, depth: f64) {
+        gel.solve(&[Placed {
+            shape: ball.clone(),
+            pose: Isometry3::translation(x, 0.0, 5e-3 - depth),
+        }]);
+    }
+
+    /// The gel's state written after a press and a slide, read into a fresh gel of the
+    /// total relaxation: the next frame is the original's, bit for bit, where a fresh gel's
+    /// is not (the nodal displacements and the secant memory are what it starts from).
+    #[test]
+    fn a_restored_total_relaxation_replays_its_next_frame_bit_for_bit() {
+        let ball: Arc<dyn Sdf> = Arc::new(Sphere::new(5e-3));
+        let shapes = [ball.clone()];
+        let mut original = gel();
+        press(&mut original, &ball, 0.0, 0.3e-3);
+        press(&mut original, &ball, 0.3e-3, 0.4e-3);
+        let bounds = original.state_bounds(1);
+        let mut buf = vec![0.0; bounds.gel_len(Solver::Total, false)];
+        let mut io = Io::save(&mut buf);
+        assert!(original.persist(&mut io, &shapes), "the state is kept");
+        assert!(!io.overflowed(), "the declared size holds the state");
+        let mut restored = gel();
+        let mut io = Io::load(&buf);
+        assert!(restored.persist(&mut io, &shapes));
+        assert_eq!(io.fault(), None);
+        let mut fresh = gel();
+        for g in [&mut original, &mut restored, &mut fresh] {
+            press(g, &ball, 0.6e-3, 0.4e-3);
+        }
+        let bits = |g: &Gel| -> Vec<u64> {
+            g.surface_u
+                .iter()
+                .flat_map(|u| u.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+                .collect()
+        };
+        assert_eq!(bits(&original), bits(&restored));
+        assert_ne!(bits(&original), bits(&fresh));
+    }
+
+    /// A secant memory that does not cover every node (a state written by hand) is
+    /// refused, naming it, rather than indexed past its end at the next frame.
+    #[test]
+    fn a_secant_memory_of_the_wrong_length_is_refused() {
+        let g = gel();
+        let bounds = g.state_bounds(1);
+        let mut solver = TotalRelaxation {
+            total: Some(Box::new(Total::new(&g))),
+        };
+        if let Some(t) = solver.total.as_mut() {
+            t.last_du = vec![Vector3::zeros(); 5];
+        }
+        let mut buf = vec![0.0; bounds.gel_len(Solver::Total, false)];
+        let mut io = Io::save(&mut buf);
+        solver.persist(&mut io, &g, &bounds);
+        let mut other = TotalRelaxation::default();
+        let mut io = Io::load(&buf);
+        other.persist(&mut io, &g, &bounds);
+        let fault = io.fault().expect("refused");
+        assert!(fault.contains("secant memory holds 5 of"), "{fault}");
     }
 }

@@ -151,11 +151,11 @@ def test_off_centre_box_lands_at_documented_pixels():
 STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_PLUGIN
 
 # Every physics mode with each solver whose state MuJoCo's state holds: the relaxation (the
-# coarse gel's own, with the linear solver for the contacts it misses) and the linear
-# solver, each under rom too (rom's default is the linear gel; the relaxation's rom is
-# model="rom-default").
-KEPT = [("rigid", {}), ("coarse", {}), ("coarse", {"solver": "linear"}), ("rom", {}),
-        ("rom", {"model": "rom-default"})]
+# coarse gel's own, with the linear solver for the contacts it misses), the linear solver
+# and the total relaxation, the first two under rom too (rom's default is the linear gel;
+# the relaxation's rom is model="rom-default").
+KEPT = [("rigid", {}), ("coarse", {}), ("coarse", {"solver": "linear"}),
+        ("coarse", {"solver": "total"}), ("rom", {}), ("rom", {"model": "rom-default"})]
 
 
 def get_state(m, d):
@@ -253,12 +253,11 @@ def test_a_state_that_does_not_fit_the_sensor_restarts_the_gel_with_a_warning(ca
         assert "'touch'" in err and "cannot be restored" in err, err
 
 
-@pytest.mark.parametrize("solver", ["newton", "total"])
-def test_solvers_whose_state_is_not_kept_say_so_and_restart(solver, capfd):
-    """Newton's method and the total relaxation keep their state outside MuJoCo's (see
-    docs/state.md): a restored state warns and the gel restarts undeformed, equal to a
-    fresh gel, rather than continuing from a gel it does not have."""
-    m = model(solver=solver, poisson="0.45")
+def test_a_solver_whose_state_is_not_kept_says_so_and_restarts(capfd):
+    """Newton's method keeps its state outside MuJoCo's (see docs/state.md): a restored
+    state warns and the gel restarts undeformed, equal to a fresh gel, rather than
+    continuing from a gel it does not have."""
+    m = model(solver="newton", poisson="0.45")
     d = mujoco.MjData(m)
     for pose in HISTORY[:2]:
         evaluate(m, d, pose)

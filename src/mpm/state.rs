@@ -33,6 +33,11 @@ pub struct StateBounds {
     pub columns: usize,
     /// Grid nodes.
     pub nodes: usize,
+    /// Points of Newton's contact lattice.
+    pub newton_points: usize,
+    /// Whether a frame the gel's own solver cannot carry falls back to the linear solver
+    /// (else to Newton's method).
+    pub linear_fallback: bool,
     /// Indenters a frame can hold.
     pub indenters: usize,
 }
@@ -47,6 +52,8 @@ impl StateBounds {
             points: l,
             columns: c,
             nodes: g,
+            newton_points: q,
+            linear_fallback,
             indenters: i,
         } = *self;
         let header = 16;
@@ -58,19 +65,23 @@ impl StateBounds {
         // Each solver's own: the secant memory (per particle and per indenter), one
         // linear solver's history (anchors, lagged forces, the columns' mean
         // displacement), the total relaxation's nodal displacements and secant memory
-        // (per node and per indenter); nothing of Newton's (its state is not kept).
+        // (per node and per indenter), Newton's nodal displacements and secant memory
+        // (at most three unknowns per node), stick anchors, lagged forces and loads (per
+        // point of its contact lattice, and one tip point per indenter).
         let solver_len = |kind: Solver| {
             1 + match kind {
                 Solver::Relaxation => 2 + 12 * n + 3 * i,
                 Solver::Linear => 4 + 5 * l + 4 * l + 3 * c,
                 Solver::Total => 1 + 3 * g + (1 + 3 * g) + (1 + 3 * i),
-                Solver::Newton => 0,
+                Solver::Newton => {
+                    2 + 3 * g + 2 * (1 + 5 * q) + (1 + 6 * (q + i)) + 1 + (1 + 3 * g) + (1 + 3 * i)
+                }
             }
         };
-        let fallback = if fallback {
-            solver_len(Solver::Linear).max(solver_len(Solver::Newton))
-        } else {
-            0
+        let fallback = match (fallback, linear_fallback) {
+            (false, _) => 0,
+            (true, true) => solver_len(Solver::Linear),
+            (true, false) => solver_len(Solver::Newton),
         };
         header + particles + slots + loads + prev + solver_len(solver) + fallback
     }
@@ -146,6 +157,8 @@ impl Gel {
             points: nx * ny * super::linear::SUBDIVISION.pow(2),
             columns: layout.dims[0] * layout.dims[1],
             nodes: layout.dims.iter().product(),
+            newton_points: nx * ny * super::newton::CONTACT_SUBDIVISION.pow(2),
+            linear_fallback: super::choice::linear_fits(params),
             indenters,
         }
     }
@@ -153,8 +166,8 @@ impl Gel {
     /// Writes or reads the gel's state ([`crate::state`]); `shapes` names the indenters'
     /// shapes by their index (the same table when reading as when writing, in meaning:
     /// the scene's candidate shapes in order). Returns whether the whole state was kept:
-    /// false where a solver keeps its state outside it (Newton's method), whose replay
-    /// then starts from the undeformed gel.
+    /// false where a solver keeps its state outside it (Newton's method with a coarse
+    /// start), whose replay then starts from the undeformed gel.
     ///
     /// A read that fails leaves the gel to be reset by the caller.
     pub fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {

@@ -198,8 +198,8 @@ impl Instance {
         if state[2] != 1.0 {
             return Some(format!(
                 "tacrom.tactile sensor '{name}': the restored state does not hold the gel's \
-                 solver state (Newton's method and the total relaxation keep theirs outside \
-                 MuJoCo's state); the gel restarts undeformed"
+                 solver state (Newton's method started from a gel twice as coarse keeps that \
+                 gel outside MuJoCo's state); the gel restarts undeformed"
             ));
         }
         let mut io = Io::load(&state[STATE_HEADER..]);

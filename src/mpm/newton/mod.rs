@@ -132,10 +132,11 @@ use super::contact::{StepIndenter, CONTACT_BAND};
 use super::indenters::Sweep;
 use super::solver::{Equilibrium, Frame};
 use super::{
-    Gel, GelParams, Layout, Linear, SolveReport, Solver, SolverOptions, FBAR_POISSON, J_MAX, J_MIN,
-    MULTIGRID_UNKNOWNS, PAD_BOTTOM,
+    Gel, GelParams, Layout, Linear, SolveReport, Solver, SolverOptions, StateBounds, FBAR_POISSON,
+    J_MAX, J_MIN, MULTIGRID_UNKNOWNS, PAD_BOTTOM,
 };
 use crate::geometry::{Aabb, Placed, Sdf};
+use crate::state::{self, Io, Persist};
 use energy::Density;
 use multigrid::TwoGrid;
 use slabs::Slabs;
@@ -699,16 +700,93 @@ impl Newton {
         self.last_scale = 0.0;
         self.last_change.clear();
         self.last_motion.clear();
-        // A factorisation kept from before would precondition the next press's first
-        // steps, which a fresh gel factors: forget it, so that the next press equals a
-        // fresh gel's bit for bit (the patterns and orderings stay: they depend on the
-        // region alone).
+        self.forget_factors();
+    }
+
+    /// Forgets the factorisations kept from earlier frames (the patterns and orderings
+    /// stay: they depend on the region alone). A frame then factors at its first Newton
+    /// step, as a fresh gel's does, so that its answer depends on the state
+    /// [`NewtonSolver`] keeps in MuJoCo's and not on which frames came before: a restored
+    /// state replays the frames bit for bit.
+    fn forget_factors(&mut self) {
         for s in self
             .system
             .iter_mut()
             .chain(self.systems.iter_mut().map(|(_, s)| s))
         {
             s.factored = false;
+        }
+    }
+
+    /// Writes or reads what the next frame starts from ([`crate::state`]): the nodal
+    /// displacements, the stick anchors, the lagged normal forces (the points that carry
+    /// one), the contact loads, the load scale of the last equilibrium and the secant
+    /// memory. The rest is rebuilt from the gel, or within the frame.
+    fn persist(&mut self, io: &mut Io<'_>, bounds: &StateBounds) {
+        let points = self.lagged.len();
+        state::each(io, &mut self.u);
+        let mut anchors: Vec<(u32, Anchor)> =
+            std::mem::take(&mut self.anchors).into_iter().collect();
+        let n = io.len(anchors.len(), points, "Newton's stick anchors");
+        if io.loading() {
+            anchors.resize(n, (0, Anchor::default()));
+        }
+        for (k, a) in &mut anchors {
+            let mut i = *k as usize;
+            io.count(&mut i, points, "a stick anchor's point");
+            *k = i as u32;
+            io.count(
+                &mut a.indenter,
+                bounds.indenters,
+                "a stick anchor's indenter",
+            );
+            a.local.persist(io);
+        }
+        self.anchors = anchors.into_iter().collect();
+        let rest = (0.0, Vector3::z());
+        let mut lagged: Vec<(usize, (f64, Vector3<f64>))> = self
+            .lagged
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| **l != rest)
+            .map(|(i, l)| (i, *l))
+            .collect();
+        let n = io.len(lagged.len(), points, "Newton's lagged forces");
+        if io.loading() {
+            lagged.resize(n, (0, rest));
+        }
+        for (i, l) in &mut lagged {
+            io.count(i, points, "a lagged force's point");
+            l.persist(io);
+        }
+        if io.loading() && io.fault().is_none() {
+            self.lagged.fill(rest);
+            for (i, l) in lagged {
+                self.lagged[i] = l;
+            }
+        }
+        state::list(
+            io,
+            &mut self.loads,
+            points + bounds.indenters,
+            "Newton's contact loads",
+        );
+        self.last_scale.persist(io);
+        state::list(
+            io,
+            &mut self.last_change,
+            self.u.len(),
+            "Newton's secant memory",
+        );
+        state::list(
+            io,
+            &mut self.last_motion,
+            bounds.indenters,
+            "Newton's secant motion",
+        );
+        let (memory, unknowns) = (self.last_change.len(), self.u.len());
+        if io.loading() && memory != 0 && memory != unknowns {
+            io.fail(|| format!("Newton's secant memory holds {memory} of {unknowns} unknowns"));
         }
     }
 
@@ -2229,6 +2307,36 @@ impl Equilibrium for NewtonSolver {
             c.reset();
         }
     }
+
+    /// Newton's state where the gel has no coarse start (whose gel, a whole second gel,
+    /// is not written): a flag saying whether it is kept, then whether it is built and,
+    /// where it is, [`Newton::persist`]'s.
+    fn persist(&mut self, io: &mut Io<'_>, gel: &Gel, bounds: &StateBounds) -> bool {
+        let mut kept = self.companion.is_none();
+        kept.persist(io);
+        if !kept {
+            return false;
+        }
+        let mut built = self.state.is_some();
+        built.persist(io);
+        if io.loading() && io.fault().is_none() {
+            match (built, self.state.is_some()) {
+                (true, false) => match Newton::new(gel) {
+                    Ok(mut n) => {
+                        n.calibrate_subgrid();
+                        self.state = Some(Box::new(n));
+                    }
+                    Err(e) => io.fail(|| format!("Newton's method cannot be built: {e}")),
+                },
+                (false, true) => self.state = None,
+                _ => {}
+            }
+        }
+        if let Some(n) = self.state.as_mut() {
+            n.persist(io, bounds);
+        }
+        true
+    }
 }
 
 impl Gel {
@@ -2372,6 +2480,7 @@ impl NewtonSolver {
         let dx = gel.layout.dx;
         let tolerance = gel.options.tolerance;
         let mut newton = self.state.take().expect("built above");
+        newton.forget_factors();
         newton.remap(matched);
         newton.history.clear();
         let motion = sweep.steps as f64 * gel.options.sweep_rate;

@@ -1123,3 +1123,77 @@ fn axis_by_axis_sums_equal_the_node_by_node_ones() {
         }
     }
 }
+
+/// The gel's state bits: each top-surface slot's displacement and the force.
+fn state_bits(g: &Gel) -> Vec<u64> {
+    surface(g)
+        .iter()
+        .chain(std::iter::once(&g.force()))
+        .flat_map(|u| u.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+        .collect()
+}
+
+/// Catches: a Newton frame that depends on what MuJoCo's state does not carry (a
+/// factorisation kept from an earlier frame, the anchors, the lagged forces). A frictional
+/// press and slide; the gel's state written after three frames and read into a fresh gel:
+/// the next two frames equal the original's to the last bit, where a fresh gel's differ.
+#[test]
+fn a_restored_newton_gel_replays_its_next_frames_bit_for_bit() {
+    let (r, s) = (3e-3, ball(3e-3));
+    let shapes = [s.clone()];
+    let params = small_gel(0.8, 0.45);
+    let mut original = Gel::new(params, options(1e-3)).unwrap();
+    for (x, d) in [(0.0, 0.2e-3), (0.0, 0.4e-3), (0.5e-3, 0.4e-3)] {
+        original.solve(&[at(&s, r, x, d)]);
+    }
+    let bounds = original.state_bounds(1);
+    let mut buf = vec![0.0; bounds.gel_len(Solver::Newton, false)];
+    let mut io = crate::state::Io::save(&mut buf);
+    assert!(original.persist(&mut io, &shapes), "Newton's state is kept");
+    assert!(!io.overflowed(), "the declared size holds the state");
+    let mut restored = Gel::new(params, options(1e-3)).unwrap();
+    let mut io = crate::state::Io::load(&buf);
+    assert!(restored.persist(&mut io, &shapes));
+    assert_eq!(io.fault(), None);
+    let mut fresh = Gel::new(params, options(1e-3)).unwrap();
+    for (x, d) in [(1.0e-3, 0.4e-3), (1.0e-3, 0.2e-3)] {
+        for g in [&mut original, &mut restored, &mut fresh] {
+            assert!(g.solve(&[at(&s, r, x, d)]).converged);
+        }
+        assert_eq!(
+            state_bits(&original),
+            state_bits(&restored),
+            "x {x}, depth {d}"
+        );
+        assert_ne!(state_bits(&original), state_bits(&fresh));
+    }
+}
+
+/// A gel that starts its frames from a gel twice as coarse keeps that gel outside the
+/// state: its state says so (not kept), and the gel reset for it equals a fresh one.
+#[test]
+fn a_newton_gel_with_a_coarse_start_is_not_kept_and_resets_to_a_fresh_gel() {
+    let (r, s) = (3e-3, ball(3e-3));
+    let shapes = [s.clone()];
+    let params = GelParams {
+        size: [0.01, 0.01, 0.004],
+        ..small_gel(0.5, 0.45)
+    };
+    let opts = SolverOptions {
+        coarse_start_above: 0,
+        ..options(1e-3)
+    };
+    let mut g = Gel::new(params, opts).unwrap();
+    for (x, d) in [(0.0, 0.3e-3), (0.5e-3, 0.3e-3)] {
+        g.solve(&[at(&s, r, x, d)]);
+    }
+    let mut buf = vec![0.0; g.state_bounds(1).gel_len(Solver::Newton, false)];
+    let mut io = crate::state::Io::save(&mut buf);
+    assert!(!g.persist(&mut io, &shapes), "not kept");
+    g.reset();
+    let mut fresh = Gel::new(params, opts).unwrap();
+    for gel in [&mut g, &mut fresh] {
+        gel.solve(&[at(&s, r, 1.0e-3, 0.3e-3)]);
+    }
+    assert_eq!(state_bits(&g), state_bits(&fresh));
+}

@@ -131,6 +131,7 @@ use super::{
     pressure::ContactLoad, Gel, Linear as LinearSolve, SolveReport, Solver, StateBounds,
     LINEAR_UNKNOWNS,
 };
+use crate::geometry::Sdf;
 use crate::state::{self, Io, Persist};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt;
@@ -2469,7 +2470,13 @@ impl Equilibrium for LinearSolver {
 
     /// Whether the compliance is built (it is rebuilt from the gel, or read from the gel
     /// cache, where a read state has one) and friction's history.
-    fn persist(&mut self, io: &mut Io<'_>, gel: &Gel, bounds: &StateBounds) -> bool {
+    fn persist(
+        &mut self,
+        io: &mut Io<'_>,
+        gel: &Gel,
+        bounds: &StateBounds,
+        _shapes: &[Arc<dyn Sdf>],
+    ) -> bool {
         let mut built = self.compliance.is_some();
         built.persist(io);
         if io.loading() && io.fault().is_none() && built != self.compliance.is_some() {

@@ -34,7 +34,9 @@ use super::materials::ConstitutiveModel;
 use super::solver::{relax_frame, Equilibrium, Frame, Relax};
 use super::transfer::{self, P2gInput, Particle};
 use super::{Gel, Snapshot, SolveReport, Solver, StateBounds};
+use crate::geometry::Sdf;
 use crate::state::{self, Io};
+use std::sync::Arc;
 
 /// A solve's change (largest particle displacement) must exceed this many times the
 /// tolerance times the gel's deformation (largest surface displacement, from the solve
@@ -108,7 +110,13 @@ impl Equilibrium for Relaxation {
     }
 
     /// The secant memory: each particle's change over the last solve, or none.
-    fn persist(&mut self, io: &mut Io<'_>, _gel: &Gel, bounds: &StateBounds) -> bool {
+    fn persist(
+        &mut self,
+        io: &mut Io<'_>,
+        _gel: &Gel,
+        bounds: &StateBounds,
+        _shapes: &[Arc<dyn Sdf>],
+    ) -> bool {
         state::list(
             io,
             &mut self.last_change,

@@ -23,10 +23,12 @@
 //! solves it; the gel keeps the poses for the next frame.
 
 use std::any::Any;
+use std::sync::Arc;
 
 use super::indenters::Sweep;
 use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
 use super::{Gel, Material, Placed, SolveReport, Solver, StateBounds};
+use crate::geometry::Sdf;
 use crate::state::Io;
 
 /// What a solver is given of one frame.
@@ -59,9 +61,16 @@ pub(in crate::mpm) trait Equilibrium: SolverCopy + Send + Sync {
     fn reset(&mut self);
 
     /// Writes or reads the state this solver keeps between frames ([`crate::state`]),
-    /// within `bounds`, for `gel`. Returns whether it is kept there: a solver whose state
-    /// is not (the default) starts a restored gel's next frame afresh.
-    fn persist(&mut self, _io: &mut Io<'_>, _gel: &Gel, _bounds: &StateBounds) -> bool {
+    /// within `bounds`, for `gel` (`shapes` names the indenters' shapes by index, as in
+    /// [`Gel::persist`]). Returns whether it is kept there: a solver whose state is not
+    /// (the default) starts a restored gel's next frame afresh.
+    fn persist(
+        &mut self,
+        _io: &mut Io<'_>,
+        _gel: &Gel,
+        _bounds: &StateBounds,
+        _shapes: &[Arc<dyn Sdf>],
+    ) -> bool {
         false
     }
 }

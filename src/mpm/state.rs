@@ -38,6 +38,10 @@ pub struct StateBounds {
     /// Whether a frame the gel's own solver cannot carry falls back to the linear solver
     /// (else to Newton's method).
     pub linear_fallback: bool,
+    /// The most numbers the state of the gel twice as coarse that starts Newton's frames
+    /// takes (0 where there is none: a grid of at most
+    /// [`COARSE_START_UNKNOWNS`](super::choice::COARSE_START_UNKNOWNS) unknowns).
+    pub companion: usize,
     /// Indenters a frame can hold.
     pub indenters: usize,
 }
@@ -54,6 +58,7 @@ impl StateBounds {
             nodes: g,
             newton_points: q,
             linear_fallback,
+            companion,
             indenters: i,
         } = *self;
         let header = 16;
@@ -74,7 +79,13 @@ impl StateBounds {
                 Solver::Linear => 4 + 5 * l + 4 * l + 3 * c,
                 Solver::Total => 1 + 3 * g + (1 + 3 * g) + (1 + 3 * i),
                 Solver::Newton => {
-                    2 + 3 * g + 2 * (1 + 5 * q) + (1 + 6 * (q + i)) + 1 + (1 + 3 * g) + (1 + 3 * i)
+                    2 + 3 * g
+                        + 2 * (1 + 5 * q)
+                        + (1 + 6 * (q + i))
+                        + 1
+                        + (1 + 3 * g)
+                        + (1 + 3 * i)
+                        + companion
                 }
             }
         };
@@ -141,6 +152,30 @@ fn lattice_box(io: &mut Io<'_>, b: &mut Option<[usize; 4]>, [nx, ny]: [usize; 2]
     }
 }
 
+/// The unknowns of Newton's method on a gel of `params`: three per grid node that a
+/// particle's quadratic stencil reaches above the fixed base (a box: from the first
+/// particle's stencil to the last's along each axis).
+pub(super) fn newton_unknowns(params: &super::GelParams, layout: &super::Layout) -> usize {
+    let [nx, ny, nz] = layout.lattice;
+    let first = layout.rest_position(&params.size, 0, 0, 0).cast::<f64>();
+    let last = layout
+        .rest_position(&params.size, nx - 1, ny - 1, nz - 1)
+        .cast::<f64>();
+    let nodes = (0..3)
+        .map(|k| {
+            let low = (first[k] - 0.5).floor() as i64;
+            let low = if k == 2 {
+                low.max(super::PAD_BOTTOM as i64 + 1)
+            } else {
+                low
+            };
+            let high = (last[k] - 0.5).floor() as i64 + 2;
+            (high - low + 1).max(0) as usize
+        })
+        .product::<usize>();
+    3 * nodes
+}
+
 impl Gel {
     /// The counts that bound this gel's state with at most `indenters` indenters.
     pub fn state_bounds(&self, indenters: usize) -> StateBounds {
@@ -151,12 +186,23 @@ impl Gel {
     pub fn bounds_of(params: &super::GelParams, indenters: usize) -> StateBounds {
         let layout = super::Layout::new(params);
         let [nx, ny, nz] = layout.lattice;
+        let nodes: usize = layout.dims.iter().product();
+        let companion = if newton_unknowns(params, &layout) > super::choice::COARSE_START_UNKNOWNS {
+            let coarse = super::GelParams {
+                dx: 2.0 * params.dx,
+                ..*params
+            };
+            Self::bounds_of(&coarse, indenters).gel_len(Solver::Newton, false)
+        } else {
+            0
+        };
         StateBounds {
             particles: nx * ny * nz,
             slots: nx * ny,
             points: nx * ny * super::linear::SUBDIVISION.pow(2),
             columns: layout.dims[0] * layout.dims[1],
-            nodes: layout.dims.iter().product(),
+            nodes,
+            companion,
             newton_points: nx * ny * super::newton::CONTACT_SUBDIVISION.pow(2),
             linear_fallback: super::choice::linear_fits(params),
             indenters,
@@ -166,8 +212,8 @@ impl Gel {
     /// Writes or reads the gel's state ([`crate::state`]); `shapes` names the indenters'
     /// shapes by their index (the same table when reading as when writing, in meaning:
     /// the scene's candidate shapes in order). Returns whether the whole state was kept:
-    /// false where a solver keeps its state outside it (Newton's method with a coarse
-    /// start), whose replay then starts from the undeformed gel.
+    /// false where a solver keeps its state outside it, whose replay then starts from the
+    /// undeformed gel (every solver keeps it now; a state written without it says so).
     ///
     /// A read that fails leaves the gel to be reset by the caller.
     pub fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {
@@ -199,7 +245,7 @@ impl Gel {
         let own = self.solver.take();
         let mut kept = true;
         if let Some(mut own) = own {
-            kept &= self.persist_solver(io, &mut own, &bounds);
+            kept &= self.persist_solver(io, &mut own, &bounds, shapes);
             self.solver = Some(own);
         }
         let mut fallback = self.fallback.as_ref().map(|f| f.kind());
@@ -214,7 +260,7 @@ impl Gel {
             }
         }
         if let Some(mut f) = self.fallback.take() {
-            kept &= self.persist_solver(io, &mut f, &bounds);
+            kept &= self.persist_solver(io, &mut f, &bounds, shapes);
             self.fallback = Some(f);
         }
         kept
@@ -225,10 +271,11 @@ impl Gel {
         io: &mut Io<'_>,
         solver: &mut Box<dyn Equilibrium>,
         bounds: &StateBounds,
+        shapes: &[Arc<dyn Sdf>],
     ) -> bool {
         let pool = self.pool;
         let gel = &*self;
-        pool.install(|| solver.persist(io, gel, bounds))
+        pool.install(|| solver.persist(io, gel, bounds, shapes))
     }
 
     /// The last frame's indenters: each one's shape (its index in `shapes`) and pose.

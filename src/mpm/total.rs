@@ -34,7 +34,9 @@ use super::materials::ConstitutiveModel;
 use super::solver::{relax_frame, Equilibrium, Frame, Relax};
 use super::transfer::{self, ChunkStats, LayerStats, Node, Stencil};
 use super::{Gel, Snapshot, SolveReport, Solver, StateBounds, J_MAX, J_MIN};
+use crate::geometry::Sdf;
 use crate::state::{self, Io, Persist};
+use std::sync::Arc;
 
 /// A solve's change must exceed this many times the tolerance times the deformation for
 /// the next solve to extrapolate it (as the relaxation's `PREDICT_ABOVE`).
@@ -145,7 +147,13 @@ impl Equilibrium for TotalRelaxation {
     /// Whether the nodal state is built, and where it is: the nodal displacements (the
     /// velocities start every frame at zero) and the secant memory. What depends on the
     /// gel alone (masses, rest stencils) is built again from it.
-    fn persist(&mut self, io: &mut Io<'_>, gel: &Gel, bounds: &StateBounds) -> bool {
+    fn persist(
+        &mut self,
+        io: &mut Io<'_>,
+        gel: &Gel,
+        bounds: &StateBounds,
+        _shapes: &[Arc<dyn Sdf>],
+    ) -> bool {
         let mut built = self.total.is_some();
         built.persist(io);
         if io.loading() && io.fault().is_none() {
@@ -517,10 +525,10 @@ mod tests {
         }
         let mut buf = vec![0.0; bounds.gel_len(Solver::Total, false)];
         let mut io = Io::save(&mut buf);
-        solver.persist(&mut io, &g, &bounds);
+        solver.persist(&mut io, &g, &bounds, &[]);
         let mut other = TotalRelaxation::default();
         let mut io = Io::load(&buf);
-        other.persist(&mut io, &g, &bounds);
+        other.persist(&mut io, &g, &bounds, &[]);
         let fault = io.fault().expect("refused");
         assert!(fault.contains("secant memory holds 5 of"), "{fault}");
     }

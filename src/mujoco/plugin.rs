@@ -197,9 +197,9 @@ impl Instance {
         let name = self.sensor.config().name.clone();
         if state[2] != 1.0 {
             return Some(format!(
-                "tacrom.tactile sensor '{name}': the restored state does not hold the gel's \
-                 solver state (Newton's method started from a gel twice as coarse keeps that \
-                 gel outside MuJoCo's state); the gel restarts undeformed"
+                "tacrom.tactile sensor '{name}': the restored state does not hold the whole \
+                 gel (it did not fit in plugin_state when it was written); the gel restarts \
+                 undeformed"
             ));
         }
         let mut io = Io::load(&state[STATE_HEADER..]);

@@ -255,14 +255,11 @@ def test_a_state_that_does_not_fit_the_sensor_restarts_the_gel_with_a_warning(ca
         assert "'touch'" in err and "cannot be restored" in err, err
 
 
-def test_a_state_without_its_solver_state_says_so_and_restarts(capfd):
-    """A state whose header says it does not hold the solver's state (Newton's method
-    started from a gel twice as coarse, on grids of more than 20,000 unknowns, keeps that
-    gel outside MuJoCo's state; see docs/state.md and the Rust test
-    `a_newton_gel_with_a_coarse_start_is_not_kept_and_resets_to_a_fresh_gel`): a restored
-    state warns and the gel restarts undeformed, equal to a fresh gel, rather than
-    continuing from a gel it does not have. The header's flag is cleared by hand here, as
-    such a gel writes it."""
+def test_a_state_that_is_not_whole_says_so_and_restarts(capfd):
+    """A state whose header says it does not hold the whole gel (written where it did not
+    fit in plugin_state): a restored state warns and the gel restarts undeformed, equal to
+    a fresh gel, rather than continuing from a gel it does not have. The header's flag is
+    cleared by hand here, as such a write leaves it."""
     m = model()
     d = mujoco.MjData(m)
     for pose in HISTORY[:2]:

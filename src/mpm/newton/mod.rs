@@ -2308,15 +2308,16 @@ impl Equilibrium for NewtonSolver {
         }
     }
 
-    /// Newton's state where the gel has no coarse start (whose gel, a whole second gel,
-    /// is not written): a flag saying whether it is kept, then whether it is built and,
-    /// where it is, [`Newton::persist`]'s.
-    fn persist(&mut self, io: &mut Io<'_>, gel: &Gel, bounds: &StateBounds) -> bool {
-        let mut kept = self.companion.is_none();
-        kept.persist(io);
-        if !kept {
-            return false;
-        }
+    /// Newton's state: whether it is built and, where it is, [`Newton::persist`]'s; then
+    /// whether the gel twice as coarse that starts its frames is built and, where it is,
+    /// that gel's whole state (its own coarse start's included).
+    fn persist(
+        &mut self,
+        io: &mut Io<'_>,
+        gel: &Gel,
+        bounds: &StateBounds,
+        shapes: &[Arc<dyn Sdf>],
+    ) -> bool {
         let mut built = self.state.is_some();
         built.persist(io);
         if io.loading() && io.fault().is_none() {
@@ -2335,8 +2336,44 @@ impl Equilibrium for NewtonSolver {
         if let Some(n) = self.state.as_mut() {
             n.persist(io, bounds);
         }
-        true
+        let mut coarse = self.companion.is_some();
+        coarse.persist(io);
+        if io.loading() && io.fault().is_none() {
+            match (coarse, self.companion.is_some()) {
+                (true, false) => match companion_of(gel) {
+                    Ok(c) => self.companion = Some(Box::new(c)),
+                    Err(e) => io.fail(|| format!("the coarse start's gel cannot be built: {e}")),
+                },
+                (false, true) => self.companion = None,
+                _ => {}
+            }
+        }
+        match self.companion.as_mut() {
+            Some(c) if io.fault().is_none() => c.persist(io, shapes),
+            _ => true,
+        }
     }
+}
+
+/// The gel twice as coarse that starts the frames of `gel`'s Newton solves
+/// ([`SolverOptions::coarse_start_above`]). Not nested itself (it may have a coarse start
+/// of its own): `gel`'s nodes outside its region read the companion's own solve. At 0.3 mm
+/// (frictionless, 0.1 and 0.2 mm) the whole gel gives 0.01634 and 0.05052 N; a companion
+/// walled at the active margin 0.01632 and 0.05052 N, one nested in its own 1.2 mm
+/// companion 0.01632 and 0.05040 N (0.01631 and 0.05044 N with twice the margin), in the
+/// same time.
+fn companion_of(gel: &Gel) -> Result<Gel, String> {
+    let params = GelParams {
+        dx: 2.0 * gel.params.dx,
+        ..gel.params
+    };
+    let options = SolverOptions {
+        solver: Solver::Newton,
+        fallback: false,
+        nested_margin: f64::INFINITY,
+        ..gel.options
+    };
+    Gel::new(params, options).map_err(|e| e.to_string())
 }
 
 impl Gel {
@@ -2426,23 +2463,7 @@ impl NewtonSolver {
             return false;
         }
         if self.companion.is_none() {
-            let params = GelParams {
-                dx: 2.0 * gel.params.dx,
-                ..gel.params
-            };
-            // Not nested itself (it may have a coarse start of its own): this gel's nodes
-            // outside its region read the companion's own solve. At 0.3 mm (frictionless,
-            // 0.1 and 0.2 mm) the whole gel gives 0.01634 and 0.05052 N; a companion
-            // walled at the active margin 0.01632 and 0.05052 N, one nested in its own
-            // 1.2 mm companion 0.01632 and 0.05040 N (0.01631 and 0.05044 N with twice the
-            // margin), in the same time.
-            let options = SolverOptions {
-                solver: Solver::Newton,
-                fallback: false,
-                nested_margin: f64::INFINITY,
-                ..gel.options
-            };
-            match Gel::new(params, options) {
+            match companion_of(gel) {
                 Ok(coarse) => self.companion = Some(Box::new(coarse)),
                 Err(_) => {
                     // A gel too thin for the doubled spacing: no coarse start, and no

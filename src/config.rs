@@ -144,13 +144,10 @@ impl Physics {
 
     /// Default convergence threshold of the MPM solve (relative out-of-balance force).
     ///
-    /// `fine` is the reference and is solved to 1e-3. `coarse` and `rom` stop at 3e-3,
-    /// measured on the coarse grid: a moving sphere press costs 38 ms per frame against
-    /// 82 ms at 1e-3 (one thread), and a bar twisted 0.4 rad per frame with friction 0.5
-    /// keeps its force within 3 % of the 1e-3 solve. At 1e-2 (24 ms) that force was up
-    /// to 25 % off with the whole gel solved, the stick-slip path settling elsewhere; the
-    /// depth error of plain presses hardly moves (quick benchmark: coarse 5.14 against
-    /// 4.73 um at 1e-3).
+    /// `fine` is the reference and is solved to 1e-3. `coarse` and `rom` stop at 3e-3: about
+    /// half the time of 1e-3, with a frictional twist's force within 3 % of it, where 1e-2
+    /// let that force stray by up to 25 % (measured: `docs/configuration.md`,
+    /// "`tolerance`").
     pub fn default_tolerance(self) -> f64 {
         match self {
             Physics::Fine => 1e-3,

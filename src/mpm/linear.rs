@@ -1773,27 +1773,22 @@ const MAX_NEWTON: usize = 60;
 /// in single precision and refines the direction once in double (a product with the
 /// system and two more triangular solves): the direction to about 1e-8 (the single
 /// precision's 1e-4, squared), which Newton's method does not tell from the exact one,
-/// and the factorisation, the step's largest cost, at twice the speed. `tacrom probe
-/// contact_size 1 24` (median ms per frame; double precision / mixed, two runs each, the
-/// same Newton steps): press 82.9, 83.7 / 68.5, 68.0; slide 70.9, 71.5 / 59.6, 56.6;
-/// held still 21.5, 21.6 / 19.1, 18.8; shaken 96.5, 96.1 / 78.5, 81.1. (The frictionless
-/// solve keeps double precision: its last step is exact on its pressed set.)
+/// and the factorisation, the step's largest cost, at twice the speed. (The frictionless
+/// solve keeps double precision: its last step is exact on its pressed set.) Measured:
+/// `docs/solvers.md`, "A held grasp split first".
 const MIXED_UNKNOWNS: usize = SPLIT_UNKNOWNS;
 
 /// Newton steps of a warm frictional solve before it starts again through the larger
 /// stick radii, and the residual (relative to the loads) at which those stages stop. A
-/// warm solve that runs long is still cheaper than the stages (about 40 steps): in the
-/// gripper's grasp cycle (the hexagonal prism's face on a pad) 48 of 239 refreshes of
-/// the lagged forces took 16 to 41 steps, and with a budget of 15 each of them had
-/// started the stages again after its 15.
+/// warm solve that runs long is still cheaper than the stages (about 40 steps; measured:
+/// `docs/solvers.md`, "A held grasp split first").
 const WARM_NEWTON: usize = MAX_NEWTON;
 const STAGE_RESIDUAL: f64 = 1e-4;
 
 /// Whether a frame's first frictional solve starts with a step that assumes every point
-/// sticks ([`Friction::predict_stick`]). Newton steps per frame (`tacrom probe
-/// contact_size`, friction 0.5; press / slide / hold), without and with it: a 10 mm face
-/// 12 / 15 / 1 and 12 / 5 / 1, a 24 mm face 10 / 21 / 2 and 10 / 6 / 1 (its slide 182 ->
-/// 57 ms a frame); `tacrom/Press-v1`'s sweep 19.5 and 19.0 on average.
+/// sticks ([`Friction::predict_stick`]): a sliding face's Newton steps a frame fall by
+/// three or four times (measured: `docs/solvers.md`, "A sliding face: the first step
+/// assumes the points stick").
 const PREDICT_STICK: bool = true;
 
 /// Refreshes of friction's lagged normal forces at most per solve.
@@ -1807,11 +1802,8 @@ const FRICTION_RESIDUAL: f64 = 1e-10;
 /// residual relative to the loads, [`FRICTION_RESIDUAL`] at the least): each refresh of
 /// the lagged normal forces poses a new problem, and solving each to round-off before
 /// the next bought nothing. The loads then balance the forces to a thousandth of what
-/// the frame's own convergence test allows. Newton steps per frame, one thread (`tacrom
-/// probe contact_size`, friction 0.5, tolerance 3e-3), press / slide / hold, every
-/// solve to 1e-10 against this: a 10 mm face 14 / 17 / 1 against 12 / 15 / 1, a 24 mm
-/// face 11 / 23 / 2 against 10 / 21 / 2; `tacrom/Press-v1`'s sweep (a 5 mm sphere
-/// sliding up to 0.8 mm a step; 308 frames) 22.9 against 19.5 on average.
+/// the frame's own convergence test allows (measured: `docs/solvers.md`, "A sliding face:
+/// the first step assumes the points stick").
 const INNER_RESIDUAL: f64 = 1e-3;
 
 /// Line search halvings at most per iteration.
@@ -2187,38 +2179,29 @@ fn on_columns(w: &[Columns], f: &[Vector3<f64>], k: usize) -> DVector<f64> {
 /// Unknowns (three per node column) from which a warm frictional solve that Newton's
 /// method does not finish in [`SPLIT_AFTER`] steps is split ([`split_start`]): about 150
 /// node columns, where a Newton step's dense factorisation costs about a millisecond
-/// (on smaller contacts Newton's steps are cheap, and it runs as before). From 40
-/// columns instead: `tacrom/GripperLift-v1` 6.9 / 6.8 -> 7.3 / 7.1 steps/s (its pad on the
-/// object's narrow side splits too), but `tacrom/Press-v1`'s sliding sphere 402 / 395 ->
-/// 347 / 343 (coarse on the linear gel, one thread).
+/// (on smaller contacts Newton's steps are cheap, and it runs as before; measured:
+/// `docs/solvers.md`, "A held grasp split first").
 const SPLIT_UNKNOWNS: usize = 3 * 150;
 
-/// Newton steps of a warm frictional solve before it splits. `tacrom/GripperLift-v1` on
-/// the linear gel (100 steps of the grasp cycle, one thread; steps/s): split after 0
-/// steps 6.7, after 1 6.7, after 3 5.9. One step finishes a grasp held still. (Splitting
-/// at once where the same points split in the solve before, whose factor is kept, ran
-/// 8.2 and 8.0 against 7.6 and 7.7, but made the path depend on what the kept factors
-/// hold, which MuJoCo's state does not carry: a restored state would not replay its
-/// frames bit for bit.)
+/// Newton steps of a warm frictional solve before it splits: one step finishes a grasp
+/// held still. (A split at once where the same points split in the solve before, from
+/// its kept factor, would make the path depend on what MuJoCo's state does not carry.)
+/// Measured: `docs/solvers.md`, "A held grasp split first".
 const SPLIT_AFTER: usize = 1;
 
 /// Iterations at most of [`split_start`]; the residual (relative to the points'
 /// displacements) at which it stops; the iterations in a row with at most
 /// [`SPLIT_CHANGES`] points changing between pressing or not, sticking or sliding, after
-/// which it hands over to Newton's method. Iterations of `tacrom/GripperLift-v1`'s splits
-/// (mean) and its steps/s: with no point changing for 10 iterations 102 and 6.1, two 64
-/// and 6.7, five 46 and 6.1 (fewer iterations leave Newton's method more steps). At most
-/// 60, 100 or 200 iterations: `tacrom probe contact_size 1 24`'s shaken frames 73 / 80 /
-/// 82 ms, but its press 143 / 78 / 87 ms (16 / 5 / 5 Newton steps).
+/// which it hands over to Newton's method (fewer iterations leave Newton's method more
+/// steps; measured: `docs/solvers.md`, "A held grasp split first").
 const SPLIT_ITERATIONS: usize = 100;
 const SPLIT_RESIDUAL: f64 = 1e-5;
 const SPLIT_SETTLED: usize = 10;
 const SPLIT_CHANGES: usize = 2;
 
 /// The stiffness of the springs that hold each point's copy to the gel in [`split_start`],
-/// in units of the gel's own stiffness at a point. `tacrom/GripperLift-v1` (steps/s):
-/// 1: 4.8 (with the split after 3 Newton steps), 3: 5.4, 10: 5.9, 30: 5.4, 100: 4.8, 300:
-/// 3.9.
+/// in units of the gel's own stiffness at a point (measured: `docs/solvers.md`, "A held
+/// grasp split first").
 const SPLIT_STIFFNESS: f64 = 10.0;
 
 /// Over-relaxation of [`split_start`]'s iterations (1.5 to 1.8 is the usual range).

@@ -275,18 +275,28 @@ pub fn list<T: Persist + Default>(io: &mut Io<'_>, items: &mut Vec<T>, cap: usiz
     each(io, items);
 }
 
-/// An optional value: a flag, then the value where there is one (made with `make` when
-/// reading one into `None`).
-pub fn option<T: Persist>(io: &mut Io<'_>, v: &mut Option<T>, make: impl FnOnce() -> T) {
+/// Whether an optional value is there: a flag. Reading one into `None` makes it with
+/// `make` (its failure is the read's fault), reading none drops it; what it holds is the
+/// caller's to walk.
+pub fn presence<T>(io: &mut Io<'_>, v: &mut Option<T>, make: impl FnOnce() -> Result<T, String>) {
     let mut some = v.is_some();
     some.persist(io);
     if io.loading() && io.fault().is_none() {
         match (some, v.is_some()) {
-            (true, false) => *v = Some(make()),
+            (true, false) => match make() {
+                Ok(x) => *v = Some(x),
+                Err(e) => io.fail(|| e),
+            },
             (false, true) => *v = None,
             _ => {}
         }
     }
+}
+
+/// An optional value: a flag, then the value where there is one (made with `make` when
+/// reading one into `None`).
+pub fn option<T: Persist>(io: &mut Io<'_>, v: &mut Option<T>, make: impl FnOnce() -> T) {
+    presence(io, v, || Ok(make()));
     if let Some(x) = v.as_mut() {
         x.persist(io);
     }

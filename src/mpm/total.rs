@@ -35,7 +35,7 @@ use super::solver::{relax_frame, Equilibrium, Frame, Relax};
 use super::transfer::{self, ChunkStats, LayerStats, Node, Stencil};
 use super::{Gel, Snapshot, SolveReport, Solver, StateBounds, J_MAX, J_MIN};
 use crate::geometry::Sdf;
-use crate::state::{self, Io, Persist};
+use crate::state::{self, Io};
 use std::sync::Arc;
 
 /// A solve's change must exceed this many times the tolerance times the deformation for
@@ -154,15 +154,7 @@ impl Equilibrium for TotalRelaxation {
         bounds: &StateBounds,
         _shapes: &[Arc<dyn Sdf>],
     ) -> bool {
-        let mut built = self.total.is_some();
-        built.persist(io);
-        if io.loading() && io.fault().is_none() {
-            match (built, self.total.is_some()) {
-                (true, false) => self.total = Some(Box::new(Total::new(gel))),
-                (false, true) => self.total = None,
-                _ => {}
-            }
-        }
+        state::presence(io, &mut self.total, || Ok(Box::new(Total::new(gel))));
         if let Some(total) = self.total.as_mut() {
             state::each(io, &mut total.u);
             state::list(

@@ -2318,36 +2318,20 @@ impl Equilibrium for NewtonSolver {
         bounds: &StateBounds,
         shapes: &[Arc<dyn Sdf>],
     ) -> bool {
-        let mut built = self.state.is_some();
-        built.persist(io);
-        if io.loading() && io.fault().is_none() {
-            match (built, self.state.is_some()) {
-                (true, false) => match Newton::new(gel) {
-                    Ok(mut n) => {
-                        n.calibrate_subgrid();
-                        self.state = Some(Box::new(n));
-                    }
-                    Err(e) => io.fail(|| format!("Newton's method cannot be built: {e}")),
-                },
-                (false, true) => self.state = None,
-                _ => {}
-            }
-        }
+        state::presence(io, &mut self.state, || {
+            let mut n =
+                Newton::new(gel).map_err(|e| format!("Newton's method cannot be built: {e}"))?;
+            n.calibrate_subgrid();
+            Ok(Box::new(n))
+        });
         if let Some(n) = self.state.as_mut() {
             n.persist(io, bounds);
         }
-        let mut coarse = self.companion.is_some();
-        coarse.persist(io);
-        if io.loading() && io.fault().is_none() {
-            match (coarse, self.companion.is_some()) {
-                (true, false) => match companion_of(gel) {
-                    Ok(c) => self.companion = Some(Box::new(c)),
-                    Err(e) => io.fail(|| format!("the coarse start's gel cannot be built: {e}")),
-                },
-                (false, true) => self.companion = None,
-                _ => {}
-            }
-        }
+        state::presence(io, &mut self.companion, || {
+            companion_of(gel)
+                .map(Box::new)
+                .map_err(|e| format!("the coarse start's gel cannot be built: {e}"))
+        });
         match self.companion.as_mut() {
             Some(c) if io.fault().is_none() => c.persist(io, shapes),
             _ => true,

@@ -1133,30 +1133,33 @@ fn state_bits(g: &Gel) -> Vec<u64> {
         .collect()
 }
 
-/// Catches: a Newton frame that depends on what MuJoCo's state does not carry (a
-/// factorisation kept from an earlier frame, the anchors, the lagged forces). A frictional
-/// press and slide; the gel's state written after three frames and read into a fresh gel:
-/// the next two frames equal the original's to the last bit, where a fresh gel's differ.
-#[test]
-fn a_restored_newton_gel_replays_its_next_frames_bit_for_bit() {
+/// A 3 mm sphere pressed through `before` (`(x, depth)`) into a gel of `params` solved
+/// with `opts`; its state written into `len` numbers and read into a fresh gel; then both,
+/// and a gel without the history, pressed through `after`: the restored gel equals the
+/// original to the last bit at every frame, the fresh one does not.
+fn replays_bit_for_bit(
+    params: GelParams,
+    opts: SolverOptions,
+    len: impl Fn(&Gel) -> usize,
+    before: &[(f64, f64)],
+    after: &[(f64, f64)],
+) {
     let (r, s) = (3e-3, ball(3e-3));
     let shapes = [s.clone()];
-    let params = small_gel(0.8, 0.45);
-    let mut original = Gel::new(params, options(1e-3)).unwrap();
-    for (x, d) in [(0.0, 0.2e-3), (0.0, 0.4e-3), (0.5e-3, 0.4e-3)] {
+    let mut original = Gel::new(params, opts).unwrap();
+    for &(x, d) in before {
         original.solve(&[at(&s, r, x, d)]);
     }
-    let bounds = original.state_bounds(1);
-    let mut buf = vec![0.0; bounds.gel_len(Solver::Newton, false)];
+    let mut buf = vec![0.0; len(&original)];
     let mut io = crate::state::Io::save(&mut buf);
-    assert!(original.persist(&mut io, &shapes), "Newton's state is kept");
+    assert!(original.persist(&mut io, &shapes), "the state is kept");
     assert!(!io.overflowed(), "the declared size holds the state");
-    let mut restored = Gel::new(params, options(1e-3)).unwrap();
+    let mut restored = Gel::new(params, opts).unwrap();
     let mut io = crate::state::Io::load(&buf);
     assert!(restored.persist(&mut io, &shapes));
     assert_eq!(io.fault(), None);
-    let mut fresh = Gel::new(params, options(1e-3)).unwrap();
-    for (x, d) in [(1.0e-3, 0.4e-3), (1.0e-3, 0.2e-3)] {
+    let mut fresh = Gel::new(params, opts).unwrap();
+    for &(x, d) in after {
         for g in [&mut original, &mut restored, &mut fresh] {
             assert!(g.solve(&[at(&s, r, x, d)]).converged);
         }
@@ -1169,13 +1172,26 @@ fn a_restored_newton_gel_replays_its_next_frames_bit_for_bit() {
     }
 }
 
+/// Catches: a Newton frame that depends on what MuJoCo's state does not carry (a
+/// factorisation kept from an earlier frame, the anchors, the lagged forces). A frictional
+/// press and slide; the gel's state written after three frames and read into a fresh gel:
+/// the next two frames equal the original's to the last bit, where a fresh gel's differ.
+#[test]
+fn a_restored_newton_gel_replays_its_next_frames_bit_for_bit() {
+    replays_bit_for_bit(
+        small_gel(0.8, 0.45),
+        options(1e-3),
+        |g| g.state_bounds(1).gel_len(Solver::Newton, false),
+        &[(0.0, 0.2e-3), (0.0, 0.4e-3), (0.5e-3, 0.4e-3)],
+        &[(1.0e-3, 0.4e-3), (1.0e-3, 0.2e-3)],
+    );
+}
+
 /// A gel that starts its frames from a gel twice as coarse (here below the default
 /// threshold, so that the gels stay cheap) writes that gel's state with its own: the next
 /// frames replay bit for bit.
 #[test]
 fn a_newton_gel_with_a_coarse_start_replays_bit_for_bit() {
-    let (r, s) = (3e-3, ball(3e-3));
-    let shapes = [s.clone()];
     let params = GelParams {
         size: [0.01, 0.01, 0.004],
         ..small_gel(0.5, 0.45)
@@ -1184,38 +1200,23 @@ fn a_newton_gel_with_a_coarse_start_replays_bit_for_bit() {
         coarse_start_above: 0,
         ..options(1e-3)
     };
-    let mut original = Gel::new(params, opts).unwrap();
-    for (x, d) in [(0.0, 0.3e-3), (0.5e-3, 0.3e-3)] {
-        original.solve(&[at(&s, r, x, d)]);
-    }
     // The declared size counts a coarse start only above the default threshold: this
     // gel's companion is added by hand.
     let coarse = GelParams {
         dx: 2.0 * params.dx,
         ..params
     };
-    let len = original.state_bounds(1).gel_len(Solver::Newton, false)
-        + Gel::bounds_of(&coarse, 1).gel_len(Solver::Newton, false);
-    let mut buf = vec![0.0; len];
-    let mut io = crate::state::Io::save(&mut buf);
-    assert!(original.persist(&mut io, &shapes), "kept");
-    assert!(!io.overflowed());
-    let mut restored = Gel::new(params, opts).unwrap();
-    let mut io = crate::state::Io::load(&buf);
-    assert!(restored.persist(&mut io, &shapes));
-    assert_eq!(io.fault(), None);
-    let mut fresh = Gel::new(params, opts).unwrap();
-    for (x, d) in [(1.0e-3, 0.3e-3), (1.0e-3, 0.4e-3)] {
-        for g in [&mut original, &mut restored, &mut fresh] {
-            g.solve(&[at(&s, r, x, d)]);
-        }
-        assert_eq!(
-            state_bits(&original),
-            state_bits(&restored),
-            "x {x}, depth {d}"
-        );
-        assert_ne!(state_bits(&original), state_bits(&fresh));
-    }
+    let len = |g: &Gel| {
+        g.state_bounds(1).gel_len(Solver::Newton, false)
+            + Gel::bounds_of(&coarse, 1).gel_len(Solver::Newton, false)
+    };
+    replays_bit_for_bit(
+        params,
+        opts,
+        len,
+        &[(0.0, 0.3e-3), (0.5e-3, 0.3e-3)],
+        &[(1.0e-3, 0.3e-3), (1.0e-3, 0.4e-3)],
+    );
 }
 
 /// The state's bound on a coarse start ([`crate::mpm::state::newton_unknowns`]) counts

@@ -302,6 +302,25 @@ pub fn option<T: Persist>(io: &mut Io<'_>, v: &mut Option<T>, make: impl FnOnce(
     }
 }
 
+/// A solver's secant memory: each unknown's change over the last solve (none, or one per
+/// unknown: `unknowns` of them, any other length refused naming `whose`) and the
+/// indenters' motion in it (at most `indenters`).
+pub fn secant<T: Persist + Default>(
+    io: &mut Io<'_>,
+    change: &mut Vec<T>,
+    motion: &mut Vec<Vector3<f64>>,
+    unknowns: usize,
+    indenters: usize,
+    whose: &str,
+) {
+    list(io, change, unknowns, &format!("{whose} secant memory"));
+    list(io, motion, indenters, &format!("{whose} secant motion"));
+    let memory = change.len();
+    if io.loading() && memory != 0 && memory != unknowns {
+        io.fail(|| format!("{whose} secant memory holds {memory} of {unknowns} unknowns"));
+    }
+}
+
 /// A map of at most `cap` entries, in key order.
 pub fn btree<V: Persist + Default>(
     io: &mut Io<'_>,

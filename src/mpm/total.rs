@@ -157,24 +157,15 @@ impl Equilibrium for TotalRelaxation {
         state::presence(io, &mut self.total, || Ok(Box::new(Total::new(gel))));
         if let Some(total) = self.total.as_mut() {
             state::each(io, &mut total.u);
-            state::list(
+            let nodes = total.u.len();
+            state::secant(
                 io,
                 &mut total.last_du,
-                bounds.nodes,
-                "the total relaxation's secant memory",
-            );
-            state::list(
-                io,
                 &mut total.last_motion,
+                nodes,
                 bounds.indenters,
-                "the total relaxation's secant motion",
+                "the total relaxation's",
             );
-            let (memory, nodes) = (total.last_du.len(), total.u.len());
-            if io.loading() && memory != 0 && memory != nodes {
-                io.fail(|| {
-                    format!("the total relaxation's secant memory holds {memory} of {nodes} nodes")
-                });
-            }
         }
         true
     }

@@ -772,22 +772,14 @@ impl Newton {
             "Newton's contact loads",
         );
         self.last_scale.persist(io);
-        state::list(
+        state::secant(
             io,
             &mut self.last_change,
-            self.u.len(),
-            "Newton's secant memory",
-        );
-        state::list(
-            io,
             &mut self.last_motion,
+            self.u.len(),
             bounds.indenters,
-            "Newton's secant motion",
+            "Newton's",
         );
-        let (memory, unknowns) = (self.last_change.len(), self.u.len());
-        if io.loading() && memory != 0 && memory != unknowns {
-            io.fail(|| format!("Newton's secant memory holds {memory} of {unknowns} unknowns"));
-        }
     }
 
     /// Renumbers the anchors' indenters (`matched[i]`: previous index of indenter `i`);

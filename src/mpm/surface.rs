@@ -156,7 +156,7 @@ fn for_each_seen(gel: &Gel, grid: &PixelGrid, visit: impl FnMut(usize, Vector3<f
 /// mode's depth error against the reference (3.6 um on the full profile). What it costs
 /// and saves: `docs/solvers.md`, "The depth image: one separable sample where it
 /// suffices".
-const ONE_STEP_ERROR: f64 = 1e-8;
+pub(super) const ONE_STEP_ERROR: f64 = 1e-8;
 
 /// [`for_each_seen`], with `one_step` whether pixels whose first Newton step is accurate
 /// to [`ONE_STEP_ERROR`] stop there (see [`ONE_STEP_ERROR`]); `false` solves every pixel

@@ -398,7 +398,7 @@ pub const MATERIAL: Attribute = Attribute {
     unit: "",
     default: Default::Text("corotated"),
     valid: Valid::Words {
-        words: &["corotated", "neohookean"],
+        words: crate::mpm::Material::NAMES,
         several: false,
     },
 };

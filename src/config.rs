@@ -69,19 +69,12 @@ pub const ATTR_DAMPING: &str = attributes::DAMPING.name;
 /// Every attribute the plugin declares to MuJoCo, in table order ([`attributes::TABLE`]).
 pub const ATTRIBUTES: &[&str] = &attributes::NAMES;
 
-/// The `material` attribute's values.
-pub const MATERIALS: &[(&str, Material)] = &[
-    ("corotated", Material::FixedCorotated),
-    ("neohookean", Material::NeoHookean),
-];
+/// The `material` attribute's values ([`Material::NAMED`]: the list in `mpm/materials/`).
+pub const MATERIALS: &[(&str, Material)] = Material::NAMED;
 
 /// The `material` attribute's value naming `material`.
 pub fn material_name(material: Material) -> &'static str {
-    MATERIALS
-        .iter()
-        .find(|(_, m)| *m == material)
-        .map(|(n, _)| *n)
-        .unwrap_or("?")
+    material.name()
 }
 
 /// Largest image side accepted (pixels).

@@ -34,16 +34,7 @@ pub const CAP_CELLS: f64 = 3.2;
 /// Largest number of particles accepted (memory guard, about 0.3 GB).
 const MAX_PARTICLES: usize = 1 << 30 >> 2;
 
-/// Elastic energy of the gel: one file per material in `mpm/materials/`, holding both the
-/// relaxation's and Newton's forms, and the tables that dispatch on it.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Material {
-    /// Fixed corotated (Stomakhin et al. 2012); the usual MPM choice for soft solids.
-    #[default]
-    FixedCorotated,
-    /// Compressible Neo-Hookean, with `det F` guarded (see [`super::NeoHookeanModel`]).
-    NeoHookean,
-}
+pub use super::materials::Material;
 
 /// Physical description of the gel, SI units.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -26,8 +26,8 @@ use std::any::Any;
 use std::sync::Arc;
 
 use super::indenters::Sweep;
-use super::materials::{ConstitutiveModel, FixedCorotatedModel, NeoHookeanModel};
-use super::{Gel, Material, Placed, SolveReport, Solver, StateBounds};
+use super::materials::{ConstitutiveModel, WithModel};
+use super::{Gel, Placed, SolveReport, Solver, StateBounds};
 use crate::geometry::Sdf;
 use crate::state::Io;
 
@@ -127,18 +127,29 @@ pub(in crate::mpm) fn relax_frame(
     report: &mut SolveReport,
 ) {
     gel.begin_relaxation(frame.sweep, report);
-    let (mu, lambda) = (gel.mu, gel.lambda);
-    match gel.params.material {
-        Material::FixedCorotated => solver.relax(
-            gel,
-            &FixedCorotatedModel { mu, lambda },
-            frame.sweep,
-            report,
-        ),
-        Material::NeoHookean => {
-            solver.relax(gel, &NeoHookeanModel { mu, lambda }, frame.sweep, report)
+    struct Run<'a, 'f, R: Relax> {
+        solver: &'a mut R,
+        gel: &'a mut Gel,
+        sweep: &'a Sweep<'f>,
+        report: &'a mut SolveReport,
+    }
+    impl<R: Relax> WithModel for Run<'_, '_, R> {
+        type Out = ();
+        fn run<M: ConstitutiveModel>(self, model: M) {
+            self.solver.relax(self.gel, &model, self.sweep, self.report);
         }
     }
+    let (mu, lambda, material) = (gel.mu, gel.lambda, gel.params.material);
+    material.with_model(
+        mu,
+        lambda,
+        Run {
+            solver,
+            gel,
+            sweep: frame.sweep,
+            report,
+        },
+    );
     gel.finish_relaxation(report);
 }
 

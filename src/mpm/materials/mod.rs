@@ -1,62 +1,122 @@
-//! The gel's materials, one file each, both forms side by side: the f32 Kirchhoff stress
-//! the dynamic relaxation's particles use ([`ConstitutiveModel`]) and the f64 energy of the
-//! signed singular values of `F`, with its gradient, Hessian and pair eigenvalues, that
-//! Newton's method and the linear solver use (`principal`, read by `newton/energy.rs`
-//! through the tables below). The two forms differ by design (the relaxation's corotated
-//! stress reads the polar rotation it tracks per particle; Newton's reads the signed SVD),
-//! so each file holds both rather than one generic over the scalar; a test checks that they
-//! agree: the f32 stress is the f64 energy's `P F^T`.
+//! The gel's materials: one type each, one file each, named once in [`materials!`]'s list
+//! below, which makes [`Material`] and every table that dispatches on it.
+//!
+//! A material is its energy, an isotropic function of the signed singular values of `F`
+//! ([`ConstitutiveModel::principal`], f64, with its gradient, Hessian and pair
+//! eigenvalues): Newton's method and the linear solver read that form (`newton/energy.rs`),
+//! and the dynamic relaxation's per-particle f32 Kirchhoff stress is derived from it
+//! ([`derived_kirchhoff`]: `tau = U diag(s_i dpsi/ds_i) U^T`, one signed SVD per particle and
+//! step). A material may also give its stress in closed form
+//! ([`ConstitutiveModel::kirchhoff`]; both shipped ones do: the fixed corotated one from the
+//! polar rotation the particles track, without an SVD), and a closed form of its energy;
+//! tests check, for every material in the list, that the closed stress is the derived one
+//! and that both are the energy's gradient.
 //!
 //! Moduli are in the solver's internal stress unit (see `mpm/mod.rs`: stresses are
 //! divided by the P-wave modulus `lambda + 2 mu`), so every model here works at values of
 //! order one. Both solvers take the gel's `mu` and `lambda` as they are (Newton casts them
 //! to f64 and may split `lambda` between particles and cells, which adds).
 //!
-//! A new material touches:
-//! 1. its file here, with both forms (the f32 model implementing [`ConstitutiveModel`];
-//!    the f64 `principal`, and a closed-form `energy` where it has one), and its `mod` and
-//!    `pub use` lines below;
-//! 2. its value of [`Material`] (`params.rs`);
-//! 3. its name in `config::MATERIALS` and `attributes::MATERIAL` (checked against each
-//!    other by a test; the tests here and in `newton/energy.rs` run every material that
-//!    `config::MATERIALS` names);
-//! 4. one arm in each table: the tables of `impl Material` below, the relaxation's choice
-//!    of model (`solver.rs`, `relax_frame`) and the test's (`kirchhoff` here).
-//!
-//! Every table is an exhaustive `match`, so the compiler names each arm a new material
-//! still lacks.
+//! A new material touches its file here (a type implementing [`ConstitutiveModel`]: its
+//! name, the `material` attribute's value, and its principal energy) and one line of the
+//! list in [`materials!`] below. The attribute's values, its README row, the relaxation's
+//! choice of model and Newton's energy follow from the list; the tests here and in
+//! `newton/energy.rs` run every material in it.
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::Material;
-
 pub(crate) mod corotated;
 pub(crate) mod neohookean;
+pub(crate) mod svd;
 
 pub use corotated::FixedCorotatedModel;
 pub use neohookean::NeoHookeanModel;
+pub(crate) use svd::SignedSvd;
 
-/// A hyperelastic energy density as the relaxation evaluates it, per particle, in f32.
-pub trait ConstitutiveModel: Send + Sync {
+/// One material: a hyperelastic energy density, in the forms the solvers evaluate.
+pub trait ConstitutiveModel: Copy + Send + Sync + 'static {
+    /// The `material` attribute's value that names it.
+    const NAME: &'static str;
+
     /// Whether [`ConstitutiveModel::kirchhoff`] needs the rotation `R` of the polar
     /// decomposition `F = R S`; when false the solver neither tracks nor passes it.
     const USES_ROTATION: bool;
+
+    /// Whether the energy is defined only where every signed singular value of `F` is
+    /// positive (`J > 0`).
+    const NEEDS_POSITIVE_STRETCHES: bool;
+
+    /// The model with shear modulus `mu` and first Lame parameter `lambda` (internal units).
+    fn new(mu: f32, lambda: f32) -> Self;
+
+    /// Its `(mu, lambda)`.
+    fn moduli(&self) -> (f32, f32);
+
+    /// The energy of the signed singular values `s` (`j` the volume ratio its volume term
+    /// reads: their product, or a smoothed value of it) and, with `derivatives`, its
+    /// gradient, Hessian and pair eigenvalues, into `out` (zero on entry).
+    fn principal(
+        mu: f64,
+        lambda: f64,
+        s: &Vector3<f64>,
+        j: f64,
+        derivatives: bool,
+        out: &mut Principal,
+    );
+
+    /// The energy at `f` in closed form (`+inf` where it is not defined), or `None` where
+    /// the material has none (the energy then comes from [`ConstitutiveModel::principal`]
+    /// at the signed singular values).
+    fn closed_energy(_mu: f64, _lambda: f64, _f: &Matrix3<f64>) -> Option<f64> {
+        None
+    }
 
     /// Kirchhoff stress `tau = P(F) F^T` at deformation gradient `f`, with `j` the volume
     /// ratio that the volumetric (pressure) term uses (`det f`, or its kernel-smoothed
     /// value against volumetric locking; `j > 0`, clamped by the solver) and rotation `r`
     /// (the polar factor of `f` when [`ConstitutiveModel::USES_ROTATION`], otherwise the
-    /// identity).
-    fn kirchhoff(&self, f: &Matrix3<f32>, j: f32, r: &Matrix3<f32>) -> Matrix3<f32>;
+    /// identity). By default derived from the principal energy ([`derived_kirchhoff`]).
+    fn kirchhoff(&self, f: &Matrix3<f32>, j: f32, _r: &Matrix3<f32>) -> Matrix3<f32> {
+        derived_kirchhoff::<Self>(self.moduli(), f, j)
+    }
+}
+
+/// `tau = U diag(s_i dpsi/ds_i) U^T` at `F = U diag(s) V^T` (since `P = U diag(dpsi/ds)
+/// V^T`), from the material's principal energy with the volume ratio `j`, evaluated in f64.
+/// Where the energy needs positive stretches, an inverted `F` is read as its mirror image
+/// (the stretches' magnitudes) and `j` is held at least `J_MIN`, as the closed forms of such
+/// materials read `F F^T` and the clamped `J`; a non-finite `F` gives zero stress.
+pub fn derived_kirchhoff<M: ConstitutiveModel>(
+    (mu, lambda): (f32, f32),
+    f: &Matrix3<f32>,
+    j: f32,
+) -> Matrix3<f32> {
+    let Some(mut d) = SignedSvd::of(&f.cast::<f64>()) else {
+        return Matrix3::zeros();
+    };
+    let mut j = f64::from(j);
+    if M::NEEDS_POSITIVE_STRETCHES {
+        d.s = d.s.map(|x| x.abs().max(1e-150));
+        j = j.max(super::J_MIN);
+    }
+    let mut out = Principal::default();
+    M::principal(f64::from(mu), f64::from(lambda), &d.s, j, true, &mut out);
+    let diagonal = out.grad.component_mul(&d.s);
+    (d.u * Matrix3::from_diagonal(&diagonal) * d.u.transpose()).cast::<f32>()
 }
 
 /// `psi_hat`, its gradient, its Hessian, and for each pair `(0,1), (0,2), (1,2)` the
 /// symmetric and twist eigenvalues.
-pub(crate) struct Principal {
-    pub(crate) energy: f64,
-    pub(crate) grad: Vector3<f64>,
-    pub(crate) hess: Matrix3<f64>,
-    pub(crate) pairs: [(f64, f64); 3],
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Principal {
+    /// The energy density.
+    pub energy: f64,
+    /// Its gradient in the signed singular values.
+    pub grad: Vector3<f64>,
+    /// Its Hessian in them.
+    pub hess: Matrix3<f64>,
+    /// Each pair's symmetric and twist eigenvalues of `dP/dF`.
+    pub pairs: [(f64, f64); 3],
 }
 
 pub(crate) const PAIRS: [(usize, usize, usize); 3] = [(0, 1, 2), (0, 2, 1), (1, 2, 0)];
@@ -70,61 +130,102 @@ pub(crate) fn j_without(s: &Vector3<f64>, i: usize) -> f64 {
     }
 }
 
-/// The tables: what each material is to the parts of the solver that are not generic over
-/// it, one arm per material.
-impl Material {
-    /// Whether the relaxation's model reads the polar rotation of `F`
-    /// ([`ConstitutiveModel::USES_ROTATION`]), so that the particles track it.
-    pub(crate) fn uses_rotation(self) -> bool {
-        match self {
-            Material::FixedCorotated => FixedCorotatedModel::USES_ROTATION,
-            Material::NeoHookean => NeoHookeanModel::USES_ROTATION,
-        }
-    }
+/// What runs with a material's model, whichever it is: [`Material::with_model`] calls
+/// [`WithModel::run`] with the model of the gel's material.
+pub(crate) trait WithModel {
+    /// What it gives.
+    type Out;
+    /// Runs with `model`.
+    fn run<M: ConstitutiveModel>(self, model: M) -> Self::Out;
+}
 
-    /// Whether the f64 energy is defined only where every signed singular value of `F` is
-    /// positive (`J > 0`).
-    pub(crate) fn needs_positive_stretches(self) -> bool {
-        match self {
-            Material::FixedCorotated => false,
-            Material::NeoHookean => true,
+/// The list of materials: each line a value of [`Material`] (with its doc) and the type
+/// that is the material. Generates the enum and its tables, each an exhaustive `match`.
+macro_rules! materials {
+    ($($(#[$meta:meta])* $variant:ident => $model:ty,)+) => {
+        /// Elastic energy of the gel: the types of `mpm/materials/`, by the `material`
+        /// attribute's value.
+        #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+        pub enum Material {
+            $($(#[$meta])* $variant,)+
         }
-    }
 
-    /// The f64 energy at `f` in closed form (`+inf` where it is not defined), or `None`
-    /// where the material has none (the energy then comes from [`Material::principal`]
-    /// at the signed singular values).
-    pub(crate) fn closed_energy(self, mu: f64, lambda: f64, f: &Matrix3<f64>) -> Option<f64> {
-        match self {
-            Material::FixedCorotated => None,
-            Material::NeoHookean => Some(neohookean::energy(mu, lambda, f)),
-        }
-    }
+        impl Material {
+            /// Every material, with the `material` attribute's value naming it.
+            pub const NAMED: &'static [(&'static str, Material)] =
+                &[$((<$model as ConstitutiveModel>::NAME, Material::$variant),)+];
 
-    /// The f64 energy of the signed singular values `s` (`j` their product) and, with
-    /// `derivatives`, its gradient, Hessian and pair eigenvalues, into `out` (zero on
-    /// entry).
-    pub(crate) fn principal(
-        self,
-        mu: f64,
-        lambda: f64,
-        s: &Vector3<f64>,
-        j: f64,
-        derivatives: bool,
-        out: &mut Principal,
-    ) {
-        match self {
-            Material::FixedCorotated => corotated::principal(mu, lambda, s, j, derivatives, out),
-            Material::NeoHookean => neohookean::principal(mu, lambda, s, j, derivatives, out),
+            /// The `material` attribute's values.
+            pub const NAMES: &'static [&'static str] =
+                &[$(<$model as ConstitutiveModel>::NAME,)+];
+
+            /// The `material` attribute's value naming it.
+            pub fn name(self) -> &'static str {
+                match self {
+                    $(Material::$variant => <$model as ConstitutiveModel>::NAME,)+
+                }
+            }
+
+            /// Runs `what` with this material's model of moduli `mu`, `lambda`.
+            pub(crate) fn with_model<W: WithModel>(self, mu: f32, lambda: f32, what: W) -> W::Out {
+                match self {
+                    $(Material::$variant => what.run(<$model as ConstitutiveModel>::new(mu, lambda)),)+
+                }
+            }
+
+            /// Whether the relaxation's model reads the polar rotation of `F`
+            /// ([`ConstitutiveModel::USES_ROTATION`]), so that the particles track it.
+            pub(crate) fn uses_rotation(self) -> bool {
+                match self {
+                    $(Material::$variant => <$model as ConstitutiveModel>::USES_ROTATION,)+
+                }
+            }
+
+            /// [`ConstitutiveModel::NEEDS_POSITIVE_STRETCHES`].
+            pub(crate) fn needs_positive_stretches(self) -> bool {
+                match self {
+                    $(Material::$variant => <$model as ConstitutiveModel>::NEEDS_POSITIVE_STRETCHES,)+
+                }
+            }
+
+            /// [`ConstitutiveModel::closed_energy`].
+            pub(crate) fn closed_energy(self, mu: f64, lambda: f64, f: &Matrix3<f64>) -> Option<f64> {
+                match self {
+                    $(Material::$variant => <$model as ConstitutiveModel>::closed_energy(mu, lambda, f),)+
+                }
+            }
+
+            /// [`ConstitutiveModel::principal`].
+            pub(crate) fn principal(
+                self,
+                mu: f64,
+                lambda: f64,
+                s: &Vector3<f64>,
+                j: f64,
+                derivatives: bool,
+                out: &mut Principal,
+            ) {
+                match self {
+                    $(Material::$variant => <$model as ConstitutiveModel>::principal(mu, lambda, s, j, derivatives, out),)+
+                }
+            }
         }
-    }
+    };
+}
+
+materials! {
+    /// Fixed corotated (Stomakhin et al. 2012); the usual MPM choice for soft solids.
+    #[default]
+    FixedCorotated => FixedCorotatedModel,
+    /// Compressible Neo-Hookean, with `det F` guarded (see [`NeoHookeanModel`]).
+    NeoHookean => NeoHookeanModel,
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::mpm::extract_rotation;
-    use crate::mpm::newton::energy::{Density, SignedSvd};
+    use crate::mpm::newton::energy::Density;
     use nalgebra::UnitQuaternion;
 
     // Both models are stress free at rest and agree to first order (same mu, lambda).
@@ -187,19 +288,33 @@ mod tests {
     }
 
     /// The relaxation's f32 Kirchhoff stress of `material`, as `solver::relax_frame`
-    /// builds its model.
+    /// builds its model: its closed form, or with `derived` the one derived from its
+    /// principal energy ([`derived_kirchhoff`]).
     fn kirchhoff(
         material: Material,
-        mu: f32,
-        lambda: f32,
+        derived: bool,
+        (mu, lambda): (f32, f32),
         f: &Matrix3<f32>,
         j: f32,
         r: &Matrix3<f32>,
     ) -> Matrix3<f32> {
-        match material {
-            Material::FixedCorotated => FixedCorotatedModel { mu, lambda }.kirchhoff(f, j, r),
-            Material::NeoHookean => NeoHookeanModel { mu, lambda }.kirchhoff(f, j, r),
+        struct Stress<'a> {
+            derived: bool,
+            f: &'a Matrix3<f32>,
+            j: f32,
+            r: &'a Matrix3<f32>,
         }
+        impl WithModel for Stress<'_> {
+            type Out = Matrix3<f32>;
+            fn run<M: ConstitutiveModel>(self, model: M) -> Matrix3<f32> {
+                if self.derived {
+                    derived_kirchhoff::<M>(model.moduli(), self.f, self.j)
+                } else {
+                    model.kirchhoff(self.f, self.j, self.r)
+                }
+            }
+        }
+        material.with_model(mu, lambda, Stress { derived, f, j, r })
     }
 
     // One material, two forms: the relaxation's f32 Kirchhoff stress is the f64 energy's
@@ -228,7 +343,7 @@ mod tests {
                 let d = SignedSvd::of(&f).unwrap();
                 let r = (d.u * d.v.transpose()).cast::<f32>();
                 let (f32_, j) = (f.cast::<f32>(), f.determinant() as f32);
-                let tau32 = kirchhoff(material, mu, lambda, &f32_, j, &r);
+                let tau32 = kirchhoff(material, false, (mu, lambda), &f32_, j, &r);
                 let scale = tau64.norm() + mu64 + lambda64;
                 let err = (tau32.cast::<f64>() - tau64).norm() / scale;
                 worst = worst.max(err);
@@ -260,14 +375,9 @@ mod tests {
         for f in deformations() {
             let d = SignedSvd::of(&f).unwrap();
             let j = d.s[0] * d.s[1] * d.s[2];
-            let mut out = Principal {
-                energy: 0.0,
-                grad: Vector3::zeros(),
-                hess: Matrix3::zeros(),
-                pairs: [(0.0, 0.0); 3],
-            };
-            neohookean::principal(mu, lambda, &d.s, j, false, &mut out);
-            let closed = neohookean::energy(mu, lambda, &f);
+            let mut out = Principal::default();
+            NeoHookeanModel::principal(mu, lambda, &d.s, j, false, &mut out);
+            let closed = NeoHookeanModel::closed_energy(mu, lambda, &f).unwrap();
             assert!(
                 (out.energy - closed).abs() <= 1e-12 * closed.abs().max(1.0),
                 "{f}"
@@ -275,11 +385,49 @@ mod tests {
             // Fixed corotated: mu |F - R|^2 + lambda/2 (J - 1)^2 with R = U V^T.
             let r = d.u * d.v.transpose();
             let direct = mu * (f - r).norm_squared() + 0.5 * lambda * (j - 1.0).powi(2);
-            corotated::principal(mu, lambda, &d.s, j, false, &mut out);
+            FixedCorotatedModel::principal(mu, lambda, &d.s, j, false, &mut out);
             assert!(
                 (out.energy - direct).abs() <= 1e-12 * direct.abs().max(1.0),
                 "{f}"
             );
+        }
+    }
+
+    // A material needs only its principal energy: the stress derived from it is the closed
+    // form, for every material in the list, at every deformation above (`j = det F`, as
+    // the closed forms are written; the volume term of a derived stress reads `j` where
+    // the material's principal form does), and at an inverted `F` for a material defined
+    // there. Tolerance: the derived stress goes through an f64 SVD of the f32 `F` and one
+    // cast to f32, the closed one through a dozen f32 operations and, for the corotated
+    // form, the rotation in f32 (as above): 2e-5 of the stress's scale. An inverted `F`
+    // gives a finite stress for every material (one defined only at positive stretches
+    // reads its mirror image).
+    #[test]
+    fn the_stress_derived_from_the_energy_is_the_closed_form() {
+        let moduli = (0.3f32, 0.45f32);
+        let scale0 = f64::from(moduli.0 + moduli.1);
+        let inverted = Matrix3::new(0.8, 0.1, 0.0, 0.0, 0.9, 0.05, 0.0, 0.0, -0.1);
+        for &(name, material) in Material::NAMED {
+            let mut cases = deformations();
+            if !material.needs_positive_stretches() {
+                cases.push(inverted);
+            }
+            for f in cases {
+                let d = SignedSvd::of(&f).unwrap();
+                let r = (d.u * d.v.transpose()).cast::<f32>();
+                let (f, j) = (f.cast::<f32>(), f.determinant() as f32);
+                let closed = kirchhoff(material, false, moduli, &f, j, &r);
+                let derived = kirchhoff(material, true, moduli, &f, j, &r);
+                let err =
+                    (closed - derived).cast::<f64>().norm() / (f64::from(closed.norm()) + scale0);
+                assert!(
+                    err < 2e-5,
+                    "{name} at F = {f}: closed {closed}, derived {derived}"
+                );
+            }
+            let f = inverted.cast::<f32>();
+            let tau = kirchhoff(material, true, moduli, &f, 0.05, &Matrix3::identity());
+            assert!(tau.iter().all(|x| x.is_finite()), "{name}: {tau}");
         }
     }
 }

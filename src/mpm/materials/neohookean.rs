@@ -21,8 +21,58 @@ pub struct NeoHookeanModel {
 }
 
 impl ConstitutiveModel for NeoHookeanModel {
+    const NAME: &'static str = "neohookean";
     const USES_ROTATION: bool = false;
+    const NEEDS_POSITIVE_STRETCHES: bool = true;
 
+    fn new(mu: f32, lambda: f32) -> Self {
+        NeoHookeanModel { mu, lambda }
+    }
+
+    fn moduli(&self) -> (f32, f32) {
+        (self.mu, self.lambda)
+    }
+
+    /// The energy of the signed singular values `s` (all positive; `j` their product) and,
+    /// with `derivatives`, its gradient, Hessian and pair eigenvalues, into `out` (zero on
+    /// entry).
+    fn principal(
+        mu: f64,
+        lambda: f64,
+        s: &Vector3<f64>,
+        j: f64,
+        derivatives: bool,
+        out: &mut Principal,
+    ) {
+        let lj = j.ln();
+        out.energy = 0.5 * mu * (s.norm_squared() - 3.0) - mu * lj + 0.5 * lambda * lj * lj;
+        if !derivatives {
+            return;
+        }
+        for i in 0..3 {
+            out.grad[i] = mu * s[i] + (lambda * lj - mu) / s[i];
+            out.hess[(i, i)] = mu + (mu + lambda * (1.0 - lj)) / (s[i] * s[i]);
+        }
+        for (n, &(i, k, _)) in PAIRS.iter().enumerate() {
+            let h = lambda / (s[i] * s[k]);
+            out.hess[(i, k)] = h;
+            out.hess[(k, i)] = h;
+            let q = (mu - lambda * lj) / (s[i] * s[k]);
+            out.pairs[n] = (mu + q, mu - q);
+        }
+    }
+
+    /// The energy at `f` in closed form (`+inf` where `J <= 0` or not finite).
+    fn closed_energy(mu: f64, lambda: f64, f: &Matrix3<f64>) -> Option<f64> {
+        let j = f.determinant();
+        if j <= 0.0 || !j.is_finite() {
+            return Some(f64::INFINITY);
+        }
+        let lj = j.ln();
+        Some(0.5 * mu * (f.norm_squared() - 3.0) - mu * lj + 0.5 * lambda * lj * lj)
+    }
+
+    /// The closed form, without an SVD.
     #[inline(always)]
     fn kirchhoff(&self, f: &Matrix3<f32>, j: f32, _r: &Matrix3<f32>) -> Matrix3<f32> {
         let j = j.max(crate::mpm::J_MIN as f32);
@@ -32,44 +82,5 @@ impl ConstitutiveModel for NeoHookeanModel {
         tau.m22 += diag;
         tau.m33 += diag;
         tau
-    }
-}
-
-/// The energy at `f` in closed form (`+inf` where `J <= 0` or not finite).
-pub(crate) fn energy(mu: f64, lambda: f64, f: &Matrix3<f64>) -> f64 {
-    let j = f.determinant();
-    if j <= 0.0 || !j.is_finite() {
-        return f64::INFINITY;
-    }
-    let lj = j.ln();
-    0.5 * mu * (f.norm_squared() - 3.0) - mu * lj + 0.5 * lambda * lj * lj
-}
-
-/// The energy of the signed singular values `s` (all positive; `j` their product) and,
-/// with `derivatives`, its gradient, Hessian and pair eigenvalues, into `out` (zero on
-/// entry).
-pub(crate) fn principal(
-    mu: f64,
-    lambda: f64,
-    s: &Vector3<f64>,
-    j: f64,
-    derivatives: bool,
-    out: &mut Principal,
-) {
-    let lj = j.ln();
-    out.energy = 0.5 * mu * (s.norm_squared() - 3.0) - mu * lj + 0.5 * lambda * lj * lj;
-    if !derivatives {
-        return;
-    }
-    for i in 0..3 {
-        out.grad[i] = mu * s[i] + (lambda * lj - mu) / s[i];
-        out.hess[(i, i)] = mu + (mu + lambda * (1.0 - lj)) / (s[i] * s[i]);
-    }
-    for (n, &(i, k, _)) in PAIRS.iter().enumerate() {
-        let h = lambda / (s[i] * s[k]);
-        out.hess[(i, k)] = h;
-        out.hess[(k, i)] = h;
-        let q = (mu - lambda * lj) / (s[i] * s[k]);
-        out.pairs[n] = (mu + q, mu - q);
     }
 }

@@ -4,11 +4,16 @@
 //! the next 40 are counted. Counts every call of the global allocator (`alloc`, `realloc`)
 //! in this process, ONNX Runtime's own allocations through the C library excluded.
 //!
-//! `cargo bench --bench allocations`
+//! `cargo bench --bench allocations`; `TACROM_ALLOCATION_SITES=MODE cargo bench --bench
+//! allocations` also prints, for that mode's counted frames, the functions of the plugin
+//! that allocate (the innermost `tacrom::` frame of each allocation's backtrace), with
+//! their calls and bytes per frame.
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::cell::Cell;
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 
 use nalgebra::Isometry3;
 use tacrom::config::{Config, RawConfig};
@@ -20,11 +25,64 @@ struct Counting;
 
 static CALLS: AtomicUsize = AtomicUsize::new(0);
 static BYTES: AtomicUsize = AtomicUsize::new(0);
+/// Whether allocations' backtraces are being gathered ([`SITES`]).
+static TRACING: AtomicBool = AtomicBool::new(false);
+/// Raw backtraces of the traced allocations, with their sizes (resolved after the frames).
+static SITES: Mutex<Vec<(std::backtrace::Backtrace, usize)>> = Mutex::new(Vec::new());
+
+thread_local! {
+    /// Set while this thread records a backtrace: its own allocations are not traced.
+    static INSIDE: Cell<bool> = const { Cell::new(false) };
+}
+
+fn count(bytes: usize) {
+    if !TRACING.load(Ordering::Relaxed) {
+        CALLS.fetch_add(1, Ordering::Relaxed);
+        BYTES.fetch_add(bytes, Ordering::Relaxed);
+        return;
+    }
+    // The recording's own allocations are neither counted nor traced.
+    if INSIDE.with(|i| i.replace(true)) {
+        return;
+    }
+    CALLS.fetch_add(1, Ordering::Relaxed);
+    BYTES.fetch_add(bytes, Ordering::Relaxed);
+    let trace = std::backtrace::Backtrace::force_capture();
+    SITES.lock().unwrap().push((trace, bytes));
+    INSIDE.with(|i| i.set(false));
+}
+
+/// The traced allocations by the innermost plugin function in their backtraces: calls
+/// and bytes per frame over `frames`, largest first.
+fn print_sites(frames: usize) {
+    let mut by: HashMap<String, (usize, usize)> = HashMap::new();
+    for (trace, bytes) in SITES.lock().unwrap().drain(..) {
+        let text = trace.to_string();
+        let site = text
+            .lines()
+            .map(str::trim)
+            .filter_map(|l| l.split_once(": ").map(|(_, f)| f))
+            .find(|f| f.starts_with("tacrom::") || f.starts_with("<tacrom::"))
+            .unwrap_or("(outside the plugin)")
+            .to_owned();
+        let e = by.entry(site).or_default();
+        e.0 += 1;
+        e.1 += bytes;
+    }
+    let mut rows: Vec<_> = by.into_iter().collect();
+    rows.sort_by(|a, b| b.1 .1.cmp(&a.1 .1));
+    for (site, (calls, bytes)) in rows {
+        println!(
+            "    {:>8.1} calls {:>9.1} KiB  {site}",
+            calls as f64 / frames as f64,
+            bytes as f64 / frames as f64 / 1024.0
+        );
+    }
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        CALLS.fetch_add(1, Ordering::Relaxed);
-        BYTES.fetch_add(layout.size(), Ordering::Relaxed);
+        count(layout.size());
         unsafe { System.alloc(layout) }
     }
 
@@ -33,8 +91,7 @@ unsafe impl GlobalAlloc for Counting {
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        CALLS.fetch_add(1, Ordering::Relaxed);
-        BYTES.fetch_add(new_size, Ordering::Relaxed);
+        count(new_size);
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 }
@@ -64,7 +121,9 @@ fn main() {
         "mode", "image", "allocations/frame", "KiB/frame"
     );
     let ball: Arc<dyn Sdf> = Arc::new(Sphere::new(0.005));
+    let traced = std::env::var("TACROM_ALLOCATION_SITES").ok();
     for (label, attributes) in modes {
+        let trace = traced.as_deref() == Some(label.split(' ').next().unwrap_or(label));
         for resolution in ["64 48", "320 240"] {
             let mut raw = RawConfig::default()
                 .with("resolution", resolution)
@@ -83,7 +142,9 @@ fn main() {
                     pose: Isometry3::translation(x, 0.0, 0.005 - 0.5e-3),
                 }];
                 let (calls, bytes) = (CALLS.load(Ordering::Relaxed), BYTES.load(Ordering::Relaxed));
+                TRACING.store(trace && frame >= WARM, Ordering::Relaxed);
                 let _ = sensor.evaluate(&placed, &mut out);
+                TRACING.store(false, Ordering::Relaxed);
                 if frame >= WARM {
                     counted.0 += CALLS.load(Ordering::Relaxed) - calls;
                     counted.1 += BYTES.load(Ordering::Relaxed) - bytes;
@@ -95,6 +156,9 @@ fn main() {
                 counted.0 as f64 / COUNTED as f64,
                 counted.1 as f64 / COUNTED as f64 / 1024.0
             );
+            if trace {
+                print_sites(COUNTED);
+            }
         }
     }
 }

@@ -130,6 +130,24 @@ fn givens_qr(b: Matrix3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
     (q, r)
 }
 
+/// Sheared and stretched deformation gradients, `k` growing the shear and twist (the
+/// tests' samples here and in `newton/energy.rs`).
+#[cfg(test)]
+pub(crate) fn sample_f(k: usize) -> Matrix3<f64> {
+    let t = k as f64;
+    Matrix3::new(
+        1.1 + 0.05 * t,
+        0.2,
+        -0.1,
+        0.05 * t,
+        0.9,
+        0.15,
+        -0.2,
+        0.1 * t,
+        1.05,
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -162,19 +180,8 @@ mod tests {
                 2.0 * ((state >> 11) as f64 / (1u64 << 53) as f64) - 1.0
             }));
         }
-        // Sheared and stretched, as Newton's energy tests' samples.
-        for t in [0.0, 1.0, 2.0, 3.0] {
-            cases.push(Matrix3::new(
-                1.1 + 0.05 * t,
-                0.2,
-                -0.1,
-                0.05 * t,
-                0.9,
-                0.15,
-                -0.2,
-                0.1 * t,
-                1.05,
-            ));
+        for k in 0..4 {
+            cases.push(sample_f(k));
         }
         for f in cases {
             let d = SignedSvd::of(&f).unwrap();

@@ -136,21 +136,7 @@ impl Density {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn sample_f(k: usize) -> Matrix3<f64> {
-        let t = k as f64;
-        Matrix3::new(
-            1.1 + 0.05 * t,
-            0.2,
-            -0.1,
-            0.05 * t,
-            0.9,
-            0.15,
-            -0.2,
-            0.1 * t,
-            1.05,
-        )
-    }
+    use crate::mpm::materials::svd::sample_f;
 
     fn densities() -> Vec<Density> {
         let mut out = Vec::new();

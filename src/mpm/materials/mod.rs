@@ -1,5 +1,5 @@
-//! The gel's materials: one type each, one file each, named once in [`materials!`]'s list
-//! below, which makes [`Material`] and every table that dispatches on it.
+//! The gel's materials: one type each, one file each, named once in the list of
+//! `materials!` below, which makes [`Material`] and every table that dispatches on it.
 //!
 //! A material is its energy, an isotropic function of the signed singular values of `F`
 //! ([`ConstitutiveModel::principal`], f64, with its gradient, Hessian and pair
@@ -18,10 +18,11 @@
 //! to f64 and may split `lambda` between particles and cells, which adds).
 //!
 //! A new material touches its file here (a type implementing [`ConstitutiveModel`]: its
-//! name, the `material` attribute's value, and its principal energy) and one line of the
-//! list in [`materials!`] below. The attribute's values, its README row, the relaxation's
-//! choice of model and Newton's energy follow from the list; the tests here and in
-//! `newton/energy.rs` run every material in it.
+//! name, the `material` attribute's value, and its principal energy) and two lines below:
+//! its `mod` line and its line in the list of `materials!`. The attribute's values, the
+//! relaxation's choice of model and Newton's energy follow from the list (the README's
+//! attribute table is regenerated from them by `tacrom doc-tables --write`, which a test
+//! checks); the tests here and in `newton/energy.rs` run every material in it.
 
 use nalgebra::{Matrix3, Vector3};
 

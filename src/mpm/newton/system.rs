@@ -335,6 +335,12 @@ impl System {
 /// iterations. `x` gets the last iterate (a descent direction of the quadratic model even
 /// when it did not converge); returns whether it converged and the iterations taken.
 /// `work` holds three vectors of scratch.
+///
+/// Newton's method keeps this one rather than faer's (which the optics fit uses,
+/// `tacrom calibrate`): its product is the gel's matrix-free stiffness, a closure over the
+/// solver's scratch summed node by node in a fixed order so that no sum depends on the
+/// thread count (faer's operators are applied through `&self` and summed in faer's own
+/// order), and an unconverged solve's last iterate is still the step's direction.
 pub(crate) fn conjugate_gradients(
     b: &[f64],
     x: &mut [f64],

@@ -17,8 +17,15 @@
 //! interpolation, `h^2 / 8` times the response's second derivative (`h` the bin width),
 //! not a bin average's `h / 2` times its first. The node at zero slope (there is one: `n`
 //! is odd) is held at zero: a flat surface shows the background by definition. The normal
-//! equations are solved by conjugate gradients with a Jacobi preconditioner, per channel.
+//! equations are solved by faer's conjugate gradients with a Jacobi preconditioner, per
+//! channel.
 
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::matrix_free::conjugate_gradient::{
+    conjugate_gradient, conjugate_gradient_scratch, CgParams,
+};
+use faer::matrix_free::{InitialGuessStatus, LinOp, Precond};
+use faer::{MatMut, MatRef, Par};
 use serde::Serialize;
 use tacrom::geometry::PixelGrid;
 use tacrom::render::calibrated::{GradientTable, RgbImage, MAX_BINS};
@@ -306,55 +313,116 @@ impl System {
         d
     }
 
-    /// Solves `A t = b` (b zero at the pinned node) by preconditioned conjugate gradients
-    /// to a relative residual of 1e-10; returns the iterations taken.
-    fn solve(&self, b: &[f64], t: &mut [f64]) -> usize {
+    /// Solves `A t = b` (b zero at the pinned node) by faer's conjugate gradients with the
+    /// Jacobi preconditioner, to a relative residual of 1e-10; returns the iterations taken.
+    /// The pinned node's row and column become the identity's (`P A P + e_p e_p^T`, `P`
+    /// zeroing the node), so that the operator is positive definite and `t_p = b_p = 0`.
+    fn solve(&self, b: &[f64], t: &mut [f64]) -> Result<usize, String> {
         let nodes = b.len();
-        let inv_diag: Vec<f64> = self
+        let inverse_diagonal: Vec<f64> = self
             .diagonal()
             .iter()
             .enumerate()
-            .map(|(m, &d)| {
-                if Some(m) == self.pinned || d <= 0.0 {
-                    0.0
-                } else {
-                    1.0 / d
-                }
+            .map(|(m, &d)| match Some(m) == self.pinned || d <= 0.0 {
+                true => 1.0,
+                false => 1.0 / d,
             })
             .collect();
+        let jacobi = Op {
+            n: nodes,
+            product: |x: &[f64], y: &mut [f64]| {
+                for ((y, x), d) in y.iter_mut().zip(x).zip(&inverse_diagonal) {
+                    *y = x * d;
+                }
+            },
+        };
+        let operator = Op {
+            n: nodes,
+            product: |x: &[f64], y: &mut [f64]| {
+                let mut x = x.to_vec();
+                let held = self.pinned.map(|p| std::mem::take(&mut x[p]));
+                self.apply(&x, y);
+                if let (Some(p), Some(v)) = (self.pinned, held) {
+                    y[p] = v;
+                }
+            },
+        };
+        let params = CgParams {
+            // (faer 0.24 leaves the residual unset for `InitialGuessStatus::Zero`: the
+            // guess, zero, is given.)
+            initial_guess: InitialGuessStatus::MaybeNonZero,
+            abs_tolerance: 0.0,
+            rel_tolerance: 1e-10,
+            max_iters: 20 * nodes,
+            ..Default::default()
+        };
+        let mut mem = MemBuffer::new(conjugate_gradient_scratch(&jacobi, &operator, 1, Par::Seq));
         t.fill(0.0);
-        let mut r = b.to_vec();
-        let norm_b = b.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if norm_b == 0.0 {
-            return 0;
-        }
-        let mut z: Vec<f64> = r.iter().zip(&inv_diag).map(|(r, d)| r * d).collect();
-        let mut p = z.clone();
-        let mut rz: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
-        let mut ap = vec![0.0; nodes];
-        for it in 1..=20 * nodes {
-            self.apply(&p, &mut ap);
-            let alpha = rz / p.iter().zip(&ap).map(|(a, b)| a * b).sum::<f64>();
-            for m in 0..nodes {
-                t[m] += alpha * p[m];
-                r[m] -= alpha * ap[m];
-            }
-            if r.iter().map(|v| v * v).sum::<f64>().sqrt() <= 1e-10 * norm_b {
-                return it;
-            }
-            for m in 0..nodes {
-                z[m] = r[m] * inv_diag[m];
-            }
-            let rz_next: f64 = r.iter().zip(&z).map(|(a, b)| a * b).sum();
-            let beta = rz_next / rz;
-            rz = rz_next;
-            for m in 0..nodes {
-                p[m] = z[m] + beta * p[m];
-            }
-        }
-        20 * nodes
+        let out = MatMut::from_column_major_slice_mut(t, nodes, 1);
+        let rhs = MatRef::from_column_major_slice(b, nodes, 1);
+        conjugate_gradient(
+            out,
+            &jacobi,
+            &operator,
+            rhs,
+            params,
+            |_| {},
+            Par::Seq,
+            MemStack::new(&mut mem),
+        )
+        .map(|info| info.iter_count)
+        .map_err(|e| format!("the table's normal equations did not solve: {e:?}"))
     }
 }
+
+/// A symmetric operator of faer's (`LinOp`, `Precond`) from its product on one column.
+struct Op<F: Fn(&[f64], &mut [f64]) + Sync> {
+    n: usize,
+    product: F,
+}
+
+impl<F: Fn(&[f64], &mut [f64]) + Sync> Op<F> {
+    fn apply_to(&self, mut out: MatMut<'_, f64>, rhs: MatRef<'_, f64>) {
+        let (mut x, mut y) = (vec![0.0; self.n], vec![0.0; self.n]);
+        for j in 0..rhs.ncols() {
+            x.iter_mut().enumerate().for_each(|(i, v)| *v = rhs[(i, j)]);
+            (self.product)(&x, &mut y);
+            y.iter().enumerate().for_each(|(i, &v)| out[(i, j)] = v);
+        }
+    }
+}
+
+impl<F: Fn(&[f64], &mut [f64]) + Sync> std::fmt::Debug for Op<F> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Op({})", self.n)
+    }
+}
+
+impl<F: Fn(&[f64], &mut [f64]) + Sync> LinOp<f64> for Op<F> {
+    fn apply_scratch(&self, _rhs_ncols: usize, _par: Par) -> StackReq {
+        StackReq::EMPTY
+    }
+    fn nrows(&self) -> usize {
+        self.n
+    }
+    fn ncols(&self) -> usize {
+        self.n
+    }
+    fn apply(&self, out: MatMut<'_, f64>, rhs: MatRef<'_, f64>, _par: Par, _stack: &mut MemStack) {
+        self.apply_to(out, rhs);
+    }
+    fn conj_apply(
+        &self,
+        out: MatMut<'_, f64>,
+        rhs: MatRef<'_, f64>,
+        _par: Par,
+        _stack: &mut MemStack,
+    ) {
+        self.apply_to(out, rhs);
+    }
+}
+
+impl<F: Fn(&[f64], &mut [f64]) + Sync> Precond<f64> for Op<F> {}
 
 /// Fits the table to `samples` (see the module documentation).
 pub fn fit_table(samples: &[Sample], o: &FitOptions) -> Result<(GradientTable, FitReport), String> {
@@ -415,7 +483,7 @@ pub fn fit_table(samples: &[Sample], o: &FitOptions) -> Result<(GradientTable, F
         if let Some(p) = pinned {
             b[p] = 0.0;
         }
-        iterations = iterations.max(system.solve(&b, &mut t));
+        iterations = iterations.max(system.solve(&b, &mut t)?);
         for (m, v) in t.iter().enumerate() {
             values[CHANNELS * m + k] = v.clamp(-FULL_SCALE, FULL_SCALE);
         }

@@ -365,8 +365,13 @@ impl Config {
     }
 
     /// Validates `raw` as [`Config::from_raw`] does, without reading the files it names:
-    /// everything the sensordata's size depends on, for MuJoCo's `nsensordata` at compile
-    /// time (the sensor's `init`, which follows, reads them once).
+    /// everything the sensordata's size depends on, for MuJoCo's `nstate` and
+    /// `nsensordata` at compile time (the sensor's `init`, which follows, reads them once).
+    ///
+    /// MuJoCo gives those callbacks and `init` no storage per model between them, so the
+    /// attributes' parses are kept for the process, keyed by the sensor's name, its
+    /// attributes and its sensor file's (read at every call: a rewritten file is a new
+    /// key): a model's sensor is parsed once, however many callbacks and `MjData` ask.
     pub fn without_files(name: &str, raw: &RawConfig) -> Result<Config, ConfigError> {
         Self::parse(name, raw, false)
     }
@@ -385,6 +390,25 @@ impl Config {
             }
         };
         let p = Parser { name, raw };
+        let mut config = parsed::recall(name, raw).map_or_else(
+            || {
+                let config = Self::parse_attributes(&p)?;
+                parsed::keep(name, raw, &config);
+                Ok::<_, ConfigError>(config)
+            },
+            Ok,
+        )?;
+        if read_files {
+            config.optics = p.optics(&config.outputs, config.width, config.height)?;
+        }
+        Ok(config)
+    }
+
+    /// The configuration the attributes of `p` give, the files they name unread.
+    fn parse_attributes(p: &Parser<'_>) -> Result<Config, ConfigError> {
+        #[cfg(test)]
+        parsed::PARSES.with(|n| n.set(n.get() + 1));
+        let (name, raw) = (p.name, p.raw);
 
         let physics = p.physics()?;
         let outputs = p.outputs()?;
@@ -466,11 +490,7 @@ impl Config {
                     )
                 })?,
         };
-        let optics = if read_files {
-            p.optics(&outputs, width, height)?
-        } else {
-            None
-        };
+        let optics = None;
         let camera = p.camera()?;
         if let Some(o) = outputs
             .iter()
@@ -573,6 +593,47 @@ impl Config {
     /// Whether `output` was asked for.
     pub fn wants(&self, output: Output) -> bool {
         self.outputs.contains(&output)
+    }
+}
+
+/// The file-free parses of this process ([`Config::without_files`]).
+mod parsed {
+    use super::{Config, RawConfig};
+    use std::collections::VecDeque;
+    use std::sync::Mutex;
+
+    /// Parses kept, the newest.
+    const KEPT: usize = 64;
+
+    static KEPT_PARSES: Mutex<VecDeque<(String, Config)>> = Mutex::new(VecDeque::new());
+
+    #[cfg(test)]
+    thread_local! {
+        /// Attribute parses made on this thread.
+        pub(super) static PARSES: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+    }
+
+    fn key(name: &str, raw: &RawConfig) -> String {
+        format!("{name}\u{0}{:?}\u{0}{:?}", raw.values, raw.from_file)
+    }
+
+    /// The kept parse of `raw` for the sensor `name`, if any.
+    pub(super) fn recall(name: &str, raw: &RawConfig) -> Option<Config> {
+        let key = key(name, raw);
+        let kept = KEPT_PARSES.lock().unwrap_or_else(|e| e.into_inner());
+        kept.iter()
+            .rev()
+            .find(|(k, _)| *k == key)
+            .map(|(_, c)| c.clone())
+    }
+
+    /// Keeps `config`, the parse of `raw` for the sensor `name`.
+    pub(super) fn keep(name: &str, raw: &RawConfig, config: &Config) {
+        let mut kept = KEPT_PARSES.lock().unwrap_or_else(|e| e.into_inner());
+        if kept.len() >= KEPT {
+            kept.pop_front();
+        }
+        kept.push_back((key(name, raw), config.clone()));
     }
 }
 
@@ -1210,6 +1271,42 @@ mod tests {
         let raw = RawConfig::default().with(ATTR_SENSOR, file);
         let early = Config::without_files("touch", &raw).unwrap();
         assert_eq!(early.sensordata_len(), c.sensordata_len());
+    }
+
+    /// A sensor's attributes are parsed once for the callbacks MuJoCo makes at compile
+    /// time and every `init` after them (only `init` reads the optics); a rewritten
+    /// sensor file is parsed anew.
+    #[test]
+    fn a_sensor_is_parsed_once_however_many_callbacks_ask() {
+        let path = sensor_file(
+            "parsed-once",
+            serde_json::json!({"poisson": 0.45, "outputs": "depth rgb", "optics": "optics.json"}),
+        );
+        let raw = RawConfig::default().with(ATTR_SENSOR, path.to_str().unwrap());
+        let parses = || parsed::PARSES.with(|n| n.get());
+        let before = parses();
+        let nstate = Config::without_files("parsed-once", &raw).unwrap();
+        let nsensordata = Config::without_files("parsed-once", &raw).unwrap();
+        let init = Config::from_raw("parsed-once", &raw).unwrap();
+        let second_init = Config::from_raw("parsed-once", &raw).unwrap();
+        assert_eq!(parses() - before, 1);
+        assert_eq!(nstate, nsensordata);
+        assert!(nstate.optics.is_none() && init.optics.is_some());
+        assert_eq!(init, second_init);
+        assert_eq!(
+            Config {
+                optics: None,
+                ..init
+            },
+            nstate
+        );
+        // Another sensor name (its messages) or other attributes: another parse.
+        Config::without_files("another", &raw).unwrap();
+        assert_eq!(parses() - before, 2);
+        // The file rewritten: parsed again, with its new value.
+        sensor_file("parsed-once", serde_json::json!({"poisson": 0.3}));
+        let rewritten = Config::without_files("parsed-once", &raw).unwrap();
+        assert_eq!((parses() - before, rewritten.poisson), (3, 0.3));
     }
 
     /// A bad value in a sensor file is refused naming the attribute, the value and the

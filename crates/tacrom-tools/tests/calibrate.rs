@@ -326,8 +326,8 @@ fn mirror_flips_camera_images_back_to_the_sensors_orientation() {
 /// The gel behind a set of presses is recovered from the images alone: presses of a known
 /// gel (1.8 mm thick, Poisson's ratio 0.4, neither on the searched grid) rendered with the
 /// built-in optics, calibrated with `--gel`, give a gel whose images match theirs, its
-/// Poisson's ratio within 10 % and its thickness within 25 % (the 10 % asked of it is not
-/// met), and a sensor file that loads and names the gel. The presses are made on the fit's own grid spacing: on a finer one
+/// thickness and Poisson's ratio each within 10 %, and a sensor file that loads and names
+/// the gel. The presses are made on the fit's own grid spacing: on a finer one
 /// (0.4 mm against 0.5) the coarse gel's discretisation error (about 2 grey levels) is
 /// larger than what the thickness changes, and the fit does not find it
 /// (docs/calibration.md).
@@ -357,13 +357,18 @@ fn a_gel_fit_recovers_the_thickness_and_poissons_ratio_of_synthetic_presses() {
         "{} against {worst}",
         fit.mae
     );
-    // Poisson's ratio within 10 %; the thickness only within 25 %: the fit lands at
-    // (2.23 mm, 0.423) with these presses and at (2.21 mm, 0.426) with twice as many, a bias
-    // of the search, not noise (docs/calibration.md, "What the gel fit recovers").
+    // Each within 10 %. (Refined along the score's valley from the grid's best alone, the
+    // fit stopped in a bump of it at (2.23 mm, 0.423), 24 % thick: docs/calibration.md,
+    // "What the gel fit recovers".)
     let t_err = (fit.best.thickness - truth.thickness).abs() / truth.thickness;
     let nu_err = (fit.best.poisson - truth.poisson).abs() / truth.poisson;
+    println!(
+        "fitted {:?} ({t_err:.3}, {nu_err:.3}); {} gels scored",
+        fit.best,
+        fit.grid.len()
+    );
     assert!(
-        t_err < 0.25 && nu_err < 0.1,
+        t_err < 0.1 && nu_err < 0.1,
         "fitted {:?} against {truth:?}",
         fit.best
     );

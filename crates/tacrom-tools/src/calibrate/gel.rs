@@ -14,7 +14,8 @@
 //! found through the optics of the contacts alone, the table refitted to the gel's imprints
 //! there, the depths found again through that table, and the presses' mean error at them
 //! ([`fit_gel`]). The gel is the best of a grid of thicknesses and Poisson's ratios,
-//! refined along each axis by a golden-section search between the best's neighbours.
+//! the thickness refined at every ratio of the grid and the ratio at the best of those, each
+//! by a golden-section search between the grid's neighbours.
 //!
 //! The gel is simulated as the sensor runs it: `physics="coarse"` on the linear solver,
 //! every candidate on one grid spacing ([`CELLS_THROUGH`] cells through the thinnest), a
@@ -166,8 +167,9 @@ fn region_of(press: &Press, radii: f64) -> Vec<bool> {
 }
 
 /// The region a gel is fitted over, in radii of the press's circle: the scored [`REGION`].
-/// Wider (2.5 radii) measured no better on the synthetic presses of the gel test: the gel
-/// landed at (2.26 mm, 0.471) against (2.23 mm, 0.423) for the truth (1.8 mm, 0.40).
+/// Wider (2.5 radii) measured no better on the synthetic presses of the gel test, with the
+/// search of the time (the thickness refined at the grid's best Poisson's ratio only): the
+/// gel landed at (2.26 mm, 0.471) against (2.23 mm, 0.423) for the truth (1.8 mm, 0.40).
 pub const FIT_REGION: f64 = REGION;
 
 /// Mean absolute colour difference (0..255, all channels) of `optics`' image of `depth`
@@ -483,8 +485,9 @@ pub fn fit_blur(
 /// Each gel is scored through a table fitted to its own imprints, never through another
 /// gel's: a table fitted to one gel's imprints favours that gel (alternating the two fits
 /// stays where it starts), while through its own table the gel whose imprints make colour
-/// a single function of slope scores best. The best gel of the grid is refined along each
-/// axis by a golden-section search between its neighbours; the best gel scored is the fit.
+/// a single function of slope scores best. At each Poisson's ratio of the grid the best
+/// thickness is refined by a golden-section search between its neighbours; the ratio is
+/// then refined the same way at the best of those; the best gel scored is the fit.
 pub fn fit_gel(
     presses: &[&Press],
     background: &RgbImage,
@@ -526,39 +529,28 @@ pub fn fit_gel(
             consider(fit, &mut scores);
         }
     }
-    let (bi, bj) = (0..thicknesses.len())
-        .flat_map(|i| (0..poissons.len()).map(move |j| (i, j)))
-        .min_by(|a, b| grid[a.0][a.1].total_cmp(&grid[b.0][b.1]))
-        .expect("a non-empty grid");
-    // Refined along each axis in turn (thickness, then Poisson's ratio) by a golden-section
-    // search between the best's grid neighbours.
+    // The score's valley runs across the grid (a thicker gel of higher Poisson's ratio
+    // sags much as a thinner one of lower ratio) and is bumpy along it (the gel's top moves
+    // through the grid's cells as its thickness changes): a search along the valley from
+    // the grid's best stops in a bump. So the thickness is refined at every Poisson's ratio
+    // of the grid, by a golden-section search between the neighbours of that ratio's best
+    // thickness, and the ratio then refined at the best of those, between its neighbours.
     let bracket = |values: &[f64], k: usize| {
         (
             values[k.saturating_sub(1)],
             values[(k + 1).min(values.len() - 1)],
         )
     };
-    let mut at = GelShape {
-        thickness: thicknesses[bi],
-        poisson: poissons[bj],
-        dx,
-    };
-    for axis in 0..2 {
-        let (lo, hi) = if axis == 0 {
-            bracket(thicknesses, bi)
-        } else {
-            bracket(poissons, bj)
-        };
+    let mut refine = |at: GelShape, thickness_axis: bool, (lo, hi): (f64, f64)| {
         if hi <= lo {
-            continue;
+            return Ok(None);
         }
         let mut failure = None;
-        let (x, _) = golden(
+        let found = golden(
             |x| {
-                let gel = if axis == 0 {
-                    GelShape { thickness: x, ..at }
-                } else {
-                    GelShape { poisson: x, ..at }
+                let gel = match thickness_axis {
+                    true => GelShape { thickness: x, ..at },
+                    false => GelShape { poisson: x, ..at },
                 };
                 match score_gel(gel, presses, background, first, options, threads) {
                     Ok(fit) => {
@@ -576,15 +568,30 @@ pub fn fit_gel(
             hi,
             REFINE_STEPS,
         );
-        if let Some(e) = failure {
-            return Err(e);
-        }
-        if axis == 0 {
-            at.thickness = x;
-        } else {
-            at.poisson = x;
-        }
+        failure.map_or(Ok(Some(found)), Err)
+    };
+    // Per Poisson's ratio: its best thickness, refined, and the score there.
+    let mut rows = Vec::with_capacity(poissons.len());
+    for (j, &poisson) in poissons.iter().enumerate() {
+        let i = (0..thicknesses.len())
+            .min_by(|&a, &b| grid[a][j].total_cmp(&grid[b][j]))
+            .expect("a non-empty grid");
+        let at = GelShape {
+            thickness: thicknesses[i],
+            poisson,
+            dx,
+        };
+        let row = match refine(at, true, bracket(thicknesses, i))? {
+            Some((t, mae)) if mae < grid[i][j] => (mae, GelShape { thickness: t, ..at }, j),
+            _ => (grid[i][j], at, j),
+        };
+        rows.push(row);
     }
+    let (_, at, j) = rows
+        .into_iter()
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .expect("a non-empty grid");
+    refine(at, false, bracket(poissons, j))?;
     let mut fit = best.expect("a non-empty grid");
     fit.grid = scores;
     if search.blurs.iter().any(|&b| b != 0.0) {

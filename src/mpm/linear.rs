@@ -113,7 +113,7 @@
 //!   contact's normal is vertical, as in the small-displacement setting of Hertz and
 //!   Cattaneo-Mindlin; a slope of the indenter does not turn its force.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeMap, HashMap};
 
 use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix2, Matrix3, Point3, SymmetricEigen, Vector2, Vector3,
@@ -757,7 +757,7 @@ impl Compliance {
     /// The contact lattice points under the indenters' own boxes, grown by
     /// [`NEAR_CELLS`] (the only ones that can touch them).
     fn near(&self, indenters: &[StepIndenter]) -> Vec<u32> {
-        let mut out = BTreeSet::new();
+        let mut out = Vec::new();
         for ind in indenters {
             let b = ind
                 .shape
@@ -777,12 +777,17 @@ impl Compliance {
             if ok_x && ok_y {
                 for i in i0..=i1 {
                     for j in j0..=j1 {
-                        out.insert((i * self.lattice[1] + j) as u32);
+                        out.push((i * self.lattice[1] + j) as u32);
                     }
                 }
             }
         }
-        out.into_iter().collect()
+        // In index order, each once (the indenters' boxes may overlap).
+        if indenters.len() > 1 {
+            out.sort_unstable();
+            out.dedup();
+        }
+        out
     }
 
     /// Index of the indenter nearest to the point at `x` (cells), among those whose

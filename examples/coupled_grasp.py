@@ -34,21 +34,45 @@ def main() -> None:
     parser.add_argument("--solver", default="linear")
     parser.add_argument("--object", default="box", choices=list(gripper.OBJECTS))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--implicit", action="store_true")
     args = parser.parse_args()
 
     spec = mujoco.MjSpec.from_file(str(gripper.asset_path("gripper.xml")))
-    # The backing's face from 0.3 mm below the gel's surface to its base (4 mm).
-    for name, sign in (("left_pad", -1.0), ("right_pad", 1.0)):
-        geom = spec.geom(name)
-        geom.pos = [geom.pos[0] + sign * 0.0037, geom.pos[1], geom.pos[2]]
+    extra = {"coupling": "on", "solver": args.solver}
+    if args.implicit:
+        # Each pad's face on its gel's surface, standing for the gel in MuJoCo's collision
+        # (its contacts carry the gel's push-back), and a backing at the gel's base.
+        for name, finger, sign in (("left_pad", "left_finger", -1.0), ("right_pad", "right_finger", 1.0)):
+            geom = spec.geom(name)
+            geom.pos = [geom.pos[0] - sign * 0.0003, geom.pos[1], geom.pos[2]]
+            backing = spec.body(finger).add_geom()
+            backing.name = name + "_backing"
+            backing.type = mujoco.mjtGeom.mjGEOM_BOX
+            backing.size = [0.001, 0.015, 0.015]
+            backing.pos = [sign * 0.005, 0.0, 0.0]
+            backing.friction = geom.friction
+            backing.condim = geom.condim
+            backing.mass = 0.001
+    else:
+        # The backing's face from 0.3 mm below the gel's surface to its base (4 mm).
+        for name, sign in (("left_pad", -1.0), ("right_pad", 1.0)):
+            geom = spec.geom(name)
+            geom.pos = [geom.pos[0] + sign * 0.0037, geom.pos[1], geom.pos[2]]
     configure_sensors(
         spec,
         gripper.SENSORS,
         physics=args.physics,
         resolution=(32, 24),
         outputs=["depth", "force"],
-        extra={"coupling": "on", "solver": args.solver},
+        extra=extra,
     )
+    if args.implicit:
+        for sensor, pad in zip(gripper.SENSORS, ("left_pad", "right_pad")):
+            plugin = spec.sensor(sensor).plugin
+            config = dict(plugin.config)
+            config["gel_geom"] = pad
+            plugin.config = config
+
     model = spec.compile()
     data = mujoco.MjData(model)
     # The episode's start as the environment draws it.

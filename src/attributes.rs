@@ -482,6 +482,18 @@ pub const DAMPING: Attribute = Attribute {
     valid: Valid::Range(Range::closed(0.0, 1.0)),
 };
 
+/// `gel_geom`.
+pub const GEL_GEOM: Attribute = Attribute {
+    name: "gel_geom",
+    meaning: "with `coupling=\"on\"`: the geom of the sensor's body that stands for the gel \
+              in MuJoCo's collision (its face on the gel's surface); its contacts with the \
+              indenters carry the gel's push-back, taken implicitly in MuJoCo's constraint \
+              solve",
+    unit: "",
+    default: Default::Depends("none: the push-back is an explicit force"),
+    valid: Valid::Described("the name of a geom welded to the sensor's body"),
+};
+
 /// `solver`.
 pub const SOLVER: Attribute = Attribute {
     name: "solver",
@@ -502,7 +514,7 @@ pub const SOLVER: Attribute = Attribute {
 pub const TABLE: &[Attribute] = &[
     SENSOR, PHYSICS, OUTPUTS, RESOLUTION, FOV, SIZE, INDENTERS, YOUNG, POISSON, DENSITY, FRICTION,
     DX, THREADS, MODEL, REFINE, TOLERANCE, MATERIAL, MARKERS, OPTICS, CAMERA, VIEW, INDEX,
-    COUPLING, DAMPING, SOLVER,
+    COUPLING, DAMPING, GEL_GEOM, SOLVER,
 ];
 
 /// The attributes' names, in table order (what MuJoCo is told).

@@ -65,6 +65,8 @@ pub const ATTR_SOLVER: &str = attributes::SOLVER.name;
 pub const ATTR_COUPLING: &str = attributes::COUPLING.name;
 /// `damping`: [`attributes::DAMPING`].
 pub const ATTR_DAMPING: &str = attributes::DAMPING.name;
+/// `gel_geom`: [`attributes::GEL_GEOM`].
+pub const ATTR_GEL_GEOM: &str = attributes::GEL_GEOM.name;
 
 /// Every attribute the plugin declares to MuJoCo, in table order ([`attributes::TABLE`]).
 pub const ATTRIBUTES: &[&str] = &attributes::NAMES;
@@ -298,6 +300,9 @@ pub struct Config {
     pub coupling: bool,
     /// Kelvin-Voigt retardation time of the coupling (s).
     pub damping: f64,
+    /// The geom standing for the gel in MuJoCo's collision, whose contacts carry the
+    /// coupling implicitly (`gel_geom`); `None`: the coupling's force is explicit.
+    pub gel_geom: Option<String>,
     /// The gel's equilibrium solver; `None` leaves the choice to the gel
     /// ([`crate::mpm::choose`]) or the reduced-order model's recipe.
     pub solver: Option<Solver>,
@@ -525,6 +530,19 @@ impl Config {
             ));
         }
         let damping = p.ranged::<1>(&attributes::DAMPING, [defaults::DAMPING])?[0];
+        let gel_geom = match raw.get(ATTR_GEL_GEOM).map(str::trim) {
+            None => None,
+            Some("") => {
+                return Err(p.error(ATTR_GEL_GEOM, "empty: name a geom of the sensor's body"))
+            }
+            Some(_) if !coupling => {
+                return Err(p.error(
+                    ATTR_GEL_GEOM,
+                    "needs coupling=\"on\" (the geom carries the gel's push-back)",
+                ))
+            }
+            Some(name) => Some(name.to_owned()),
+        };
         let solver = match raw.get(ATTR_SOLVER).map(str::trim) {
             None => None,
             Some(v) => Some(Solver::named(v).ok_or_else(|| {
@@ -566,6 +584,7 @@ impl Config {
             index,
             coupling,
             damping,
+            gel_geom,
             solver,
         })
     }

@@ -3,6 +3,7 @@
 //! callback adds. The only module that touches
 //! MuJoCo's C API.
 pub mod draw;
+pub mod gel_contacts;
 mod mesh_cache;
 pub mod plugin;
 pub mod scene;

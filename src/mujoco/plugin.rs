@@ -13,16 +13,20 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::sync::OnceLock;
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::draw;
+use super::gel_contacts;
 use super::scene::{GatherIssues, SceneSpec};
 use super::sys;
 use super::view::{pose, Data, Model};
 use crate::config::{Config, RawConfig, ATTRIBUTES};
 use crate::geometry::{Placed, Sdf};
 use crate::mpm::Wrench;
-use crate::sensor::coupling::{reduced_mass, Coupling, Sample, STABLE_RATIO};
+use crate::sensor::coupling::{
+    centre_of_pressure, linearise, needs_solve, reduced_mass, Coupling, Sample, SHALLOWEST,
+    STABLE_RATIO,
+};
 use crate::sensor::TactileSensor;
 use crate::state::{Io, Persist};
 use crate::visual::{self, ArrowStyle, Surface, GEOM_BUDGET};
@@ -669,6 +673,99 @@ pub unsafe extern "C" fn tacrom_compute(
     status
 }
 
+/// The implicit coupling (`gel_geom`), in MuJoCo's passive stage: the gel's push-back on
+/// each indenter that MuJoCo's collision finds pressing the gel's geom, carried by those
+/// contacts' constraint rows ([`gel_contacts`]). The force follows the last solve along
+/// the indenter's motion since ([`linearise`]); the gel is solved again where no sensor
+/// evaluation solved it at this state and an indenter moved further than
+/// [`needs_solve`] allows, or presses the gel's geom without a force from the last solve.
+///
+/// # Safety
+/// `m` and `d` must be a valid model and data of this instance after MuJoCo's position
+/// stage; nothing else may hold a reference into `d`.
+#[allow(clippy::too_many_arguments)]
+unsafe fn implicit(
+    inst: &mut Instance,
+    m: &sys::mjModel,
+    d: *mut sys::mjData,
+    gel: usize,
+    placed: Vec<Placed>,
+    geoms: Vec<usize>,
+    evaluated: bool,
+    site: &Isometry3<f64>,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    let config = inst.sensor.config();
+    let (name, poisson, friction, tau) = (
+        config.name.clone(),
+        config.poisson,
+        config.friction,
+        config.damping,
+    );
+    if m.opt.solver == sys::mjSOL_PGS as i32 {
+        warnings.push(format!(
+            "tacrom.tactile sensor '{name}': attribute 'gel_geom': the implicit coupling needs \
+             MuJoCo's Newton or CG solver (the model uses PGS); the gel's geom acts as a rigid \
+             contact"
+        ));
+        return warnings;
+    }
+    // SAFETY: valid data per the caller.
+    let contacts =
+        unsafe { gel_contacts::gel_contacts(&*d, gel, |g| inst.scene.shape_of(g).is_some()) };
+    let deepest = |geom: usize| {
+        contacts
+            .iter()
+            .filter(|c| c.geom == geom)
+            .map(|c| c.depth)
+            .fold(0.0, f64::max)
+    };
+    // Each indenter's motion since the last solve: that of its centre of pressure then.
+    let motion = |inst: &Instance, wrenches: &[Wrench], geom: usize| -> Option<Vector3<f64>> {
+        let i = inst.geoms.iter().position(|&g| g == geom)?;
+        let c = Point3::from(centre_of_pressure(&wrenches[i])?);
+        let now = geoms
+            .iter()
+            .position(|&g| g == geom)
+            .map(|k| placed[k].pose)?;
+        Some(now * (inst.placed[i].pose.inverse() * c) - c)
+    };
+    let solved = inst.sensor.wrenches(&inst.placed);
+    let stale = !evaluated
+        && contacts
+            .iter()
+            .any(|c| match motion(inst, &solved, c.geom) {
+                None => c.depth > SHALLOWEST,
+                Some(moved) => needs_solve(moved.norm(), deepest(c.geom) + moved.z),
+            });
+    let wrenches = if stale {
+        let dim = inst.sensor.config().sensordata_len();
+        inst.scratch.resize(dim, 0.0);
+        let eval = inst.sensor.evaluate(&placed, &mut inst.scratch);
+        inst.touching = eval.contact;
+        warnings.extend(eval.warnings);
+        inst.placed = placed.clone();
+        inst.geoms = geoms.clone();
+        inst.sensor.wrenches(&inst.placed)
+    } else {
+        solved
+    };
+    let push = |geom: usize| {
+        let i = inst.geoms.iter().position(|&g| g == geom)?;
+        let moved = motion(inst, &wrenches, geom)?;
+        Some(linearise(
+            &wrenches[i],
+            moved,
+            deepest(geom),
+            poisson,
+            friction,
+        ))
+    };
+    // SAFETY: valid model and data per the caller; `contacts` are this data's.
+    unsafe { gel_contacts::write_rows(m, d, &contacts, site, tau, friction, push) };
+    warnings
+}
+
 /// The coupling (`coupling="on"`), called in MuJoCo's passive-force stage: applies the
 /// gel's contact force and torque on each geom pressing it, plus its Kelvin-Voigt damping
 /// (`damping` times the wrench's rate of change between evaluations), to the geom's body,
@@ -719,6 +816,13 @@ pub unsafe extern "C" fn tacrom_passive(
                 .iter()
                 .zip(&inst.placed)
                 .all(|(a, b)| Arc::ptr_eq(&a.shape, &b.shape) && a.pose == b.pose);
+        if let Some(gel) = inst.scene.gel_geom() {
+            // SAFETY: valid model and data, past the position stage; `data` is not used
+            // after this.
+            warnings.extend(unsafe { implicit(inst, mr, d, gel, placed, geoms, evaluated, &site) });
+            warnings.extend(inst.store(state, m.ngeom()));
+            return Ok(inst.limit(warnings));
+        }
         if !evaluated {
             let dim = inst.sensor.config().sensordata_len();
             inst.scratch.resize(dim, 0.0);

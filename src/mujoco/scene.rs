@@ -26,6 +26,8 @@ pub struct SceneSpec {
     candidates: Vec<Candidate>,
     /// Radius of a sphere about the site that holds the whole gel.
     gel_radius: f64,
+    /// The geom standing for the gel in MuJoCo's collision (`gel_geom`).
+    gel_geom: Option<usize>,
 }
 
 /// What [`SceneSpec::gather`] found wrong this evaluation.
@@ -69,6 +71,27 @@ impl SceneSpec {
             allowed = Some(ids);
         }
 
+        let gel_geom = match &config.gel_geom {
+            None => None,
+            Some(name) => {
+                let fault = |why: &str| {
+                    format!(
+                        "tacrom.tactile sensor '{}': attribute 'gel_geom' = \"{name}\": {why}",
+                        config.name
+                    )
+                };
+                let g = (0..m.ngeom())
+                    .find(|&g| m.geom_name(g) == name)
+                    .ok_or_else(|| fault("no geom of that name"))?;
+                if weld(m.geom_bodyid()[g] as usize) != sensor_weld {
+                    return Err(fault(
+                        "the geom is not on the sensor's body (nor welded to it); the gel's \
+                         geom moves with the gel",
+                    ));
+                }
+                Some(g)
+            }
+        };
         let mut candidates = Vec::new();
         let mut warnings = Vec::new();
         let types = m.geom_type();
@@ -120,6 +143,7 @@ impl SceneSpec {
                 site,
                 candidates,
                 gel_radius,
+                gel_geom,
             },
             warnings,
         ))
@@ -133,6 +157,11 @@ impl SceneSpec {
     /// Whether no geom can ever press the gel.
     pub fn is_empty(&self) -> bool {
         self.candidates.is_empty()
+    }
+
+    /// The geom standing for the gel in MuJoCo's collision (`gel_geom`), if any.
+    pub fn gel_geom(&self) -> Option<usize> {
+        self.gel_geom
     }
 
     /// The sensor's site.

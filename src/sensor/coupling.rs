@@ -346,6 +346,138 @@ pub fn kelvin_voigt(w: &Wrench, rate: &Sample, tau: f64, mass: f64, h: Option<f6
     }
 }
 
+/// The normal stiffness of a contact over its force and depth, `dF/dd = n F / d`: 1 for
+/// a flat punch, 3/2 for a sphere (Hertz), 2 for a cone. The implicit coupling takes the
+/// sphere's: it is at most 1.5 times a flat face's stiffness (more damping, the same
+/// equilibrium) and 3/4 of a cone's, and an implicit step stays stable with any stiffness
+/// above half the gel's ([`implicit_row`]).
+pub const DEPTH_EXPONENT: f64 = 1.5;
+
+/// The depth (m) below which a contact's stiffness is taken at this depth.
+pub const SHALLOWEST: f64 = 1e-6;
+
+/// The motion of an indenter (m, of its centre of pressure relative to the gel) since the
+/// last solve beyond which the implicit coupling solves the gel again, as a fraction of
+/// the contact's depth: the force between solves follows the last solve's stiffness, and
+/// a Hertzian contact's force departs from its tangent by `3/8 (motion / depth)^2` of
+/// itself, 1.5 % at this fraction.
+pub const RESOLVE_FRACTION: f64 = 0.2;
+
+/// The least motion (m) that makes the implicit coupling solve again.
+pub const RESOLVE_FLOOR: f64 = 1e-5;
+
+/// The gel's push-back on one indenter between solves (`gel_geom`): the last solve's
+/// force, followed along the indenter's motion since that solve with the contact's
+/// stiffness. Sensor frame; +z out of the gel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Linearised {
+    /// The force on the indenter now (N).
+    pub force: Vector3<f64>,
+    /// The stiffness along the gel's normal (N/m).
+    pub normal: f64,
+    /// The stiffness along the surface (N/m), zero without friction.
+    pub tangential: f64,
+}
+
+/// The ratio of a contact's tangential to its normal stiffness on an elastic half-space
+/// (Mindlin): `2 (1 - nu) / (2 - nu)`. On a thin bonded layer the normal stiffness grows
+/// more than the tangential, so this overestimates the tangential one (more damping in the
+/// implicit step, the same equilibrium).
+pub fn tangential_ratio(poisson: f64) -> f64 {
+    2.0 * (1.0 - poisson) / (2.0 - poisson)
+}
+
+/// The centre of pressure of `wrench` (torque about the sensor origin) on the gel's
+/// surface plane, or `None` without a normal force.
+pub fn centre_of_pressure(wrench: &Wrench) -> Option<Vector3<f64>> {
+    let fz = wrench.force.z;
+    (fz > 0.0).then(|| Vector3::new(-wrench.torque.y / fz, wrench.torque.x / fz, 0.0))
+}
+
+/// The push-back on an indenter whose last solve gave `solved`, whose centre of pressure
+/// has moved by `moved` since (sensor frame) and which lies `depth` deep in the gel's
+/// rest surface now: the force follows `solved` with the normal stiffness
+/// [`DEPTH_EXPONENT`]` F / d` (`d` the depth at the solve) and the tangential one
+/// [`tangential_ratio`] times it, never pulls, and its tangential part stays within the
+/// friction cone `friction F_z`.
+pub fn linearise(
+    solved: &Wrench,
+    moved: Vector3<f64>,
+    depth: f64,
+    poisson: f64,
+    friction: f64,
+) -> Linearised {
+    let f0 = solved.force;
+    if !(f0.z > 0.0) {
+        return Linearised {
+            force: Vector3::zeros(),
+            normal: 0.0,
+            tangential: 0.0,
+        };
+    }
+    // Deeper now by -moved.z: the depth at the solve.
+    let at_solve = (depth + moved.z).max(SHALLOWEST);
+    let normal = DEPTH_EXPONENT * f0.z / at_solve;
+    let tangential = if friction > 0.0 {
+        normal * tangential_ratio(poisson)
+    } else {
+        0.0
+    };
+    let fz = (f0.z - normal * moved.z).max(0.0);
+    let mut ft = Vector3::new(f0.x, f0.y, 0.0) - tangential * Vector3::new(moved.x, moved.y, 0.0);
+    let cone = friction * fz;
+    if ft.norm() > cone {
+        ft *= cone / ft.norm();
+    }
+    Linearised {
+        force: Vector3::new(ft.x, ft.y, fz),
+        normal,
+        tangential,
+    }
+}
+
+/// Whether an indenter whose centre of pressure moved by `moved` (m) since the last solve,
+/// at a contact `depth` deep then, needs the gel solved again ([`RESOLVE_FRACTION`]).
+pub fn needs_solve(moved: f64, depth: f64) -> bool {
+    !(moved <= (RESOLVE_FRACTION * depth).max(RESOLVE_FLOOR))
+}
+
+/// A contact row of MuJoCo's constraint solve that carries the gel's force implicitly:
+/// its regularised mass `D` (MuJoCo's `efc_D`, the inverse of `efc_R`) and the offset
+/// `F / D` of its reference acceleration, `aref = F / D - v / h` (MuJoCo's `aref = -B v -
+/// K I (pos - margin)` with `B = 1 / h`, `K I = 1` and `pos - margin = -F / D`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImplicitRow {
+    /// `efc_D` (kg, per unit of the row's acceleration).
+    pub mass: f64,
+    /// `F / D` (m/s^2).
+    pub offset: f64,
+}
+
+/// The least `efc_D` of a row: a row without force or stiffness carries nothing.
+pub const ROW_FLOOR: f64 = 1e-12;
+
+/// The row that makes MuJoCo's solve give the force `force` (N, along the row) less what
+/// the gel's stiffness `stiffness` (N/m) and its damping `tau` (s) take away over the step
+/// `h`: MuJoCo's solve gives a row the force `D (aref - a)` at the row's acceleration `a`,
+/// which with this row is `F - k (h + tau) (v + h a)`, the gel's force at the end of the
+/// step (`v + h a` the row's velocity then, as MuJoCo's Euler step integrates it) plus its
+/// Kelvin-Voigt damping there: backward Euler on the gel's stiffness, taken together with
+/// every other force and constraint of the scene, stable at any stiffness and mass.
+pub fn implicit_row(force: f64, stiffness: f64, h: f64, tau: f64) -> ImplicitRow {
+    let mass = stiffness * h * (h + tau);
+    if !(mass > ROW_FLOOR) || !force.is_finite() {
+        return ImplicitRow {
+            mass: ROW_FLOOR,
+            offset: 0.0,
+        };
+    }
+    ImplicitRow {
+        mass,
+        offset: force / mass,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

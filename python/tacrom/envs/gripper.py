@@ -3,12 +3,13 @@ fingertips carry tacrom sensors (the scene of ``examples/gripper.xml``)."""
 
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 
+import tacrom
 from tacrom.envs.base import TactileEnv, asset_path, configure_sensors
 
 #: The objects of the scene (body names), the one to lift chosen per episode.
@@ -29,6 +30,38 @@ OPEN_GAP = 0.07
 #: The gripper's height at reset (lift joint, m): the fingertips 50 mm higher than at the
 #: bottom of the lift range, above every object.
 START_LIFT = 0.05
+
+
+#: Each fingertip's pad geom, the finger body it hangs on and the side its gel faces.
+PADS = (("left_pad", "left_finger", 1.0), ("right_pad", "right_finger", -1.0))
+
+
+def couple_pads(spec: mujoco.MjSpec, sensors: Sequence[str] = SENSORS) -> None:
+    """Makes both fingertip gels push back (``coupling="on"``) through MuJoCo's contact:
+    each pad's face moves onto its gel's surface and becomes the gel's geom (``gel_geom``),
+    whose contacts with the objects carry the gel's force, taken implicitly in MuJoCo's
+    constraint solve; a thin backing at the gel's base (4 mm deeper) stops an object that
+    crushes the whole gel. Call after :func:`configure_sensors` has chosen a gel physics."""
+    found = {s.name: s for s in spec.sensors}
+    for sensor, (pad, finger, side) in zip(sensors, PADS):
+        geom = spec.geom(pad)
+        half = float(geom.size[0])
+        # The pad's face onto the gel's surface (the site's origin, x = 0 in the finger).
+        geom.pos = [-side * half, geom.pos[1], geom.pos[2]]
+        plugin = found[sensor].plugin
+        config = dict(plugin.config)
+        thickness = float(tacrom.attribute(config, "size").split()[2])
+        backing = spec.body(finger).add_geom()
+        backing.name = f"{pad}_backing"
+        backing.type = mujoco.mjtGeom.mjGEOM_BOX
+        backing.size = [0.0005, geom.size[1], geom.size[2]]
+        backing.pos = [-side * (thickness + 0.0005), geom.pos[1], geom.pos[2]]
+        backing.condim = geom.condim
+        backing.friction = geom.friction
+        backing.mass = 0.001
+        backing.rgba = [0.35, 0.37, 0.4, 1.0]
+        config.update(coupling="on", gel_geom=pad)
+        plugin.config = config
 
 
 class GripperLiftEnv(TactileEnv):
@@ -72,6 +105,8 @@ class GripperLiftEnv(TactileEnv):
     (``"gelsight-mini"``: its gel, window and optics; the grasp was designed for the
     default 4 mm gel). ``sensor_config``: further attributes of both sensors
     (``{"tolerance": "1e-2"}``, ``{"threads": 2}``; docs/configuration.md).
+    ``coupling``: the gels push back and hold the object (:func:`couple_pads`; needs
+    ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad.
     """
 
     def __init__(
@@ -86,9 +121,12 @@ class GripperLiftEnv(TactileEnv):
         render_size: tuple[int, int] = (320, 240),
         sensor_config: Optional[dict] = None,
         sensor: Optional[str] = None,
+        coupling: bool = False,
     ) -> None:
         if object != "random" and object not in OBJECTS:
             raise ValueError(f"object must be 'random' or one of {OBJECTS}, not {object!r}")
+        if coupling and physics == "rigid":
+            raise ValueError("coupling needs a gel physics ('coarse' or 'rom'), not 'rigid'")
         spec = mujoco.MjSpec.from_file(str(asset_path("gripper.xml")))
         outputs = ["depth", "rgb"] if tactile_rgb else ["depth"]
         thickness = configure_sensors(
@@ -99,6 +137,8 @@ class GripperLiftEnv(TactileEnv):
             outputs=outputs,
             extra={**(sensor_config or {}), **({"sensor": sensor} if sensor else {})},
         )
+        if coupling:
+            couple_pads(spec)
         super().__init__(
             spec.compile(),
             SENSORS,
@@ -111,6 +151,7 @@ class GripperLiftEnv(TactileEnv):
         )
         m = self.model
         self.physics = physics
+        self.coupling = bool(coupling)
         self.object_choice = object
         self.lift_target = float(lift_target)
         self._qpos = np.array([m.joint(j).qposadr[0] for j in JOINTS])

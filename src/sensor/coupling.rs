@@ -650,6 +650,118 @@ mod tests {
         assert!(f > 0.0 && f < 0.02, "{f}");
     }
 
+    /// MuJoCo's solve of one row of an isolated body (mass `m`, other forces `g`): the
+    /// row's force `f = D (aref - a)` with `a = (f + g) / m`, so `f = D (aref - g / m) /
+    /// (1 + D / m)`; then the Euler step.
+    fn row_step(x: &mut f64, v: &mut f64, m: f64, g: f64, k: f64, h: f64, tau: f64, rest: f64) {
+        // The gel's force on the body, pushing +x, from its depth `rest - x`.
+        let force = k * (rest - *x);
+        let row = implicit_row(force, k, h, tau);
+        let aref = row.offset - *v / h;
+        let f = row.mass * (aref - g / m) / (1.0 + row.mass / m);
+        *v += h * (f + g) / m;
+        *x += h * *v;
+    }
+
+    #[test]
+    fn an_implicit_row_is_backward_euler_and_stable_at_any_stiffness() {
+        let (h, m, g) = (2e-3, 0.05, -0.05 * 9.81);
+        // One step against backward Euler on the linear spring, taken with the other
+        // force: v1 = v + h (k (rest - x - h v1) - k tau v1 + g) / m.
+        let (k, tau, rest) = (3e4, 0.01, 0.0);
+        let (mut x, mut v) = (-1e-4, 0.02);
+        let expect_v = (v + h * (k * (rest - x) + g) / m) / (1.0 + h * k * (h + tau) / m);
+        row_step(&mut x, &mut v, m, g, k, h, tau, rest);
+        assert!(
+            (v - expect_v).abs() < 1e-12 * expect_v.abs().max(1.0),
+            "{v} {expect_v}"
+        );
+        // k h^2 / m from 0.1 to 1e5 (an explicit force is unstable from 4), damped or
+        // not: the body comes to rest where the spring carries the other force, exactly.
+        for k in [1.25e3, 3e4, 1e6, 1.25e9] {
+            for tau in [0.0, 0.01] {
+                let (mut x, mut v) = (0.0, -0.1);
+                let mut largest: f64 = 0.0;
+                for _ in 0..20_000 {
+                    row_step(&mut x, &mut v, m, g, k, h, tau, rest);
+                    largest = largest.max(x.abs());
+                }
+                let at_rest = g / k;
+                assert!(
+                    (x - at_rest).abs() <= 1e-9 * at_rest.abs().max(1e-12) + 1e-15,
+                    "k {k} tau {tau}: x {x} vs {at_rest}"
+                );
+                // Never beyond the undamped spring's own amplitude about its rest,
+                // `|v0| / omega`, from the start 2 |g| / k away at most: no energy gained.
+                let amplitude = 0.1 / (k / m).sqrt() + 2.0 * (g / k).abs();
+                assert!(largest <= amplitude, "k {k}: {largest} > {amplitude}");
+            }
+        }
+        // No stiffness, no force: the row carries nothing.
+        let row = implicit_row(0.0, 0.0, h, 0.01);
+        assert_eq!(
+            row,
+            ImplicitRow {
+                mass: ROW_FLOOR,
+                offset: 0.0
+            }
+        );
+    }
+
+    #[test]
+    fn the_linearised_force_follows_the_stiffness_and_keeps_to_the_cone() {
+        let w = Wrench {
+            force: Vector3::new(0.1, 0.0, 2.0),
+            torque: Vector3::zeros(),
+        };
+        // Unmoved: the solve's force; the stiffness 1.5 F / d.
+        let l = linearise(&w, Vector3::zeros(), 4e-4, 0.43, 1.0);
+        assert_eq!(l.force, w.force);
+        assert!((l.normal - 1.5 * 2.0 / 4e-4).abs() < 1e-9);
+        assert!((l.tangential - l.normal * tangential_ratio(0.43)).abs() < 1e-9);
+        // 10 um deeper (and 10 um deeper in MuJoCo's contact too): the depth at the solve
+        // was 4e-4, the force grows by k 1e-5.
+        let deeper = Vector3::new(0.0, 0.0, -1e-5);
+        let l = linearise(&w, deeper, 4.1e-4, 0.43, 1.0);
+        assert!(
+            (l.force.z - (2.0 + 1.5 * 2.0 / 4e-4 * 1e-5)).abs() < 1e-12,
+            "{}",
+            l.force.z
+        );
+        // Out of the gel: never a pull.
+        let out = linearise(&w, Vector3::new(0.0, 0.0, 1e-3), 0.0, 0.43, 1.0);
+        assert_eq!(out.force, Vector3::zeros());
+        // Sliding far: the tangential force stops at the cone; without friction there is
+        // no tangential stiffness.
+        let slid = linearise(&w, Vector3::new(-1e-3, 0.0, 0.0), 4e-4, 0.43, 0.5);
+        assert!((slid.force.x - 0.5 * 2.0).abs() < 1e-12, "{}", slid.force.x);
+        assert_eq!(
+            linearise(&w, Vector3::zeros(), 4e-4, 0.43, 0.0).tangential,
+            0.0
+        );
+        // No force at the solve: nothing now.
+        let none = Wrench::default();
+        assert_eq!(linearise(&none, deeper, 1e-4, 0.43, 1.0).normal, 0.0);
+    }
+
+    #[test]
+    fn the_gel_is_solved_again_past_a_fifth_of_the_depth() {
+        assert!(!needs_solve(0.0, 0.0));
+        assert!(!needs_solve(RESOLVE_FLOOR, 0.0));
+        assert!(needs_solve(1.01 * RESOLVE_FLOOR, 0.0));
+        assert!(!needs_solve(0.19e-3, 1e-3));
+        assert!(needs_solve(0.21e-3, 1e-3));
+        assert!(needs_solve(f64::NAN, 1e-3));
+        // The centre of pressure: where the torque puts the normal force.
+        let w = Wrench {
+            force: Vector3::new(0.0, 0.0, 2.0),
+            torque: Vector3::new(2.0 * 0.003, -2.0 * 0.001, 0.0),
+        };
+        let c = centre_of_pressure(&w).unwrap();
+        assert!((c - Vector3::new(0.001, 0.003, 0.0)).norm() < 1e-15, "{c}");
+        assert!(centre_of_pressure(&Wrench::default()).is_none());
+    }
+
     #[test]
     fn the_reduced_mass_follows_a_fixed_body() {
         assert_eq!(reduced_mass(f64::INFINITY, 2.0), 2.0);

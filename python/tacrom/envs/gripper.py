@@ -106,7 +106,9 @@ class GripperLiftEnv(TactileEnv):
     default 4 mm gel). ``sensor_config``: further attributes of both sensors
     (``{"tolerance": "1e-2"}``, ``{"threads": 2}``; docs/configuration.md).
     ``coupling``: the gels push back and hold the object (:func:`couple_pads`; needs
-    ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad.
+    ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad;
+    ``info["gel_force"]`` ``(2, 3)``: each gel's force on the object (N, in its sensor's
+    frame: ``[..., 2]`` the squeeze).
     """
 
     def __init__(
@@ -129,6 +131,9 @@ class GripperLiftEnv(TactileEnv):
             raise ValueError("coupling needs a gel physics ('coarse' or 'rom'), not 'rigid'")
         spec = mujoco.MjSpec.from_file(str(asset_path("gripper.xml")))
         outputs = ["depth", "rgb"] if tactile_rgb else ["depth"]
+        if coupling:
+            # How hard each gel squeezes, for info["gel_force"].
+            outputs.append("force")
         thickness = configure_sensors(
             spec,
             SENSORS,
@@ -190,12 +195,17 @@ class GripperLiftEnv(TactileEnv):
     def _info(self, obs: dict) -> dict:
         contacts = int((obs["tactile_depth"].reshape(2, -1).max(axis=1) > 0).sum())
         height = self.object_height()
-        return {
+        info = {
             "object": self.object,
             "object_height": height,
             "contacts": contacts,
             "is_success": bool(contacts == 2 and height >= self.lift_target),
         }
+        if self.coupling:
+            info["gel_force"] = np.array(
+                [tacrom.outputs(self.model, self.data, s)["force"] for s in SENSORS]
+            )
+        return info
 
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
         super().reset(seed=seed)

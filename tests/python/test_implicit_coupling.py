@@ -1,0 +1,191 @@
+"""The gel that pushes back through MuJoCo's contact (``coupling="on"`` with ``gel_geom``)
+in real MuJoCo: the gel's force carried by the constraint rows of the contacts between the
+gel's geom and the bodies pressing it, taken implicitly in MuJoCo's solve. A ball resting
+on the gel settles where the gel carries its weight, for bodies far too light for the
+explicit coupling, and MuJoCo's contact force is the gel's; a heavy ball gains no energy;
+the coupled gripper lifts every object with the gels alone; a restored state replays;
+bad configurations fail naming the attribute."""
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+import tacrom
+from conftest import ROOT
+from tacrom.envs import gripper
+from test_coupling import MASS, R, G
+from test_state import STATE
+
+REST = (ROOT / "examples" / "rest.xml").read_text()
+
+
+def implicit_xml(mass: float = MASS, **config: str) -> str:
+    """examples/rest.xml with the sensor's pad as the gel's geom: its face on the gel's
+    surface, the ball colliding with it, ``gel_geom="pad"``."""
+    xml = REST.replace('contype="0" conaffinity="0"', "").replace(
+        'size="0.015 0.015 0.002" pos="0 0 -0.006"', 'size="0.015 0.015 0.002" pos="0 0 -0.002"'
+    )
+    config = {"gel_geom": "pad", **config}
+    entries = "".join(f'\n      <config key="{k}" value="{v}"/>' for k, v in config.items())
+    xml = xml.replace('<config key="coupling" value="on"/>', '<config key="coupling" value="on"/>' + entries)
+    return xml.replace('mass="0.02"', f'mass="{mass}"')
+
+
+def contact_force(model, data, geom: str) -> np.ndarray:
+    """The total force (world frame) of MuJoCo's contacts with ``geom`` on the other geom."""
+    g = model.geom(geom).id
+    total = np.zeros(3)
+    f6 = np.zeros(6)
+    for i in range(data.ncon):
+        c = data.contact[i]
+        if g not in (c.geom[0], c.geom[1]) or c.efc_address < 0:
+            continue
+        mujoco.mj_contactForce(model, data, i, f6)
+        world = c.frame.reshape(3, 3).T @ f6[:3]
+        # The force acts on the second geom along the frame; on the first, opposite.
+        total += world if c.geom[0] == g else -world
+    return total
+
+
+@pytest.mark.parametrize("mass", [0.0002, 0.02, 0.1])
+def test_a_ball_settles_where_the_gel_carries_its_weight(mass, capfd):
+    """After 0.6 s the ball rests (below 1e-4 m/s): the gel's force and MuJoCo's contact
+    force on it each equal its weight within 1 % (the solver's tolerance), and the depth
+    The 0.2 g ball's stiffness ratio ``k h^2 / m`` is about 12: the explicit coupling warns
+    and cannot hold it; no warning here."""
+    model = mujoco.MjModel.from_xml_string(implicit_xml(mass))
+    data = mujoco.MjData(model)
+    for _ in range(300):
+        mujoco.mj_step(model, data)
+    weight = mass * G
+    gel = tacrom.outputs(model, data, "touch")["force"][2]
+    carried = contact_force(model, data, "pad")[2]
+    assert abs(gel - weight) <= 0.01 * weight, (gel, weight)
+    assert abs(carried - weight) <= 0.01 * weight, (carried, weight)
+    assert abs(data.qvel[2]) < 1e-4, data.qvel[2]
+    err = capfd.readouterr().err
+    assert "tacrom" not in err, err
+
+
+def test_it_rests_on_the_gels_static_curve():
+    """On the linear gel without friction the gel's force depends on the ball's pose alone:
+    the depth the 20 g ball settles at is where the gel, pressed there from rest (the ball
+    a mocap body, no coupling), carries its weight, within 0.5 %."""
+    model = mujoco.MjModel.from_xml_string(implicit_xml(solver="linear"))
+    data = mujoco.MjData(model)
+    for _ in range(300):
+        mujoco.mj_step(model, data)
+    depth = R - data.qpos[2]
+    still = implicit_xml(solver="linear").replace('<config key="coupling" value="on"/>', "")
+    still = still.replace('<config key="gel_geom" value="pad"/>', "").replace("<freejoint/>", "")
+    still = still.replace('<body name="ball" pos="0 0 0.0051">', f'<body name="ball" mocap="true" pos="0 0 {R - depth}">')
+    m2 = mujoco.MjModel.from_xml_string(still)
+    d2 = mujoco.MjData(m2)
+    mujoco.mj_forward(m2, d2)
+    pressed = tacrom.outputs(m2, d2, "touch")["force"][2]
+    weight = MASS * G
+    assert abs(pressed - weight) <= 0.005 * weight, (depth, pressed, weight)
+
+
+@pytest.mark.parametrize("mass", [0.5, 2.0])
+def test_a_heavy_ball_thrown_at_the_gel_gains_no_energy(mass):
+    """Balls of 0.5 and 2 kg meeting the gel at 0.63 m/s (a 2 cm drop) crush it to its
+    base within a few steps: backward Euler on the gel's stiffness gives back less than
+    it took (the explicit coupling needed a passivity bound for this), nothing is NaN."""
+    model = mujoco.MjModel.from_xml_string(implicit_xml(mass))
+    data = mujoco.MjData(model)
+    data.qvel[2] = -math.sqrt(2 * G * 0.02)
+
+    def energy():
+        return 0.5 * mass * data.qvel[2] ** 2 + mass * G * (data.qpos[2] - R)
+
+    start, most, least = energy(), -np.inf, np.inf
+    for _ in range(40):
+        mujoco.mj_step(model, data)
+        most, least = max(most, energy()), min(least, energy())
+        assert np.isfinite(data.sensordata).all() and np.isfinite(data.qacc).all()
+    assert most <= start * 1.001, (start, most)
+    assert least < 0.5 * start, "the ball never pressed the gel"
+
+
+@pytest.mark.parametrize("obj", gripper.OBJECTS)
+def test_the_coupled_gripper_lifts_each_object_on_its_gels(obj, capfd):
+    """``tacrom/GripperLift-v1`` with both gels coupled (the default physics, rom on the
+    linear gel, at the 2 ms step): descend, close, lift. The object rises past the
+    target and the episode succeeds; the gels carry it: MuJoCo's contact force on each
+    pad is that fingertip's gel force along the squeeze (within 5 %: the rows add the
+    gel's Kelvin-Voigt damping of what motion remains), the pads' contacts together carry
+    the object's weight (within 5 %: the lift is still slowing), the backings behind the
+    gels touch nothing, and no warning is given."""
+    env = gripper.GripperLiftEnv(physics="rom", object=obj, coupling=True)
+    env.reset(seed=0)
+    cycle = [(0.0, -1.0, -1.0)] * 15 + [(0.0, -1.0, 1.0)] * 10 + [(0.0, 0.5, 1.0)] * 12
+    for a in cycle:
+        obs, _, _, _, info = env.step(np.array(a, dtype=np.float32))
+    assert info["is_success"], info
+    assert info["object_height"] >= env.lift_target, info
+    m, d = env.model, env.data
+    weight = m.body(obj).mass[0] * G
+    lifted = sum(contact_force(m, d, pad)[2] for pad, _, _ in gripper.PADS)
+    assert abs(lifted - weight) <= 0.05 * weight, (lifted, weight)
+    for gel, (pad, finger, side) in zip(info["gel_force"][:, 2], gripper.PADS):
+        # The gel pushes the object away from the pad: along +x from the left pad.
+        carried = side * contact_force(m, d, pad)[0]
+        assert gel > 1.0 and abs(carried - gel) <= 0.05 * gel, (pad, carried, gel)
+        backing = m.geom(f"{pad}_backing").id
+        touching = [i for i in range(d.ncon) if backing in (d.contact[i].geom[0], d.contact[i].geom[1])]
+        assert not touching, (pad, "the object reached the backing")
+    err = capfd.readouterr().err
+    assert "tacrom" not in err, err
+
+
+def test_a_restored_state_replays_the_coupled_gel_between_solves_bit_for_bit():
+    """The ball thrown at the gel with the sensors off (the passive stage follows the last
+    solve and solves again where the ball moved past its bound): the state after 5 steps
+    given to a new MjData replays 25 more steps to the last bit. The state holds MuJoCo's
+    warm start too (``mjSTATE_WARMSTART``): the ball's contact is solved by MuJoCo's
+    iterative solver, whose last bits depend on where it starts."""
+    model = mujoco.MjModel.from_xml_string(implicit_xml())
+    model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_SENSOR
+    data = mujoco.MjData(model)
+    data.qvel[2] = -0.1
+    for _ in range(5):
+        mujoco.mj_step(model, data)
+    state = STATE | mujoco.mjtState.mjSTATE_WARMSTART
+    saved = np.empty(mujoco.mj_stateSize(model, state))
+    mujoco.mj_getState(model, data, saved, state)
+
+    def run(d):
+        out = []
+        for _ in range(25):
+            mujoco.mj_step(model, d)
+            out.append(np.concatenate([d.qpos, d.qvel, d.efc_force[: d.nefc].sum(keepdims=True)]))
+        return np.array(out)
+
+    original = run(data)
+    restored = mujoco.MjData(model)
+    mujoco.mj_setState(model, restored, saved, state)
+    np.testing.assert_array_equal(original, run(restored))
+    assert np.abs(original[:, 2] - original[0, 2]).max() > 1e-5, "the ball did not move"
+
+
+@pytest.mark.parametrize(
+    "change, value, reason",
+    [
+        (dict(coupling="off"), "pad", 'needs coupling="on"'),
+        (dict(gel_geom="nowhere"), "nowhere", "no geom of that name"),
+        (dict(gel_geom="ball"), "ball", "not on the sensor's body"),
+    ],
+)
+def test_a_bad_gel_geom_fails_at_load_naming_it(change, value, reason):
+    xml = implicit_xml()
+    if "coupling" in change:
+        xml = xml.replace('<config key="coupling" value="on"/>', '<config key="coupling" value="off"/>')
+    else:
+        xml = xml.replace('<config key="gel_geom" value="pad"/>', f'<config key="gel_geom" value="{value}"/>')
+    with pytest.raises(ValueError) as e:
+        mujoco.MjModel.from_xml_string(xml)
+    message = str(e.value)
+    assert "'touch'" in message and "gel_geom" in message and value in message and reason in message, message

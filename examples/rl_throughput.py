@@ -47,31 +47,41 @@ def action(env_id: str, step: int, rng: np.random.Generator, policy: str) -> np.
     return np.array([rng.uniform(-1, 1), rng.uniform(0, 1)], np.float32)
 
 
-def make(env_id: str, physics: str, resolution, threads: int = 1):
+def make(env_id: str, physics: str, resolution, threads: int = 1, coupling: bool = False):
     """A picklable maker of the environment: ``tacrom.envs:`` in the id makes Gymnasium
     import (and so register) tacrom in a fresh worker process. After a dash, a solver's
     name names the gel's solver (``coarse-linear``: the coarse gel with
     ``solver="linear"``), anything else rom's shipped model (``rom-default``:
     ``model="rom-default"``, rom on the relaxation as it was before the linear gel);
-    ``threads`` the sensors' own threads."""
+    ``threads`` the sensors' own threads; ``coupling`` GripperLift-v1's gels pushing back
+    (its ``coupling=True``; other environments and ``rigid`` ignore it)."""
     config = {"threads": threads} if threads != 1 else {}
     config.update(mode_config(physics))
     physics = config.pop("physics")
     kwargs = {"physics": physics, "sensor_config": config} if config else {"physics": physics}
     if resolution:
         kwargs["resolution"] = tuple(resolution)
+    if coupling and env_id.startswith("tacrom/GripperLift") and physics != "rigid":
+        kwargs["coupling"] = True
     return functools.partial(gym.make, f"tacrom.envs:{env_id}", **kwargs)
 
 
 def measure(
-    env_id: str, physics: str, procs: int, steps: int, resolution, policy: str, threads: int = 1
+    env_id: str,
+    physics: str,
+    procs: int,
+    steps: int,
+    resolution,
+    policy: str,
+    threads: int = 1,
+    coupling: bool = False,
 ) -> tuple[float, float | None]:
     """Environment steps per second of wall time over ``steps`` steps of each process, and
     (one process only) CPU milliseconds per step, which other jobs on the machine do not
     inflate."""
     rng = np.random.default_rng(0)
     if procs == 1:
-        env = make(env_id, physics, resolution, threads)()
+        env = make(env_id, physics, resolution, threads, coupling)()
         env.reset(seed=0)
         t0, c0 = time.perf_counter(), time.process_time()
         for i in range(steps):
@@ -84,7 +94,7 @@ def measure(
     # Workers start from a fresh forkserver, not by forking this process: a process forked
     # after a gel sensor (coarse, rom) ran here would hang in the plugin's thread pool.
     envs = gym.vector.AsyncVectorEnv(
-        [make(env_id, physics, resolution, threads)] * procs, context="forkserver"
+        [make(env_id, physics, resolution, threads, coupling)] * procs, context="forkserver"
     )
     try:
         envs.reset(seed=0)
@@ -123,6 +133,11 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=int, default=1, help="each sensor's threads (its `threads` attribute)"
     )
+    parser.add_argument(
+        "--coupling",
+        action="store_true",
+        help="GripperLift-v1 with both gels pushing back (coupling=True): the gels carry the grasp",
+    )
     args = parser.parse_args()
     print("| environment | policy | physics | processes | steps/s | ms/step | CPU ms/step |")
     print("|---|---|---|---:|---:|---:|---:|")
@@ -131,9 +146,18 @@ def main() -> None:
             steps = args.steps[0] if physics == "rigid" else args.steps[1]
             for procs in args.procs:
                 rate, cpu = measure(
-                    env_id, physics, procs, steps, args.resolution, args.policy, args.threads
+                    env_id,
+                    physics,
+                    procs,
+                    steps,
+                    args.resolution,
+                    args.policy,
+                    args.threads,
+                    args.coupling,
                 )
                 policy = "grasp cycle" if env_id.startswith("tacrom/GripperLift") else args.policy
+                if args.coupling and policy == "grasp cycle" and physics != "rigid":
+                    policy += ", coupled"
                 print(
                     f"| {env_id} | {policy} | {physics} | {procs} | {rate:.1f} | "
                     f"{1e3 / rate:.1f} | {'-' if cpu is None else f'{cpu:.1f}'} |",

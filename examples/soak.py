@@ -213,7 +213,7 @@ def main() -> int:
         print()
         print("| coupled GripperLift-v1 (rom) | steps | ms per step | episodes lifted | KiB grown (second half) | warnings printed | finite |")
         print("|---|---:|---:|---:|---:|---:|---|")
-        print(f"| grasp cycle, objects in turn | {args.grasp} | {ms:.1f} | {lifted} of {episodes} | {grown} | {warnings} | {ok} |")
+        print(f"| grasp cycle, object drawn per episode | {args.grasp} | {ms:.1f} | {lifted} of {episodes} | {grown} | {warnings} | {ok} |")
         failed |= not ok or grown > 1024 or lifted < episodes
     return 1 if failed else 0
 

@@ -1256,6 +1256,12 @@ impl Compliance {
                     local.iter().flat_map(|c| load(c).data.0[0]),
                 );
                 let mut settled = false;
+                // The lagged forces settle relative to the larger of the frame's load at
+                // its start and now: a grasp let go within a frame (a coupled finger
+                // opening, its gel solved again between the sensor's evaluations) went
+                // from newtons to a touch of a micron, and against that touch's own load
+                // its lags never settled.
+                let start_total: f64 = cand.iter().map(|&i| lag[i]).sum();
                 for lags in 0..MAX_LAGS {
                     // Points that carry a lagged normal force without an anchor stick where
                     // they were at the start of the frame, in their indenter's frame there.
@@ -1313,7 +1319,7 @@ impl Compliance {
                         total += fi.z;
                         lag[i] = fi.z;
                     }
-                    if change <= tolerance * total {
+                    if change <= tolerance * total.max(start_total) {
                         settled = true;
                         break;
                     }

@@ -77,9 +77,73 @@ pub unsafe fn gel_contacts(
     out
 }
 
+/// How a pressing geom's push-back is shared among its contacts at `points` (world, on the
+/// gel's face, whose in-plane axes are `axes`): weights adding up to one whose weighted
+/// centre is the gel's centre of pressure `centre` where that lies within the points'
+/// reach (the least change from an even share that puts it there, along the line where the
+/// points lie in one), so that the contacts' torque is the gel's; none negative (clipped,
+/// and shared anew). Even without a centre or with one point.
+pub fn shares(
+    points: &[Vector3<f64>],
+    centre: Option<Vector3<f64>>,
+    axes: [Vector3<f64>; 2],
+) -> Vec<f64> {
+    let n = points.len();
+    let even = vec![1.0 / n.max(1) as f64; n];
+    let Some(centre) = centre.filter(|_| n > 1) else {
+        return even;
+    };
+    let mean = points.iter().sum::<Vector3<f64>>() / n as f64;
+    // In-plane offsets of the points from their mean, and of the centre.
+    let a: Vec<nalgebra::Vector2<f64>> = points
+        .iter()
+        .map(|p| nalgebra::Vector2::new((p - mean).dot(&axes[0]), (p - mean).dot(&axes[1])))
+        .collect();
+    let target =
+        nalgebra::Vector2::new((centre - mean).dot(&axes[0]), (centre - mean).dot(&axes[1]));
+    // w = 1/n + A^T y with A A^T y = target (A: 2 x n): the least change from the even
+    // share, which keeps the sum since the offsets sum to zero.
+    // The pseudo-inverse: points in a line (a cylinder lying on the gel) move the centre
+    // along the line only.
+    let aat = a
+        .iter()
+        .fold(nalgebra::Matrix2::zeros(), |m, v| m + v * v.transpose());
+    let eigen = nalgebra::SymmetricEigen::new(aat);
+    let largest = eigen.eigenvalues.amax();
+    if !(largest > 0.0) {
+        return even;
+    }
+    let mut y = nalgebra::Vector2::zeros();
+    for (k, &lambda) in eigen.eigenvalues.iter().enumerate() {
+        if lambda > 1e-9 * largest {
+            let e = eigen.eigenvectors.column(k);
+            y += e * (e.dot(&target) / lambda);
+        }
+    }
+    let mut w: Vec<f64> = a.iter().map(|v| 1.0 / n as f64 + v.dot(&y)).collect();
+    if w.iter().any(|x| !x.is_finite()) {
+        return even;
+    }
+    if w.iter().any(|&x| x < 0.0) {
+        // Outside the points' hull: clipped to it, and shared anew.
+        for x in &mut w {
+            *x = x.max(0.0);
+        }
+        let total: f64 = w.iter().sum();
+        if !(total > 0.0) {
+            return even;
+        }
+        for x in &mut w {
+            *x /= total;
+        }
+    }
+    w
+}
+
 /// Rewrites the constraint rows of `contacts` so that MuJoCo's solve gives each the gel's
 /// force implicitly: `push(geom)` is the push-back on a pressing geom (sensor frame,
-/// [`Linearised`]; `None`: none), shared evenly by its contacts; `site` the sensor's pose,
+/// [`Linearised`]; `None`: none), shared by its contacts so that their centre is the
+/// gel's centre of pressure ([`shares`]); `site` the sensor's pose,
 /// `tau` the gel's Kelvin-Voigt retardation time, `friction` its Coulomb coefficient (the
 /// elliptic cone's, set on the contact with the cone's parameter `mu` remade from the new
 /// rows as MuJoCo makes it). An elliptic cone (or a frictionless contact) takes
@@ -107,8 +171,30 @@ pub unsafe fn write_rows(
     // SAFETY: valid data per the caller; no other reference into it lives here.
     let d = unsafe { &mut *d };
     let nefc = usize::try_from(d.nefc).unwrap_or(0);
-    let share = |geom: usize| contacts.iter().filter(|c| c.geom == geom).count() as f64;
-    for c in contacts {
+    // Each contact's share of its geom's push-back ([`shares`]).
+    let mut weight = vec![0.0; contacts.len()];
+    let axes = [site.rotation * Vector3::x(), site.rotation * Vector3::y()];
+    for (k, c) in contacts.iter().enumerate() {
+        if contacts[..k].iter().any(|e| e.geom == c.geom) {
+            continue;
+        }
+        let mine: Vec<usize> = (k..contacts.len())
+            .filter(|&j| contacts[j].geom == c.geom)
+            .collect();
+        // SAFETY: indices < ncon (gel_contacts).
+        let points: Vec<Vector3<f64>> = mine
+            .iter()
+            .map(|&j| Vector3::from(unsafe { (*d.contact.add(contacts[j].index)).pos }))
+            .collect();
+        let centre = push(c.geom)
+            .and_then(|p| p.centre)
+            .map(|x| site * nalgebra::Point3::from(x))
+            .map(|p| p.coords);
+        for (&j, w) in mine.iter().zip(shares(&points, centre, axes)) {
+            weight[j] = w;
+        }
+    }
+    for (c, &n) in contacts.iter().zip(&weight) {
         // SAFETY: `c.index` < ncon (gel_contacts).
         let con = unsafe { &mut *d.contact.add(c.index) };
         let dim = usize::try_from(con.dim).unwrap_or(0).max(1);
@@ -116,13 +202,12 @@ pub unsafe fn write_rows(
             continue;
         };
         let p = push(c.geom);
-        let n = share(c.geom);
         // The force (world) and the stiffness along a world axis, this contact's share.
-        let force = p.map_or_else(Vector3::zeros, |p| site.rotation * p.force) / n;
+        let force = p.map_or_else(Vector3::zeros, |p| site.rotation * p.force) * n;
         let stiffness = |axis: &Vector3<f64>| {
             p.map_or(0.0, |p| {
                 let a = site.rotation.inverse() * axis;
-                (p.tangential * (a.x * a.x + a.y * a.y) + p.normal * a.z * a.z) / n
+                (p.tangential * (a.x * a.x + a.y * a.y) + p.normal * a.z * a.z) * n
             })
         };
         let axis =
@@ -183,5 +268,46 @@ pub unsafe fn write_rows(
                 con.mu = con.friction[0] * (dn / dt).sqrt();
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn centre_of(points: &[Vector3<f64>], w: &[f64]) -> Vector3<f64> {
+        points.iter().zip(w).map(|(p, w)| p * *w).sum()
+    }
+
+    #[test]
+    fn the_shares_put_the_contacts_centre_on_the_gels() {
+        let axes = [Vector3::x(), Vector3::y()];
+        let square: Vec<Vector3<f64>> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+            .iter()
+            .map(|&(x, y)| Vector3::new(x, y, 0.0) * 1e-3)
+            .collect();
+        // No centre, one point, or the centre at the points' own: even.
+        assert_eq!(shares(&square, None, axes), vec![0.25; 4]);
+        assert_eq!(shares(&square[..1], Some(Vector3::x()), axes), vec![1.0]);
+        let even = shares(&square, Some(Vector3::zeros()), axes);
+        assert!(even.iter().all(|w| (w - 0.25).abs() < 1e-15), "{even:?}");
+        // Within the square: the weighted centre is the gel's, the weights add up to one.
+        let c = Vector3::new(0.3e-3, -0.5e-3, 0.0);
+        let w = shares(&square, Some(c), axes);
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!(w.iter().all(|&x| x >= 0.0));
+        assert!((centre_of(&square, &w) - c).norm() < 1e-15, "{w:?}");
+        // Outside it: none negative, adding up to one, the centre pulled towards it.
+        let far = Vector3::new(5e-3, 0.0, 0.0);
+        let w = shares(&square, Some(far), axes);
+        assert!(w.iter().all(|&x| x >= 0.0) && (w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!(centre_of(&square, &w).x > 0.9e-3, "{w:?}");
+        // Points in a line (a cylinder lying on the gel): along the line only.
+        let line: Vec<Vector3<f64>> = (0..3)
+            .map(|k| Vector3::new(0.0, (k as f64 - 1.0) * 1e-3, 0.0))
+            .collect();
+        let w = shares(&line, Some(Vector3::new(0.2e-3, 0.4e-3, 0.0)), axes);
+        assert!((centre_of(&line, &w).y - 0.4e-3).abs() < 1e-15, "{w:?}");
+        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
     }
 }

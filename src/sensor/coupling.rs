@@ -377,6 +377,9 @@ pub struct Linearised {
     pub normal: f64,
     /// The stiffness along the surface (N/m), zero without friction.
     pub tangential: f64,
+    /// Where the force acts now: the last solve's centre of pressure moved with the
+    /// indenter (m), if known.
+    pub centre: Option<Vector3<f64>>,
 }
 
 /// The ratio of a contact's tangential to its normal stiffness on an elastic half-space
@@ -413,6 +416,7 @@ pub fn linearise(
             force: Vector3::zeros(),
             normal: 0.0,
             tangential: 0.0,
+            centre: None,
         };
     }
     // Deeper now by -moved.z: the depth at the solve.
@@ -433,6 +437,7 @@ pub fn linearise(
         force: Vector3::new(ft.x, ft.y, fz),
         normal,
         tangential,
+        centre: centre_of_pressure(solved).map(|c| c + moved),
     }
 }
 

@@ -6,7 +6,6 @@ explicit coupling, and MuJoCo's contact force is the gel's; a heavy ball gains n
 the coupled gripper lifts every object with the gels alone; a restored state replays;
 bad configurations fail naming the attribute."""
 
-import math
 
 import mujoco
 import numpy as np
@@ -15,7 +14,7 @@ import pytest
 import tacrom
 from conftest import ROOT
 from tacrom.envs import gripper
-from test_coupling import MASS, R, G
+from test_coupling import MASS, R, G, thrown
 from test_state import STATE
 
 REST = (ROOT / "examples" / "rest.xml").read_text()
@@ -94,18 +93,7 @@ def test_a_heavy_ball_thrown_at_the_gel_gains_no_energy(mass):
     """Balls of 0.5 and 2 kg meeting the gel at 0.63 m/s (a 2 cm drop) crush it to its
     base within a few steps: backward Euler on the gel's stiffness gives back less than
     it took (the explicit coupling needed a passivity bound for this), nothing is NaN."""
-    model = mujoco.MjModel.from_xml_string(implicit_xml(mass))
-    data = mujoco.MjData(model)
-    data.qvel[2] = -math.sqrt(2 * G * 0.02)
-
-    def energy():
-        return 0.5 * mass * data.qvel[2] ** 2 + mass * G * (data.qpos[2] - R)
-
-    start, most, least = energy(), -np.inf, np.inf
-    for _ in range(40):
-        mujoco.mj_step(model, data)
-        most, least = max(most, energy()), min(least, energy())
-        assert np.isfinite(data.sensordata).all() and np.isfinite(data.qacc).all()
+    start, most, least = thrown(implicit_xml(mass), mass, 40)
     assert most <= start * 1.001, (start, most)
     assert least < 0.5 * start, "the ball never pressed the gel"
 

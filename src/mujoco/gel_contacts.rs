@@ -30,14 +30,20 @@ pub struct GelContact {
     pub depth: f64,
 }
 
+/// How far from the gel's normal (the cosine of the angle) a contact's normal may lie for
+/// it to carry the gel's push-back: contacts on the gel geom's other faces (an object
+/// against the pad's side, which the gel's model does not see) stay MuJoCo's own.
+pub const FACING: f64 = std::f64::consts::FRAC_1_SQRT_2;
+
 /// The contacts of `d` between geom `gel` and the geoms `presses` accepts, that have
-/// constraint rows.
+/// constraint rows and whose normal lies within [`FACING`] of the gel's `normal` (world).
 ///
 /// # Safety
 /// `d` must be a valid `mjData` after MuJoCo's position stage.
 pub unsafe fn gel_contacts(
     d: &sys::mjData,
     gel: usize,
+    normal: &Vector3<f64>,
     presses: impl Fn(usize) -> bool,
 ) -> Vec<GelContact> {
     let n = usize::try_from(d.ncon).unwrap_or(0);
@@ -60,7 +66,8 @@ pub unsafe fn gel_contacts(
         let Ok(geom) = usize::try_from(other) else {
             continue;
         };
-        if !presses(geom) {
+        let n = Vector3::new(c.frame[0], c.frame[1], c.frame[2]);
+        if !presses(geom) || !(n.dot(normal).abs() >= FACING) {
             continue;
         }
         out.push(GelContact {

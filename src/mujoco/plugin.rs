@@ -711,8 +711,10 @@ unsafe fn implicit(
         return warnings;
     }
     // SAFETY: valid data per the caller.
-    let contacts =
-        unsafe { gel_contacts::gel_contacts(&*d, gel, |g| inst.scene.shape_of(g).is_some()) };
+    let normal = site.rotation * Vector3::z();
+    let contacts = unsafe {
+        gel_contacts::gel_contacts(&*d, gel, &normal, |g| inst.scene.shape_of(g).is_some())
+    };
     let deepest = |geom: usize| {
         contacts
             .iter()

@@ -710,8 +710,8 @@ unsafe fn implicit(
         ));
         return warnings;
     }
-    // SAFETY: valid data per the caller.
     let normal = site.rotation * Vector3::z();
+    // SAFETY: valid data per the caller.
     let contacts = unsafe {
         gel_contacts::gel_contacts(&*d, gel, &normal, |g| inst.scene.shape_of(g).is_some())
     };

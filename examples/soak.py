@@ -12,8 +12,9 @@
 * **grasp**: GRASP steps of ``tacrom/GripperLift-v1`` with both gels coupled (rom, the
   grasp cycle of ``examples/rl_throughput.py``: 100-step episodes of descend, close, lift,
   hold, put down, open, the object drawn per episode): every observation, acceleration and
-  contact force checked finite; episodes lifted, resident memory growth over the second
-  half and warnings printed are reported.
+  contact force checked finite; episodes lifted, the growth of the largest resident
+  memory at an episode's end from the first half to the second, and warnings printed
+  are reported.
 
 Prints a Markdown table per part. Exits non-zero where an output is not finite or memory
 grows by more than the issue's bounds (1 KiB per cycle, 1 MiB over a walk's second half).
@@ -137,15 +138,18 @@ def walk(mode: str, n: int, seed: int = 0) -> tuple[float, float, bool]:
 
 
 def grasp(n: int) -> tuple[int, int, float, float, bool]:
-    """Episodes lifted, episodes, KiB of growth over the second half, ms per step, all
-    finite."""
+    """Episodes lifted, episodes, KiB of growth of the second half's largest resident
+    memory at an episode's end over the first half's, ms per step, all finite. (The gel
+    keeps each contact's dense systems, about 12 MB a gel under a box face, so the memory
+    at one instant depends on the object last held: a leak raises the envelope, a cache
+    does not.)"""
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from rl_throughput import GRIPPER_CYCLE
 
     from tacrom.envs import gripper
 
     env = gripper.GripperLiftEnv(physics="rom", object="random", coupling=True)
-    ok, half, lifted, episodes = True, None, 0, 0
+    ok, lifted, episodes, ends = True, 0, 0, []
     start = time.perf_counter()
     success = False
     for k in range(n):
@@ -158,16 +162,17 @@ def grasp(n: int) -> tuple[int, int, float, float, bool]:
         success |= info["is_success"]
         if step == len(GRIPPER_CYCLE) - 1:
             lifted += success
+            ends.append(rss_kib())
         d = env.data
         ok &= bool(
             np.isfinite(obs["tactile_depth"]).all()
             and np.isfinite(d.qacc).all()
             and np.isfinite(d.efc_force[: d.nefc]).all()
         )
-        if k == n // 2:
-            half = rss_kib()
     env.close()
-    return lifted, episodes, rss_kib() - half, 1e3 * (time.perf_counter() - start) / n, ok
+    half = len(ends) // 2
+    grown = max(ends[half:], default=0) - max(ends[:half], default=0)
+    return lifted, episodes, grown, 1e3 * (time.perf_counter() - start) / n, ok
 
 
 def main() -> int:
@@ -211,7 +216,7 @@ def main() -> int:
         log.seek(0)
         warnings = sum(1 for line in log if "tacrom.tactile" in line)
         print()
-        print("| coupled GripperLift-v1 (rom) | steps | ms per step | episodes lifted | KiB grown (second half) | warnings printed | finite |")
+        print("| coupled GripperLift-v1 (rom) | steps | ms per step | episodes lifted | KiB grown (largest at an episode's end, second half over first) | warnings printed | finite |")
         print("|---|---:|---:|---:|---:|---:|---|")
         print(f"| grasp cycle, object drawn per episode | {args.grasp} | {ms:.1f} | {lifted} of {episodes} | {grown} | {warnings} | {ok} |")
         failed |= not ok or grown > 1024 or lifted < episodes

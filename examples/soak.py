@@ -171,7 +171,8 @@ def grasp(n: int) -> tuple[int, int, float, float, bool]:
         )
     env.close()
     half = len(ends) // 2
-    grown = max(ends[half:], default=0) - max(ends[:half], default=0)
+    # (Fewer than two episodes: nothing to compare.)
+    grown = max(ends[half:]) - max(ends[:half]) if half else 0
     return lifted, episodes, grown, 1e3 * (time.perf_counter() - start) / n, ok
 
 

@@ -494,6 +494,18 @@ pub const GEL_GEOM: Attribute = Attribute {
     valid: Valid::Described("the name of a geom welded to the sensor's body"),
 };
 
+/// `hold`.
+pub const HOLD: Attribute = Attribute {
+    name: "hold",
+    meaning: "the motion below which a frame is the last solved one again: where every \
+              indenter touching the gel moved less than this (at any point of the gel it can \
+              reach) since the last solve, the outputs are that solve's, and nothing is \
+              solved; 0 solves every frame",
+    unit: "m",
+    default: Default::Number(1e-7),
+    valid: Valid::Range(Range::closed(0.0, 1e-4)),
+};
+
 /// `solver`.
 pub const SOLVER: Attribute = Attribute {
     name: "solver",
@@ -514,7 +526,7 @@ pub const SOLVER: Attribute = Attribute {
 pub const TABLE: &[Attribute] = &[
     SENSOR, PHYSICS, OUTPUTS, RESOLUTION, FOV, SIZE, INDENTERS, YOUNG, POISSON, DENSITY, FRICTION,
     DX, THREADS, MODEL, REFINE, TOLERANCE, MATERIAL, MARKERS, OPTICS, CAMERA, VIEW, INDEX,
-    COUPLING, DAMPING, GEL_GEOM, SOLVER,
+    COUPLING, DAMPING, GEL_GEOM, HOLD, SOLVER,
 ];
 
 /// The attributes' names, in table order (what MuJoCo is told).
@@ -564,6 +576,8 @@ pub mod defaults {
     /// the default gel (stiffness about 600 N/m at 0.4 mm, so `2 / omega` is 12 ms), and
     /// well inside the stable range `damping k dt / m < 2` at MuJoCo's 2 ms step.
     pub const DAMPING: f64 = super::DAMPING.default.number();
+    /// `hold` (m).
+    pub const HOLD: f64 = super::HOLD.default.number();
     /// The coarse grid's spacing (m): about 1e4 particles in the default gel.
     pub const COARSE_DX: f64 = 1.4e-3;
     /// The fine grid's spacing (m): 100 x 100 x ~13 cells, about 1e6 particles in the

@@ -67,6 +67,8 @@ pub const ATTR_COUPLING: &str = attributes::COUPLING.name;
 pub const ATTR_DAMPING: &str = attributes::DAMPING.name;
 /// `gel_geom`: [`attributes::GEL_GEOM`].
 pub const ATTR_GEL_GEOM: &str = attributes::GEL_GEOM.name;
+/// `hold`: [`attributes::HOLD`].
+pub const ATTR_HOLD: &str = attributes::HOLD.name;
 
 /// Every attribute the plugin declares to MuJoCo, in table order ([`attributes::TABLE`]).
 pub const ATTRIBUTES: &[&str] = &attributes::NAMES;
@@ -303,6 +305,9 @@ pub struct Config {
     /// The geom standing for the gel in MuJoCo's collision, whose contacts carry the
     /// coupling implicitly (`gel_geom`); `None`: the coupling's force is explicit.
     pub gel_geom: Option<String>,
+    /// The indenters' motion since the last solve below which a frame repeats that solve's
+    /// outputs (m; `hold`, 0: every frame solves).
+    pub hold: f64,
     /// The gel's equilibrium solver; `None` leaves the choice to the gel
     /// ([`crate::mpm::choose`]) or the reduced-order model's recipe.
     pub solver: Option<Solver>,
@@ -543,6 +548,7 @@ impl Config {
             }
             Some(name) => Some(name.to_owned()),
         };
+        let hold = p.ranged::<1>(&attributes::HOLD, [defaults::HOLD])?[0];
         let solver = match raw.get(ATTR_SOLVER).map(str::trim) {
             None => None,
             Some(v) => Some(Solver::named(v).ok_or_else(|| {
@@ -585,6 +591,7 @@ impl Config {
             coupling,
             damping,
             gel_geom,
+            hold,
             solver,
         })
     }

@@ -11,7 +11,9 @@
 //! instead of giving the sensor a state it cannot hold.
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
 
+use crate::geometry::{Placed, Sdf};
 use nalgebra::{
     Isometry3, Matrix3, Point3, Quaternion, Translation3, UnitQuaternion, Vector2, Vector3,
 };
@@ -273,6 +275,38 @@ pub fn list<T: Persist + Default>(io: &mut Io<'_>, items: &mut Vec<T>, cap: usiz
         items.resize_with(n, T::default);
     }
     each(io, items);
+}
+
+/// Indenters, each by its shape's index in `shapes` and its pose (a shape missing from
+/// `shapes` is left out when writing); a read fails on an index outside `shapes`.
+pub fn placed(io: &mut Io<'_>, items: &mut Vec<Placed>, shapes: &[Arc<dyn Sdf>], what: &str) {
+    let mut named: Vec<(usize, Isometry3<f64>)> = items
+        .iter()
+        .filter_map(|p| Some((shapes.iter().position(|s| Arc::ptr_eq(s, &p.shape))?, p.pose)))
+        .collect();
+    let n = io.len(named.len(), shapes.len(), what);
+    if io.loading() {
+        named.resize(n, (0, Isometry3::identity()));
+    }
+    for (i, pose) in &mut named {
+        io.count(i, shapes.len(), "an indenter's shape");
+        pose.persist(io);
+    }
+    if io.loading() && io.fault().is_none() {
+        *items = named
+            .into_iter()
+            .map(|(i, pose)| Placed {
+                shape: shapes[i].clone(),
+                pose,
+            })
+            .collect();
+    }
+}
+
+/// The most numbers [`placed`] takes for at most `indenters` indenters: the count, and
+/// per indenter its shape's index, its translation and its rotation's quaternion.
+pub const fn placed_len(indenters: usize) -> usize {
+    1 + indenters * 8
 }
 
 /// Whether an optional value is there: a flag. Reading one into `None` makes it with

@@ -10,14 +10,14 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::Vector3;
 
 use super::contact::SlotContact;
 use super::pressure::ContactLoad;
 use super::solver::Equilibrium;
 use super::transfer::Particle;
 use super::{build_solver, Gel, Solver};
-use crate::geometry::Sdf;
+use crate::geometry::{Placed, Sdf};
 use crate::state::{self, Io, Persist};
 
 /// The largest counts the state of one gel holds, from which its size is bounded.
@@ -280,27 +280,17 @@ impl Gel {
 
     /// The last frame's indenters: each one's shape (its index in `shapes`) and pose.
     fn persist_prev(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) {
-        let mut named: Vec<(usize, Isometry3<f64>)> = self
+        let mut prev: Vec<Placed> = self
             .prev
             .iter()
-            .filter_map(|(shape, pose)| {
-                let i = shapes.iter().position(|s| Arc::ptr_eq(s, shape))?;
-                Some((i, *pose))
+            .map(|(shape, pose)| Placed {
+                shape: shape.clone(),
+                pose: *pose,
             })
             .collect();
-        let n = io.len(named.len(), shapes.len(), "the last frame's indenters");
-        if io.loading() {
-            named.resize(n, (0, Isometry3::identity()));
-        }
-        for (i, pose) in &mut named {
-            io.count(i, shapes.len(), "an indenter's shape");
-            pose.persist(io);
-        }
+        state::placed(io, &mut prev, shapes, "the last frame's indenters");
         if io.loading() && io.fault().is_none() {
-            self.prev = named
-                .into_iter()
-                .map(|(i, pose)| (shapes[i].clone(), pose))
-                .collect();
+            self.prev = prev.into_iter().map(|p| (p.shape, p.pose)).collect();
         }
     }
 }

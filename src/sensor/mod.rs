@@ -71,8 +71,11 @@ pub struct Evaluation {
     /// grid's resolution is an error of the model.
     pub bound_excess: f64,
     /// Whether the evaluation may have changed the sensor's state (false for a frame
-    /// without contact on the undeformed gel, which does nothing).
+    /// without contact on the undeformed gel, and for a held one, which do nothing).
     pub changed: bool,
+    /// Whether the frame was the last solved one again: its indenters moved less than
+    /// `hold` since that solve ([`TactileSensor::evaluate`]).
+    pub held: bool,
 }
 
 /// What the physics modes see of one frame: the indenters that can touch the gel, the
@@ -110,6 +113,15 @@ pub struct TactileSensor {
     /// An image written on the orthographic grid before it is resampled for the pinhole
     /// camera (empty unless an output needs it).
     scratch: Vec<f64>,
+    /// The indenters touching the gel at the last solve, as they were posed then (part of
+    /// the state): a frame whose indenters are these, moved less than `hold`, is that
+    /// solve's frame again.
+    solved: Vec<Placed>,
+    /// The configuration's `hold` where the model has a state, else 0 (never held).
+    hold: f64,
+    /// Whether `fields` hold the outputs of `solved` (false once a state is read back:
+    /// the fields are not part of it, and the next held frame computes them again).
+    fresh: bool,
 }
 
 /// What an evaluation computes for the outputs, one buffer per physical quantity. Each is
@@ -229,6 +241,9 @@ impl TactileSensor {
             optics,
             refraction,
             scratch: vec![0.0; scratch_len],
+            solved: Vec::new(),
+            hold: Self::hold_of(&config, models::state_len(&config, 1)),
+            fresh: false,
             config,
         })
     }
@@ -247,6 +262,9 @@ impl TactileSensor {
             optics: self.optics.clone(),
             refraction: self.refraction.clone(),
             scratch: self.scratch.clone(),
+            solved: self.solved.clone(),
+            hold: self.hold,
+            fresh: self.fresh,
         })
     }
 
@@ -302,24 +320,78 @@ impl TactileSensor {
     }
 
     /// Writes or reads the state the next evaluation depends on ([`crate::state`]): the
-    /// gel's, where there is one (the images are computed afresh by each evaluation).
+    /// indenters of the last solve and the gel's state, where there is one (the images
+    /// are not part of it: a held frame after a read computes them again from it).
     /// `shapes` names the indenters' shapes by index, the same table in meaning when
     /// reading as when writing. Returns whether all of it is kept (see
     /// [`crate::mpm::Gel::persist`]). A failed read leaves the sensor to be reset.
     pub fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {
+        if self.hold == 0.0 {
+            return self.model.persist(io, shapes);
+        }
+        crate::state::placed(io, &mut self.solved, shapes, "the last solve's indenters");
+        if io.loading() {
+            self.fresh = false;
+        }
         self.model.persist(io, shapes)
     }
 
     /// The most numbers [`TactileSensor::persist`] writes for `config` with at most
     /// `indenters` indenters.
     pub fn state_len(config: &Config, indenters: usize) -> usize {
-        models::state_len(config, indenters)
+        let model = models::state_len(config, indenters);
+        if Self::hold_of(config, model) == 0.0 {
+            model
+        } else {
+            crate::state::placed_len(indenters) + model
+        }
+    }
+
+    /// The `hold` a sensor of `config` keeps, whose model's state takes `model_len`
+    /// numbers: none (0) for a model without state (rigid), whose frames cost less than
+    /// remembering them.
+    fn hold_of(config: &Config, model_len: usize) -> f64 {
+        if model_len == 0 {
+            0.0
+        } else {
+            config.hold
+        }
     }
 
     /// Back to the undeformed gel.
     pub fn reset(&mut self) {
         self.model.reset();
         self.fields.flatten();
+        self.solved.clear();
+        self.fresh = false;
+    }
+
+    /// Whether `touching` are the last solve's indenters, each moved less than `hold` at
+    /// every point of the gel's box that its bounding box then reached. A rigid motion
+    /// moves points by an affine map, whose length is largest at a corner of that box.
+    fn holds(&self, touching: &[Placed]) -> bool {
+        let hold = self.hold;
+        let gel = self.gel_box();
+        hold > 0.0
+            && !touching.is_empty()
+            && touching.len() == self.solved.len()
+            && touching.iter().zip(&self.solved).all(|(now, then)| {
+                if !Arc::ptr_eq(&now.shape, &then.shape) {
+                    return false;
+                }
+                let reach = then.aabb();
+                let lo = reach.min.coords.sup(&gel.min.coords);
+                let hi = reach.max.coords.inf(&gel.max.coords);
+                let delta = now.pose * then.pose.inverse();
+                (0..8).all(|k| {
+                    let corner = nalgebra::Point3::new(
+                        if k & 1 == 0 { lo.x } else { hi.x },
+                        if k & 2 == 0 { lo.y } else { hi.y },
+                        if k & 4 == 0 { lo.z } else { hi.z },
+                    );
+                    (delta * corner - corner).norm() < hold
+                })
+            })
     }
 
     /// The gel's bounding box in the sensor frame.
@@ -338,16 +410,33 @@ impl TactileSensor {
         let mut eval = Evaluation::default();
         let t0 = Instant::now();
         let gel_box = self.gel_box();
-        let touching: Vec<Placed> = indenters
+        let mut touching: Vec<Placed> = indenters
             .iter()
             .filter(|p| p.aabb().intersects(&gel_box))
             .cloned()
             .collect();
         eval.contact = !touching.is_empty();
-        eval.changed = eval.contact || !self.model.at_rest();
-        if !eval.changed {
+        eval.held = self.holds(&touching);
+        if eval.held {
+            // The last solved frame again: its outputs where the fields still hold them,
+            // else computed again from the state (the gel as that solve left it, the
+            // indenters as they were posed then), so that a state read back gives the
+            // frames it gave before, bit for bit.
+            if self.fresh {
+                eval.times.geometry = t0.elapsed().as_secs_f64();
+                let t1 = Instant::now();
+                self.write_outputs(out);
+                eval.times.render = t1.elapsed().as_secs_f64();
+                return eval;
+            }
+            touching.clone_from(&self.solved);
+        }
+        eval.changed = !eval.held && (eval.contact || !self.model.at_rest());
+        if !eval.contact && !eval.changed {
             // No contact and a flat gel: the outputs of the flat surface, nothing else
             // (every camera sees it alike).
+            self.solved.clear();
+            self.fresh = true;
             self.fields.flatten();
             self.zmin.fill(f64::INFINITY);
             eval.times.geometry = t0.elapsed().as_secs_f64();
@@ -379,7 +468,9 @@ impl TactileSensor {
         let t1 = Instant::now();
         eval.times.geometry = (t1 - t0).as_secs_f64();
 
-        self.model.solve(&scene, &mut eval);
+        if !eval.held {
+            self.model.solve(&scene, &mut eval);
+        }
         // Shear is the depth image's inverse map: computed with it when both are needed.
         let with_depth = self.needs.depth && self.needs.has(Field::Shear);
         if self.needs.depth {
@@ -432,6 +523,13 @@ impl TactileSensor {
         }
         self.write_outputs(out);
         eval.times.render = t2.elapsed().as_secs_f64();
+        if !eval.held {
+            // A solve that stopped short of equilibrium is not held: the next frame carries
+            // it on.
+            let settled = eval.solve.as_ref().map_or(true, |r| r.converged);
+            self.solved = if settled { touching } else { Vec::new() };
+        }
+        self.fresh = true;
         eval
     }
 

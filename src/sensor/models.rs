@@ -117,6 +117,7 @@ pub fn build(config: &Config) -> Result<Box<dyn SurfaceModel>, SensorError> {
                 rom: Box::new(rom),
                 force_factor: 1.0,
                 decoded: false,
+                fell_back: false,
             }))
         }
     }
@@ -375,6 +376,8 @@ struct Reduced {
     force_factor: f64,
     /// Whether the last evaluation decoded (the pressure head's field is its own).
     decoded: bool,
+    /// Whether the last solve was the fallback's (a frame the relaxation missed).
+    fell_back: bool,
 }
 
 impl SurfaceModel for Reduced {
@@ -384,8 +387,10 @@ impl SurfaceModel for Reduced {
 
     fn solve(&mut self, scene: &Scene<'_>, eval: &mut Evaluation) {
         self.mpm.solve(scene, eval);
+        self.fell_back = eval.solve.as_ref().is_some_and(|r| r.fallback);
     }
 
+    /// From the gel of the last solve (a held frame solves nothing).
     fn depth(&mut self, scene: &Scene<'_>, out: &mut [f64], eval: &mut Evaluation) {
         if let (Some(gel), false) = (self.mpm.gel(), scene.indenters.is_empty()) {
             match self.rom.evaluate(gel, scene.indenters, scene.grid, out) {
@@ -393,7 +398,7 @@ impl SurfaceModel for Reduced {
                     // A frame the relaxation missed carries the linear solver's force, which
                     // follows the contact mechanics already; the factor is fitted to the
                     // relaxation's surface.
-                    let fallback = eval.solve.as_ref().is_some_and(|r| r.fallback);
+                    let fallback = self.fell_back;
                     self.decoded = !fallback;
                     self.force_factor = if fallback {
                         1.0
@@ -469,6 +474,7 @@ impl SurfaceModel for Reduced {
         self.mpm.reset();
         self.force_factor = 1.0;
         self.decoded = false;
+        self.fell_back = false;
     }
 
     fn try_clone(&self) -> Result<Box<dyn SurfaceModel>, SensorError> {
@@ -481,14 +487,16 @@ impl SurfaceModel for Reduced {
             rom: Box::new(rom),
             force_factor: self.force_factor,
             decoded: self.decoded,
+            fell_back: self.fell_back,
         }))
     }
 
-    /// The coarse gel's state and the last decoding's force factor: the decoder itself
-    /// keeps nothing between frames.
+    /// The coarse gel's state, the last decoding's force factor and whether the last solve
+    /// fell back: the decoder itself keeps nothing between frames.
     fn persist(&mut self, io: &mut Io<'_>, shapes: &[Arc<dyn Sdf>]) -> bool {
         self.force_factor.persist(io);
         self.decoded.persist(io);
+        self.fell_back.persist(io);
         self.mpm.persist(io, shapes)
     }
 }

@@ -204,6 +204,55 @@ def test_a_restored_state_replays_the_original_bit_for_bit(physics, config):
         assert_same(fresh, evaluate(m, d, rest[0]), "a fresh gel's state")
 
 
+# After the history: the sphere held (the same pose, then moved 40 nm: both under the default
+# `hold` of 0.1 um, so the last solve's frame again), then moved on by 2 um (a solve).
+HELD = [HISTORY[3], (1.0e-3 + 4e-8, 0, 1.0e-3), (1.0e-3 + 2e-6, 0, 1.0e-3),
+        (1.0e-3 + 2e-6, 0, 1.0e-3), HISTORY[4]]
+
+
+@pytest.mark.parametrize("physics,config", KEPT, ids=lambda v: str(v))
+def test_held_frames_repeat_the_last_solve_and_replay_bit_for_bit(physics, config):
+    """Catches: a held frame (indenters moved less than `hold` since the last solve) that
+    solves anyway or gives anything but the last solve's outputs, and held frames whose
+    outputs depend on what MuJoCo's state does not carry (the images of the last solve).
+    The state is taken right after a solve; the original's next frames are held (the
+    same pose, then 40 nm away) and reuse its images, while the restored MjData has none
+    and computes them again from the state: equal to the last bit. With `hold="0"` the
+    40 nm frame is solved, and differs."""
+    outputs = "depth" if physics == "rigid" else "depth force shear"
+    m = model(physics=physics, outputs=outputs, **config)
+    d = mujoco.MjData(m)
+    for pose in HISTORY[:3]:
+        evaluate(m, d, pose)
+    saved = get_state(m, d)
+    original = [evaluate(m, d, pose) for pose in HELD]
+    # The held frames are the first one's outputs; the one moved 2 um is not. Rigid has no
+    # state, and no frame of it is held.
+    if physics == "rigid":
+        assert not np.array_equal(original[0]["depth"], original[1]["depth"])
+    else:
+        assert_same(original[0], original[1], "held 40 nm away")
+        assert_same(original[2], original[3], "held at the same pose")
+    assert not np.array_equal(original[0]["depth"], original[2]["depth"])
+    restored = mujoco.MjData(m)
+    mujoco.mj_setState(m, restored, saved, STATE)
+    for i, pose in enumerate(HELD):
+        assert_same(original[i], evaluate(m, restored, pose), f"restored, frame {i}")
+    # Restored between a solve and its held frame: the held frame computed again.
+    mujoco.mj_setState(m, restored, saved, STATE)
+    evaluate(m, restored, HELD[0])
+    between = get_state(m, restored)
+    again = mujoco.MjData(m)
+    mujoco.mj_setState(m, again, between, STATE)
+    assert_same(original[1], evaluate(m, again, HELD[1]), "held frame after a restore")
+    if physics != "rigid":
+        m0 = model(physics=physics, outputs=outputs, hold="0", **config)
+        d0 = mujoco.MjData(m0)
+        for pose in HISTORY[:3] + HELD[:2]:
+            solved = evaluate(m0, d0, pose)
+        assert not np.array_equal(solved["depth"], original[1]["depth"])
+
+
 # A 24 mm box face (400 node columns under it) pressed 0.4 mm and then shaken by microns, as
 # a grasp held in MuJoCo: the linear solver's frictional solves of these frames are split
 # before Newton's method finishes them (see `a_shaken_grasp_splits_to_newtons_answer`).

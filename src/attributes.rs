@@ -498,11 +498,12 @@ pub const GEL_GEOM: Attribute = Attribute {
 pub const HOLD: Attribute = Attribute {
     name: "hold",
     meaning: "the motion below which a frame is the last solved one again: where every \
-              indenter touching the gel moved less than this (at any point of the gel it can \
-              reach) since the last solve, the outputs are that solve's, and nothing is \
-              solved; 0 solves every frame",
+              indenter touching the gel moved less than this, and less than 0.5 % of the \
+              depth it reached (at any point of the gel it can reach), since the last \
+              solve, the outputs are that solve's, and nothing is solved; 0 solves every \
+              frame",
     unit: "m",
-    default: Default::Number(1e-7),
+    default: Default::Number(1e-6),
     valid: Valid::Range(Range::closed(0.0, 1e-4)),
 };
 

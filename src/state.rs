@@ -282,7 +282,12 @@ pub fn list<T: Persist + Default>(io: &mut Io<'_>, items: &mut Vec<T>, cap: usiz
 pub fn placed(io: &mut Io<'_>, items: &mut Vec<Placed>, shapes: &[Arc<dyn Sdf>], what: &str) {
     let mut named: Vec<(usize, Isometry3<f64>)> = items
         .iter()
-        .filter_map(|p| Some((shapes.iter().position(|s| Arc::ptr_eq(s, &p.shape))?, p.pose)))
+        .filter_map(|p| {
+            Some((
+                shapes.iter().position(|s| Arc::ptr_eq(s, &p.shape))?,
+                p.pose,
+            ))
+        })
         .collect();
     let n = io.len(named.len(), shapes.len(), what);
     if io.loading() {

@@ -178,8 +178,11 @@ pub unsafe fn write_rows(
     // SAFETY: valid data per the caller; no other reference into it lives here.
     let d = unsafe { &mut *d };
     let nefc = usize::try_from(d.nefc).unwrap_or(0);
-    // Each contact's share of its geom's push-back ([`shares`]).
+    // Each contact's share of its geom's push-back ([`shares`]), its offset from the
+    // centre of pressure (sensor frame) and its geom's spread ([`Linearised::at_point`]).
     let mut weight = vec![0.0; contacts.len()];
+    let mut offset = vec![Vector3::zeros(); contacts.len()];
+    let mut spread = vec![0.0; contacts.len()];
     let axes = [site.rotation * Vector3::x(), site.rotation * Vector3::y()];
     for (k, c) in contacts.iter().enumerate() {
         if contacts[..k].iter().any(|e| e.geom == c.geom) {
@@ -200,8 +203,16 @@ pub unsafe fn write_rows(
         for (&j, w) in mine.iter().zip(shares(&points, centre, axes)) {
             weight[j] = w;
         }
+        if let Some(centre) = centre {
+            let mut sum = 0.0;
+            for (&j, p) in mine.iter().zip(&points) {
+                offset[j] = site.rotation.inverse() * (p - centre);
+                sum += weight[j] * offset[j].xy().norm_squared();
+            }
+            mine.iter().for_each(|&j| spread[j] = sum);
+        }
     }
-    for (c, &n) in contacts.iter().zip(&weight) {
+    for (k, (c, &n)) in contacts.iter().zip(&weight).enumerate() {
         // SAFETY: `c.index` < ncon (gel_contacts).
         let con = unsafe { &mut *d.contact.add(c.index) };
         let dim = usize::try_from(con.dim).unwrap_or(0).max(1);
@@ -210,7 +221,9 @@ pub unsafe fn write_rows(
         };
         let p = push(c.geom);
         // The force (world) and the stiffness along a world axis, this contact's share.
-        let force = p.map_or_else(Vector3::zeros, |p| site.rotation * p.force) * n;
+        let force = p.map_or_else(Vector3::zeros, |p| {
+            site.rotation * (p.force * n + p.at_point(offset[k], n, spread[k]))
+        });
         let stiffness = |axis: &Vector3<f64>| {
             p.map_or(0.0, |p| {
                 let a = site.rotation.inverse() * axis;

@@ -24,8 +24,8 @@ use crate::config::{Config, RawConfig, ATTRIBUTES};
 use crate::geometry::{Placed, Sdf};
 use crate::mpm::Wrench;
 use crate::sensor::coupling::{
-    centre_of_pressure, linearise, needs_solve, reduced_mass, Coupling, Sample, SHALLOWEST,
-    STABLE_RATIO,
+    centre_of_pressure, linearise, needs_solve, reduced_mass, secant, Base, Coupling, Linearised,
+    Sample, SHALLOWEST, STABLE_RATIO,
 };
 use crate::sensor::TactileSensor;
 use crate::state::{Io, Persist};
@@ -722,46 +722,74 @@ unsafe fn implicit(
             .map(|c| c.depth)
             .fold(0.0, f64::max)
     };
-    // Each indenter's motion since the last solve: that of its centre of pressure then.
-    let motion = |inst: &Instance, wrenches: &[Wrench], geom: usize| -> Option<Vector3<f64>> {
-        let i = inst.geoms.iter().position(|&g| g == geom)?;
-        let c = Point3::from(centre_of_pressure(&wrenches[i])?);
-        let now = geoms
+    // Each indenter's motion since the solve its push-back follows: that of its centre of
+    // pressure then.
+    let now = |geom: usize| {
+        geoms
             .iter()
             .position(|&g| g == geom)
-            .map(|k| placed[k].pose)?;
-        Some(now * (inst.placed[i].pose.inverse() * c) - c)
+            .map(|k| placed[k].pose)
     };
-    let solved = inst.sensor.wrenches(&inst.placed);
-    let stale = !evaluated
-        && contacts
-            .iter()
-            .any(|c| match motion(inst, &solved, c.geom) {
+    let motion = |base: &Base| -> Option<Vector3<f64>> {
+        let c: Point3<f64> = Point3::from(centre_of_pressure(&base.wrench)?);
+        let pose: Isometry3<f64> = now(base.geom)?;
+        let then: Point3<f64> = base.pose.inverse_transform_point(&c);
+        Some(pose.transform_point(&then) - c)
+    };
+    let base_of = |inst: &Instance, geom: usize| -> Option<Base> {
+        inst.coupling.base.iter().find(|b| b.geom == geom).copied()
+    };
+    let stale =
+        contacts.iter().any(
+            |c| match base_of(inst, c.geom).as_ref().and_then(|b| motion(b)) {
                 None => c.depth > SHALLOWEST,
                 Some(moved) => needs_solve(moved.norm(), deepest(c.geom) + moved.z),
+            },
+        );
+    // A new base for every geom where an indenter moved too far (this state's evaluation
+    // where the sensor stage ran one, else one here), or where the sensor stage solved
+    // this state (for its images). Each keeps the normal stiffness measured between its
+    // last two solves ([`secant`]).
+    let solved_here = evaluated && inst.sensor.solved_at(&inst.placed);
+    if stale || solved_here {
+        if !evaluated {
+            let dim = inst.sensor.config().sensordata_len();
+            inst.scratch.resize(dim, 0.0);
+            let eval = inst.sensor.evaluate(&placed, &mut inst.scratch);
+            inst.touching = eval.contact;
+            warnings.extend(eval.warnings);
+            inst.placed = placed.clone();
+            inst.geoms = geoms.clone();
+        }
+        let wrenches = inst.sensor.wrenches(&inst.placed);
+        let mut bases = Vec::with_capacity(inst.geoms.len());
+        for ((&geom, p), wrench) in inst.geoms.iter().zip(&inst.placed).zip(wrenches) {
+            let normal = base_of(inst, geom).and_then(|b| {
+                secant(&b.wrench, &wrench, motion(&b)?.z, deepest(geom)).or(b.normal)
             });
-    let wrenches = if stale {
-        let dim = inst.sensor.config().sensordata_len();
-        inst.scratch.resize(dim, 0.0);
-        let eval = inst.sensor.evaluate(&placed, &mut inst.scratch);
-        inst.touching = eval.contact;
-        warnings.extend(eval.warnings);
-        inst.placed = placed.clone();
-        inst.geoms = geoms.clone();
-        inst.sensor.wrenches(&inst.placed)
-    } else {
-        solved
-    };
+            bases.push(Base {
+                geom,
+                pose: p.pose,
+                wrench,
+                normal,
+            });
+        }
+        inst.coupling.base = bases;
+    }
     let push = |geom: usize| {
-        let i = inst.geoms.iter().position(|&g| g == geom)?;
-        let moved = motion(inst, &wrenches, geom)?;
-        Some(linearise(
-            &wrenches[i],
-            moved,
-            deepest(geom),
-            poisson,
-            friction,
-        ))
+        let base = base_of(inst, geom)?;
+        let moved = motion(&base)?;
+        Some(Linearised {
+            turned: now(geom)?.rotation * base.pose.rotation.inverse(),
+            ..linearise(
+                &base.wrench,
+                moved,
+                deepest(geom),
+                base.normal,
+                poisson,
+                friction,
+            )
+        })
     };
     // SAFETY: valid model and data per the caller; `contacts` are this data's.
     unsafe { gel_contacts::write_rows(m, d, &contacts, site, tau, friction, push) };

@@ -19,7 +19,7 @@
 //! MuJoCo layer (`mujoco::plugin`) gathers the samples, looks up the masses and applies
 //! the result.
 
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
 use crate::mpm::Wrench;
 use crate::state::{self, Io, Persist};
@@ -56,6 +56,37 @@ pub struct Coupling {
     /// Per geom in contact: the work it has done on the gel (J) and the force last applied
     /// to it (N, sensor frame), the gel's side of the passivity account.
     accounts: Vec<Account>,
+    /// The implicit coupling's (`gel_geom`): per geom, the solve its push-back follows.
+    pub base: Vec<Base>,
+}
+
+/// The solve one geom's implicit push-back follows until it needs another
+/// ([`needs_solve`]): the geom's pose then and the gel's wrench on it (sensor frame). A
+/// sensor's evaluation between (its images) leaves it: a new base at every frame would
+/// move the force by the solves' own differences at every frame, a jitter that the
+/// stiffness followed between them would not settle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Base {
+    /// The geom.
+    pub geom: usize,
+    /// Its pose at the solve (sensor frame).
+    pub pose: Isometry3<f64>,
+    /// The gel's wrench on it then (N, N m about the sensor origin).
+    pub wrench: Wrench,
+    /// The gel's normal stiffness measured between this solve and an earlier one
+    /// ([`secant`], N/m), where one was.
+    pub normal: Option<f64>,
+}
+
+impl Default for Base {
+    fn default() -> Self {
+        Self {
+            geom: 0,
+            pose: Isometry3::identity(),
+            wrench: Wrench::default(),
+            normal: None,
+        }
+    }
 }
 
 /// One geom's passivity account ([`Coupling`]).
@@ -121,11 +152,21 @@ impl Coupling {
             a.stored.persist(io);
             a.applied.persist(io);
         }
+        let n = io.len(self.base.len(), geoms, "the implicit coupling's solves");
+        if io.loading() {
+            self.base.resize(n, Base::default());
+        }
+        for b in &mut self.base {
+            io.count(&mut b.geom, geoms, "a coupled geom");
+            b.pose.persist(io);
+            b.wrench.persist(io);
+            state::option(io, &mut b.normal, || 0.0);
+        }
     }
 
     /// The length [`Coupling::persist`] writes at most for `geoms` geoms.
     pub fn state_len(geoms: usize) -> usize {
-        4 + 2 * (1 + 10 * geoms) + (1 + 7 * geoms)
+        4 + 2 * (1 + 10 * geoms) + (1 + 7 * geoms) + (1 + 16 * geoms)
     }
 
     /// Records the samples `now` at `time` and their rates over the step since the last
@@ -380,6 +421,37 @@ pub struct Linearised {
     /// Where the force acts now: the last solve's centre of pressure moved with the
     /// indenter (m), if known.
     pub centre: Option<Vector3<f64>>,
+    /// The last solve's torque about the gel's normal through the centre of pressure
+    /// (N m): the twist that a force at the centre does not carry.
+    pub twist: f64,
+    /// The indenter's rotation since the last solve (sensor frame), which moves each of
+    /// its contact points by its own amount about the centre ([`Linearised::at_point`]).
+    pub turned: UnitQuaternion<f64>,
+}
+
+impl Linearised {
+    /// The part of the push-back at a contact point `offset` from the centre of pressure
+    /// (sensor frame) that the force at the centre leaves out, for a point with `share` of
+    /// it and `spread`, the sum of the shares times the squared in-plane offsets over the
+    /// indenter's points: the stiffness against the point's own motion by the rotation
+    /// since the solve (so that the contact points together resist a turn or a tilt as
+    /// the gel does, not only a shift), and the point's part of [`Linearised::twist`].
+    /// Both add up to no force over the points whose shares' centre is the centre.
+    pub fn at_point(&self, offset: Vector3<f64>, share: f64, spread: f64) -> Vector3<f64> {
+        let moved = offset - self.turned.inverse() * offset;
+        let spring = -share
+            * Vector3::new(
+                self.tangential * moved.x,
+                self.tangential * moved.y,
+                self.normal * moved.z,
+            );
+        let twist = if spread > 0.0 {
+            share * self.twist / spread * Vector3::new(-offset.y, offset.x, 0.0)
+        } else {
+            Vector3::zeros()
+        };
+        spring + twist
+    }
 }
 
 /// The ratio of a contact's tangential to its normal stiffness on an elastic half-space
@@ -407,6 +479,7 @@ pub fn linearise(
     solved: &Wrench,
     moved: Vector3<f64>,
     depth: f64,
+    measured: Option<f64>,
     poisson: f64,
     friction: f64,
 ) -> Linearised {
@@ -417,11 +490,13 @@ pub fn linearise(
             normal: 0.0,
             tangential: 0.0,
             centre: None,
+            twist: 0.0,
+            turned: UnitQuaternion::identity(),
         };
     }
     // Deeper now by -moved.z: the depth at the solve.
     let at_solve = (depth + moved.z).max(SHALLOWEST);
-    let normal = DEPTH_EXPONENT * f0.z / at_solve;
+    let normal = measured.unwrap_or(DEPTH_EXPONENT * f0.z / at_solve);
     let tangential = if friction > 0.0 {
         normal * tangential_ratio(poisson)
     } else {
@@ -433,13 +508,44 @@ pub fn linearise(
     if ft.norm() > cone {
         ft *= cone / ft.norm();
     }
+    let centre = centre_of_pressure(solved);
+    let twist = centre.map_or(0.0, |c| solved.torque.z - (c.x * f0.y - c.y * f0.x));
     Linearised {
         force: Vector3::new(ft.x, ft.y, fz),
         normal,
         tangential,
-        centre: centre_of_pressure(solved).map(|c| c + moved),
+        centre: centre.map(|c| c + moved),
+        twist,
+        turned: UnitQuaternion::identity(),
     }
 }
+
+/// The gel's normal stiffness (N/m) between two solves of one indenter, `then` and `now`,
+/// between which its centre of pressure moved `dz` along the gel's normal (m, + out of the
+/// gel), `depth` deep now: the change of normal force over the motion, where the motion
+/// is long enough for the solves' own differences (their tolerance, a few thousandths of
+/// the force) not to dominate ([`SECANT_FRACTION`] of the depth) and the force grew
+/// into the gel; bounded to [`SECANT_RANGE`] times the Hertz estimate
+/// [`DEPTH_EXPONENT`]` F / d`. A discretised gel's force is not Hertz's: it starts where
+/// a contact point is reached, so `F / d` can be several times too low, and a stiffness
+/// followed between solves at half the gel's or less makes each solve's error as large as
+/// the last's, of the other sign.
+pub fn secant(then: &Wrench, now: &Wrench, dz: f64, depth: f64) -> Option<f64> {
+    let (f0, f1) = (then.force.z, now.force.z);
+    if !(f0 > 0.0 && f1 > 0.0 && depth > 0.0) || !(dz.abs() > SECANT_FRACTION * depth) {
+        return None;
+    }
+    let k = (f0 - f1) / dz;
+    let hertz = DEPTH_EXPONENT * f1 / depth.max(SHALLOWEST);
+    (k > 0.0 && k.is_finite()).then(|| k.clamp(SECANT_RANGE[0] * hertz, SECANT_RANGE[1] * hertz))
+}
+
+/// The least motion between two solves, as a fraction of the depth, over which
+/// [`secant`] measures the gel's stiffness.
+pub const SECANT_FRACTION: f64 = 2e-3;
+
+/// The bounds of [`secant`]'s stiffness, as multiples of the Hertz estimate.
+pub const SECANT_RANGE: [f64; 2] = [0.5, 8.0];
 
 /// Whether an indenter whose centre of pressure moved by `moved` (m) since the last solve,
 /// at a contact `depth` deep then, needs the gel solved again ([`RESOLVE_FRACTION`]).
@@ -720,33 +826,33 @@ mod tests {
             torque: Vector3::zeros(),
         };
         // Unmoved: the solve's force; the stiffness 1.5 F / d.
-        let l = linearise(&w, Vector3::zeros(), 4e-4, 0.43, 1.0);
+        let l = linearise(&w, Vector3::zeros(), 4e-4, None, 0.43, 1.0);
         assert_eq!(l.force, w.force);
         assert!((l.normal - 1.5 * 2.0 / 4e-4).abs() < 1e-9);
         assert!((l.tangential - l.normal * tangential_ratio(0.43)).abs() < 1e-9);
         // 10 um deeper (and 10 um deeper in MuJoCo's contact too): the depth at the solve
         // was 4e-4, the force grows by k 1e-5.
         let deeper = Vector3::new(0.0, 0.0, -1e-5);
-        let l = linearise(&w, deeper, 4.1e-4, 0.43, 1.0);
+        let l = linearise(&w, deeper, 4.1e-4, None, 0.43, 1.0);
         assert!(
             (l.force.z - (2.0 + 1.5 * 2.0 / 4e-4 * 1e-5)).abs() < 1e-12,
             "{}",
             l.force.z
         );
         // Out of the gel: never a pull.
-        let out = linearise(&w, Vector3::new(0.0, 0.0, 1e-3), 0.0, 0.43, 1.0);
+        let out = linearise(&w, Vector3::new(0.0, 0.0, 1e-3), 0.0, None, 0.43, 1.0);
         assert_eq!(out.force, Vector3::zeros());
         // Sliding far: the tangential force stops at the cone; without friction there is
         // no tangential stiffness.
-        let slid = linearise(&w, Vector3::new(-1e-3, 0.0, 0.0), 4e-4, 0.43, 0.5);
+        let slid = linearise(&w, Vector3::new(-1e-3, 0.0, 0.0), 4e-4, None, 0.43, 0.5);
         assert!((slid.force.x - 0.5 * 2.0).abs() < 1e-12, "{}", slid.force.x);
         assert_eq!(
-            linearise(&w, Vector3::zeros(), 4e-4, 0.43, 0.0).tangential,
+            linearise(&w, Vector3::zeros(), 4e-4, None, 0.43, 0.0).tangential,
             0.0
         );
         // No force at the solve: nothing now.
         let none = Wrench::default();
-        assert_eq!(linearise(&none, deeper, 1e-4, 0.43, 1.0).normal, 0.0);
+        assert_eq!(linearise(&none, deeper, 1e-4, None, 0.43, 1.0).normal, 0.0);
     }
 
     #[test]

@@ -20,7 +20,7 @@ use crate::render::refraction::Refraction;
 use crate::render::rgb::RgbModel;
 use crate::render::DepthRule;
 use crate::rom::RomReport;
-use crate::state::Io;
+use crate::state::{Io, Persist};
 
 pub mod coupling;
 pub mod models;
@@ -92,6 +92,12 @@ pub struct Scene<'a> {
     pub rule: DepthRule,
 }
 
+/// The largest motion of a held frame as a fraction of the depth the indenters reached at
+/// the last solve ([`TactileSensor::evaluate`]): a Hertz contact's force moves by 1.5
+/// times the depth's fraction, so a held frame's force is within 0.75 % of a solve's,
+/// about what the gel's own solve leaves (its tolerance, 3e-3 of the load by default).
+pub const HOLD_FRACTION: f64 = 5e-3;
+
 /// One tactile sensor's state in one simulation.
 #[derive(Debug)]
 pub struct TactileSensor {
@@ -119,6 +125,9 @@ pub struct TactileSensor {
     solved: Vec<Placed>,
     /// The configuration's `hold` where the model has a state, else 0 (never held).
     hold: f64,
+    /// How deep the last solve's indenters reached below the gel's face (m; part of the
+    /// state): a frame is held only within [`HOLD_FRACTION`] of it.
+    solved_depth: f64,
     /// Whether `fields` hold the outputs of `solved` (false once a state is read back:
     /// the fields are not part of it, and the next held frame computes them again).
     fresh: bool,
@@ -242,6 +251,7 @@ impl TactileSensor {
             refraction,
             scratch: vec![0.0; scratch_len],
             solved: Vec::new(),
+            solved_depth: 0.0,
             hold: Self::hold_of(&config, models::state_len(&config, 1)),
             fresh: false,
             config,
@@ -263,6 +273,7 @@ impl TactileSensor {
             refraction: self.refraction.clone(),
             scratch: self.scratch.clone(),
             solved: self.solved.clone(),
+            solved_depth: self.solved_depth,
             hold: self.hold,
             fresh: self.fresh,
         })
@@ -330,6 +341,7 @@ impl TactileSensor {
             return self.model.persist(io, shapes);
         }
         crate::state::placed(io, &mut self.solved, shapes, "the last solve's indenters");
+        self.solved_depth.persist(io);
         if io.loading() {
             self.fresh = false;
         }
@@ -343,7 +355,7 @@ impl TactileSensor {
         if Self::hold_of(config, model) == 0.0 {
             model
         } else {
-            crate::state::placed_len(indenters) + model
+            crate::state::placed_len(indenters) + 1 + model
         }
     }
 
@@ -363,14 +375,31 @@ impl TactileSensor {
         self.model.reset();
         self.fields.flatten();
         self.solved.clear();
+        self.solved_depth = 0.0;
         self.fresh = false;
     }
 
-    /// Whether `touching` are the last solve's indenters, each moved less than `hold` at
-    /// every point of the gel's box that its bounding box then reached. A rigid motion
-    /// moves points by an affine map, whose length is largest at a corner of that box.
+    /// Whether the last solve was of `indenters` as they are posed now (those touching the
+    /// gel), not an earlier pose that a held frame repeated.
+    pub fn solved_at(&self, indenters: &[Placed]) -> bool {
+        let gel = self.gel_box();
+        let touching: Vec<&Placed> = indenters
+            .iter()
+            .filter(|p| p.aabb().intersects(&gel))
+            .collect();
+        touching.len() == self.solved.len()
+            && touching
+                .iter()
+                .zip(&self.solved)
+                .all(|(a, b)| Arc::ptr_eq(&a.shape, &b.shape) && a.pose == b.pose)
+    }
+
+    /// Whether `touching` are the last solve's indenters, each moved less than `hold`, and
+    /// less than [`HOLD_FRACTION`] of the depth they reached then, at every point of the
+    /// gel's box that its bounding box then reached. A rigid motion moves points by an
+    /// affine map, whose length is largest at a corner of that box.
     fn holds(&self, touching: &[Placed]) -> bool {
-        let hold = self.hold;
+        let hold = self.hold.min(HOLD_FRACTION * self.solved_depth);
         let gel = self.gel_box();
         hold > 0.0
             && !touching.is_empty()
@@ -528,6 +557,7 @@ impl TactileSensor {
             // it on.
             let settled = eval.solve.as_ref().map_or(true, |r| r.converged);
             self.solved = if settled { touching } else { Vec::new() };
+            self.solved_depth = -self.zmin.iter().copied().fold(0.0, f64::min);
         }
         self.fresh = true;
         eval

@@ -498,7 +498,7 @@ pub const GEL_GEOM: Attribute = Attribute {
 pub const HOLD: Attribute = Attribute {
     name: "hold",
     meaning: "the motion below which a frame is the last solved one again: where every \
-              indenter touching the gel moved less than this, and less than 0.5 % of the \
+              indenter touching the gel moved less than this, and less than 0.2 % of the \
               depth it reached (at any point of the gel it can reach), since the last \
               solve, the outputs are that solve's, and nothing is solved; 0 solves every \
               frame",

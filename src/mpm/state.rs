@@ -314,6 +314,7 @@ mod tests {
     use super::super::{GelParams, SolverOptions};
     use super::*;
     use crate::geometry::{Cuboid, Placed, Sphere};
+    use nalgebra::Isometry3;
 
     /// A 12 x 12 x 3 mm gel at 1 mm with friction 0.8: small enough for a test, with
     /// every kind of state (stick anchors, the secant memory, a fallback).

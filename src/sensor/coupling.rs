@@ -880,4 +880,97 @@ mod tests {
         assert!((reduced_mass(2.0, 2.0) - 1.0).abs() < 1e-15);
         assert!(reduced_mass(f64::INFINITY, f64::INFINITY).is_infinite());
     }
+
+    /// The secant is the change of normal force over the normal motion (into the gel: the
+    /// force grows as the centre sinks), within its bounds of the Hertz estimate; a motion
+    /// within the solves' own differences, or a force that fell into the gel, measures
+    /// nothing.
+    #[test]
+    fn the_secant_measures_the_gels_stiffness_between_solves() {
+        let w = |fz: f64| Wrench {
+            force: Vector3::new(0.0, 0.0, fz),
+            torque: Vector3::zeros(),
+        };
+        let k = secant(&w(1.0), &w(1.05), -1e-5, 4e-4).unwrap();
+        assert!((k - 5e3).abs() < 1e-6 * 5e3, "{k}");
+        // Out of the gel by as much, the force falling as much: the same stiffness.
+        let back = secant(&w(1.05), &w(1.0), 1e-5, 4e-4).unwrap();
+        assert!((back - 5e3).abs() < 1e-6 * 5e3, "{back}");
+        // Shorter than 0.2 % of the depth (0.8 um): nothing.
+        assert!(secant(&w(1.0), &w(1.05), -0.7e-6, 4e-4).is_none());
+        assert!(secant(&w(1.0), &w(0.9), -1e-5, 4e-4).is_none());
+        assert!(secant(&w(0.0), &w(1.0), -1e-5, 4e-4).is_none());
+        assert!(secant(&w(1.0), &w(1.05), f64::NAN, 4e-4).is_none());
+        // Bounded: 8 times Hertz's 1.5 F / d at most, half of it at least.
+        let hertz = DEPTH_EXPONENT * 2.0 / 4e-4;
+        let stiff = secant(&w(1.0), &w(2.0), -1e-6, 4e-4).unwrap();
+        assert!(
+            (stiff - SECANT_RANGE[1] * hertz).abs() < 1e-9 * hertz,
+            "{stiff}"
+        );
+        let soft = secant(&w(1.0), &w(1.001), -1e-5, 4e-4).unwrap();
+        assert!(
+            (soft - SECANT_RANGE[0] * DEPTH_EXPONENT * 1.001 / 4e-4).abs() < 1e-6,
+            "{soft}"
+        );
+        // Used in place of the Hertz estimate.
+        let l = linearise(&w(1.0), Vector3::zeros(), 4e-4, Some(5e3), 0.43, 1.0);
+        assert_eq!(l.normal, 5e3);
+        assert_eq!(l.tangential, 5e3 * tangential_ratio(0.43));
+    }
+
+    /// Four contact points at the corners of a 30 x 20 mm face, even shares: a turn about
+    /// the normal meets the points' tangential springs and a tilt their normal ones, each
+    /// with the torque of springs at the points (to first order in the angle), the
+    /// solve's twist is carried whole, and none of it is a net force.
+    #[test]
+    fn contact_points_resist_a_turn_and_carry_the_twist() {
+        let points = [
+            (0.015, 0.01),
+            (-0.015, 0.01),
+            (-0.015, -0.01),
+            (0.015, -0.01),
+        ];
+        let offsets: Vec<Vector3<f64>> = points
+            .iter()
+            .map(|&(x, y)| Vector3::new(x, y, 0.0))
+            .collect();
+        let share = 0.25;
+        let spread: f64 = offsets.iter().map(|r| share * r.xy().norm_squared()).sum();
+        let (kt, kn, twist, angle) = (2e3, 5e3, 0.01, 1e-5);
+        let totals = |turned: UnitQuaternion<f64>| {
+            let l = Linearised {
+                force: Vector3::zeros(),
+                normal: kn,
+                tangential: kt,
+                centre: Some(Vector3::zeros()),
+                twist,
+                turned,
+            };
+            offsets
+                .iter()
+                .fold((Vector3::zeros(), Vector3::zeros()), |(f, t), r| {
+                    let p = l.at_point(*r, share, spread);
+                    (f + p, t + r.cross(&p))
+                })
+        };
+        // Unturned: the twist alone.
+        let (f, t) = totals(UnitQuaternion::identity());
+        assert!(f.norm() < 1e-15, "{f}");
+        assert!((t - Vector3::new(0.0, 0.0, twist)).norm() < 1e-15, "{t}");
+        // Turned about the normal: the tangential springs' torque against it.
+        let (f, t) = totals(UnitQuaternion::from_axis_angle(&Vector3::z_axis(), angle));
+        assert!(f.norm() < 1e-12, "{f}");
+        let expected = twist - kt * angle * spread;
+        assert!((t.z - expected).abs() < 1e-6 * twist, "{} {expected}", t.z);
+        // Tilted about x: the normal springs' torque against it.
+        let (f, t) = totals(UnitQuaternion::from_axis_angle(&Vector3::x_axis(), angle));
+        assert!(f.norm() < 1e-12, "{f}");
+        let lever: f64 = offsets.iter().map(|r| share * r.y * r.y).sum();
+        assert!(
+            (t.x + kn * angle * lever).abs() < 1e-4 * kn * angle * lever,
+            "{}",
+            t.x
+        );
+    }
 }

@@ -501,7 +501,7 @@ pub const HOLD: Attribute = Attribute {
               indenter touching the gel moved less than this, and less than 0.2 % of the \
               depth it reached (at any point of the gel it can reach), since the last \
               solve, the outputs are that solve's, and nothing is solved; 0 solves every \
-              frame",
+              frame (as does the explicit coupling, without `gel_geom`)",
     unit: "m",
     default: Default::Number(1e-6),
     valid: Valid::Range(Range::closed(0.0, 1e-4)),

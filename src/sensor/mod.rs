@@ -361,9 +361,12 @@ impl TactileSensor {
 
     /// The `hold` a sensor of `config` keeps, whose model's state takes `model_len`
     /// numbers: none (0) for a model without state (rigid), whose frames cost less than
-    /// remembering them.
+    /// remembering them, and for the explicit coupling (`coupling="on"` without
+    /// `gel_geom`), whose force is the last evaluation's and must follow every motion (a
+    /// held force is a dead band that the pressing body crosses back and forth).
     fn hold_of(config: &Config, model_len: usize) -> f64 {
-        if model_len == 0 {
+        let explicit = config.coupling && config.gel_geom.is_none();
+        if model_len == 0 || explicit {
             0.0
         } else {
             config.hold

@@ -382,9 +382,13 @@ impl TactileSensor {
         self.fresh = false;
     }
 
-    /// Whether the last solve was of `indenters` as they are posed now (those touching the
-    /// gel), not an earlier pose that a held frame repeated.
+    /// Whether the last solve was of `indenters` where the last evaluation was of them (those
+    /// touching the gel, as posed now), not of an earlier pose that a held frame repeated.
     pub fn solved_at(&self, indenters: &[Placed]) -> bool {
+        if self.hold == 0.0 {
+            // Nothing is held: the last evaluation solved its indenters.
+            return true;
+        }
         let gel = self.gel_box();
         let touching: Vec<&Placed> = indenters
             .iter()
@@ -555,7 +559,7 @@ impl TactileSensor {
         }
         self.write_outputs(out);
         eval.times.render = t2.elapsed().as_secs_f64();
-        if !eval.held {
+        if !eval.held && self.hold > 0.0 {
             // A solve that stopped short of equilibrium is not held: the next frame carries
             // it on.
             let settled = eval.solve.as_ref().map_or(true, |r| r.converged);

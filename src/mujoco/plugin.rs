@@ -739,13 +739,12 @@ unsafe fn implicit(
     let base_of = |inst: &Instance, geom: usize| -> Option<Base> {
         inst.coupling.base.iter().find(|b| b.geom == geom).copied()
     };
-    let stale =
-        contacts.iter().any(
-            |c| match base_of(inst, c.geom).as_ref().and_then(|b| motion(b)) {
-                None => c.depth > SHALLOWEST,
-                Some(moved) => needs_solve(moved.norm(), deepest(c.geom) + moved.z),
-            },
-        );
+    let stale = contacts
+        .iter()
+        .any(|c| match base_of(inst, c.geom).as_ref().and_then(&motion) {
+            None => c.depth > SHALLOWEST,
+            Some(moved) => needs_solve(moved.norm(), deepest(c.geom) + moved.z),
+        });
     // A new base for every geom where an indenter moved too far (this state's evaluation
     // where the sensor stage ran one, else one here), or where the sensor stage solved
     // this state (for its images). Each keeps the normal stiffness measured between its

@@ -532,7 +532,8 @@ pub fn linearise(
 /// the last's, of the other sign.
 pub fn secant(then: &Wrench, now: &Wrench, dz: f64, depth: f64) -> Option<f64> {
     let (f0, f1) = (then.force.z, now.force.z);
-    if !(f0 > 0.0 && f1 > 0.0 && depth > 0.0) || !(dz.abs() > SECANT_FRACTION * depth) {
+    let measurable = f0 > 0.0 && f1 > 0.0 && depth > 0.0 && dz.abs() > SECANT_FRACTION * depth;
+    if !measurable {
         return None;
     }
     let k = (f0 - f1) / dz;

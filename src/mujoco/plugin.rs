@@ -137,6 +137,19 @@ impl Instance {
         })
     }
 
+    /// Evaluates the sensor for `placed` (the poses of `geoms`) outside its own stage (the
+    /// passive stage, where none ran at this state), into the scratch buffer, and keeps
+    /// them as the last evaluation's; returns its warnings.
+    fn evaluate_here(&mut self, placed: Vec<Placed>, geoms: Vec<usize>) -> Vec<String> {
+        let dim = self.sensor.config().sensordata_len();
+        self.scratch.resize(dim, 0.0);
+        let eval = self.sensor.evaluate(&placed, &mut self.scratch);
+        self.touching = eval.contact;
+        self.placed = placed;
+        self.geoms = geoms;
+        eval.warnings
+    }
+
     /// Back to the undeformed gel and a coupling without memory, as `mj_resetData` leaves
     /// the sensor (its warnings keep their count).
     fn fresh(&mut self) {
@@ -752,13 +765,7 @@ unsafe fn implicit(
     let solved_here = evaluated && inst.sensor.solved_at(&inst.placed);
     if stale || solved_here {
         if !evaluated {
-            let dim = inst.sensor.config().sensordata_len();
-            inst.scratch.resize(dim, 0.0);
-            let eval = inst.sensor.evaluate(&placed, &mut inst.scratch);
-            inst.touching = eval.contact;
-            warnings.extend(eval.warnings);
-            inst.placed = placed.clone();
-            inst.geoms = geoms.clone();
+            warnings.extend(inst.evaluate_here(placed.clone(), geoms.clone()));
         }
         let wrenches = inst.sensor.wrenches(&inst.placed);
         let mut bases = Vec::with_capacity(inst.geoms.len());
@@ -853,13 +860,7 @@ pub unsafe extern "C" fn tacrom_passive(
             return Ok(inst.limit(warnings));
         }
         if !evaluated {
-            let dim = inst.sensor.config().sensordata_len();
-            inst.scratch.resize(dim, 0.0);
-            let eval = inst.sensor.evaluate(&placed, &mut inst.scratch);
-            inst.touching = eval.contact;
-            warnings.extend(eval.warnings);
-            inst.placed = placed;
-            inst.geoms = geoms;
+            warnings.extend(inst.evaluate_here(placed, geoms));
         }
         let wrenches = inst.sensor.wrenches(&inst.placed);
         let samples: Vec<Sample> = inst

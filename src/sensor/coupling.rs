@@ -484,7 +484,10 @@ pub fn linearise(
     friction: f64,
 ) -> Linearised {
     let f0 = solved.force;
-    if !(f0.z > 0.0) {
+    // A measured stiffness that is no stiffness (a state from elsewhere) is not one.
+    let measured = measured.filter(|k| k.is_finite() && *k > 0.0);
+    let finite = f0.iter().chain(solved.torque.iter()).all(|f| f.is_finite());
+    if !(f0.z > 0.0) || !finite {
         return Linearised {
             force: Vector3::zeros(),
             normal: 0.0,
@@ -914,10 +917,27 @@ mod tests {
             (soft - SECANT_RANGE[0] * DEPTH_EXPONENT * 1.001 / 4e-4).abs() < 1e-6,
             "{soft}"
         );
-        // Used in place of the Hertz estimate.
+        // Used in place of the Hertz estimate; one that is no stiffness is not.
         let l = linearise(&w(1.0), Vector3::zeros(), 4e-4, Some(5e3), 0.43, 1.0);
         assert_eq!(l.normal, 5e3);
         assert_eq!(l.tangential, 5e3 * tangential_ratio(0.43));
+        for bad in [f64::NAN, -1.0, 0.0, f64::INFINITY] {
+            let l = linearise(&w(1.0), Vector3::zeros(), 4e-4, Some(bad), 0.43, 1.0);
+            assert_eq!(l.normal, DEPTH_EXPONENT / 4e-4, "{bad}");
+        }
+        // Nor is a wrench that is not finite: no push.
+        let broken = Wrench {
+            force: Vector3::new(f64::NAN, 0.0, 1.0),
+            torque: Vector3::zeros(),
+        };
+        let l = linearise(&broken, Vector3::zeros(), 4e-4, None, 0.43, 1.0);
+        assert_eq!(l.force, Vector3::zeros());
+        let twisted = Wrench {
+            force: Vector3::new(0.0, 0.0, 1.0),
+            torque: Vector3::new(0.0, 0.0, f64::INFINITY),
+        };
+        let l = linearise(&twisted, Vector3::zeros(), 4e-4, None, 0.43, 1.0);
+        assert_eq!((l.force, l.twist), (Vector3::zeros(), 0.0));
     }
 
     /// Four contact points at the corners of a 30 x 20 mm face, even shares: a turn about

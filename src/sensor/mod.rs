@@ -389,16 +389,18 @@ impl TactileSensor {
             // Nothing is held: the last evaluation solved its indenters.
             return true;
         }
-        let gel = self.gel_box();
-        let touching: Vec<&Placed> = indenters
-            .iter()
-            .filter(|p| p.aabb().intersects(&gel))
-            .collect();
+        let touching: Vec<&Placed> = self.touching(indenters).collect();
         touching.len() == self.solved.len()
             && touching
                 .iter()
                 .zip(&self.solved)
                 .all(|(a, b)| Arc::ptr_eq(&a.shape, &b.shape) && a.pose == b.pose)
+    }
+
+    /// The indenters of `indenters` whose bounding box meets the gel.
+    fn touching<'a>(&self, indenters: &'a [Placed]) -> impl Iterator<Item = &'a Placed> {
+        let gel = self.gel_box();
+        indenters.iter().filter(move |p| p.aabb().intersects(&gel))
     }
 
     /// Whether `touching` are the last solve's indenters, each moved less than `hold`, and
@@ -445,12 +447,7 @@ impl TactileSensor {
     pub fn evaluate(&mut self, indenters: &[Placed], out: &mut [f64]) -> Evaluation {
         let mut eval = Evaluation::default();
         let t0 = Instant::now();
-        let gel_box = self.gel_box();
-        let mut touching: Vec<Placed> = indenters
-            .iter()
-            .filter(|p| p.aabb().intersects(&gel_box))
-            .cloned()
-            .collect();
+        let mut touching: Vec<Placed> = self.touching(indenters).cloned().collect();
         eval.contact = !touching.is_empty();
         eval.held = self.holds(&touching);
         if eval.held {

@@ -1102,3 +1102,29 @@ fn a_gel_of_any_thickness_resists_a_press() {
         );
     }
 }
+
+/// A reset gel keeps no dense systems (a fresh gel has none) and answers a frictional
+/// press as a fresh gel does, bit for bit: the kept systems are a cache of the gel alone.
+#[test]
+fn a_reset_gel_keeps_no_systems_and_answers_as_a_fresh_one() {
+    let g = Gel::new(rough_gel(0.5), options(1)).unwrap();
+    let s = ball(3e-3);
+    let press = |x: f64| {
+        let placed = [at(&s, 3e-3, x, 0.0, 0.25e-3)];
+        (step(&placed, g.layout.dx), [placed[0].pose])
+    };
+    let mut used = Compliance::new(&g).unwrap();
+    for x in [0.0, 0.2e-3, 0.4e-3] {
+        let (indenters, poses) = press(x);
+        assert!(used.contact(&indenters, &poses, 1e-3).converged);
+    }
+    assert!(!used.locals.is_empty());
+    used.reset();
+    assert!(used.locals.is_empty());
+    let (indenters, poses) = press(-0.3e-3);
+    let a = used.contact(&indenters, &poses, 1e-3);
+    let b = Compliance::new(&g)
+        .unwrap()
+        .contact(&indenters, &poses, 1e-3);
+    assert!(a.forces == b.forces && a.surface == b.surface);
+}

@@ -1624,11 +1624,13 @@ pub(crate) fn run_field(
     Ok(values)
 }
 
-/// Rows of one run of a field graph ([`run_field`]): more are run in parts. ONNX Runtime's
-/// memory arena keeps what its largest run asked for (a grasp's pad decodes up to 10,000
-/// rows: about 100 MB of arena, never returned); in parts of 2,048 it stays bounded, and
-/// a press (at most about 1,300 rows at 320 x 240) runs in one part as before. Measured:
-/// `docs/benchmarks.md`, the coupled grasp's soak.
+/// Rows of one run of a field graph ([`run_field`]): more are run in parts. ONNX
+/// Runtime's memory arena keeps what its largest run asked for (a grasp's pad may decode
+/// its whole 100 x 100 lattice: 80 to 100 MB of arena over a grasp soak, never
+/// returned); in parts of 2,048 it stays bounded, and a press under a 5 mm sphere (800 to
+/// 1,300 rows) runs in one part as before. (The 8-bit decoder scales its activations per
+/// run, so a larger region decodes to within that quantisation of one run's answer.)
+/// Measured: `docs/rl.md`, the coupled grasp's soak.
 const FIELD_ROWS: usize = 2048;
 
 fn run_err(graph: &'static str, e: impl std::fmt::Display) -> RomError {

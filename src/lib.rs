@@ -22,6 +22,22 @@ pub mod sensor_file;
 pub mod state;
 pub mod visual;
 
+/// Hands the heap's free pages back to the operating system (glibc's `malloc_trim`), so
+/// that the resident set holds what the process still uses, not what it freed; elsewhere
+/// nothing.
+pub fn release_free_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        extern "C" {
+            fn malloc_trim(pad: usize) -> std::ffi::c_int;
+        }
+        // SAFETY: malloc_trim takes no pointer; it only returns free heap pages.
+        unsafe {
+            malloc_trim(0);
+        }
+    }
+}
+
 /// The root of the source checkout this library was built from (this crate's folder, the
 /// workspace's root). Tests and tools find the checkout's `.venv`, `models/` and the
 /// benchmark meshes in `../shared` through it; an installed plugin looks beside itself

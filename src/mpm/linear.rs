@@ -277,26 +277,12 @@ struct SplitFactor {
 }
 
 /// Entries of a system's compliance from which a reset after it was built hands the
-/// heap's free pages back to the system ([`return_free_memory`]): 128 Ki entries, 1 MiB.
+/// heap's free pages back to the system ([`crate::release_free_memory`]): 128 Ki entries,
+/// 1 MiB. A grasp's dense systems are megabytes each; glibc serves them from its heap once
+/// it has raised its mmap threshold to their size, and keeps what they leave as the
+/// process's resident memory. (At a reset, not at every system dropped: there it cost the
+/// coupled grasp about 4 % of its time, 136.8 against 131.4 ms a step.)
 const TRIM_ENTRIES: usize = 1 << 17;
-
-/// Hands the heap's free pages back to the operating system (glibc's `malloc_trim`). A
-/// grasp's dense systems are megabytes each; glibc serves them from its heap once it has
-/// raised its mmap threshold to their size, and without this keeps what they leave as
-/// the process's resident memory. (Called at a reset, not at every system dropped: there
-/// it cost the coupled grasp about 4 % of its time, 136.8 against 131.4 ms a step.)
-fn return_free_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    {
-        extern "C" {
-            fn malloc_trim(pad: usize) -> std::ffi::c_int;
-        }
-        // SAFETY: malloc_trim takes no pointer; it only returns free heap pages.
-        unsafe {
-            malloc_trim(0);
-        }
-    }
-}
 
 /// Sets of node columns whose dense systems are kept: the frictional problem's and the
 /// vertical one of a frame that starts without friction.
@@ -1475,7 +1461,7 @@ impl Compliance {
         self.last.clear();
         self.locals.clear();
         if std::mem::take(&mut self.built_large) {
-            return_free_memory();
+            crate::release_free_memory();
         }
     }
 }

@@ -235,16 +235,9 @@ pub fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
 
-/// Hands the heap's free pages back to the operating system (glibc's `malloc_trim`), so
-/// that the resident set at the start of a run holds what the process still uses, not
-/// what earlier runs freed; elsewhere nothing.
-pub fn release_free_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: malloc_trim only returns free heap pages to the kernel; it takes no pointer.
-    unsafe {
-        libc::malloc_trim(0);
-    }
-}
+/// Hands the heap's free pages back before a run, so that its resident set at the start
+/// holds what the process still uses, not what earlier runs freed.
+pub use tacrom::release_free_memory;
 
 /// A field of `/proc/self/status` in bytes (`VmHWM`, `VmRSS`).
 pub fn status_bytes(field: &str) -> Option<u64> {

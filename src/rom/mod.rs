@@ -1024,7 +1024,7 @@ impl Rom {
             .map_err(|e| run_err("encoder", e))?;
         let out = self
             .encoder
-            .session
+            .session()
             .run(ort::inputs!["observation" => input])
             .map_err(|e| run_err("encoder", e))?;
         let (_, z) = out["z"]
@@ -1060,7 +1060,7 @@ impl Rom {
             .map_err(|e| run_err("jacobian", e))?;
         let qt = TensorRef::from_array_view(([n, f], query)).map_err(|e| run_err("jacobian", e))?;
         let out = jacobian
-            .session
+            .session()
             .run(ort::inputs!["z" => zt, "query" => qt])
             .map_err(|e| run_err("jacobian", e))?;
         let (_, d) = out["depth"]
@@ -1454,7 +1454,8 @@ impl Rom {
 
 impl Rom {
     /// A copy with sessions of its own (ONNX Runtime sessions run with `&mut`), loaded again
-    /// from the model directory: for `mj_copyData`.
+    /// from the model directory (kept idle sessions where there are: [`runtime::load_graph`]):
+    /// for `mj_copyData`.
     pub fn try_clone(&self) -> Result<Self, RomError> {
         let mut copy = Rom::load(&self.manifest.dir, self.options)?;
         copy.z.clone_from(&self.z);
@@ -1613,7 +1614,7 @@ pub(crate) fn run_field(
         let qt = TensorRef::from_array_view(([rows, f], &query[start * f..(start + rows) * f]))
             .map_err(|e| run_err(name, e))?;
         let out = graph
-            .session
+            .session()
             .run(ort::inputs!["z" => zt, "query" => qt])
             .map_err(|e| run_err(name, e))?;
         let (_, v) = out[output]

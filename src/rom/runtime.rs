@@ -7,8 +7,10 @@
 //! `site-packages/onnxruntime/capi/`); beside this library (its own path, walking up to a
 //! `.venv`); and the source tree's `.venv` (tests and tools run from the checkout).
 
+use std::hash::{Hash, Hasher};
+use std::mem::ManuallyDrop;
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
 
 use ort::session::Session;
 use ort::value::ValueType;
@@ -146,16 +148,95 @@ pub fn environment() -> Result<&'static ort::environment::Environment, RomError>
     .map_err(|e| RomError::Runtime(e.clone()))
 }
 
-/// One ONNX graph with its named inputs and outputs checked against the manifest.
+/// One ONNX graph with its named inputs and outputs checked against the manifest. Its
+/// session goes back to the process's idle sessions when it is dropped ([`load_graph`]).
 pub struct Graph {
-    /// The session.
-    pub session: Session,
+    session: ManuallyDrop<Session>,
+    key: GraphKey,
+}
+
+impl Graph {
+    /// The session, to run.
+    pub fn session(&mut self) -> &mut Session {
+        &mut self.session
+    }
+}
+
+impl Drop for Graph {
+    fn drop(&mut self) {
+        // SAFETY: `session` is taken once, here, and the graph is not used after its drop.
+        let session = unsafe { ManuallyDrop::take(&mut self.session) };
+        give_back(self.key, session);
+    }
 }
 
 impl std::fmt::Debug for Graph {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Graph").finish_non_exhaustive()
     }
+}
+
+/// What makes two loads of a graph interchangeable: the file's bytes (their length and
+/// digest, so that a file replaced at the same path, however soon, is another graph) and
+/// the session's settings.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct GraphKey {
+    len: usize,
+    digest: u64,
+    threads: usize,
+    memory_pattern: bool,
+}
+
+/// Sessions of dropped graphs, oldest first, for the next load of the same bytes with the
+/// same settings. Making and dropping an ONNX Runtime session leaves about 2 KiB behind
+/// in the process each time (measured: `examples/soak.py --modes rom --cycles 400`, 1.9
+/// KiB per model load/free cycle, a model being two to four sessions; docs/benchmarks.md),
+/// and costs milliseconds; a sensor made again, an `MjData` copied for a rollout's
+/// thread, or a model loaded per episode takes a kept one instead. Each session stays
+/// with one graph while it lives, so sensors running at once never share one.
+static IDLE: Mutex<Vec<(GraphKey, Session)>> = Mutex::new(Vec::new());
+
+/// At most this many idle sessions are kept (the oldest dropped first): those of the last
+/// few models freed (a model is two to four graphs), so that a process that freed its
+/// sensors keeps a bounded set of their weights and arenas.
+pub const IDLE_SESSIONS: usize = 12;
+
+fn idle() -> std::sync::MutexGuard<'static, Vec<(GraphKey, Session)>> {
+    // A panic elsewhere while holding the lock leaves the list itself whole.
+    IDLE.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+fn take_idle(key: GraphKey) -> Option<Session> {
+    let mut idle = idle();
+    let i = idle.iter().rposition(|(k, _)| *k == key)?;
+    Some(idle.remove(i).1)
+}
+
+fn give_back(key: GraphKey, session: Session) {
+    let evicted = {
+        let mut idle = idle();
+        idle.push((key, session));
+        let over = idle.len().saturating_sub(IDLE_SESSIONS);
+        idle.drain(..over).collect::<Vec<_>>()
+    };
+    // Dropped outside the lock: freeing a session takes time.
+    drop(evicted);
+}
+
+/// Idle sessions kept for a file of these bytes (any settings): for tests.
+#[cfg(test)]
+fn idle_sessions_of(bytes: &[u8]) -> usize {
+    let (len, digest) = (bytes.len(), digest(bytes));
+    idle()
+        .iter()
+        .filter(|(k, _)| k.len == len && k.digest == digest)
+        .count()
+}
+
+fn digest(bytes: &[u8]) -> u64 {
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    bytes.hash(&mut hasher);
+    hasher.finish()
 }
 
 fn shape_ok(actual: &[i64], expected: &[i64]) -> bool {
@@ -166,8 +247,10 @@ fn shape_ok(actual: &[i64], expected: &[i64]) -> bool {
             .all(|(&a, &e)| e < 0 || a < 0 || a == e)
 }
 
-/// Loads `path` on one intra-op thread and checks that its inputs and outputs are exactly
-/// the named float tensors of `inputs` and `outputs` (dimension -1: any).
+/// Loads `path` on `threads` intra-op threads (a session kept from a dropped graph of
+/// the same bytes and settings where there is one: [`IDLE`]) and checks that its inputs
+/// and outputs are exactly the named float tensors of `inputs` and `outputs` (dimension
+/// -1: any).
 pub fn load_graph(
     path: &Path,
     inputs: &[(String, Vec<i64>)],
@@ -181,27 +264,45 @@ pub fn load_graph(
     if !path.is_file() {
         return Err(RomError::MissingFile(path.to_owned()));
     }
-    let env = environment()?;
-    let session = Session::builder(env)
-        .and_then(|b| b.with_intra_threads(threads.max(1)).map_err(Into::into))
-        .and_then(|b| b.with_inter_threads(1).map_err(Into::into))
-        // Idle ONNX Runtime workers must not spin: the gel's own threads run between the
-        // model's calls (measured, two threads: rom 0.7 to 0.87 times as fast as one
-        // thread with spinning workers).
-        .and_then(|b| b.with_intra_op_spinning(false).map_err(Into::into))
-        .and_then(|b| b.with_inter_op_spinning(false).map_err(Into::into))
-        // No memory pattern for a graph with a dimension of any size: it plans the
-        // allocations per input shape and keeps every plan, and the decoder's rows (the
-        // deformed region's lattice points) change from frame to frame. Measured
-        // (`examples/soak.py --modes rom-linear --evaluations 20000`): the resident memory
-        // grew 288 and 292 KiB over the walk's second half with it, 4 KiB without. The
-        // encoder's one shape keeps its plan.
-        .and_then(|b| {
-            let varying = inputs.iter().any(|(_, shape)| shape.contains(&-1));
-            b.with_memory_pattern(!varying).map_err(Into::into)
-        })
-        .and_then(|mut b| b.commit_from_file(path))
-        .map_err(|e| bad(format!("cannot load: {e}")))?;
+    let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read: {e}")))?;
+    // No memory pattern for a graph with a dimension of any size: it plans the
+    // allocations per input shape and keeps every plan, and the decoder's rows (the
+    // deformed region's lattice points) change from frame to frame. Measured
+    // (`examples/soak.py --modes rom-linear --evaluations 20000`): the resident memory
+    // grew 288 and 292 KiB over the walk's second half with it, 4 KiB without. The
+    // encoder's one shape keeps its plan.
+    let varying = inputs.iter().any(|(_, shape)| shape.contains(&-1));
+    let key = GraphKey {
+        len: bytes.len(),
+        digest: digest(&bytes),
+        threads: threads.max(1),
+        memory_pattern: !varying,
+    };
+    let session = match take_idle(key) {
+        Some(session) => session,
+        None => {
+            let env = environment()?;
+            Session::builder(env)
+                .and_then(|b| b.with_intra_threads(key.threads).map_err(Into::into))
+                .and_then(|b| b.with_inter_threads(1).map_err(Into::into))
+                // Idle ONNX Runtime workers must not spin: the gel's own threads run
+                // between the model's calls (measured, two threads: rom 0.7 to 0.87 times
+                // as fast as one thread with spinning workers).
+                .and_then(|b| b.with_intra_op_spinning(false).map_err(Into::into))
+                .and_then(|b| b.with_inter_op_spinning(false).map_err(Into::into))
+                .and_then(|b| {
+                    b.with_memory_pattern(key.memory_pattern)
+                        .map_err(Into::into)
+                })
+                .and_then(|mut b| b.commit_from_memory(&bytes))
+                .map_err(|e| bad(format!("cannot load: {e}")))?
+        }
+    };
+    let graph = Graph {
+        session: ManuallyDrop::new(session),
+        key,
+    };
+    let session = &graph.session;
     for (kind, have, want) in [
         ("input", session.inputs(), inputs),
         ("output", session.outputs(), outputs),
@@ -237,5 +338,62 @@ pub fn load_graph(
             }
         }
     }
-    Ok(Graph { session })
+    Ok(graph)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A seed graph of the fuzz corpus with `tag` as its doc string (ONNX `ModelProto`
+    /// field 6, appended), so that its bytes are this test's alone.
+    fn tagged(seed: &str, tag: &str) -> Vec<u8> {
+        let path = crate::checkout_root().join("fuzz/corpus/graph").join(seed);
+        let mut bytes = std::fs::read(path).unwrap();
+        bytes.extend([0x32, tag.len() as u8]);
+        bytes.extend(tag.as_bytes());
+        bytes
+    }
+
+    /// A dropped graph's session is kept and given to the next load of the same bytes,
+    /// which runs as the fresh one did; a file replaced at the same path by other bytes of
+    /// the same length, at once, is loaded afresh and judged on its own (here: refused for
+    /// its integer output by ONNX Runtime), not served the kept session of the old bytes.
+    #[test]
+    fn kept_sessions_follow_the_bytes_not_the_path() {
+        let dir = std::env::temp_dir().join(format!("tacrom-idle-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("graph.onnx");
+        let sum = tagged("seed-sum", "kept sessions");
+        let int = tagged("seed-int-output", "kept sessions");
+        assert_eq!(sum.len(), int.len());
+        let inputs = [
+            ("z".to_owned(), vec![1, 4]),
+            ("query".to_owned(), vec![-1, 3]),
+        ];
+        let outputs = [("depth".to_owned(), vec![-1, 1])];
+        let (z, query) = ([0.1f32, -0.2, 0.3, 0.0], [1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        let run =
+            |graph: &mut Graph| crate::rom::run_field(graph, "decoder", "depth", &z, &query, 2, 3);
+
+        std::fs::write(&path, &sum).unwrap();
+        let mut fresh = load_graph(&path, &inputs, &outputs, 1).unwrap();
+        assert_eq!(run(&mut fresh).unwrap(), [6.0, 15.0]);
+        assert_eq!(idle_sessions_of(&sum), 0);
+        drop(fresh);
+        assert_eq!(
+            idle_sessions_of(&sum),
+            1,
+            "the dropped graph's session is kept"
+        );
+        let mut again = load_graph(&path, &inputs, &outputs, 1).unwrap();
+        assert_eq!(idle_sessions_of(&sum), 0, "the next load takes it");
+        assert_eq!(run(&mut again).unwrap(), [6.0, 15.0]);
+        drop(again);
+
+        std::fs::write(&path, &int).unwrap();
+        let err = load_graph(&path, &inputs, &outputs, 1).unwrap_err();
+        assert!(err.to_string().contains("cannot load"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

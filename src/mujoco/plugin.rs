@@ -24,8 +24,8 @@ use crate::config::{Config, RawConfig, ATTRIBUTES};
 use crate::geometry::{Placed, Sdf};
 use crate::mpm::Wrench;
 use crate::sensor::coupling::{
-    centre_of_pressure, linearise, needs_solve, reduced_mass, secant, Base, Coupling, Linearised,
-    Sample, SHALLOWEST, STABLE_RATIO,
+    centre_of_pressure, linearise, needs_solve, reduced_mass, secant, tangential_secant, Base,
+    Coupling, Linearised, Sample, SHALLOWEST, STABLE_RATIO,
 };
 use crate::sensor::TactileSensor;
 use crate::state::{Io, Persist};
@@ -752,6 +752,17 @@ unsafe fn implicit(
     let base_of = |inst: &Instance, geom: usize| -> Option<Base> {
         inst.coupling.base.iter().find(|b| b.geom == geom).copied()
     };
+    let follow = |base: &Base, moved: Vector3<f64>| {
+        linearise(
+            &base.wrench,
+            moved,
+            deepest(base.geom),
+            base.normal,
+            base.tangential,
+            poisson,
+            friction,
+        )
+    };
     let stale = contacts
         .iter()
         .any(|c| match base_of(inst, c.geom).as_ref().and_then(&motion) {
@@ -760,8 +771,8 @@ unsafe fn implicit(
         });
     // A new base for every geom where an indenter moved too far (this state's evaluation
     // where the sensor stage ran one, else one here), or where the sensor stage solved
-    // this state (for its images). Each keeps the normal stiffness measured between its
-    // last two solves ([`secant`]).
+    // this state (for its images). Each keeps the normal and tangential stiffness measured
+    // between its last two solves ([`secant`], [`tangential_secant`]).
     let solved_here = evaluated && inst.sensor.solved_at(&inst.placed);
     if stale || solved_here {
         if !evaluated {
@@ -770,14 +781,19 @@ unsafe fn implicit(
         let wrenches = inst.sensor.wrenches(&inst.placed);
         let mut bases = Vec::with_capacity(inst.geoms.len());
         for ((&geom, p), wrench) in inst.geoms.iter().zip(&inst.placed).zip(wrenches) {
-            let normal = base_of(inst, geom).and_then(|b| {
-                secant(&b.wrench, &wrench, motion(&b)?.z, deepest(geom)).or(b.normal)
+            let before = base_of(inst, geom);
+            let moved = before.as_ref().and_then(&motion);
+            let normal = before
+                .and_then(|b| secant(&b.wrench, &wrench, moved?.z, deepest(geom)).or(b.normal));
+            let tangential = before.and_then(|b| {
+                tangential_secant(&b.wrench, &wrench, moved?, friction).or(b.tangential)
             });
             bases.push(Base {
                 geom,
                 pose: p.pose,
                 wrench,
                 normal,
+                tangential,
             });
         }
         inst.coupling.base = bases;
@@ -787,14 +803,7 @@ unsafe fn implicit(
         let moved = motion(&base)?;
         Some(Linearised {
             turned: now(geom)?.rotation * base.pose.rotation.inverse(),
-            ..linearise(
-                &base.wrench,
-                moved,
-                deepest(geom),
-                base.normal,
-                poisson,
-                friction,
-            )
+            ..follow(&base, moved)
         })
     };
     // SAFETY: valid model and data per the caller; `contacts` are this data's.

@@ -76,6 +76,9 @@ pub struct Base {
     /// The gel's normal stiffness measured between this solve and an earlier one
     /// ([`secant`], N/m), where one was.
     pub normal: Option<f64>,
+    /// Its tangential stiffness measured likewise ([`tangential_secant`], N/m), where one
+    /// was.
+    pub tangential: Option<f64>,
 }
 
 impl Default for Base {
@@ -85,6 +88,7 @@ impl Default for Base {
             pose: Isometry3::identity(),
             wrench: Wrench::default(),
             normal: None,
+            tangential: None,
         }
     }
 }
@@ -161,12 +165,13 @@ impl Coupling {
             b.pose.persist(io);
             b.wrench.persist(io);
             state::option(io, &mut b.normal, || 0.0);
+            state::option(io, &mut b.tangential, || 0.0);
         }
     }
 
     /// The length [`Coupling::persist`] writes at most for `geoms` geoms.
     pub fn state_len(geoms: usize) -> usize {
-        4 + 2 * (1 + 10 * geoms) + (1 + 7 * geoms) + (1 + 16 * geoms)
+        4 + 2 * (1 + 10 * geoms) + (1 + 7 * geoms) + (1 + 18 * geoms)
     }
 
     /// Records the samples `now` at `time` and their rates over the step since the last
@@ -456,8 +461,8 @@ impl Linearised {
 
 /// The ratio of a contact's tangential to its normal stiffness on an elastic half-space
 /// (Mindlin): `2 (1 - nu) / (2 - nu)`. On a thin bonded layer the normal stiffness grows
-/// more than the tangential, so this overestimates the tangential one (more damping in the
-/// implicit step, the same equilibrium).
+/// more than the tangential, so this overestimates the tangential one: it stands in until
+/// two solves measure the gel's own ([`tangential_secant`]), and bounds that from above.
 pub fn tangential_ratio(poisson: f64) -> f64 {
     2.0 * (1.0 - poisson) / (2.0 - poisson)
 }
@@ -471,15 +476,18 @@ pub fn centre_of_pressure(wrench: &Wrench) -> Option<Vector3<f64>> {
 
 /// The push-back on an indenter whose last solve gave `solved`, whose centre of pressure
 /// has moved by `moved` since (sensor frame) and which lies `depth` deep in the gel's
-/// rest surface now: the force follows `solved` with the normal stiffness
-/// [`DEPTH_EXPONENT`]` F / d` (`d` the depth at the solve) and the tangential one
-/// [`tangential_ratio`] times it, never pulls, and its tangential part stays within the
-/// friction cone `friction F_z`.
+/// rest surface now: the force follows `solved` with the normal stiffness `measured`
+/// (else [`DEPTH_EXPONENT`]` F / d`, `d` the depth at the solve) and the tangential one
+/// `measured_tangential` (else [`tangential_ratio`] times the normal one, which also
+/// bounds a measured one from above, and [`TANGENTIAL_RANGE`]`[0]` times that from
+/// below), never pulls, and its tangential part stays within the friction cone
+/// `friction F_z`.
 pub fn linearise(
     solved: &Wrench,
     moved: Vector3<f64>,
     depth: f64,
     measured: Option<f64>,
+    measured_tangential: Option<f64>,
     poisson: f64,
     friction: f64,
 ) -> Linearised {
@@ -501,7 +509,10 @@ pub fn linearise(
     let at_solve = (depth + moved.z).max(SHALLOWEST);
     let normal = measured.unwrap_or(DEPTH_EXPONENT * f0.z / at_solve);
     let tangential = if friction > 0.0 {
-        normal * tangential_ratio(poisson)
+        let most = normal * tangential_ratio(poisson);
+        measured_tangential
+            .filter(|k| k.is_finite() && *k > 0.0)
+            .map_or(most, |k| k.clamp(TANGENTIAL_RANGE[0] * most, most))
     } else {
         0.0
     };
@@ -550,6 +561,54 @@ pub const SECANT_FRACTION: f64 = 2e-3;
 
 /// The bounds of [`secant`]'s stiffness, as multiples of the Hertz estimate.
 pub const SECANT_RANGE: [f64; 2] = [0.5, 8.0];
+
+/// The gel's tangential stiffness (N/m) between two solves of one indenter, `then` and
+/// `now`, between which its centre of pressure moved `moved` (m, sensor frame): the change
+/// of the tangential force along the motion over the motion along the surface, where both
+/// solves hold within their friction cones ([`STICKING`] of `friction F_z`: a sliding
+/// contact's force is the cone's, not a stiffness's) and the force changed by more than
+/// [`TANGENTIAL_SECANT`] of the normal force (beyond the solves' own differences, their
+/// tolerance a few thousandths of the force). [`linearise`] bounds it.
+///
+/// Why measured: Mindlin's ratio of the normal stiffness holds on a half-space; on a thin
+/// bonded layer the normal stiffness grows with the layer's confinement and the tangential
+/// one does not (the gripper's pads on a box: a fourth to a sixth of it), and a
+/// tangential stiffness followed between solves at several times the gel's holds a
+/// loaded object short of where the gel lets it go, so that each solve moves it on by a
+/// fraction of the way (measured: `docs/rl.md`, "A coupled grasp").
+pub fn tangential_secant(
+    then: &Wrench,
+    now: &Wrench,
+    moved: Vector3<f64>,
+    friction: f64,
+) -> Option<f64> {
+    let sticking =
+        |w: &Wrench| w.force.z > 0.0 && w.force.xy().norm() <= STICKING * friction * w.force.z;
+    let along = moved.xy();
+    let df = now.force.xy() - then.force.xy();
+    let measurable = friction > 0.0
+        && sticking(then)
+        && sticking(now)
+        && along.norm() > 0.0
+        && df.norm() > TANGENTIAL_SECANT * then.force.z.min(now.force.z);
+    if !measurable {
+        return None;
+    }
+    let k = -df.dot(&along) / along.norm_squared();
+    (k > 0.0 && k.is_finite()).then_some(k)
+}
+
+/// The share of the friction cone within which a solve's tangential force counts as
+/// sticking for [`tangential_secant`].
+pub const STICKING: f64 = 0.9;
+
+/// The least change of the tangential force between two solves, as a fraction of the
+/// normal force, over which [`tangential_secant`] measures the gel's stiffness.
+pub const TANGENTIAL_SECANT: f64 = 0.02;
+
+/// The bounds of a measured tangential stiffness, as multiples of Mindlin's estimate
+/// ([`tangential_ratio`] times the normal stiffness).
+pub const TANGENTIAL_RANGE: [f64; 2] = [0.02, 1.0];
 
 /// Whether an indenter whose centre of pressure moved by `moved` (m) since the last solve,
 /// at a contact `depth` deep then, needs the gel solved again ([`RESOLVE_FRACTION`]).
@@ -830,33 +889,44 @@ mod tests {
             torque: Vector3::zeros(),
         };
         // Unmoved: the solve's force; the stiffness 1.5 F / d.
-        let l = linearise(&w, Vector3::zeros(), 4e-4, None, 0.43, 1.0);
+        let l = linearise(&w, Vector3::zeros(), 4e-4, None, None, 0.43, 1.0);
         assert_eq!(l.force, w.force);
         assert!((l.normal - 1.5 * 2.0 / 4e-4).abs() < 1e-9);
         assert!((l.tangential - l.normal * tangential_ratio(0.43)).abs() < 1e-9);
         // 10 um deeper (and 10 um deeper in MuJoCo's contact too): the depth at the solve
         // was 4e-4, the force grows by k 1e-5.
         let deeper = Vector3::new(0.0, 0.0, -1e-5);
-        let l = linearise(&w, deeper, 4.1e-4, None, 0.43, 1.0);
+        let l = linearise(&w, deeper, 4.1e-4, None, None, 0.43, 1.0);
         assert!(
             (l.force.z - (2.0 + 1.5 * 2.0 / 4e-4 * 1e-5)).abs() < 1e-12,
             "{}",
             l.force.z
         );
         // Out of the gel: never a pull.
-        let out = linearise(&w, Vector3::new(0.0, 0.0, 1e-3), 0.0, None, 0.43, 1.0);
+        let out = linearise(&w, Vector3::new(0.0, 0.0, 1e-3), 0.0, None, None, 0.43, 1.0);
         assert_eq!(out.force, Vector3::zeros());
         // Sliding far: the tangential force stops at the cone; without friction there is
         // no tangential stiffness.
-        let slid = linearise(&w, Vector3::new(-1e-3, 0.0, 0.0), 4e-4, None, 0.43, 0.5);
+        let slid = linearise(
+            &w,
+            Vector3::new(-1e-3, 0.0, 0.0),
+            4e-4,
+            None,
+            None,
+            0.43,
+            0.5,
+        );
         assert!((slid.force.x - 0.5 * 2.0).abs() < 1e-12, "{}", slid.force.x);
         assert_eq!(
-            linearise(&w, Vector3::zeros(), 4e-4, None, 0.43, 0.0).tangential,
+            linearise(&w, Vector3::zeros(), 4e-4, None, None, 0.43, 0.0).tangential,
             0.0
         );
         // No force at the solve: nothing now.
         let none = Wrench::default();
-        assert_eq!(linearise(&none, deeper, 1e-4, None, 0.43, 1.0).normal, 0.0);
+        assert_eq!(
+            linearise(&none, deeper, 1e-4, None, None, 0.43, 1.0).normal,
+            0.0
+        );
     }
 
     #[test]
@@ -875,6 +945,47 @@ mod tests {
         let c = centre_of_pressure(&w).unwrap();
         assert!((c - Vector3::new(0.001, 0.003, 0.0)).norm() < 1e-15, "{c}");
         assert!(centre_of_pressure(&Wrench::default()).is_none());
+    }
+
+    #[test]
+    fn the_tangential_stiffness_is_measured_where_both_solves_stick() {
+        let w = |fx: f64, fy: f64, fz: f64| Wrench {
+            force: Vector3::new(fx, fy, fz),
+            torque: Vector3::zeros(),
+        };
+        // Moved 0.1 mm along x and y: the force along the motion fell by k times it.
+        let k = 4e3;
+        let moved = Vector3::new(0.6e-4, 0.8e-4, -1e-6);
+        let then = w(0.1, -0.2, 2.0);
+        let now = w(0.1 - k * 0.6e-4, -0.2 - k * 0.8e-4, 2.0);
+        let got = tangential_secant(&then, &now, moved, 0.5).unwrap();
+        assert!((got - k).abs() < 1e-9 * k, "{got}");
+        // Not measured: without friction; with a solve at its cone (sliding: the cone's
+        // force, not a stiffness's); a change within the solves' tolerance; a force that
+        // grew along the motion; no motion along the surface; a NaN.
+        assert!(tangential_secant(&then, &now, moved, 0.0).is_none());
+        let sliding = w(0.95, 0.0, 2.0);
+        assert!(tangential_secant(&sliding, &now, moved, 0.5).is_none());
+        assert!(tangential_secant(&then, &w(0.1 - 0.01, -0.2, 2.0), moved, 0.5).is_none());
+        assert!(tangential_secant(&now, &then, moved, 0.5).is_none());
+        assert!(tangential_secant(&then, &now, Vector3::new(0.0, 0.0, 1e-4), 0.5).is_none());
+        assert!(tangential_secant(&then, &now, Vector3::new(f64::NAN, 0.0, 0.0), 0.5).is_none());
+        // Followed between solves, within Mindlin's estimate above and a fiftieth of it
+        // below.
+        let l = linearise(&then, Vector3::zeros(), 4e-4, None, Some(k), 0.43, 0.5);
+        assert_eq!(l.tangential, k);
+        let most = l.normal * tangential_ratio(0.43);
+        let stiff = linearise(&then, Vector3::zeros(), 4e-4, None, Some(1e12), 0.43, 0.5);
+        assert_eq!(stiff.tangential, most);
+        let soft = linearise(&then, Vector3::zeros(), 4e-4, None, Some(1e-3), 0.43, 0.5);
+        assert!((soft.tangential - TANGENTIAL_RANGE[0] * most).abs() < 1e-9 * most);
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let l = linearise(&then, Vector3::zeros(), 4e-4, None, Some(bad), 0.43, 0.5);
+            assert_eq!(l.tangential, most);
+        }
+        // Without friction, no tangential stiffness.
+        let l = linearise(&then, Vector3::zeros(), 4e-4, None, Some(k), 0.43, 0.0);
+        assert_eq!(l.tangential, 0.0);
     }
 
     #[test]
@@ -918,11 +1029,11 @@ mod tests {
             "{soft}"
         );
         // Used in place of the Hertz estimate; one that is no stiffness is not.
-        let l = linearise(&w(1.0), Vector3::zeros(), 4e-4, Some(5e3), 0.43, 1.0);
+        let l = linearise(&w(1.0), Vector3::zeros(), 4e-4, Some(5e3), None, 0.43, 1.0);
         assert_eq!(l.normal, 5e3);
         assert_eq!(l.tangential, 5e3 * tangential_ratio(0.43));
         for bad in [f64::NAN, -1.0, 0.0, f64::INFINITY] {
-            let l = linearise(&w(1.0), Vector3::zeros(), 4e-4, Some(bad), 0.43, 1.0);
+            let l = linearise(&w(1.0), Vector3::zeros(), 4e-4, Some(bad), None, 0.43, 1.0);
             assert_eq!(l.normal, DEPTH_EXPONENT / 4e-4, "{bad}");
         }
         // Nor is a wrench that is not finite: no push.
@@ -930,13 +1041,13 @@ mod tests {
             force: Vector3::new(f64::NAN, 0.0, 1.0),
             torque: Vector3::zeros(),
         };
-        let l = linearise(&broken, Vector3::zeros(), 4e-4, None, 0.43, 1.0);
+        let l = linearise(&broken, Vector3::zeros(), 4e-4, None, None, 0.43, 1.0);
         assert_eq!(l.force, Vector3::zeros());
         let twisted = Wrench {
             force: Vector3::new(0.0, 0.0, 1.0),
             torque: Vector3::new(0.0, 0.0, f64::INFINITY),
         };
-        let l = linearise(&twisted, Vector3::zeros(), 4e-4, None, 0.43, 1.0);
+        let l = linearise(&twisted, Vector3::zeros(), 4e-4, None, None, 0.43, 1.0);
         assert_eq!((l.force, l.twist), (Vector3::zeros(), 0.0));
     }
 

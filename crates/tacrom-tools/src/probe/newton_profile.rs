@@ -1,6 +1,6 @@
 //! The benchmark's moving press, frame by frame, for profiling a solver:
 //! `tacrom probe newton_profile SOLVER DX_M FRICTION FRAMES THREADS
-//! POISSON TOLERANCE` (defaults: newton 1.4e-3 0.5 6 1 0.43 1e-3). Prints each frame's time, steps, factorisations,
+//! POISSON TOLERANCE` (defaults: newton 1.4e-3 0.5 6 1 0.43 1e-3). Prints each frame's time, passes, inner steps (CG iterations, or the linear solver's Newton steps), factorisations,
 //! steps that reused one, convergence and force; `perf record` on it shows where a
 //! solver spends its time.
 
@@ -56,9 +56,10 @@ pub fn run(args: Vec<String>) {
         let t0 = Instant::now();
         let r = g.solve(&at(0.02e-3 * f as f64, 0.1e-3 + 0.05e-3 * f as f64));
         println!(
-            "frame {f}: {:.1} ms it {} fac {} reuse {} conv {} res {:.2e} active {} F {:?}",
+            "frame {f}: {:.1} ms it {} steps {} fac {} reuse {} conv {} res {:.2e} active {} F {:?}",
             t0.elapsed().as_secs_f64() * 1e3,
             r.iterations,
+            r.cg_iterations,
             r.factorisations,
             r.reused,
             r.converged,

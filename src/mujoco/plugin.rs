@@ -752,17 +752,6 @@ unsafe fn implicit(
     let base_of = |inst: &Instance, geom: usize| -> Option<Base> {
         inst.coupling.base.iter().find(|b| b.geom == geom).copied()
     };
-    let follow = |base: &Base, moved: Vector3<f64>| {
-        linearise(
-            &base.wrench,
-            moved,
-            deepest(base.geom),
-            base.normal,
-            base.tangential,
-            poisson,
-            friction,
-        )
-    };
     let stale = contacts
         .iter()
         .any(|c| match base_of(inst, c.geom).as_ref().and_then(&motion) {
@@ -803,7 +792,15 @@ unsafe fn implicit(
         let moved = motion(&base)?;
         Some(Linearised {
             turned: now(geom)?.rotation * base.pose.rotation.inverse(),
-            ..follow(&base, moved)
+            ..linearise(
+                &base.wrench,
+                moved,
+                deepest(geom),
+                base.normal,
+                base.tangential,
+                poisson,
+                friction,
+            )
         })
     };
     // SAFETY: valid model and data per the caller; `contacts` are this data's.

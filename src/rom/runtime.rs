@@ -199,7 +199,7 @@ static IDLE: Mutex<Vec<(GraphKey, Session)>> = Mutex::new(Vec::new());
 /// At most this many idle sessions are kept (the oldest dropped first): those of the last
 /// few models freed (a model is two to four graphs), so that a process that freed its
 /// sensors keeps a bounded set of their weights and arenas.
-pub const IDLE_SESSIONS: usize = 12;
+const IDLE_SESSIONS: usize = 12;
 
 fn idle() -> std::sync::MutexGuard<'static, Vec<(GraphKey, Session)>> {
     // A panic elsewhere while holding the lock leaves the list itself whole.

@@ -12,6 +12,7 @@ pub mod mesh_press;
 pub mod newton_profile;
 pub mod overshoot;
 pub mod poisson;
+pub mod reference_study;
 pub mod ridge;
 pub mod rom_profile;
 pub mod rom_region;
@@ -30,6 +31,7 @@ const PROBES: &[Probe] = &[
     ("newton_profile", newton_profile::run),
     ("overshoot", overshoot::run),
     ("poisson", poisson::run),
+    ("reference_study", reference_study::run),
     ("ridge", ridge::run),
     ("rom_profile", rom_profile::run),
     ("rom_region", rom_region::run),
@@ -37,7 +39,7 @@ const PROBES: &[Probe] = &[
 ];
 
 /// The probes' names, for the command line.
-pub const NAMES: [&str; 13] = [
+pub const NAMES: [&str; 14] = [
     "contact_size",
     "deep",
     "fine_press",
@@ -47,6 +49,7 @@ pub const NAMES: [&str; 13] = [
     "newton_profile",
     "overshoot",
     "poisson",
+    "reference_study",
     "ridge",
     "rom_profile",
     "rom_region",

@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -218,6 +218,20 @@ gen-data-fine: build
 	  target/release/tacrom gen-data --out $(ROM_FINE_DATA) --samples $(ROM_FINE_SAMPLES) --seed 1 \
 	    --fine-dx 0.3 --fine-max-iterations 3000 $(ROM_FINE_FLAGS) --shard $$k/$(ROM_SHARDS) & \
 	done; wait
+
+# The reference study (docs/rom.md, "A reference for any gel"): 24 presses over the gel family,
+# each by its finest solve and by every candidate, then the table against the finest. The
+# finest solves take 0.5 to 10 min each on one core; resumable; REF_WORKERS processes share the
+# tasks, heaviest first (on a machine of more cores, or one shard of a batch job each).
+REF_STUDY ?= out/reference-study
+REF_WORKERS ?= 2
+reference-study: build
+	mkdir -p $(REF_STUDY) && find $(REF_STUDY) -name '*.claim' -delete
+	for k in $$(seq 1 $(REF_WORKERS)); do \
+	  target/release/tacrom probe reference_study out=$(REF_STUDY) claim=1 & \
+	done; wait
+	find $(REF_STUDY) -name '*.claim' -delete
+	target/release/tacrom probe reference_study out=$(REF_STUDY) report
 
 # Presses of other gel materials: Poisson's ratio and friction drawn per press from ROM_POISSON
 # and ROM_FRICTION (0.7 mm reference). The evidence for the shipped model's manifest `materials`

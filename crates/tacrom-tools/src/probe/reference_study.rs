@@ -251,18 +251,23 @@ impl StudyPress {
         })
     }
 
-    /// The window compared: the footprint grown by 1.5 thicknesses, clipped to the gel,
-    /// as a pixel grid centred on the gel and the range of its columns and rows.
-    fn window(&self, placed: &Placed) -> Window {
-        let t = self.thickness();
-        let pitch = (t / 40.0).min(5e-5);
+    /// The gel's top face sampled every `T / 40`, at most 0.05 mm.
+    fn face(&self) -> PixelGrid {
+        let pitch = (self.thickness() / 40.0).min(5e-5);
         let [lx, ly] = [self.size[0] * 1e-3, self.size[1] * 1e-3];
-        let grid = PixelGrid {
+        PixelGrid {
             width: (lx / pitch).round() as usize,
             height: (ly / pitch).round() as usize,
             fov_x: lx,
             fov_y: ly,
-        };
+        }
+    }
+
+    /// The window compared: the footprint grown by 1.5 thicknesses, clipped to the gel,
+    /// as a pixel grid centred on the gel and the range of its columns and rows.
+    fn window(&self, placed: &Placed) -> Window {
+        let t = self.thickness();
+        let grid = self.face();
         let b = placed.aabb();
         let grow = 1.5 * t;
         let range = |lo: f64, hi: f64, n: usize, at: &dyn Fn(usize) -> f64| {
@@ -530,6 +535,9 @@ fn answer(s: &Settings, p: &StudyPress, name: &str) -> Option<(Outcome, Vec<f32>
 struct Error {
     /// Depth MAE where either depth exceeds 1 um (um).
     mae: f64,
+    /// Depth MAE over the gel's whole top face, as an image of it would count it (um;
+    /// both depths taken equal outside the window).
+    face: f64,
     /// Deepest point, method minus finest (um).
     peak: f64,
     /// Normal force, method over finest minus one (%).
@@ -538,7 +546,8 @@ struct Error {
     converged: bool,
 }
 
-fn compare(finest: &(Outcome, Vec<f32>), other: &(Outcome, Vec<f32>)) -> Error {
+/// `other` against `finest`; `face` is the number of points of the gel's top face.
+fn compare(finest: &(Outcome, Vec<f32>), other: &(Outcome, Vec<f32>), face: usize) -> Error {
     let (mut sum, mut n) = (0.0, 0usize);
     let (mut peak_f, mut peak_o) = (0f64, 0f64);
     for (&f, &o) in finest.1.iter().zip(&other.1) {
@@ -552,6 +561,7 @@ fn compare(finest: &(Outcome, Vec<f32>), other: &(Outcome, Vec<f32>)) -> Error {
     }
     Error {
         mae: sum / n.max(1) as f64 * 1e6,
+        face: sum / face as f64 * 1e6,
         peak: (peak_o - peak_f) * 1e6,
         force: (other.0.force / finest.0.force - 1.0) * 100.0,
         seconds: other.0.seconds,
@@ -585,6 +595,7 @@ fn report(s: &Settings) -> String {
             continue;
         };
         counted += 1;
+        let face = p.face().width * p.face().height;
         text.push_str(&format!(
             "| {} | {} {:.3} {:.4} {:.0}{} |",
             p.name,
@@ -601,7 +612,7 @@ fn report(s: &Settings) -> String {
         for (i, m) in others.iter().enumerate() {
             match answer(s, p, m) {
                 Some(o) => {
-                    let e = compare(&finest, &o);
+                    let e = compare(&finest, &o, face);
                     all[i].push(e);
                     text.push_str(&format!(
                         " {:.2}, {:+.1}, {:+.1}, {:.1}{} |",
@@ -619,8 +630,8 @@ fn report(s: &Settings) -> String {
     }
     text.push_str(&format!(
         "\nOver the {counted} presses with a finest solve (* marks a solve stopped at its \
-         cap):\n\n| method | presses | mean MAE um | worst MAE um | mean abs peak um | mean abs \
-         force % | worst force % | median s | worst s |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+         cap):\n\n| method | presses | mean MAE um | worst MAE um | mean face MAE um | worst face MAE um | mean abs peak um | mean abs \
+         force % | worst force % | median s | worst s |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
     ));
     for (m, errors) in others.iter().zip(&all) {
         if errors.is_empty() {
@@ -632,10 +643,12 @@ fn report(s: &Settings) -> String {
         let mut secs: Vec<f64> = errors.iter().map(|e| e.seconds).collect();
         secs.sort_by(f64::total_cmp);
         text.push_str(&format!(
-            "| {m} | {} | {:.2} | {:.2} | {:.1} | {:.2} | {:.2} | {:.1} | {:.1} |\n",
+            "| {m} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.2} | {:.2} | {:.1} | {:.1} |\n",
             errors.len(),
             mean(&|e| e.mae),
             worst(&|e| e.mae),
+            mean(&|e| e.face),
+            worst(&|e| e.face),
             mean(&|e| e.peak.abs()),
             mean(&|e| e.force.abs()),
             worst(&|e| e.force.abs()),

@@ -221,7 +221,7 @@ gen-data-fine: build
 
 # The reference study (docs/rom.md, "A reference for any gel"): 24 presses over the gel family,
 # each by its finest solve and by every candidate, then the table against the finest. The
-# finest solves take 0.5 to 10 min each on one core; resumable; REF_WORKERS processes share the
+# finest solves take 0.5 to 36 min each on one core; resumable; REF_WORKERS processes share the
 # tasks, heaviest first (on a machine of more cores, or one shard of a batch job each).
 REF_STUDY ?= out/reference-study
 REF_WORKERS ?= 2

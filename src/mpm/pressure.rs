@@ -202,12 +202,16 @@ mod tests {
             let (w, h) = (grid.width, grid.height);
             let peak = p.iter().copied().fold(0.0, f64::max);
             assert!(peak > 0.0);
-            // Both stop at an out-of-balance force of 1e-3 of the load. Newton's linear
-            // solves leave mirrored pressures some 1e-6 of the peak apart (measured 9e-7);
+            // Both stop at an out-of-balance force of 1e-3 of the load, which bounds how
+            // far mirrored pressures may lie apart. Newton's contact penalty on this 2 mm
+            // layer leaves 0.7 um under a pressure of `M` (a fraction of the thickness,
+            // `PENETRATION`): its mirrored pressures lie 5.5e-4 of the peak apart
+            // (measured; 9e-7 with the 1.4 um of the default gel, twice as soft here);
             // relaxation's f32 state and explicit sweep some 1e-4 (measured 3e-4). The
             // linear solver's complementarity solve is exact up to round-off.
             let tolerance = match solver {
-                Solver::Newton | Solver::Linear => 1e-5,
+                Solver::Linear => 1e-5,
+                Solver::Newton => 1e-3,
                 Solver::Relaxation | Solver::Total => 3e-3,
             };
             let mut worst = 0.0f64;

@@ -1208,3 +1208,66 @@ fn a_wide_flat_punch_converges_on_a_finer_grid() {
         "{fine} N against {coarse} N; {rep:?}"
     );
 }
+
+// Elasticity has no length of its own: a gel, its grid and its indenter scaled by `s`
+// give the same equilibrium scaled (depths times `s`, forces times `s^2` at the same
+// Young's modulus), to rounding, for every solver. The contact stiffness, tolerances and
+// depth rule are set in the grid's and the gel's units; an absolute length anywhere in
+// the solve would break this. It is what lets a reduced-order model read a gel of its
+// shape at any thickness in its own units (`Rom::scale_to`). Spacings scaled by powers of
+// two are exact in floating point; 1.5 rounds.
+#[test]
+fn a_scaled_press_is_the_press_scaled() {
+    let solve = |solver: Solver, s: f64| {
+        let base = GelParams::default();
+        let params = GelParams {
+            size: base.size.map(|v| v * s),
+            dx: base.dx * s,
+            ..base
+        };
+        let mut g = gel(
+            params,
+            SolverOptions {
+                solver,
+                ..Default::default()
+            },
+        );
+        let rep = g.solve(&[sphere_at(R * s, 3e-3 * s, -2e-3 * s, (R - 0.5e-3) * s)]);
+        assert_sane(&g, &rep);
+        assert!(rep.converged, "{solver:?} at scale {s}: {rep:?}");
+        let grid = PixelGrid {
+            width: 60,
+            height: 60,
+            fov_x: 0.024 * s,
+            fov_y: 0.024 * s,
+        };
+        (depth_image(&g, &grid), g.force())
+    };
+    for solver in [Solver::Relaxation, Solver::Linear, Solver::Newton] {
+        let (d1, f1) = solve(solver, 1.0);
+        let peak = d1.iter().cloned().fold(0.0, f64::max);
+        assert!(peak > 0.3e-3, "{solver:?}: peak {peak}");
+        for s in [0.5, 0.25, 1.5] {
+            let (ds, fs) = solve(solver, s);
+            let worst = d1
+                .iter()
+                .zip(&ds)
+                .map(|(a, b)| (a - b / s).abs())
+                .fold(0.0, f64::max);
+            let force = (fs / (s * s) - f1).norm() / f1.norm();
+            println!("{solver:?} s {s}: worst depth {worst:.2e} m of {peak:.2e}, force {force:.1e}");
+            // The images, not the solves, set an absolute length: a pixel's inverse map
+            // stops once its error is below `ONE_STEP_ERROR` (m), in each image. A scale
+            // that rounds may stop the iterations a step apart: the two answers then
+            // agree to the solve's own tolerance.
+            let (depth_bound, force_bound) = if s.log2().fract() == 0.0 {
+                (surface::ONE_STEP_ERROR * (1.0 + 1.0 / s) + 1e-12 * peak, 1e-12)
+            } else {
+                let tolerance = SolverOptions::default().tolerance;
+                (tolerance * peak, tolerance)
+            };
+            assert!(worst <= depth_bound, "{solver:?} s {s}: {worst} of {peak}");
+            assert!(force <= force_bound, "{solver:?} s {s}: force {force}");
+        }
+    }
+}

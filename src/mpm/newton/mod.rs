@@ -28,8 +28,8 @@
 //! * contact on a lattice of surface points [`CONTACT_SUBDIVISION`] times finer than the
 //!   particles, each standing for its share `A` of the top face: a penalty
 //!   `k A g^2 / 2` on the signed distance `g < 0` to the nearest indenter
-//!   (`k = dx / PENETRATION` per cell, see [`PENETRATION`]; the penetration it leaves is
-//!   `p / k`, 1.4 um at a pressure of `M` on every grid). An indenter that reaches
+//!   (`k = dx / (PENETRATION T)` per cell, see [`PENETRATION`]; the penetration it leaves
+//!   is `p / k`, 1.4 um on the default 4 mm gel at a pressure of `M` on every grid). An indenter that reaches
 //!   between particles still meets surface points, and one that reaches between the
 //!   lattice's points gets a tip point; a patch smaller than
 //!   the grid resolves gets the compliance the grid misses in series with its penalty
@@ -161,14 +161,17 @@ pub(crate) const MIN_LAYER_SUPPORT: f64 = 2e-3;
 /// penetration).
 pub(crate) const PENALTY: f64 = 1e3;
 
-/// The penetration (m) that Newton's contact penalty leaves under a pressure of the
-/// shear modulus `M`, on every grid: its stiffness is `dx / PENETRATION` in internal
-/// units (`M` per cell), 1,000 on the 1.4 mm grid and 214 at 0.3 mm
-/// ([`Newton::penalty`]). A penalty of 1,000 per cell on every grid is physically
-/// stiffer the finer the grid, and at 0.3 mm its springs made Newton's contact set
-/// chatter and the two-grid cycle weak (see `docs/solvers.md`, "The contact penalty in
-/// physical units").
-const PENETRATION: f64 = 1.4e-6;
+/// The penetration (in gel thicknesses) that Newton's contact penalty leaves under a
+/// pressure of the shear modulus `M`, on every grid: its stiffness is `dx / (PENETRATION
+/// T)` in internal units (`M` per cell), 1,000 on the default gel's 1.4 mm grid (1.4 um)
+/// and 214 at 0.3 mm ([`Newton::penalty`]). A penalty of 1,000 per cell on every grid is
+/// physically stiffer the finer the grid, and at 0.3 mm its springs made Newton's contact
+/// set chatter and the two-grid cycle weak (see `docs/solvers.md`, "The contact penalty
+/// in physical units"). It is a fraction of the thickness, not a length, so that a gel
+/// scaled with its grid and indenters gives the same answer scaled (the relaxation's and
+/// the linear solver's penalties are set per cell:
+/// `a_scaled_press_is_the_press_scaled`); on the default gel it is the 1.4 um it was.
+pub(crate) const PENETRATION: f64 = 3.5e-4;
 
 /// Tangential offset (cells) at which friction reaches its sliding value.
 pub(crate) const STICK: f64 = 1e-3;
@@ -691,7 +694,7 @@ impl Newton {
             last_change: Vec::new(),
             last_motion: Vec::new(),
             e_star: 2.0 * mu / (1.0 - params.poisson),
-            penalty: dx / PENETRATION,
+            penalty: dx / (PENETRATION * t),
             thickness: t / dx,
             layer_slope: super::hertz::bonded_layer_slope(params.poisson),
             resolved_radius: 0.0,

@@ -338,7 +338,10 @@ pub const DX: Attribute = Attribute {
     name: "dx",
     meaning: "MPM grid spacing of the gel (coarse, fine, rom)",
     unit: "m",
-    default: Default::Depends("coarse and rom 1.4e-3, fine 3e-4 (at most T/2 and T/4)"),
+    default: Default::Depends(
+        "coarse 0.35 T (1.4e-3 on the default 4 mm gel), at most 1.4e-3; rom 0.35 T; fine 3e-4, \
+         at most T/4",
+    ),
     valid: Valid::Described("(0, T/2], at most 2e7 grid cells"),
 };
 
@@ -581,6 +584,10 @@ pub mod defaults {
     pub const HOLD: f64 = super::HOLD.default.number();
     /// The coarse grid's spacing (m): about 1e4 particles in the default gel.
     pub const COARSE_DX: f64 = 1.4e-3;
+    /// The coarse grid's spacing in gel thicknesses: the default gel's 1.4 mm over its
+    /// 4 mm (2.86 cells through the layer), kept at every thickness
+    /// ([`crate::config::Physics::default_dx`]).
+    pub const COARSE_LAYER: f64 = 0.35;
     /// The fine grid's spacing (m): 100 x 100 x ~13 cells, about 1e6 particles in the
     /// default gel.
     pub const FINE_DX: f64 = 0.3e-3;

@@ -130,11 +130,21 @@ impl Physics {
     }
 
     /// Default MPM grid spacing (m) for a gel of thickness `t`; `None` for rigid.
+    ///
+    /// The coarse grid follows the thickness: [`defaults::COARSE_LAYER`] thicknesses
+    /// (the default gel's 2.86 cells through the layer at every thickness), at most
+    /// [`defaults::COARSE_DX`] (`coarse`; thicker gels keep the default gel's spacing,
+    /// which is more accurate than their own 2.86 cells and costs little). `rom`'s grid
+    /// is the same fraction of the thickness without that bound, so that its model sees,
+    /// on a gel of its own shape at any thickness, the press it was trained on scaled
+    /// (checked against the manifest). Measured: `docs/rom.md`, "A coarse grid that
+    /// follows the thickness".
     pub fn default_dx(self, t: f64) -> Option<f64> {
+        let layer = defaults::COARSE_LAYER * t;
         match self {
             Physics::Rigid => None,
-            // rom: the coarse grid its model was trained with (checked against the manifest).
-            Physics::Coarse | Physics::Rom => Some(defaults::COARSE_DX.min(t / 2.0)),
+            Physics::Coarse => Some(defaults::COARSE_DX.min(layer)),
+            Physics::Rom => Some(layer),
             Physics::Fine => Some(defaults::FINE_DX.min(t / 4.0)),
         }
     }
@@ -195,12 +205,21 @@ impl RawConfig {
     }
 
     /// These attributes over the sensor file `file`'s: each attribute the file gives and
-    /// these do not is added, marked as the file's (for messages).
+    /// these do not is added, marked as the file's (for messages); its `dx` is left out
+    /// where the sensor is `rom`, whose grid its model fixes.
     pub fn with_sensor_file(&self, file: &crate::sensor_file::SensorFile) -> RawConfig {
         let mut merged = self.clone();
         let mut given = Vec::new();
+        // A file's grid spacing is its coarse gel's; `rom` runs on its model's grid (a
+        // fixed fraction of the thickness), so a sensor made `rom` keeps that one.
+        let file_value = |a: &str| file.attributes.iter().find(|(k, _)| k == a);
+        let physics = self
+            .get(ATTR_PHYSICS)
+            .or(file_value(ATTR_PHYSICS).map(|(_, v)| v.as_str()))
+            .unwrap_or(defaults::PHYSICS);
+        let rom = physics.trim() == Physics::Rom.name();
         for (a, v) in &file.attributes {
-            if self.get(a).is_none() {
+            if self.get(a).is_none() && !(rom && a == ATTR_DX) {
                 merged.values.push((a.clone(), v.clone()));
                 given.push(a.clone());
             }

@@ -1214,7 +1214,7 @@ fn a_wide_flat_punch_converges_on_a_finer_grid() {
 // Young's modulus), to rounding, for every solver. The contact stiffness, tolerances and
 // depth rule are set in the grid's and the gel's units; an absolute length anywhere in
 // the solve would break this. It is what lets a reduced-order model read a gel of its
-// shape at any thickness in its own units (`Rom::scale_to`). Spacings scaled by powers of
+// shape at any thickness in its own units (`Rom::serve`). Spacings scaled by powers of
 // two are exact in floating point; 1.5 rounds.
 #[test]
 fn a_scaled_press_is_the_press_scaled() {
@@ -1255,13 +1255,18 @@ fn a_scaled_press_is_the_press_scaled() {
                 .map(|(a, b)| (a - b / s).abs())
                 .fold(0.0, f64::max);
             let force = (fs / (s * s) - f1).norm() / f1.norm();
-            println!("{solver:?} s {s}: worst depth {worst:.2e} m of {peak:.2e}, force {force:.1e}");
+            println!(
+                "{solver:?} s {s}: worst depth {worst:.2e} m of {peak:.2e}, force {force:.1e}"
+            );
             // The images, not the solves, set an absolute length: a pixel's inverse map
             // stops once its error is below `ONE_STEP_ERROR` (m), in each image. A scale
             // that rounds may stop the iterations a step apart: the two answers then
             // agree to the solve's own tolerance.
             let (depth_bound, force_bound) = if s.log2().fract() == 0.0 {
-                (surface::ONE_STEP_ERROR * (1.0 + 1.0 / s) + 1e-12 * peak, 1e-12)
+                (
+                    surface::ONE_STEP_ERROR * (1.0 + 1.0 / s) + 1e-12 * peak,
+                    1e-12,
+                )
             } else {
                 let tolerance = SolverOptions::default().tolerance;
                 (tolerance * peak, tolerance)

@@ -52,6 +52,12 @@ pub struct LatticeSpec {
     pub patch_step: usize,
     /// Depth scale: model units per metre (1000: millimetres).
     pub depth_scale: f64,
+    /// The networks' field of view, `[rows, columns]` of lattice points: the lattice of
+    /// the gel the model was trained on. The encoder reads a window of this size placed
+    /// over the contact ([`Observation::origin`]); on the model's own gel it is the whole
+    /// lattice.
+    #[serde(skip)]
+    pub window: [usize; 2],
     /// Material inputs appended to the encoder input and to each query (0, or 2 for a
     /// model conditioned on the gel's material).
     #[serde(skip)]
@@ -100,8 +106,14 @@ impl LatticeSpec {
             patch: 5,
             patch_step: 2,
             depth_scale: 1000.0,
+            window: [ny, nx],
             material_inputs: 0,
         }
+    }
+
+    /// Whether the window is the whole lattice (the model's own gel, or one of its shape).
+    pub fn whole(&self) -> bool {
+        self.window == [self.ny, self.nx]
     }
 
     /// The lattice as a pixel grid covering the gel's top face.
@@ -119,14 +131,11 @@ impl LatticeSpec {
         self.nx * self.ny
     }
 
-    /// Rows and columns of the encoder's sub-lattice.
+    /// Rows and columns of the encoder's sub-lattice (over the window).
     pub fn encoder_dims(&self) -> [usize; 2] {
         let s = self.encoder_stride;
         let o = s / 2;
-        [
-            (self.ny.saturating_sub(o)).div_ceil(s),
-            (self.nx.saturating_sub(o)).div_ceil(s),
-        ]
+        self.window.map(|n| n.saturating_sub(o).div_ceil(s))
     }
 
     /// Length of the encoder's input vector (two channels, then the material inputs).
@@ -165,6 +174,11 @@ pub struct Observation {
     pub pressure: Vec<f64>,
     /// The coarse gel's normal force (N; with `pressure`).
     pub force: f64,
+    /// The lattice point `[row, column]` at the window's first corner
+    /// ([`LatticeSpec::window`]): over the contact, within the lattice where the window
+    /// fits in it, the lattice within the window where it does not; `[0, 0]` where the
+    /// window is the whole lattice.
+    pub origin: [isize; 2],
 }
 
 impl Default for Observation {
@@ -177,6 +191,7 @@ impl Default for Observation {
             poisson: 0.0,
             pressure: Vec::new(),
             force: 0.0,
+            origin: [0, 0],
         }
     }
 }
@@ -223,6 +238,51 @@ impl Observation {
         self.coarse.resize(spec.points(), 0.0);
         gel.surface_depth(&grid, &mut self.coarse);
         let _ = self.rule.apply(&mut self.coarse, &self.pen);
+        self.origin = self.window_origin(spec);
+    }
+
+    /// Where the window goes ([`Observation::origin`]): centred on the rigid
+    /// penetration's centroid (the coarse depth's where nothing pierces the gel).
+    fn window_origin(&self, spec: &LatticeSpec) -> [isize; 2] {
+        if spec.whole() {
+            return [0, 0];
+        }
+        let field = if self.pen.iter().any(|&p| p > 0.0) {
+            &self.pen
+        } else {
+            &self.coarse
+        };
+        let (mut w, mut r, mut c) = (0.0, 0.0, 0.0);
+        for (i, &v) in field.iter().enumerate() {
+            w += v;
+            r += v * (i / spec.nx) as f64;
+            c += v * (i % spec.nx) as f64;
+        }
+        let centre = if w > 0.0 {
+            [r / w, c / w]
+        } else {
+            [0.5 * (spec.ny - 1) as f64, 0.5 * (spec.nx - 1) as f64]
+        };
+        let place = |centre: f64, n: usize, window: usize| {
+            let (n, window) = (n as isize, window as isize);
+            let at = (centre - 0.5 * (window - 1) as f64).round() as isize;
+            at.clamp((n - window).min(0), (n - window).max(0))
+        };
+        [
+            place(centre[0], spec.ny, spec.window[0]),
+            place(centre[1], spec.nx, spec.window[1]),
+        ]
+    }
+
+    /// `field` at window point `(row, col)` times `scale`; 0 outside the lattice.
+    fn in_window(&self, field: &[f64], spec: &LatticeSpec, row: usize, col: usize) -> f64 {
+        let r = self.origin[0] + row as isize;
+        let c = self.origin[1] + col as isize;
+        if r >= 0 && c >= 0 && (r as usize) < spec.ny && (c as usize) < spec.nx {
+            field[r as usize * spec.nx + c as usize] * spec.depth_scale
+        } else {
+            0.0
+        }
     }
 
     /// Samples the solved coarse `gel`'s contact pressure and normal force, for a pressure
@@ -238,10 +298,11 @@ impl Observation {
         out.clear();
         let s = spec.encoder_stride;
         let o = s / 2;
+        let [rows, cols] = spec.window;
         for field in [&self.coarse, &self.pen] {
-            for row in (o..spec.ny).step_by(s) {
-                for col in (o..spec.nx).step_by(s) {
-                    out.push((field[row * spec.nx + col] * spec.depth_scale) as f32);
+            for row in (o..rows).step_by(s) {
+                for col in (o..cols).step_by(s) {
+                    out.push(self.in_window(field, spec, row, col) as f32);
                 }
             }
         }
@@ -268,9 +329,18 @@ pub fn query_features(
     col: usize,
     out: &mut Vec<f32>,
 ) {
-    let grid = spec.grid();
-    out.push((grid.x(col) / (0.5 * spec.size[0])) as f32);
-    out.push((grid.y(row) / (0.5 * spec.size[1])) as f32);
+    if spec.whole() {
+        let grid = spec.grid();
+        out.push((grid.x(col) / (0.5 * spec.size[0])) as f32);
+        out.push((grid.y(row) / (0.5 * spec.size[1])) as f32);
+    } else {
+        // The position in the window, as the same point of the model's own gel.
+        let [h, w] = spec.window.map(|n| 0.5 * n as f64);
+        let c = col as f64 - obs.origin[1] as f64 + 0.5;
+        let r = row as f64 - obs.origin[0] as f64 + 0.5;
+        out.push(((c - w) / w) as f32);
+        out.push(((h - r) / h) as f32);
+    }
     for field in [&obs.coarse, &obs.pen] {
         window(field, spec.depth_scale, spec, row, col, out);
     }
@@ -391,6 +461,7 @@ mod tests {
                 let spec = LatticeSpec {
                     nx,
                     ny,
+                    window: [ny, nx],
                     ..LatticeSpec::with_pitch([0.03, 0.03, 0.004], 0.003)
                 };
                 let mut obs = Observation::default();

@@ -100,6 +100,12 @@ use features::{load_window, query_features, Conditioning, LatticeSpec, Observati
 use lbfgs::{LbfgsOptions, LbfgsReport};
 use runtime::{load_graph, Graph};
 
+/// The gel family's thicknesses (m; [`Manifest::check_gel`]).
+pub const THICKNESS_RANGE: [f64; 2] = [1e-3, 6e-3];
+
+/// The gel family's lateral sizes (m, each side; [`Manifest::check_gel`]).
+pub const LATERAL_RANGE: [f64; 2] = [12e-3, 40e-3];
+
 /// Range of the decoded-over-coarse displaced volume within which [`Rom::force_factor`]
 /// uses it: the decoder corrects the coarse surface, it does not replace it.
 pub const VOLUME_RATIO: [f64; 2] = [0.25, 4.0];
@@ -492,6 +498,7 @@ impl Manifest {
             patch: count("lattice.patch", l.patch)?,
             patch_step: count("lattice.patch_step", l.patch_step)?,
             depth_scale: positive("lattice.depth_scale", l.depth_scale)?,
+            window: [count("lattice.ny", l.ny)?, count("lattice.nx", l.nx)?],
             material_inputs: if doc.conditioning.is_some() {
                 Conditioning::INPUTS
             } else {
@@ -647,24 +654,32 @@ impl Manifest {
     /// Checks that a sensor's coarse solve is the one the model was trained on: grid
     /// spacing, material and solver equal to the recipe's, tolerance at most its
     /// `max_tolerance`. Errors name the attribute, the sensor's value and the model's.
+    ///
+    /// `scale`: the sensor's gel over the model's ([`Manifest::check_gel`]); the grid
+    /// spacing is the recipe's scaled by it.
     pub fn check_recipe(
         &self,
         dx: f64,
+        scale: f64,
         material: &str,
         solver: &str,
         tolerance: f64,
     ) -> Result<(), RomError> {
         let r = &self.recipe;
+        let recipe_dx = r.dx * scale;
         let mismatch = |attribute, expected: String, actual: String| RomError::Mismatch {
             model: self.dir.clone(),
             attribute,
             expected,
             actual,
         };
-        if (dx - r.dx).abs() > 1e-9 {
+        if (dx - recipe_dx).abs() > 1e-6 * recipe_dx {
             return Err(mismatch(
                 "dx",
-                format!("the coarse grid dx = {} m", r.dx),
+                format!(
+                    "the coarse grid dx = {} m",
+                    crate::attributes::number(recipe_dx)
+                ),
                 format!("dx = {dx} m"),
             ));
         }
@@ -701,7 +716,18 @@ impl Manifest {
     /// so the coarse depth the decoder reads does not depend on Young's modulus (bit for
     /// bit: `depth_does_not_depend_on_young_modulus_and_force_scales_with_it`) and the
     /// forces scale with it; the density does not change the equilibrium either.
-    pub fn check_gel(&self, size: [f64; 3], poisson: f64, friction: f64) -> Result<(), RomError> {
+    ///
+    ///
+    /// The size may be any of the gel family's ([`THICKNESS_RANGE`], [`LATERAL_RANGE`]),
+    /// or the model's shape at a thickness within [`THICKNESS_RANGE`] (its own size
+    /// always). A gel's equilibrium under indenters scaled with it is the same scaled, to
+    /// rounding, on a grid scaled with it (elasticity has no length of its own, and the
+    /// solver's contact stiffness, tolerances and depth rule are set in the grid's and the
+    /// gel's units: `a_scaled_press_is_the_press_scaled`), so the model reads a gel in its
+    /// own units, in proportion to the thickness, and through a window of its own lattice
+    /// over the contact where the gel's lateral size differs ([`Rom::serve`]). Returns the
+    /// scale: the sensor's thickness over the model's.
+    pub fn check_gel(&self, size: [f64; 3], poisson: f64, friction: f64) -> Result<f64, RomError> {
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1e-12);
         let g = &self.gel;
         let mismatch = |attribute, what: &str, e: String, a: String| RomError::Mismatch {
@@ -710,11 +736,27 @@ impl Manifest {
             expected: format!("{what} {e}"),
             actual: format!("{what} {a}"),
         };
-        if !(0..3).all(|k| close(size[k], g.size[k])) {
+        let scale = size[2] / g.size[2];
+        let within = |[lo, hi]: [f64; 2], v: f64| v >= lo * (1.0 - 1e-9) && v <= hi * (1.0 + 1e-9);
+        let own = (0..3).all(|k| close(size[k], g.size[k]));
+        let shape = (0..2).all(|k| close(size[k], g.size[k] * scale));
+        let family = (0..2).all(|k| within(LATERAL_RANGE, size[k]));
+        if !(own || within(THICKNESS_RANGE, size[2]) && (shape || family)) {
+            let [lx, ly, t] = g.size;
             return Err(mismatch(
                 "size",
                 "gel size",
-                format!("{:?} m", g.size),
+                format!(
+                    "{} to {} m across and {} to {} m thick (the gel family), or {:?} m in \
+                     shape ({} x {} thicknesses across) at a thickness in that range",
+                    LATERAL_RANGE[0],
+                    LATERAL_RANGE[1],
+                    THICKNESS_RANGE[0],
+                    THICKNESS_RANGE[1],
+                    g.size,
+                    lx / t,
+                    ly / t,
+                ),
                 format!("{size:?} m"),
             ));
         }
@@ -765,7 +807,7 @@ impl Manifest {
                 }
             }
         }
-        Ok(())
+        Ok(scale)
     }
 }
 
@@ -864,6 +906,8 @@ pub struct Rom {
     z: Vec<f32>,
     /// The image's interpolation buffers, kept between frames.
     scratch: RenderScratch,
+    /// The served gel's thickness over the model's ([`Rom::serve`]).
+    scale: f64,
 }
 
 /// [`render_lattice`]'s buffers: each image column's lattice cell and position in it, the
@@ -928,12 +972,34 @@ impl Rom {
             region: Vec::new(),
             lattice_depth: Vec::new(),
             scratch: RenderScratch::default(),
+            scale: 1.0,
         })
     }
 
-    /// The manifest.
+    /// The manifest; its `lattice` is the one on the gel served ([`Rom::serve`]).
     pub fn manifest(&self) -> &Manifest {
         &self.manifest
+    }
+
+    /// Serves a gel of `size` (m) whose thickness is `scale` times the model's
+    /// ([`Manifest::check_gel`]): lengths are read in the model's units (`depth_scale`
+    /// divided by `scale`), the lattice covers the gel with points the model's pitch
+    /// times `scale` apart, and the encoder reads a window of the model's own lattice over
+    /// the contact ([`LatticeSpec::window`]). On a gel of the model's shape the networks
+    /// see the press they were trained on, scaled, and give its depths scaled back.
+    pub fn serve(&mut self, size: [f64; 3]) {
+        let scale = size[2] / self.manifest.gel.size[2];
+        let lattice = &mut self.manifest.lattice;
+        let [rows, cols] = lattice.window;
+        let pitch = [
+            self.manifest.gel.size[0] / cols as f64,
+            self.manifest.gel.size[1] / rows as f64,
+        ];
+        lattice.nx = ((size[0] / (pitch[0] * scale)).round() as usize).max(1);
+        lattice.ny = ((size[1] / (pitch[1] * scale)).round() as usize).max(1);
+        lattice.size = size;
+        lattice.depth_scale *= self.scale / scale;
+        self.scale = scale;
     }
 
     /// Sets the material inputs of `obs` for a gel of Poisson's ratio `poisson` and
@@ -1458,6 +1524,7 @@ impl Rom {
     /// for `mj_copyData`.
     pub fn try_clone(&self) -> Result<Self, RomError> {
         let mut copy = Rom::load(&self.manifest.dir, self.options)?;
+        copy.serve(self.manifest.lattice.size);
         copy.z.clone_from(&self.z);
         copy.lattice_depth.clone_from(&self.lattice_depth);
         copy.lattice_pressure.clone_from(&self.lattice_pressure);

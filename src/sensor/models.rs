@@ -537,7 +537,7 @@ fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
         ),
         _ => in_dir(e),
     };
-    let rom = Rom::load(
+    let mut rom = Rom::load(
         &dir,
         RomOptions {
             refine: config.refine,
@@ -551,14 +551,17 @@ fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
     )
     .map_err(in_dir)?;
     let m = rom.manifest();
-    m.check_gel(config.size, config.poisson, config.friction)
+    let scale = m
+        .check_gel(config.size, config.poisson, config.friction)
         .map_err(served)?;
     m.check_recipe(
         dx,
+        scale,
         material_name(config.material),
         solver.name(),
         config.tolerance,
     )
     .map_err(served)?;
+    rom.serve(config.size);
     Ok(rom)
 }

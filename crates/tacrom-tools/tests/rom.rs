@@ -157,9 +157,11 @@ fn shipped_model_loads_and_outputs_have_the_manifests_shapes() {
         .get("validation")
         .and_then(|t| t.get("held_out"))
         .is_some());
-    // The default gel matches; another gel is refused with a clear message.
-    m.check_gel([0.03, 0.03, 0.004], 0.43, 0.5).unwrap();
-    let e = m.check_gel([0.03, 0.03, 0.005], 0.43, 0.5).unwrap_err();
+    // The default gel matches, at scale 1, and a gel of the family at its thickness
+    // over the model's; a gel outside the family is refused with a clear message.
+    assert_eq!(m.check_gel([0.03, 0.03, 0.004], 0.43, 0.5).unwrap(), 1.0);
+    assert_eq!(m.check_gel([0.02, 0.016, 0.002], 0.43, 0.5).unwrap(), 0.5);
+    let e = m.check_gel([0.03, 0.03, 0.007], 0.43, 0.5).unwrap_err();
     assert!(
         matches!(e, RomError::Mismatch { .. }) && e.to_string().contains("gel size"),
         "{e}"

@@ -239,6 +239,8 @@ fn load_samples(
                     // The coarse load of a pressure head, where the data set records it.
                     pressure: load_pressure(&npy, n)?,
                     force: meta.coarse.force.map_or(0.0, |f| f[2]),
+                    // The data set's lattice is the model's: the window is all of it.
+                    origin: [0, 0],
                 }
             },
             material: [

@@ -129,13 +129,21 @@ enum Method {
     Solve(Option<Solver>, f64, f64),
     /// The default coarse gel: `dx = min(1.4 mm, T / 2)`, the sensor's coarse rule.
     Coarse,
+    /// A sensor's coarse gel at `dx = T * cells` (its solver rule, the named solver where
+    /// given, its 3e-3 tolerance): the candidates for a coarse grid that follows the
+    /// thickness.
+    CoarseAt(Option<Solver>, f64),
+    /// `rom` at `dx = 0.35 T` with a shipped model (`rom-linear` on the linear gel, the
+    /// default; `rom-default` on the relaxation) on the press's gel, the model reading a
+    /// window of its own lattice over the contact.
+    Rom(Solver),
     /// Richardson extrapolation of two methods' depths and forces (the second at half the
     /// first's spacing), for convergence of this order.
     Extrapolated(&'static str, &'static str, f64),
 }
 
 /// The methods of the study: its finest solve and the candidates.
-const METHODS: [(&str, Method); 12] = [
+const METHODS: [(&str, Method); 19] = [
     ("finest", Method::Solve(None, 0.075, 1e-3)),
     (
         "finest-newton",
@@ -178,6 +186,19 @@ const METHODS: [(&str, Method); 12] = [
         Method::Extrapolated("newton-t/4", "newton-t/8", 1.0),
     ),
     ("coarse", Method::Coarse),
+    ("coarse-t/2", Method::CoarseAt(None, 0.5)),
+    ("coarse-t/2.86", Method::CoarseAt(None, 0.35)),
+    ("coarse-t/4", Method::CoarseAt(None, 0.25)),
+    (
+        "coarse-linear-t/2.86",
+        Method::CoarseAt(Some(Solver::Linear), 0.35),
+    ),
+    (
+        "coarse-linear-t/4",
+        Method::CoarseAt(Some(Solver::Linear), 0.25),
+    ),
+    ("rom", Method::Rom(Solver::Linear)),
+    ("rom-relaxation", Method::Rom(Solver::Relaxation)),
 ];
 
 /// What one task wrote besides its depth window.
@@ -461,6 +482,8 @@ fn solve(
     let (named, dx, role, tolerance) = match m {
         Method::Solve(solver, cells, tolerance) => (solver, t * cells, Role::Reference, tolerance),
         Method::Coarse => (None, (1.4e-3f64).min(t / 2.0), Role::Coarse, 3e-3),
+        Method::CoarseAt(solver, cells) => (solver, t * cells, Role::Coarse, 3e-3),
+        Method::Rom(solver) => (Some(solver), t * 0.35, Role::Coarse, 3e-3),
         Method::Extrapolated(..) => unreachable!("extrapolations are not solved"),
     };
     let params = p.gel(dx);
@@ -480,12 +503,31 @@ fn solve(
     let r = gel.solve(std::slice::from_ref(placed));
     let seconds = t0.elapsed().as_secs_f64();
     let mut image = vec![0.0; window.grid.width * window.grid.height];
-    gel.surface_depth(&window.grid, &mut image);
+    let mut force = gel.force()[2];
+    let mut seconds = seconds;
+    if let Method::Rom(solver) = m {
+        let name = tacrom::rom::shipped_model(solver.name());
+        let dir = tacrom::rom::shipped_model_dir(name)
+            .ok_or(format!("the shipped model {name} was not found"))?;
+        let options = tacrom::rom::RomOptions {
+            force: true,
+            ..Default::default()
+        };
+        let mut rom = tacrom::rom::Rom::load(&dir, options).map_err(|e| e.to_string())?;
+        rom.serve(params.size);
+        let t0 = Instant::now();
+        rom.evaluate(&gel, std::slice::from_ref(placed), &window.grid, &mut image)
+            .map_err(|e| e.to_string())?;
+        seconds += t0.elapsed().as_secs_f64();
+        force *= rom.force_factor();
+    } else {
+        gel.surface_depth(&window.grid, &mut image);
+    }
     Ok((
         Outcome {
             solver: choice.solver.name().to_owned(),
             dx,
-            force: gel.force()[2],
+            force,
             seconds,
             threads,
             iterations: r.iterations,

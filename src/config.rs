@@ -186,6 +186,13 @@ pub struct RawConfig {
     from_file: Option<(std::path::PathBuf, Vec<String>)>,
 }
 
+/// Whether a sensor file's `attribute` applies to a sensor of `physics` (the attribute's
+/// text): all do but `dx` for `rom`, since a file's grid spacing is its coarse gel's and
+/// `rom` runs on its model's grid (a fixed fraction of the thickness).
+pub fn file_attribute_applies(physics: &str, attribute: &str) -> bool {
+    !(physics.trim() == Physics::Rom.name() && attribute == ATTR_DX)
+}
+
 impl RawConfig {
     /// Collects the attributes through `lookup`, which returns the configured text of an
     /// attribute or `None`.
@@ -210,16 +217,13 @@ impl RawConfig {
     pub fn with_sensor_file(&self, file: &crate::sensor_file::SensorFile) -> RawConfig {
         let mut merged = self.clone();
         let mut given = Vec::new();
-        // A file's grid spacing is its coarse gel's; `rom` runs on its model's grid (a
-        // fixed fraction of the thickness), so a sensor made `rom` keeps that one.
         let file_value = |a: &str| file.attributes.iter().find(|(k, _)| k == a);
         let physics = self
             .get(ATTR_PHYSICS)
             .or(file_value(ATTR_PHYSICS).map(|(_, v)| v.as_str()))
             .unwrap_or(defaults::PHYSICS);
-        let rom = physics.trim() == Physics::Rom.name();
         for (a, v) in &file.attributes {
-            if self.get(a).is_none() && !(rom && a == ATTR_DX) {
+            if self.get(a).is_none() && file_attribute_applies(physics, a) {
                 merged.values.push((a.clone(), v.clone()));
                 given.push(a.clone());
             }

@@ -293,8 +293,16 @@ fn row_config(
     let sensor = tacrom::sensor_file::SensorFile::read(&file.display().to_string())?;
     let default_gel = pairs.iter().any(|(k, v)| k == "gel" && v == "default");
     let mut raw = RawConfig::default();
+    let value = |key: &str, pairs: &[(String, String)]| {
+        pairs.iter().find(|(k, _)| k == key).map(|(_, v)| v.clone())
+    };
+    let physics = value("physics", pairs)
+        .or_else(|| value("physics", &sensor.attributes).filter(|_| !default_gel))
+        .unwrap_or_else(|| tacrom::config::defaults::PHYSICS.to_owned());
     for (k, v) in &sensor.attributes {
-        if !(default_gel && GEL_ATTRIBUTES.contains(&k.as_str())) {
+        if !(default_gel && GEL_ATTRIBUTES.contains(&k.as_str()))
+            && tacrom::config::file_attribute_applies(&physics, k)
+        {
             raw = raw.with(k, v);
         }
     }

@@ -250,6 +250,30 @@ def test_rom_serves_other_gel_materials_and_refuses_others(press_xml):
     assert "'touch'" in msg and "Poisson's ratio in [0.3, 0.48]" in msg and "0.49" in msg
 
 
+def test_rom_serves_a_thin_gel_of_the_family_through_mujoco(press_xml):
+    """The default physics (rom) on gels of the family other than the model's 30 x 30 x 4
+    mm, through MuJoCo: the 5 mm ball pressed 0.2 mm into a GelSight Mini-sized gel
+    (20.9 x 16.2 x 1.41 mm) and into a 12 x 12 x 1 mm one gives a finite image whose
+    deepest pixel is the ball's deepest point within a tenth of the press, and a positive
+    force; the thinner gel is the stiffer. A gel outside the family (50 mm across) is
+    refused naming the sensor, the size and the family's ranges."""
+    forces = {}
+    for size in ["0.0209 0.0162 0.00141", "0.012 0.012 0.001"]:
+        xml = with_config(press_xml, outputs="depth force", resolution="64 48", size=size,
+                          fov="0.01 0.0075")
+        model = mujoco.MjModel.from_xml_string(xml)
+        out = evaluate(model, mujoco.MjData(model), 0.2e-3)
+        depth = out["depth"]
+        assert np.all(np.isfinite(depth)) and abs(depth.max() - 0.2e-3) < 0.02e-3, size
+        forces[size] = out["force"][2]
+        assert forces[size] > 0.0
+    assert forces["0.012 0.012 0.001"] > forces["0.0209 0.0162 0.00141"]
+    with pytest.raises(ValueError) as err:
+        mujoco.MjModel.from_xml_string(with_config(press_xml, size="0.05 0.03 0.004"))
+    msg = str(err.value)
+    assert "'touch'" in msg and "'size'" in msg and "0.012 to 0.04 m across" in msg
+
+
 def test_attribute_table_names_every_attribute_and_its_defaults_apply(press_xml):
     """The attribute table Python reads is the plugin's: every attribute MuJoCo accepts is
     in it once, and a sensor configured with each numeric default written out lays out and

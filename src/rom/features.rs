@@ -274,7 +274,8 @@ impl Observation {
         ]
     }
 
-    /// `field` at window point `(row, col)` times `scale`; 0 outside the lattice.
+    /// `field` at window point `(row, col)` in model units (times the lattice's
+    /// `depth_scale`); 0 outside the lattice.
     fn in_window(&self, field: &[f64], spec: &LatticeSpec, row: usize, col: usize) -> f64 {
         let r = self.origin[0] + row as isize;
         let c = self.origin[1] + col as isize;

@@ -717,7 +717,6 @@ impl Manifest {
     /// bit: `depth_does_not_depend_on_young_modulus_and_force_scales_with_it`) and the
     /// forces scale with it; the density does not change the equilibrium either.
     ///
-    ///
     /// The size may be any of the gel family's ([`THICKNESS_RANGE`], [`LATERAL_RANGE`]),
     /// or the model's shape at a thickness within [`THICKNESS_RANGE`] (its own size
     /// always). A gel's equilibrium under indenters scaled with it is the same scaled, to

@@ -124,6 +124,26 @@ def test_copy_continues_identically_and_keeps_history():
     assert history_shows(b, fresh, SHALLOW[2])
 
 
+def test_a_copy_of_a_thin_gels_rom_sensor_continues_identically():
+    """Catches: mj_copyData giving the copy's reduced-order model its own gel's lattice
+    instead of the served one (rom on a 12 x 12 x 1 mm gel reads the gel in thicknesses
+    through a window of its lattice). A frictional press and slide on the thin gel, then a
+    copy: original and copy agree bit for bit every frame after it."""
+    m = model(physics="rom", size="0.012 0.012 0.001", fov="0.012 0.012", lift=R)
+    original = mujoco.MjData(m)
+    poses = [(0, 0, 0.2e-3), (0.3e-3, 0, 0.3e-3), (0.6e-3, 0.1e-3, 0.3e-3),
+             (0.9e-3, 0.1e-3, 0.25e-3), (0.9e-3, 0.3e-3, 0.1e-3)]
+    for pose in poses[:2]:
+        evaluate(m, original, pose)
+    copy = mujoco.MjData(m)
+    mujoco.mj_copyData(copy, m, original)
+    for i, pose in enumerate(poses[2:]):
+        a = evaluate(m, original, pose)
+        b = evaluate(m, copy, pose)
+        assert abs(a["depth"].max() - pose[2]) < 0.1 * pose[2]
+        assert_same(a, b, f"frame {i} after the copy")
+
+
 def test_off_centre_box_lands_at_documented_pixels():
     """Catches: a mirrored or transposed image. A box 6 x 2 mm (long along x) pressed at
     (+5, +3) mm must appear where the documented layout puts it (row 0 the +y edge,

@@ -905,8 +905,6 @@ pub struct Rom {
     z: Vec<f32>,
     /// The image's interpolation buffers, kept between frames.
     scratch: RenderScratch,
-    /// The served gel's thickness over the model's ([`Rom::serve`]).
-    scale: f64,
 }
 
 /// [`render_lattice`]'s buffers: each image column's lattice cell and position in it, the
@@ -971,7 +969,6 @@ impl Rom {
             region: Vec::new(),
             lattice_depth: Vec::new(),
             scratch: RenderScratch::default(),
-            scale: 1.0,
         })
     }
 
@@ -989,6 +986,7 @@ impl Rom {
     pub fn serve(&mut self, size: [f64; 3]) {
         let scale = size[2] / self.manifest.gel.size[2];
         let lattice = &mut self.manifest.lattice;
+        let served = lattice.size[2] / self.manifest.gel.size[2];
         let [rows, cols] = lattice.window;
         let pitch = [
             self.manifest.gel.size[0] / cols as f64,
@@ -997,8 +995,7 @@ impl Rom {
         lattice.nx = ((size[0] / (pitch[0] * scale)).round() as usize).max(1);
         lattice.ny = ((size[1] / (pitch[1] * scale)).round() as usize).max(1);
         lattice.size = size;
-        lattice.depth_scale *= self.scale / scale;
-        self.scale = scale;
+        lattice.depth_scale *= served / scale;
     }
 
     /// Sets the material inputs of `obs` for a gel of Poisson's ratio `poisson` and

@@ -572,7 +572,8 @@ pub struct CalibrateArgs {
     #[arg(long, conflicts_with = "synthesize")]
     pub detect: bool,
     /// Fit the gel too (thickness and Poisson's ratio, from the imprint around each
-    /// contact) and write a sensor file, sensor.json, beside the optics.
+    /// contact; Young's modulus where presses give force_n) and write a sensor file,
+    /// sensor.json, beside the optics.
     #[arg(long, conflicts_with = "synthesize")]
     pub gel: bool,
     /// The gel thicknesses to try (mm, ascending) [1,1.5,2,3,4,5].

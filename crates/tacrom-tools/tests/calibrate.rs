@@ -244,6 +244,8 @@ fn a_broken_press_set_is_refused_naming_the_fault() {
     assert!(e.contains("unknown field `contact_radius`"), "{e}");
     let e = with(&|j| j["presses"][1]["depth_mm"] = (-0.2).into());
     assert!(e.contains("press 1") && e.contains("depth_mm"), "{e}");
+    let e = with(&|j| j["presses"][2]["force_n"] = 0.0.into());
+    assert!(e.contains("press 2") && e.contains("force_n = 0"), "{e}");
     let e = with(&|j| j["presses"] = serde_json::json!([]));
     assert!(e.contains("no presses"), "{e}");
     // A press of another size than the background.
@@ -348,7 +350,11 @@ fn a_gel_fit_recovers_the_thickness_and_poissons_ratio_of_synthetic_presses() {
         blurs: Vec::new(),
     };
     let (report, _) = calibrate_synthetic_gel("gel-fit", truth, 0.1e-3, 3, 0.0, search);
-    let (fit, path) = report.gel.expect("a gel fit");
+    let cal::GelReport {
+        fit,
+        sensor_file: path,
+        ..
+    } = report.gel.expect("a gel fit");
     // The fitted gel's images match the presses' to their 8-bit rounding (a quarter of a
     // grey level on average over the regions; the grid's worst gel: several levels).
     let worst = fit.grid.iter().map(|g| g.mae).fold(0.0, f64::max);
@@ -380,6 +386,90 @@ fn a_gel_fit_recovers_the_thickness_and_poissons_ratio_of_synthetic_presses() {
     assert!((config.size[2] - fit.best.thickness).abs() < 1e-9);
     assert!((config.poisson - fit.best.poisson).abs() < 1e-9);
     assert!(config.optics.is_some());
+}
+
+/// Presses that give their normal force fix the gel's Young's modulus. Six presses of a
+/// gel three times as stiff as the default, every third held out: with each press's depth
+/// given, the force is the same simulation's at the reference modulus times the ratio, so
+/// the fit returns the modulus to rounding and every force with it; with the depths fitted
+/// from the imprints, each depth is found to the search's final bracket (0.4 % of the
+/// rigid cap's depth), and a sphere's force on a bonded layer goes as the depth to a power
+/// from 1.5 (a half-space) to 3 (a wide contact on a thin incompressible layer): each force
+/// within 1.2 % (bound 1.5 %), the modulus, their least-squares ratio, within 1 %
+/// (measured 0.6 %). The sensor file carries the modulus.
+#[test]
+fn a_modulus_fit_recovers_the_youngs_modulus_from_the_presses_forces() {
+    use cal::gel::{GelSearch, GelShape};
+    let gel = GelShape {
+        thickness: 2e-3,
+        poisson: 0.43,
+        dx: 0.5e-3,
+    };
+    let young = 3.0 * tacrom::attributes::defaults::YOUNG;
+    let search = GelSearch {
+        thicknesses: vec![gel.thickness],
+        poissons: vec![gel.poisson],
+        threads: 1,
+        dx: Some(gel.dx),
+        blurs: Vec::new(),
+    };
+    for with_depth in [true, false] {
+        let dir = scratch(if with_depth {
+            "young-depths"
+        } else {
+            "young-imprints"
+        });
+        let o = synth::SynthOptions {
+            presses: 6,
+            resolution: [120, 90],
+            pixel_size: 0.1e-3,
+            seed: 3,
+            gel: Some(gel),
+            with_depth,
+            young: Some(young),
+            ..synth::SynthOptions::new(dir.clone())
+        };
+        synth::synthesize(&o).unwrap();
+        let mut c = cal::CalibrateOptions::new(dir.clone());
+        c.holdout = 3;
+        c.gel = Some(search.clone());
+        let report = cal::calibrate(&c).unwrap();
+        let g = report.gel.expect("a gel fit");
+        let y = g.young.expect("a modulus fit");
+        let (bound, force_bound) = if with_depth {
+            (1e-9, 1e-9)
+        } else {
+            (0.01, 0.015)
+        };
+        println!(
+            "depths given {with_depth}: E {:.5e} against {young:.5e}, force error {:.2e} \
+             fitted, {:?} held out",
+            y.young, y.error, y.held_out_error
+        );
+        assert!(
+            (y.young / young - 1.0).abs() < bound,
+            "{} against {young}",
+            y.young
+        );
+        assert_eq!(y.presses.len(), 6);
+        assert_eq!(y.presses.iter().filter(|p| p.held_out).count(), 2);
+        for p in &y.presses {
+            assert!(p.measured > 0.0, "{p:?}");
+            assert!(
+                (p.simulated / p.measured - 1.0).abs() < force_bound,
+                "{p:?}"
+            );
+        }
+        let raw = RawConfig::default()
+            .with("sensor", g.sensor_file.to_str().unwrap())
+            .with("outputs", "depth");
+        let config = Config::from_raw("touch", &raw).unwrap();
+        assert!(
+            (config.young / y.young - 1.0).abs() < 1e-6,
+            "{}",
+            config.young
+        );
+    }
 }
 
 /// Calibrates, over the gels and blurs of `search` with every third press held out, six
@@ -431,7 +521,7 @@ fn a_blur_fit_recovers_the_blur_of_synthetic_presses() {
         blurs: vec![0.0, 0.1e-3, 0.2e-3, 0.4e-3],
     };
     let (report, dir) = calibrate_synthetic_gel("blur-fit", gel, 0.05e-3, 5, 0.2e-3, search);
-    let (fit, _) = report.gel.expect("a gel fit");
+    let fit = report.gel.expect("a gel fit").fit;
     let ssim: Vec<f64> = fit.blurs.iter().map(|b| b.ssim).collect();
     assert_eq!(fit.blur, 0.2e-3, "region SSIM per blur {ssim:?}");
     assert!(fit.mae < 0.5, "region MAE {}", fit.mae);

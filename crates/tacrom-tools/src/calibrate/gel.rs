@@ -5,7 +5,9 @@
 //! bonded to its window barely moves beside it. Pressed by a rigid body to a given depth, a
 //! linear elastic gel's surface does not depend on its Young's modulus, only on its
 //! thickness `T` and Poisson's ratio `nu` (and the press): so images alone, without forces,
-//! fix `T` and `nu`; the modulus needs forces, which this fit does not take.
+//! fix `T` and `nu`; the modulus needs forces. Where presses give their normal force
+//! (`force_n`), the modulus follows from them once the gel's shape and each press's depth
+//! are fitted: at a given depth the force is proportional to the modulus ([`fit_young`]).
 //!
 //! Each press's depth, unless `presses.json` gives it (`depth_mm`), is fitted from its own
 //! imprint, the depth whose image through the optics is closest (mean absolute error over the press's region, [`REGION`]
@@ -111,6 +113,24 @@ impl PressModel {
         Self::from_raw(&raw, grid)
     }
 
+    /// A sensor simulating `gel` of Young's modulus `young` (Pa) behind images like
+    /// `grid`'s, its contact force as output ([`normal_force`] reads the press's).
+    pub fn forces(
+        gel: GelShape,
+        grid: &PixelGrid,
+        young: f64,
+        threads: usize,
+    ) -> Result<Self, String> {
+        let mut raw = RawConfig::default()
+            .with("outputs", "force")
+            .with("young", &format!("{young:e}"))
+            .with("threads", &threads.to_string());
+        for (k, v) in gel_attributes(gel, grid) {
+            raw = raw.with(k, &v);
+        }
+        Self::from_raw(&raw, grid)
+    }
+
     /// The sensor `raw` configures, its images like `grid`'s.
     pub fn from_raw(raw: &RawConfig, grid: &PixelGrid) -> Result<Self, String> {
         let config = Config::from_raw("calibration", raw).map_err(|e| e.to_string())?;
@@ -148,6 +168,120 @@ impl PressModel {
         self.sensor.evaluate(&placed, &mut self.out);
         &self.out
     }
+}
+
+/// The normal force (N) in the sensor data of a [`PressModel::forces`] model: the gel's
+/// force on the ball along the gel's outward normal.
+pub fn normal_force(data: &[f64]) -> f64 {
+    data[2]
+}
+
+/// The gel's Young's modulus from the presses' measured normal forces.
+#[derive(Clone, Debug, Serialize)]
+pub struct YoungFit {
+    /// The modulus (Pa).
+    pub young: f64,
+    /// Every press with a force, fitted or held out.
+    pub presses: Vec<ForceFit>,
+    /// Mean absolute relative error of the fitted presses' forces at the modulus.
+    pub error: f64,
+    /// The same of the held-out presses' (`None`: none held out gives a force).
+    pub held_out_error: Option<f64>,
+}
+
+/// One press's force: measured, and the fitted gel's at the fitted modulus.
+#[derive(Clone, Debug, Serialize)]
+pub struct ForceFit {
+    /// Its image file.
+    pub image: String,
+    /// Whether it was held out of the fit.
+    pub held_out: bool,
+    /// The depth it was simulated at (m): given, or fitted from its imprint.
+    pub depth: f64,
+    /// The measured normal force (N).
+    pub measured: f64,
+    /// The fitted gel's normal force at its depth (N).
+    pub simulated: f64,
+}
+
+/// The Young's modulus of `gel` that fits the forces of the `fitted` presses (at their
+/// `depths`, m) in least squares, and every press's force there (`held_out` presses at
+/// theirs, fitted the same way but not fitted to); `None` where no fitted press gives a
+/// force.
+///
+/// Pressed to a given depth, a linear elastic gel's force is proportional to its modulus
+/// (its surface does not depend on it): each press is simulated once at a reference
+/// modulus `E0`, giving `F0`, and `E = E0 sum(F F0) / sum(F0^2)`, the least-squares factor
+/// of the measured forces `F` over the simulated ones.
+pub fn fit_young(
+    gel: GelShape,
+    fitted: &[(&Press, f64)],
+    held_out: &[(&Press, f64)],
+    threads: usize,
+) -> Result<Option<YoungFit>, String> {
+    fn given<'a>(set: &[(&'a Press, f64)]) -> Vec<(&'a Press, f64, f64)> {
+        set.iter()
+            .filter_map(|&(p, d)| p.force.map(|f| (p, d, f)))
+            .collect()
+    }
+    let (fitted, held_out) = (given(fitted), given(held_out));
+    let Some(grid) = fitted.first().map(|(p, _, _)| p.grid()) else {
+        return Ok(None);
+    };
+    let reference = tacrom::attributes::defaults::YOUNG;
+    let mut model = PressModel::forces(gel, &grid, reference, threads)?;
+    let mut simulate = |set: &[(&Press, f64, f64)]| -> Result<Vec<f64>, String> {
+        set.iter()
+            .map(|(p, depth, _)| {
+                if p.grid() != grid {
+                    return Err(format!("{}: not the first press's image size", p.name));
+                }
+                Ok(normal_force(model.press(p.ball_radius, &p.contact, *depth)))
+            })
+            .collect()
+    };
+    let (f0, h0) = (simulate(&fitted)?, simulate(&held_out)?);
+    let (num, den) = fitted
+        .iter()
+        .zip(&f0)
+        .fold((0.0, 0.0), |(n, d), ((_, _, f), g)| (n + f * g, d + g * g));
+    if den.is_nan() || den <= 0.0 {
+        return Err(format!(
+            "the fitted gel carries no force at the presses' depths (T {:.3} mm, Poisson \
+             {:.3}): no modulus fits their force_n",
+            gel.thickness * 1e3,
+            gel.poisson
+        ));
+    }
+    let scale = num / den;
+    let young = reference * scale;
+    let rows = |set: &[(&Press, f64, f64)], sim: &[f64], held_out: bool| -> Vec<ForceFit> {
+        set.iter()
+            .zip(sim)
+            .map(|((p, depth, f), g)| ForceFit {
+                image: p.name.clone(),
+                held_out,
+                depth: *depth,
+                measured: *f,
+                simulated: g * scale,
+            })
+            .collect()
+    };
+    let mean_error = |rows: &[ForceFit]| {
+        (!rows.is_empty()).then(|| {
+            rows.iter()
+                .map(|r| (r.simulated / r.measured - 1.0).abs())
+                .sum::<f64>()
+                / rows.len() as f64
+        })
+    };
+    let (a, b) = (rows(&fitted, &f0, false), rows(&held_out, &h0, true));
+    Ok(Some(YoungFit {
+        young,
+        error: mean_error(&a).unwrap_or(0.0),
+        held_out_error: mean_error(&b),
+        presses: [a, b].concat(),
+    }))
 }
 
 /// The pixels of `press`'s region: [`REGION`] radii of the circle `presses.json` gives (a

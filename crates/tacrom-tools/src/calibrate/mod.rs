@@ -127,6 +127,10 @@ pub struct PressEntry {
     /// the gel fit and `tacrom compare` find it from the imprint when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub depth_mm: Option<f64>,
+    /// The normal force the ball pressed with (N), where it was measured: the presses that
+    /// give one fix the gel's Young's modulus (`--gel`; [`gel::fit_young`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_n: Option<f64>,
 }
 
 /// A press ready for fitting: its image, ball, pixel size and contact.
@@ -146,6 +150,8 @@ pub struct Press {
     pub given: Option<Contact>,
     /// The press's depth (m), when `presses.json` gives it.
     pub depth: Option<f64>,
+    /// The normal force (N), when `presses.json` gives it.
+    pub force: Option<f64>,
     /// Whether the contact was detected (not given).
     pub detected: bool,
 }
@@ -283,6 +289,9 @@ pub fn read_set_detecting(
                 entry.ball_radius_mm
             )));
         }
+        if let Some(f) = entry.force_n.filter(|f| !positive(*f)) {
+            return Err(bad(format!("force_n = {f} must be a positive force (N)")));
+        }
         if contact.radius * pixel_size >= ball_radius {
             return Err(bad(format!(
                 "contact radius {:.3} mm is not below the ball radius {} mm",
@@ -298,6 +307,7 @@ pub fn read_set_detecting(
             contact,
             given,
             depth: entry.depth_mm.map(|d| d * 1e-3),
+            force: entry.force_n,
             detected: detected.is_some(),
         });
     }
@@ -378,7 +388,18 @@ pub struct CalibrationReport {
     /// Mean errors of the presses fitted.
     pub training: metrics::ImageErrors,
     /// The gel fitted to the presses not held out, and the sensor file written, when asked.
-    pub gel: Option<(gel::GelFit, PathBuf)>,
+    pub gel: Option<GelReport>,
+}
+
+/// The gel a calibration fitted (`--gel`).
+#[derive(Clone, Debug, Serialize)]
+pub struct GelReport {
+    /// Its shape, the presses' depths and the optics' blur.
+    pub fit: gel::GelFit,
+    /// Its Young's modulus, where presses give their forces (`force_n`).
+    pub young: Option<gel::YoungFit>,
+    /// The sensor file written.
+    pub sensor_file: PathBuf,
 }
 
 /// The image `press` would show through `optics` (its background of the press's size):
@@ -451,7 +472,36 @@ pub fn calibrate(o: &CalibrateOptions) -> Result<CalibrationReport, CalibrateErr
                     .map_err(CalibrateError::Usage)?;
                 fit_report = report;
             }
-            Some(fit)
+            // The modulus, where presses give their forces: the fitted presses at their
+            // fitted depths, the held-out ones at depths found the same way through the
+            // optics just fitted.
+            let held: Vec<&Press> = set
+                .presses
+                .iter()
+                .enumerate()
+                .filter(|&(i, p)| held_out(i) && p.force.is_some())
+                .map(|(_, p)| p)
+                .collect();
+            let held_depths = gel::fit_depths(fit.best, &held, &optics, search.threads)
+                .map_err(CalibrateError::Usage)?;
+            fn at_depths<'a>(
+                presses: &[&'a Press],
+                fits: &[gel::PressFit],
+            ) -> Vec<(&'a Press, f64)> {
+                presses
+                    .iter()
+                    .copied()
+                    .zip(fits.iter().map(|f| f.depth))
+                    .collect()
+            }
+            let young = gel::fit_young(
+                fit.best,
+                &at_depths(&fitted, &fit.presses),
+                &at_depths(&held, &held_depths),
+                search.threads,
+            )
+            .map_err(CalibrateError::Usage)?;
+            Some((fit, young))
         }
     };
     let presses: Vec<PressReport> = set
@@ -485,7 +535,7 @@ pub fn calibrate(o: &CalibrateOptions) -> Result<CalibrationReport, CalibrateErr
     }
     let gel = match gel_fit {
         None => None,
-        Some(fit) => {
+        Some((fit, young)) => {
             let path = folder
                 .unwrap_or(Path::new("."))
                 .join(tacrom::sensor_file::FILE_NAME);
@@ -499,6 +549,9 @@ pub fn calibrate(o: &CalibrateOptions) -> Result<CalibrationReport, CalibrateErr
             if o.mirror {
                 attributes.push(("view".into(), "camera".into()));
             }
+            if let Some(y) = &young {
+                attributes.push(("young".into(), format!("{:.6e}", y.young)));
+            }
             let text = tacrom::sensor_file::to_json(
                 &attributes,
                 &format!(
@@ -506,10 +559,19 @@ pub fn calibrate(o: &CalibrateOptions) -> Result<CalibrationReport, CalibrateErr
                     env!("CARGO_PKG_VERSION"),
                     o.input.display()
                 ),
-                serde_json::json!({"gel": fit, "holdout": o.holdout, "mirror": o.mirror}),
+                serde_json::json!({
+                    "gel": fit,
+                    "young": young,
+                    "holdout": o.holdout,
+                    "mirror": o.mirror
+                }),
             );
             std::fs::write(&path, text).map_err(|e| file_error(&path, e))?;
-            Some((fit, path))
+            Some(GelReport {
+                fit,
+                young,
+                sensor_file: path,
+            })
         }
     };
     let report = CalibrationReport {
@@ -593,5 +655,27 @@ pub fn markdown(r: &CalibrationReport) -> String {
          Gaussian window, sigma 1.5). Written {}\n",
         r.out.display()
     ));
+    if let Some(g) = &r.gel {
+        let b = &g.fit.best;
+        s.push_str(&format!(
+            "\nGel: {:.3} mm thick, Poisson's ratio {:.3}, depth blur {:.3} mm",
+            b.thickness * 1e3,
+            b.poisson,
+            g.fit.blur * 1e3
+        ));
+        match &g.young {
+            Some(y) => s.push_str(&format!(
+                ", Young's modulus {:.4e} Pa from {} presses' forces (mean force error {:.1} % \
+                 fitted, {} held out)",
+                y.young,
+                y.presses.iter().filter(|p| !p.held_out).count(),
+                100.0 * y.error,
+                y.held_out_error
+                    .map_or("none".into(), |e| format!("{:.1} %", 100.0 * e))
+            )),
+            None => s.push_str(" (no press gives its force_n: the modulus is the default)"),
+        }
+        s.push_str(&format!(". Written {}\n", g.sensor_file.display()));
+    }
     s
 }

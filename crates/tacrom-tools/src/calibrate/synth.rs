@@ -31,6 +31,10 @@ pub struct SynthOptions {
     pub gel: Option<super::gel::GelShape>,
     /// Write each press's depth into `presses.json` (else the gel fit finds it).
     pub with_depth: bool,
+    /// Write each press's normal force on a gel of this Young's modulus (Pa) into
+    /// `presses.json` (`force_n`; needs `gel`): a set whose modulus a calibration must
+    /// recover.
+    pub young: Option<f64>,
     /// Blur each press's depth image by a Gaussian of this standard deviation (m) before
     /// shading it ([`tacrom::render::rgb::blur_depth`]): a set whose optics' blur a
     /// calibration must recover.
@@ -50,6 +54,7 @@ impl SynthOptions {
             with_contact: true,
             gel: None,
             with_depth: false,
+            young: None,
             blur: 0.0,
         }
     }
@@ -144,6 +149,17 @@ pub fn synthesize(o: &SynthOptions) -> Result<Vec<(PressEntry, Contact)>, Calibr
         Some(g) => Some(super::gel::PressModel::new(g, &grid, 1).map_err(CalibrateError::Usage)?),
         None => None,
     };
+    let mut forces = match (o.young, o.gel) {
+        (None, _) => None,
+        (Some(young), Some(g)) => Some(
+            super::gel::PressModel::forces(g, &grid, young, 1).map_err(CalibrateError::Usage)?,
+        ),
+        (Some(_), None) => {
+            return Err(CalibrateError::Usage(
+                "a synthetic set's forces need a gel: a rigid cap carries none".into(),
+            ))
+        }
+    };
     for i in 0..o.presses {
         let (radius, contact) = press(o.seed, i, o.resolution, o.pixel_size);
         let name = format!("press_{i:03}.png");
@@ -153,6 +169,9 @@ pub fn synthesize(o: &SynthOptions) -> Result<Vec<(PressEntry, Contact)>, Calibr
             None => fit::ball_depth(&grid, radius, &contact),
             Some(model) => model.press(radius, &contact, depth).to_vec(),
         };
+        let force_n = forces
+            .as_mut()
+            .map(|model| super::gel::normal_force(model.press(radius, &contact, depth)));
         let mut blurred = Vec::new();
         tacrom::render::rgb::blur_depth(&grid, &surface, o.blur, &mut blurred);
         let mut img = vec![0.0; CHANNELS * w * h];
@@ -165,6 +184,7 @@ pub fn synthesize(o: &SynthOptions) -> Result<Vec<(PressEntry, Contact)>, Calibr
             center_px: o.with_contact.then_some(contact.centre),
             contact_radius_px: o.with_contact.then_some(contact.radius),
             depth_mm: o.with_depth.then_some(depth * 1e3),
+            force_n,
         };
         presses.push((entry, contact));
     }

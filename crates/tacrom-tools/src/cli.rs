@@ -572,7 +572,8 @@ pub struct CalibrateArgs {
     #[arg(long, conflicts_with = "synthesize")]
     pub detect: bool,
     /// Fit the gel too (thickness and Poisson's ratio, from the imprint around each
-    /// contact; Young's modulus where presses give force_n) and write a sensor file,
+    /// contact; Young's modulus where presses give force_n; the pixel size checked where
+    /// they give depth_mm) and write a sensor file,
     /// sensor.json, beside the optics.
     #[arg(long, conflicts_with = "synthesize")]
     pub gel: bool,

@@ -472,6 +472,63 @@ fn a_modulus_fit_recovers_the_youngs_modulus_from_the_presses_forces() {
     }
 }
 
+/// Presses that give their depth check the pixel size: simulated at their depths on the
+/// fitted gel, their imprints are as large in pixels as the images' where the given pixel
+/// size is right (measured: to 0.1 %; bound 0.5 %), and 1 / 1.05 of them where it is given
+/// 5 % too large (measured: the true size to 0.9 %, bound 2 %: the optics fitted through
+/// the wrong size render each imprint's faint edge a little off, and the presses' ratios
+/// spread by 3 % against 0.2 %), which the report flags.
+#[test]
+fn a_pixel_size_check_finds_a_wrong_pixel_size() {
+    use cal::gel::{GelSearch, GelShape};
+    let gel = GelShape {
+        thickness: 2e-3,
+        poisson: 0.43,
+        dx: 0.5e-3,
+    };
+    let search = GelSearch {
+        thicknesses: vec![gel.thickness],
+        poissons: vec![gel.poisson],
+        threads: 1,
+        dx: Some(gel.dx),
+        blurs: Vec::new(),
+    };
+    for claimed in [1.0, 1.05] {
+        let dir = scratch(&format!("pixel-{claimed}"));
+        let o = synth::SynthOptions {
+            presses: 6,
+            resolution: [120, 90],
+            pixel_size: 0.1e-3,
+            seed: 3,
+            gel: Some(gel),
+            with_depth: true,
+            ..synth::SynthOptions::new(dir.clone())
+        };
+        synth::synthesize(&o).unwrap();
+        let list_path = dir.join(cal::PRESS_LIST);
+        let mut list: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&list_path).unwrap()).unwrap();
+        for p in list["presses"].as_array_mut().unwrap() {
+            p["pixel_size_mm"] = (0.1 * claimed).into();
+        }
+        std::fs::write(&list_path, list.to_string()).unwrap();
+        let mut c = cal::CalibrateOptions::new(dir.clone());
+        c.holdout = 3;
+        c.gel = Some(search.clone());
+        let report = cal::calibrate(&c).unwrap();
+        let check = report.gel.unwrap().pixel.expect("a pixel size check");
+        println!("given {claimed}: {check:?}");
+        assert_eq!(check.presses, 6);
+        let bound = if claimed == 1.0 { 0.005 } else { 0.02 };
+        assert!(
+            (check.ratio * claimed - 1.0).abs() < bound,
+            "given {claimed} times the true pixel: {check:?}"
+        );
+        let flagged = (check.ratio - 1.0).abs() > cal::PIXEL_WARNING;
+        assert_eq!(flagged, claimed != 1.0, "{check:?}");
+    }
+}
+
 /// Calibrates, over the gels and blurs of `search` with every third press held out, six
 /// synthetic presses (120 x 90 pixels of `pixel_size`, seed `seed`) into `gel`, each depth
 /// image blurred by `blur` (m) before its built-in shading; returns the report and the

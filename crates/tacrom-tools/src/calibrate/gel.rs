@@ -284,6 +284,74 @@ pub fn fit_young(
     }))
 }
 
+/// The pixel size the presses' known depths imply, against the one they give.
+#[derive(Clone, Debug, Serialize)]
+pub struct PixelCheck {
+    /// Presses compared (those giving their depth whose imprint was found in the image and
+    /// in its simulation).
+    pub presses: usize,
+    /// The implied pixel size over the given one: the mean over those presses of the
+    /// simulated imprint's radius over the image's (pixels).
+    pub ratio: f64,
+    /// The ratios' standard deviation.
+    pub spread: f64,
+}
+
+/// Checks the presses' pixel size against their known depths (`depth_mm`): each press
+/// that gives its depth is simulated on the fitted `gel` at that depth and rendered
+/// through the fitted `optics`, and its imprint found in that image as in the press's own
+/// ([`super::contact::detect`], `threshold`). At a known depth the imprint's size on the
+/// gel is fixed, so a pixel size wrong by a factor `s` shows as an imprint `s` times the
+/// simulated one's in pixels: the implied pixel size is the given one times the ratio of
+/// the simulated radius to the image's. (Ball presses of unknown depths cannot check it:
+/// docs/calibration.md.) `None` where no press gives its depth.
+pub fn check_pixel_size(
+    gel: GelShape,
+    presses: &[&Press],
+    background: &RgbImage,
+    optics: &CalibratedOptics,
+    threshold: f64,
+    threads: usize,
+) -> Result<Option<PixelCheck>, String> {
+    let known: Vec<(&Press, f64)> = presses
+        .iter()
+        .filter_map(|p| p.depth.map(|d| (*p, d)))
+        .collect();
+    let Some(grid) = known.first().map(|(p, _)| p.grid()) else {
+        return Ok(None);
+    };
+    let mut model = PressModel::new(gel, &grid, threads)?;
+    let mut rendered = RgbImage {
+        width: grid.width,
+        height: grid.height,
+        data: vec![0.0; CHANNELS * grid.width * grid.height],
+    };
+    let mut ratios = Vec::with_capacity(known.len());
+    for (press, depth) in known {
+        if press.grid() != grid {
+            return Err(format!("{}: not the first press's image size", press.name));
+        }
+        let surface = model.press(press.ball_radius, &press.contact, depth);
+        tacrom::render::rgb::render_calibrated(optics, &grid, surface, &mut rendered.data);
+        let real = super::contact::detect(background, &press.image, threshold);
+        let simulated = super::contact::detect(background, &rendered, threshold);
+        if let (Some(real), Some(simulated)) = (real, simulated) {
+            ratios.push(simulated.radius / real.radius);
+        }
+    }
+    if ratios.is_empty() {
+        return Ok(None);
+    }
+    let n = ratios.len() as f64;
+    let ratio = ratios.iter().sum::<f64>() / n;
+    let spread = (ratios.iter().map(|r| (r - ratio).powi(2)).sum::<f64>() / n).sqrt();
+    Ok(Some(PixelCheck {
+        presses: ratios.len(),
+        ratio,
+        spread,
+    }))
+}
+
 /// The pixels of `press`'s region: [`REGION`] radii of the circle `presses.json` gives (a
 /// region that does not depend on what is scored), or of its contact where none is given.
 pub fn region(press: &Press) -> Vec<bool> {

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// First bytes of a cache file (and its format's version).
-const MAGIC: &[u8; 8] = b"TACROMC1";
+const MAGIC: &[u8; 8] = b"TACROMC2";
 
 /// The folder's size cap (MiB) when `$TACROM_CACHE_MB` is not set.
 pub(crate) const DEFAULT_CAP_MB: u64 = 512;
@@ -95,12 +95,12 @@ impl Store {
     }
 
     /// The numbers stored under `key`, if a whole file of that key is there.
-    pub fn read(&self, kind: &str, key: &str) -> Option<Vec<f64>> {
+    pub fn read(&self, kind: &str, key: &str) -> Option<Vec<f32>> {
         decode(&fs::read(self.path(kind, key)).ok()?, key)
     }
 
     /// Stores `data` under `key` (then trims the folder to its cap).
-    pub fn write(&self, kind: &str, key: &str, data: &[f64]) -> std::io::Result<()> {
+    pub fn write(&self, kind: &str, key: &str, data: &[f32]) -> std::io::Result<()> {
         fs::create_dir_all(&self.dir)?;
         let path = self.path(kind, key);
         let nanos = std::time::SystemTime::now()
@@ -157,9 +157,9 @@ impl Store {
 }
 
 /// A file's bytes: [`MAGIC`], the key's length (u64) and bytes, the count of numbers
-/// (u64) and the numbers (f64), all little-endian, then the [`checksum`] of all before it.
-fn encode(key: &str, data: &[f64]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(32 + key.len() + 8 * data.len());
+/// (u64) and the numbers (f32), all little-endian, then the [`checksum`] of all before it.
+fn encode(key: &str, data: &[f32]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(32 + key.len() + 4 * data.len());
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&(key.len() as u64).to_le_bytes());
     out.extend_from_slice(key.as_bytes());
@@ -173,7 +173,7 @@ fn encode(key: &str, data: &[f64]) -> Vec<u8> {
 }
 
 /// The numbers of a file's `bytes` if they are a whole file of `key`.
-fn decode(bytes: &[u8], key: &str) -> Option<Vec<f64>> {
+fn decode(bytes: &[u8], key: &str) -> Option<Vec<f32>> {
     let (body, sum) = bytes.split_at_checked(bytes.len().checked_sub(8)?)?;
     if checksum(body) != u64::from_le_bytes(sum.try_into().ok()?) {
         return None;
@@ -187,12 +187,12 @@ fn decode(bytes: &[u8], key: &str) -> Option<Vec<f64>> {
     }
     let (count, rest) = rest.split_at_checked(8)?;
     let count = usize::try_from(u64::from_le_bytes(count.try_into().ok()?)).ok()?;
-    if rest.len() != count.checked_mul(8)? {
+    if rest.len() != count.checked_mul(4)? {
         return None;
     }
     Some(
-        rest.chunks_exact(8)
-            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+        rest.chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes")))
             .collect(),
     )
 }
@@ -210,7 +210,7 @@ mod tests {
     #[test]
     fn numbers_come_back_bit_for_bit() {
         let s = store("bits", 1 << 20);
-        let data = [0.0, -0.0, 1.5e-300, f64::MIN_POSITIVE, -3.25, 1.0 / 3.0];
+        let data = [0.0, -0.0, 1.5e-40, f32::MIN_POSITIVE, -3.25, 1.0 / 3.0];
         s.write("t", "gel a", &data).unwrap();
         let back = s.read("t", "gel a").unwrap();
         assert_eq!(back.len(), data.len());
@@ -229,7 +229,7 @@ mod tests {
         let good = fs::read(&path).unwrap();
         // One bit flipped in a number.
         let mut flipped = good.clone();
-        flipped[good.len() - 12] ^= 1;
+        flipped[good.len() - 10] ^= 1;
         assert!(decode(&flipped, "key").is_none());
         // Cut short, or empty.
         assert!(decode(&good[..good.len() - 3], "key").is_none());
@@ -247,10 +247,10 @@ mod tests {
 
     #[test]
     fn the_folder_keeps_to_its_cap_and_the_newest_file() {
-        // Each file: 8 + 8 + 5 + 8 + 8 * 100 + 8 = 837 bytes; the cap holds two.
-        let s = store("cap", 1800);
+        // Each file: 8 + 8 + 5 + 8 + 4 * 100 + 8 = 437 bytes; the cap holds two.
+        let s = store("cap", 900);
         for (i, key) in ["key 1", "key 2", "key 3"].iter().enumerate() {
-            s.write("t", key, &[i as f64; 100]).unwrap();
+            s.write("t", key, &[i as f32; 100]).unwrap();
             std::thread::sleep(std::time::Duration::from_millis(20));
         }
         assert!(s.read("t", "key 1").is_none(), "the oldest went");
@@ -278,7 +278,7 @@ mod tests {
     #[test]
     fn concurrent_writers_of_one_key_leave_a_whole_file() {
         let s = store("race", 1 << 24);
-        let data: Vec<f64> = (0..20_000).map(|i| i as f64 * 0.5).collect();
+        let data: Vec<f32> = (0..20_000).map(|i| i as f32 * 0.5).collect();
         std::thread::scope(|scope| {
             for _ in 0..4 {
                 scope.spawn(|| {

@@ -315,35 +315,42 @@ pub(crate) struct Contact {
 /// Every node column's response (3 values per node column: its mean displacement, cells
 /// per internal force unit) to a unit downward load on one node column, and with
 /// friction to unit loads along +x and +y: all of a gel's surface compliance.
+///
+/// Kept in single precision: solved in double and rounded once, they are read (into the
+/// dense systems of the columns under a contact and the surface's displacement) far more
+/// than made, and they are a gel's largest data (`9 n^2` numbers for `n` node columns:
+/// 16 MB for the default gel, 160 MB for a GelSight Mini's). A rounding of `6e-8` of each
+/// entry moves a contact's answer by far less than the solve's tolerance (measured:
+/// docs/solvers.md, "The gel's responses in single precision").
 pub(crate) struct Responses {
     /// Values per response: 3 per node column.
     len: usize,
     /// Column `c`'s response to its downward load: `down[c * len..][..len]`.
-    down: Vec<f64>,
+    down: Vec<f32>,
     /// Column `c`'s responses to its +x and +y loads: `lateral[2 * c * len..][..2 * len]`
     /// (empty without friction).
-    lateral: Vec<f64>,
+    lateral: Vec<f32>,
 }
 
 impl Responses {
     /// The response of every node column to the downward load of column `c`.
-    fn down(&self, c: u32) -> &[f64] {
+    fn down(&self, c: u32) -> &[f32] {
         &self.down[c as usize * self.len..][..self.len]
     }
 
     /// The responses of every node column to the +x, then the +y load of column `c`.
-    fn lateral(&self, c: u32) -> &[f64] {
+    fn lateral(&self, c: u32) -> &[f32] {
         &self.lateral[2 * c as usize * self.len..][..2 * self.len]
     }
 
     /// The numbers a cache file holds: the downward responses, then the lateral ones.
-    fn to_flat(&self) -> Vec<f64> {
+    fn to_flat(&self) -> Vec<f32> {
         [&self.down[..], &self.lateral[..]].concat()
     }
 
     /// The responses of `columns` node columns from a cache file's numbers, if they are as
     /// many as they must be.
-    fn from_flat(mut flat: Vec<f64>, columns: usize, lateral: bool) -> Option<Responses> {
+    fn from_flat(mut flat: Vec<f32>, columns: usize, lateral: bool) -> Option<Responses> {
         let len = 3 * columns;
         let down = columns * len;
         if flat.len() != down * if lateral { 3 } else { 1 } {
@@ -544,8 +551,8 @@ impl Compliance {
     fn compute_responses(&self, system: &System, lateral: bool) -> Responses {
         let columns = self.levels.len();
         let len = 3 * columns;
-        let mut down = vec![0.0; columns * len];
-        let mut side = vec![0.0; if lateral { 2 * columns * len } else { 0 }];
+        let mut down = vec![0.0f32; columns * len];
+        let mut side = vec![0.0f32; if lateral { 2 * columns * len } else { 0 }];
         let nx = columns / self.ny;
         let tiles = (nx.div_ceil(TILE) * self.ny.div_ceil(TILE)) as u32;
         let all: Vec<u32> = (0..tiles).collect();
@@ -553,9 +560,12 @@ impl Compliance {
             let axes: &[usize] = if lateral { &[2, 0, 1] } else { &[2] };
             for (c, r) in self.solve_tiles(system, batch, axes) {
                 let c = c as usize;
-                down[c * len..][..len].copy_from_slice(&r[..len]);
+                let single = |to: &mut [f32], from: &[f64]| {
+                    to.iter_mut().zip(from).for_each(|(a, &b)| *a = b as f32)
+                };
+                single(&mut down[c * len..][..len], &r[..len]);
                 if lateral {
-                    side[2 * c * len..][..2 * len].copy_from_slice(&r[len..]);
+                    single(&mut side[2 * c * len..][..2 * len], &r[len..]);
                 }
             }
         }
@@ -654,13 +664,13 @@ impl Compliance {
         for &(c, f) in loads {
             if f.z != 0.0 {
                 for (u, &r) in u.iter_mut().zip(self.responses.down(c)) {
-                    *u += f.z * r;
+                    *u += f.z * f64::from(r);
                 }
             }
             if f.x != 0.0 || f.y != 0.0 {
                 let (x, y) = self.responses.lateral(c).split_at(u.len());
                 for ((u, &rx), &ry) in u.iter_mut().zip(x).zip(y) {
-                    *u += f.x * rx + f.y * ry;
+                    *u += f.x * f64::from(rx) + f.y * f64::from(ry);
                 }
             }
         }
@@ -861,7 +871,7 @@ impl Compliance {
                 let response = self.responses.down(a);
                 stencil
                     .iter()
-                    .map(|&(b, wb)| -wb * response[3 * b as usize + 2])
+                    .map(|&(b, wb)| -wb * f64::from(response[3 * b as usize + 2]))
                     .sum::<f64>()
                     * wa
             })
@@ -1039,9 +1049,9 @@ impl Compliance {
     }
 
     fn local_compliance(&self, local: &[u32], lateral: bool) -> DMatrix<f64> {
-        let down: Vec<&[f64]> = local.iter().map(|&c| self.responses.down(c)).collect();
+        let down: Vec<&[f32]> = local.iter().map(|&c| self.responses.down(c)).collect();
         let g = if lateral {
-            let shear: Vec<&[f64]> = local.iter().map(|&c| self.responses.lateral(c)).collect();
+            let shear: Vec<&[f32]> = local.iter().map(|&c| self.responses.lateral(c)).collect();
             let n = 3 * self.levels.len();
             DMatrix::from_fn(3 * local.len(), 3 * local.len(), |p, q| {
                 let (a, i, b, j) = (p / 3, p % 3, q / 3, q % 3);
@@ -1050,7 +1060,7 @@ impl Compliance {
                 } else {
                     &shear[b][j * n..(j + 1) * n]
                 };
-                let u = r[3 * local[a] as usize + i];
+                let u = f64::from(r[3 * local[a] as usize + i]);
                 if i == 2 {
                     -u
                 } else {
@@ -1059,7 +1069,7 @@ impl Compliance {
             })
         } else {
             DMatrix::from_fn(local.len(), local.len(), |a, b| {
-                -down[b][3 * local[a] as usize + 2]
+                -f64::from(down[b][3 * local[a] as usize + 2])
             })
         };
         (&g + g.transpose()) * 0.5

@@ -399,41 +399,21 @@ fn a_gel_fit_recovers_the_thickness_and_poissons_ratio_of_synthetic_presses() {
 /// (measured 0.6 %). The sensor file carries the modulus.
 #[test]
 fn a_modulus_fit_recovers_the_youngs_modulus_from_the_presses_forces() {
-    use cal::gel::{GelSearch, GelShape};
-    let gel = GelShape {
-        thickness: 2e-3,
-        poisson: 0.43,
-        dx: 0.5e-3,
-    };
+    let (gel, search) = one_gel(Vec::new());
     let young = 3.0 * tacrom::attributes::defaults::YOUNG;
-    let search = GelSearch {
-        thicknesses: vec![gel.thickness],
-        poissons: vec![gel.poisson],
-        threads: 1,
-        dx: Some(gel.dx),
-        blurs: Vec::new(),
-    };
     for with_depth in [true, false] {
-        let dir = scratch(if with_depth {
+        let name = if with_depth {
             "young-depths"
         } else {
             "young-imprints"
-        });
+        };
         let o = synth::SynthOptions {
-            presses: 6,
-            resolution: [120, 90],
-            pixel_size: 0.1e-3,
-            seed: 3,
-            gel: Some(gel),
             with_depth,
             young: Some(young),
-            ..synth::SynthOptions::new(dir.clone())
+            ..gel_set(name, gel, 0.1e-3, 3)
         };
         synth::synthesize(&o).unwrap();
-        let mut c = cal::CalibrateOptions::new(dir.clone());
-        c.holdout = 3;
-        c.gel = Some(search.clone());
-        let report = cal::calibrate(&c).unwrap();
+        let report = calibrate_held_out(&o.out, search.clone());
         let g = report.gel.expect("a gel fit");
         let y = g.young.expect("a modulus fit");
         let (bound, force_bound) = if with_depth {
@@ -480,42 +460,21 @@ fn a_modulus_fit_recovers_the_youngs_modulus_from_the_presses_forces() {
 /// spread by 3 % against 0.2 %), which the report flags.
 #[test]
 fn a_pixel_size_check_finds_a_wrong_pixel_size() {
-    use cal::gel::{GelSearch, GelShape};
-    let gel = GelShape {
-        thickness: 2e-3,
-        poisson: 0.43,
-        dx: 0.5e-3,
-    };
-    let search = GelSearch {
-        thicknesses: vec![gel.thickness],
-        poissons: vec![gel.poisson],
-        threads: 1,
-        dx: Some(gel.dx),
-        blurs: Vec::new(),
-    };
+    let (gel, search) = one_gel(Vec::new());
     for claimed in [1.0, 1.05] {
-        let dir = scratch(&format!("pixel-{claimed}"));
         let o = synth::SynthOptions {
-            presses: 6,
-            resolution: [120, 90],
-            pixel_size: 0.1e-3,
-            seed: 3,
-            gel: Some(gel),
             with_depth: true,
-            ..synth::SynthOptions::new(dir.clone())
+            ..gel_set(&format!("pixel-{claimed}"), gel, 0.1e-3, 3)
         };
         synth::synthesize(&o).unwrap();
-        let list_path = dir.join(cal::PRESS_LIST);
+        let list_path = o.out.join(cal::PRESS_LIST);
         let mut list: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&list_path).unwrap()).unwrap();
         for p in list["presses"].as_array_mut().unwrap() {
             p["pixel_size_mm"] = (0.1 * claimed).into();
         }
         std::fs::write(&list_path, list.to_string()).unwrap();
-        let mut c = cal::CalibrateOptions::new(dir.clone());
-        c.holdout = 3;
-        c.gel = Some(search.clone());
-        let report = cal::calibrate(&c).unwrap();
+        let report = calibrate_held_out(&o.out, search.clone());
         let check = report.gel.unwrap().pixel.expect("a pixel size check");
         println!("given {claimed}: {check:?}");
         assert_eq!(check.presses, 6);
@@ -527,6 +486,46 @@ fn a_pixel_size_check_finds_a_wrong_pixel_size() {
         let flagged = (check.ratio - 1.0).abs() > cal::PIXEL_WARNING;
         assert_eq!(flagged, claimed != 1.0, "{check:?}");
     }
+}
+
+/// Six synthetic presses (120 x 90 pixels of `pixel_size`, seed `seed`) into `gel`, in
+/// scratch folder `name`: the options to synthesize them with.
+fn gel_set(name: &str, gel: cal::gel::GelShape, pixel_size: f64, seed: u64) -> synth::SynthOptions {
+    synth::SynthOptions {
+        presses: 6,
+        resolution: [120, 90],
+        pixel_size,
+        seed,
+        gel: Some(gel),
+        ..synth::SynthOptions::new(scratch(name))
+    }
+}
+
+/// A gel 2 mm thick of Poisson's ratio 0.43 on the fit's 0.5 mm grid, and a search of that
+/// gel alone with the depth blurs `blurs`.
+fn one_gel(blurs: Vec<f64>) -> (cal::gel::GelShape, cal::gel::GelSearch) {
+    let gel = cal::gel::GelShape {
+        thickness: 2e-3,
+        poisson: 0.43,
+        dx: 0.5e-3,
+    };
+    let search = cal::gel::GelSearch {
+        thicknesses: vec![gel.thickness],
+        poissons: vec![gel.poisson],
+        threads: 1,
+        dx: Some(gel.dx),
+        blurs,
+    };
+    (gel, search)
+}
+
+/// Calibrates the set in `dir` over the gels and blurs of `search`, every third press held
+/// out.
+fn calibrate_held_out(dir: &Path, search: cal::gel::GelSearch) -> cal::CalibrationReport {
+    let mut c = cal::CalibrateOptions::new(dir.to_path_buf());
+    c.holdout = 3;
+    c.gel = Some(search);
+    cal::calibrate(&c).unwrap()
 }
 
 /// Calibrates, over the gels and blurs of `search` with every third press held out, six
@@ -541,21 +540,12 @@ fn calibrate_synthetic_gel(
     blur: f64,
     search: cal::gel::GelSearch,
 ) -> (cal::CalibrationReport, PathBuf) {
-    let dir = scratch(name);
     let o = synth::SynthOptions {
-        presses: 6,
-        resolution: [120, 90],
-        pixel_size,
-        seed,
-        gel: Some(gel),
         blur,
-        ..synth::SynthOptions::new(dir.clone())
+        ..gel_set(name, gel, pixel_size, seed)
     };
     synth::synthesize(&o).unwrap();
-    let mut c = cal::CalibrateOptions::new(dir.clone());
-    c.holdout = 3;
-    c.gel = Some(search);
-    (cal::calibrate(&c).unwrap(), dir)
+    (calibrate_held_out(&o.out, search), o.out)
 }
 
 /// Presses whose depth images were blurred before shading (0.2 mm, four pixels) give their
@@ -564,19 +554,7 @@ fn calibrate_synthetic_gel(
 /// fitted through it, renders the presses to their 8-bit rounding.
 #[test]
 fn a_blur_fit_recovers_the_blur_of_synthetic_presses() {
-    use cal::gel::{GelSearch, GelShape};
-    let gel = GelShape {
-        thickness: 2e-3,
-        poisson: 0.43,
-        dx: 0.5e-3,
-    };
-    let search = GelSearch {
-        thicknesses: vec![gel.thickness],
-        poissons: vec![gel.poisson],
-        threads: 1,
-        dx: Some(gel.dx),
-        blurs: vec![0.0, 0.1e-3, 0.2e-3, 0.4e-3],
-    };
+    let (gel, search) = one_gel(vec![0.0, 0.1e-3, 0.2e-3, 0.4e-3]);
     let (report, dir) = calibrate_synthetic_gel("blur-fit", gel, 0.05e-3, 5, 0.2e-3, search);
     let fit = report.gel.expect("a gel fit").fit;
     let ssim: Vec<f64> = fit.blurs.iter().map(|b| b.ssim).collect();

@@ -319,7 +319,7 @@ pub(crate) struct Contact {
 /// Kept in single precision: solved in double and rounded once, they are read (into the
 /// dense systems of the columns under a contact and the surface's displacement) far more
 /// than made, and they are a gel's largest data (`9 n^2` numbers for `n` node columns:
-/// 16 MB for the default gel, 160 MB for a GelSight Mini's). A rounding of `6e-8` of each
+/// 25 MB for the default gel, 157 MB for a GelSight Mini's). A rounding of `6e-8` of each
 /// entry moves a contact's answer by far less than the solve's tolerance (measured:
 /// docs/solvers.md, "The gel's responses in single precision").
 pub(crate) struct Responses {

@@ -141,6 +141,13 @@ fn main() {
             Some(("solver", "linear")),
             if quick { 5 } else { 20 },
         ),
+        // The default's encoder with the paper's decoder widths.
+        (
+            "rom-linear-wide",
+            "rom",
+            Some(("model", "rom-linear-wide")),
+            if quick { 5 } else { 20 },
+        ),
     ];
     if with_fine {
         modes.push(("fine", "fine", None, 3));

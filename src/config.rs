@@ -356,12 +356,15 @@ impl Config {
     /// The gel's solver on a grid of spacing `dx` (m) and why ([`crate::mpm::choice`]).
     pub fn choice(&self, dx: f64) -> Choice {
         use crate::mpm::Role;
-        // rom's own default model, unnamed or named by its shipped name.
-        let linear_model = std::path::Path::new(crate::rom::LINEAR_MODEL);
+        // rom's own default model, unnamed or named by its shipped name (or its wide
+        // decoder's, on the same gel).
+        let linear = |m: &std::path::Path| {
+            [crate::rom::LINEAR_MODEL, crate::rom::LINEAR_WIDE_MODEL]
+                .iter()
+                .any(|name| m == std::path::Path::new(name))
+        };
         let role = match self.physics {
-            Physics::Rom if self.model.as_deref().is_none_or(|m| m == linear_model) => {
-                Role::ShippedRom
-            }
+            Physics::Rom if self.model.as_deref().is_none_or(linear) => Role::ShippedRom,
             Physics::Coarse | Physics::Rom => Role::Coarse,
             Physics::Rigid | Physics::Fine => Role::Reference,
         };

@@ -66,6 +66,11 @@ def recipe(dataset):
     return r
 
 
+def decoder_hidden(model):
+    """The decoder's hidden layer widths (the manifest's `decoder_hidden`)."""
+    return [lin.out_features for lin in model.decoder.mlp.linears]
+
+
 def export_model(model, spec, dataset, out, training=None, data=None, validation=None, refinement=True,
                  region_eps_mm=1e-3, region_grow=4):
     os.makedirs(out, exist_ok=True)
@@ -98,6 +103,7 @@ def export_model(model, spec, dataset, out, training=None, data=None, validation
         "recipe": recipe(dataset),
         "lattice": spec.to_json(),
         "latent": r,
+        "decoder_hidden": decoder_hidden(model),
         "encoder_input": E,
         "query_features": F,
         "coarse_feature": spec.coarse_index,

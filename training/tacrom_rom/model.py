@@ -6,7 +6,8 @@
 * Decoder: (z, query) -> depth (mm) at one surface point. The query is the point's
   normalised position and two 5 x 5 windows (coarse depth, rigid penetration) around it
   (see src/rom/features.rs, which computes the same features in Rust). Hidden sizes
-  [512, 256, 128] with LayerNorm and ReLU; the output is a correction added to the coarse
+  [512, 256, 128] (the paper's; `decoder_hidden` makes it narrower, the run-time cost per
+  decoded point) with LayerNorm and ReLU; the output is a correction added to the coarse
   depth at the point, so the coarse MPM carries the mechanics and the decoder restores the
   detail. The first layer is split into a z part (computed once per evaluation) and a
   query part; this is the same affine map as a Linear on concat(z, query).
@@ -50,11 +51,11 @@ class Encoder(nn.Module):
 class Decoder(nn.Module):
     """g(z, q): depth (mm) at query points. Per-point MLP with the z term shared."""
 
-    def __init__(self, latent: int, n_query: int, coarse_index: int):
+    def __init__(self, latent: int, n_query: int, coarse_index: int, hidden=HIDDEN):
         super().__init__()
         self.latent = latent
         self.coarse_index = coarse_index
-        self.mlp = Mlp(latent + n_query, 1)
+        self.mlp = Mlp(latent + n_query, 1, hidden)
         # Start from the coarse solution: zero correction.
         nn.init.zeros_(self.mlp.out.weight)
         nn.init.zeros_(self.mlp.out.bias)
@@ -130,8 +131,15 @@ class DecoderJacobian(nn.Module):
         return depth, jac
 
 
+def hidden_of(manifest):
+    """A model directory's decoder widths (its manifest's `decoder_hidden`; the paper's before
+    the manifest named them)."""
+    return tuple(manifest.get("decoder_hidden", HIDDEN))
+
+
 class Autoencoder(nn.Module):
-    def __init__(self, n_enc: int, n_query: int, coarse_index: int, latent: int = 64):
+    def __init__(self, n_enc: int, n_query: int, coarse_index: int, latent: int = 64,
+                 decoder_hidden=HIDDEN):
         super().__init__()
         self.encoder = Encoder(n_enc, latent)
-        self.decoder = Decoder(latent, n_query, coarse_index)
+        self.decoder = Decoder(latent, n_query, coarse_index, decoder_hidden)

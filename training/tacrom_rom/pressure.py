@@ -51,7 +51,7 @@ from torch import nn
 
 from . import data as D
 from .export import OPSET, _export
-from .model import Autoencoder, Mlp
+from .model import Autoencoder, Mlp, hidden_of
 from .train import REGION_EPS_MM, REGION_GROW, augment, gen_command, split
 
 HIDDEN = (256, 128)
@@ -107,7 +107,8 @@ def load_model(model_dir):
     spec = D.Spec(size=tuple(lat["size"]), nx=lat["nx"], ny=lat["ny"], encoder_stride=lat["encoder_stride"],
                   patch=lat["patch"], patch_step=lat["patch_step"], depth_scale=lat["depth_scale"],
                   conditioning=manifest.get("conditioning"))
-    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, manifest["latent"])
+    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, manifest["latent"],
+                        hidden_of(manifest))
     model.load_state_dict(torch.load(os.path.join(model_dir, "weights.pt"), weights_only=True))
     model.eval()
     return manifest, spec, model

@@ -30,7 +30,7 @@ import torch
 
 from . import data as D
 from .export import export_model
-from .model import Autoencoder
+from .model import HIDDEN, Autoencoder
 
 CONSISTENCY_WEIGHT = 0.1
 MULTISCALE_WEIGHT = 1.0
@@ -257,6 +257,12 @@ def main(argv=None):
                         "its reference replaces --data's wherever it holds the sample")
     p.add_argument("--steps", type=int, default=2000, help="optimizer steps")
     p.add_argument("--latent", type=int, default=64, help="size of the latent code")
+    p.add_argument("--decoder-hidden", default=",".join(map(str, HIDDEN)),
+                   help="the decoder's hidden layer widths (the paper's %(default)s; narrower costs less "
+                        "per decoded point at run time)")
+    p.add_argument("--encoder-from", default=None, metavar="MODEL_DIR",
+                   help="take the encoder of this model directory (its weights.pt) and train the decoder "
+                        "alone on its latent codes (a decoder of other widths for the same encoder)")
     p.add_argument("--points", type=int, default=96, help="query points per press per step")
     p.add_argument("--batch", type=int, default=32, help="presses per step")
     p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate")
@@ -307,8 +313,15 @@ def main(argv=None):
     if len(tr) == 0:
         tr = np.arange(len(metas))
     print(f"{len(metas)} pairs: {len(tr)} train, {len(va)} held-out validation", flush=True)
-    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, a.latent)
-    opt = torch.optim.Adam(model.parameters(), lr=a.lr, betas=(0.9, 0.999))
+    hidden = tuple(int(w) for w in a.decoder_hidden.split(","))
+    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, a.latent, hidden)
+    trained = model.parameters()
+    if a.encoder_from:
+        state = torch.load(os.path.join(a.encoder_from, "weights.pt"), weights_only=True)
+        model.encoder.load_state_dict({k[len("encoder."):]: v for k, v in state.items() if k.startswith("encoder.")})
+        model.encoder.requires_grad_(False)
+        trained = model.decoder.parameters()
+    opt = torch.optim.Adam(trained, lr=a.lr, betas=(0.9, 0.999))
     if a.no_augment:
         train_arrays, n_aug = arrays, 1
     else:

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from tacrom_rom import data as D
-from tacrom_rom.model import Autoencoder, DecoderJacobian
+from tacrom_rom.model import Autoencoder, DecoderJacobian, hidden_of
 from tacrom_rom.train import main as train_main
 
 PARITY_TOL = 1e-4
@@ -69,7 +69,7 @@ def _load_torch(model_dir):
     m = json.load(open(model_dir / "manifest.json"))
     L = m["lattice"]
     spec = D.Spec(size=tuple(L["size"]), nx=L["nx"], ny=L["ny"])
-    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, m["latent"])
+    model = Autoencoder(spec.encoder_len, spec.query_len, spec.coarse_index, m["latent"], hidden_of(m))
     model.load_state_dict(torch.load(model_dir / "weights.pt"))
     model.eval()
     return spec, model
@@ -103,6 +103,36 @@ def test_exported_jacobian_is_the_exact_gradient(tiny_model):
     _, jac = DecoderJacobian(dec)(z, q)
     auto = torch.autograd.functional.jacobian(lambda zz: dec(zz, q)[:, 0], z)[:, 0, :]
     assert torch.allclose(jac, auto, atol=1e-9, rtol=1e-7), (jac - auto).abs().max()
+
+
+def test_a_narrower_decoder_keeps_the_encoder_it_is_trained_on(tiny_model, tmp_path):
+    """`--encoder-from` with `--decoder-hidden`: the encoder's weights and graph come out
+    unchanged, the decoder at the widths asked for, its graphs equal to PyTorch."""
+    out = tmp_path / "narrow"
+    data = tmp_path / "data"
+    write_synthetic(str(data))
+    train_main(["--data", str(data), "--out", str(out), "--steps", "5", "--batch", "4", "--points", "16",
+                "--latent", "16", "--encoder-from", str(tiny_model), "--decoder-hidden", "8,4,2"])
+    m = json.load(open(out / "manifest.json"))
+    assert m["decoder_hidden"] == [8, 4, 2]
+    assert json.load(open(tiny_model / "manifest.json"))["decoder_hidden"] == [512, 256, 128]
+    wide = torch.load(tiny_model / "weights.pt")
+    narrow = torch.load(out / "weights.pt")
+    enc = [k for k in wide if k.startswith("encoder.")]
+    assert enc and all(torch.equal(wide[k], narrow[k]) for k in enc)
+    assert (out / "encoder.onnx").read_bytes() == (tiny_model / "encoder.onnx").read_bytes()
+    assert narrow["decoder.mlp.linears.2.weight"].shape == (2, 4)
+    spec, model = _load_torch(out)
+    s = _sessions(out)
+    g = torch.Generator().manual_seed(4)
+    z = torch.randn(1, 16, generator=g)
+    q = torch.rand(50, spec.query_len, generator=g)
+    with torch.no_grad():
+        d = model.decoder(z, q)
+        _, jac = DecoderJacobian(model.decoder)(z, q)
+    d_ort = s["dec"].run(["depth"], {"z": z.numpy(), "query": q.numpy()})[0]
+    _, jac_ort = s["jac"].run(["depth", "jacobian"], {"z": z.numpy(), "query": q.numpy()})
+    assert max(np.abs(d_ort - d.numpy()).max(), np.abs(jac_ort - jac.numpy()).max()) < PARITY_TOL
 
 
 SHIPPED = os.path.join(os.path.dirname(__file__), "..", "..", "models", "rom-default")

@@ -176,9 +176,10 @@ pub const DEFAULT_MODEL: &str = "rom-default";
 /// default ([`crate::mpm::Role::ShippedRom`]).
 pub const LINEAR_MODEL: &str = "rom-linear";
 /// The linear solver's model with the paper's decoder widths ([512, 256, 128]), whose
-/// encoder [`LINEAR_MODEL`] shares; [`LINEAR_MODEL`]'s decoder is [128, 64, 32], as
-/// accurate at a fraction of the cost per decoded point (`docs/rom.md`, "A narrower
-/// decoder"). Named, it runs on the linear gel as the default does.
+/// encoder [`LINEAR_MODEL`] shares; [`LINEAR_MODEL`]'s decoder is [128, 64, 32], more
+/// accurate on the full profile at about a third of the cost per decoded point
+/// (`docs/rom.md`, "A narrower decoder"). Named, it runs on the linear gel as the default
+/// does.
 pub const LINEAR_WIDE_MODEL: &str = "rom-linear-wide";
 
 /// The shipped model (its directory's name under `models/`) trained on the coarse solve of

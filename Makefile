@@ -201,19 +201,18 @@ $(ROM_LINEAR_SHAPES_MERGED)/dataset.json:
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge $(ROM_LINEAR_SHAPES_MERGED) $(ROM_SHAPES_DATA) $(ROM_LINEAR_DATA)
 train-linear: train-env $(ROM_LINEAR_MERGED)/dataset.json $(ROM_LINEAR_SHAPES_MERGED)/dataset.json
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_SHAPES_MERGED) --steps $(ROM_STEPS) \
-		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 --out models/rom-linear-wide
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear-wide
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear-wide
-# The default model's decoder at ROM_LINEAR_DECODER widths: the wide model's encoder kept
-# (models/rom-linear-wide, the paper's widths, made by train-linear above),
-# the decoder trained alone on its latent codes, run in float
-# (docs/rom.md, "A narrower decoder").
+		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 --out models/rom-linear
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear
+# models/rom-linear-narrow: the default model's encoder (made by train-linear above) and a
+# decoder of ROM_LINEAR_DECODER widths trained alone on its latent codes, run in float
+# (docs/rom.md, "A narrower decoder": not the default, its force misses Hertz bounds).
 ROM_LINEAR_DECODER ?= 128,64,32
 train-linear-narrow: train-env $(ROM_LINEAR_MERGED)/dataset.json $(ROM_LINEAR_SHAPES_MERGED)/dataset.json
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_SHAPES_MERGED) --steps 20000 --lr 5e-4 \
 		--device $(ROM_DEVICE) --threads 1 --region-eps-mm 0.01 --region-grow 2 --no-refinement \
-		--encoder-from models/rom-linear-wide --decoder-hidden $(ROM_LINEAR_DECODER) --out models/rom-linear
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear
+		--encoder-from models/rom-linear --decoder-hidden $(ROM_LINEAR_DECODER) --out models/rom-linear-narrow
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear-narrow
 train-linear-seeds: train-env $(ROM_LINEAR_MERGED)/dataset.json
 	for s in 0 1 2; do for v in "conditioned:" "latent16:--latent 16" "no-multiscale:--no-multiscale" \
 	    "unconditioned:--no-conditioning" "poisson-only:--poisson-only"; do \

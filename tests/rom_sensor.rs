@@ -446,12 +446,12 @@ fn the_linear_solver_gets_its_own_shipped_model() {
         (choice.solver, choice.fallback)
     };
     assert_eq!(choice("models/rom-default"), (Solver::Relaxation, true));
-    // The shipped models by name: the default's, its encoder with the paper's decoder
-    // widths (on the same gel), and the relaxation's as rom ran before.
+    // The shipped models by name: the default's, its encoder with a narrower decoder (on
+    // the same gel), and the relaxation's as rom ran before.
     assert_eq!(choice("rom-linear"), (Solver::Linear, false));
-    assert_eq!(choice("rom-linear-wide"), (Solver::Linear, false));
+    assert_eq!(choice("rom-linear-narrow"), (Solver::Linear, false));
     assert_eq!(choice("rom-default"), (Solver::Relaxation, true));
-    for name in ["rom-linear", "rom-linear-wide", "rom-default"] {
+    for name in ["rom-linear", "rom-linear-narrow", "rom-default"] {
         let raw = RawConfig::default()
             .with(ATTR_RESOLUTION, "32 24")
             .with(ATTR_MODEL, name);

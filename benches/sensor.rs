@@ -141,11 +141,11 @@ fn main() {
             Some(("solver", "linear")),
             if quick { 5 } else { 20 },
         ),
-        // The default's encoder with a narrower decoder.
+        // The default's encoder with the paper's decoder widths.
         (
-            "rom-linear-narrow",
+            "rom-linear-wide",
             "rom",
-            Some(("model", "rom-linear-narrow")),
+            Some(("model", "rom-linear-wide")),
             if quick { 5 } else { 20 },
         ),
     ];

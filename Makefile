@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-narrow gen-data-linear-fine force-factor-linear train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes train-linear train-linear-narrow train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -201,33 +201,18 @@ $(ROM_LINEAR_SHAPES_MERGED)/dataset.json:
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge $(ROM_LINEAR_SHAPES_MERGED) $(ROM_SHAPES_DATA) $(ROM_LINEAR_DATA)
 train-linear: train-env $(ROM_LINEAR_MERGED)/dataset.json $(ROM_LINEAR_SHAPES_MERGED)/dataset.json
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_SHAPES_MERGED) --steps $(ROM_STEPS) \
-		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 --out models/rom-linear-wide
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear-wide
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear-wide
-# The default model's decoder at ROM_LINEAR_DECODER widths: the wide model's encoder kept
-# (models/rom-linear-wide, the paper's widths, made by train-linear above),
-# the decoder trained alone on its latent codes, run in float
-# (docs/rom.md, "A narrower decoder"); its force factor scaled to the 0.5 mm reference of
-# every fifth press of ROM_LINEAR_DATA (ROM_LINEAR_FINE_DATA: 60 presses, about 10 minutes
-# on two shards) through its own decoded surface (docs/rom.md, "Force at the 0.5 mm
-# reference").
+		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 --out models/rom-linear
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear
+# models/rom-linear-narrow: the default model's encoder (made by train-linear above) and a
+# decoder of ROM_LINEAR_DECODER widths trained alone on its latent codes, run in float
+# (docs/rom.md, "A narrower decoder": not the default, its force misses Hertz bounds).
 ROM_LINEAR_DECODER ?= 128,64,32
-ROM_LINEAR_FINE_DATA ?= data/rom-linear-fine05
 train-linear-narrow: train-env $(ROM_LINEAR_MERGED)/dataset.json $(ROM_LINEAR_SHAPES_MERGED)/dataset.json
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_SHAPES_MERGED) --steps 20000 --lr 5e-4 \
 		--device $(ROM_DEVICE) --threads 1 --region-eps-mm 0.01 --region-grow 2 --no-refinement \
-		--encoder-from models/rom-linear-wide --decoder-hidden $(ROM_LINEAR_DECODER) --out models/rom-linear
-	$(MAKE) force-factor-linear
-gen-data-linear-fine: build
-	for k in 0 5; do \
-	  target/release/tacrom gen-data --out $(ROM_LINEAR_FINE_DATA) --samples $(ROM_SAMPLES) --seed 1 \
-	    --fine-dx 0.5 --fine-max-iterations 1000 --coarse-solver linear --shard $$k/10 & \
-	done; wait
-force-factor-linear: train-env build $(ROM_LINEAR_MERGED)/dataset.json
-	target/release/tacrom eval-rom --data $(ROM_LINEAR_FINE_DATA) --models models/rom-linear --all \
-		--out out/bench/force-fine
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear \
-		--finer $(ROM_LINEAR_FINE_DATA) out/bench/force-fine/forces.csv
+		--encoder-from models/rom-linear --decoder-hidden $(ROM_LINEAR_DECODER) --out models/rom-linear-narrow
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear-narrow
 train-linear-seeds: train-env $(ROM_LINEAR_MERGED)/dataset.json
 	for s in 0 1 2; do for v in "conditioned:" "latent16:--latent 16" "no-multiscale:--no-multiscale" \
 	    "unconditioned:--no-conditioning" "poisson-only:--poisson-only"; do \

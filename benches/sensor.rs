@@ -141,11 +141,11 @@ fn main() {
             Some(("solver", "linear")),
             if quick { 5 } else { 20 },
         ),
-        // The default's encoder with the paper's decoder widths.
+        // The default's encoder with a narrower decoder.
         (
-            "rom-linear-wide",
+            "rom-linear-narrow",
             "rom",
-            Some(("model", "rom-linear-wide")),
+            Some(("model", "rom-linear-narrow")),
             if quick { 5 } else { 20 },
         ),
     ];

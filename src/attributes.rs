@@ -365,8 +365,8 @@ pub const MODEL: Attribute = Attribute {
     ),
     valid: Valid::Described(
         "a directory with a `manifest.json` that serves this gel, or a shipped model's \
-         name: `rom-linear`, `rom-linear-wide` (its encoder with the paper's decoder widths; \
-         in the checkout, not the wheel), `rom-default` (the relaxation's, with the linear \
+         name: `rom-linear`, `rom-linear-narrow` (its encoder, a narrower decoder; in the \
+         checkout, not the wheel), `rom-default` (the relaxation's, with the linear \
          solver for contacts it misses: `physics=\"rom\"` as it was before the linear gel)",
     ),
 };

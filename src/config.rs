@@ -356,10 +356,10 @@ impl Config {
     /// The gel's solver on a grid of spacing `dx` (m) and why ([`crate::mpm::choice`]).
     pub fn choice(&self, dx: f64) -> Choice {
         use crate::mpm::Role;
-        // rom's own default model, unnamed or named by its shipped name (or its wide
+        // rom's own default model, unnamed or named by its shipped name (or its narrow
         // decoder's, on the same gel).
         let linear = |m: &std::path::Path| {
-            [crate::rom::LINEAR_MODEL, crate::rom::LINEAR_WIDE_MODEL]
+            [crate::rom::LINEAR_MODEL, crate::rom::LINEAR_NARROW_MODEL]
                 .iter()
                 .any(|name| m == std::path::Path::new(name))
         };

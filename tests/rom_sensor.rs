@@ -214,8 +214,7 @@ fn rom_force_follows_the_decoded_surface_closer_to_hertz_than_coarse() {
 
 /// A contact the relaxation misses (a 0.5 mm sphere pressed 0.3 mm between the coarse
 /// gel's top particles) is carried by rom. Its default runs on the linear gel, whose small
-/// contacts follow Hertz (within 10 %: measured 1.08 with the model's force factor, scaled
-/// to the 0.5 mm reference: `docs/rom.md`, "Force at the 0.5 mm reference"); rom
+/// contacts follow Hertz (within 10 %: measured 1.07 with the model's force factor); rom
 /// on the relaxation's model (`model="rom-default"`, no solver) solves such a frame
 /// by the linear solver and reports its force (the decoded surface's volume factor is
 /// fitted to the relaxation's surface; measured 1.01 of Hertz), where the relaxation
@@ -447,12 +446,12 @@ fn the_linear_solver_gets_its_own_shipped_model() {
         (choice.solver, choice.fallback)
     };
     assert_eq!(choice("models/rom-default"), (Solver::Relaxation, true));
-    // The shipped models by name: the default's, its encoder with the paper's decoder
-    // widths (on the same gel), and the relaxation's as rom ran before.
+    // The shipped models by name: the default's, its encoder with a narrower decoder (on
+    // the same gel), and the relaxation's as rom ran before.
     assert_eq!(choice("rom-linear"), (Solver::Linear, false));
-    assert_eq!(choice("rom-linear-wide"), (Solver::Linear, false));
+    assert_eq!(choice("rom-linear-narrow"), (Solver::Linear, false));
     assert_eq!(choice("rom-default"), (Solver::Relaxation, true));
-    for name in ["rom-linear", "rom-linear-wide", "rom-default"] {
+    for name in ["rom-linear", "rom-linear-narrow", "rom-default"] {
         let raw = RawConfig::default()
             .with(ATTR_RESOLUTION, "32 24")
             .with(ATTR_MODEL, name);
@@ -488,13 +487,11 @@ fn the_linear_solver_gets_its_own_shipped_model() {
 }
 
 /// rom on the linear solver (`models/rom-linear`) reports the force of its decoded surface
-/// with the volume factor of the gel's Poisson's ratio (manifest `force.by_poisson`, scaled
-/// to the 0.5 mm reference's force): for
+/// with the volume factor of the gel's Poisson's ratio (manifest `force.by_poisson`): for
 /// frictionless spheres of radius 2 and 5 mm pressed 0.1 to 0.5 mm on gels of Poisson's
 /// ratio 0.3, 0.43 and 0.48 (the range it serves) and friction 0 and 1, its mean error
-/// against Hertz on the bonded layer is at most 12 % for each (measured 3.7 to 10.8 %, the
-/// largest at 0.48; fitted on the 0.7 mm reference alone the narrow decoder's came to
-/// 13.5 % at 0.43 and 17.6 % at 0.48). One factor for every Poisson's ratio left the force 22 % low at 0.48
+/// against Hertz on the bonded layer is at most 12 % for each (measured 3.1 to 11.6 %, the
+/// largest at 0.48). One factor for every Poisson's ratio left the force 22 % low at 0.48
 /// on the gel before its volume term was mended.
 #[test]
 fn rom_linear_force_follows_hertz_at_every_poisson_it_serves() {

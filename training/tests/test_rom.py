@@ -258,49 +258,6 @@ def test_force_factor_per_poisson_bin_of_a_ranged_data_set(tmp_path):
     assert FF.by_poisson(np.full(50, 0.43), np.ones(50), None) is None
 
 
-def test_force_factor_scaled_to_a_finer_reference_through_the_decoded_volume(tmp_path):
-    """`--finer`: the scale is the median over the finer set's training presses of
-    F_fine / (F_coarse V_decoded / V_coarse) over the base factor at each press's Poisson's
-    ratio (here exactly 0.9 on every counted press); held-out families, light presses,
-    unconverged references and other models' rows are left out; the table keeps its shape."""
-    from tacrom_rom import force_factor as FF
-
-    fine = tmp_path / "fine"
-    os.makedirs(fine)
-    with open(fine / "dataset.json", "w") as f:
-        json.dump({"poisson": 0.43, "held_out": ["ridges"], "fine_dx": 5e-4}, f)
-    table = [[0.3, 1.0], [0.48, 1.18]]
-    rows = [["method", "sample", "family", "force_reference_n", "force_reported_n", "volume_coarse_m",
-             "volume_decoded_m", "volume_reference_m"]]
-    rng = np.random.default_rng(2)
-    for i in range(30):
-        nu = float(rng.uniform(0.3, 0.48))
-        fc, vc, vd = 0.1 * (1 + i), 2e-3, float(rng.uniform(1e-3, 3e-3))
-        ff = 0.9 * FF.at(1.1, table, nu) * fc * vd / vc
-        family, converged = "sphere", True
-        if i % 10 == 0:
-            family, ff = "ridges", 5 * ff  # held out
-        if i % 10 == 1:
-            converged, ff = False, 5 * ff
-        if i % 10 == 2:
-            fc = ff = 1e-4  # below MIN_FORCE
-        with open(fine / f"sample-{i:06d}.json", "w") as f:
-            json.dump({"index": i, "family": family, "poisson": nu,
-                       "coarse": {"force": [0, 0, fc]}, "reference": {"converged": converged, "force": [0, 0, ff]}}, f)
-        rows.append(["rom-x", f"sample-{i:06d}.npy", family, ff, 0, vc, vd, 0])
-        rows.append(["rom-other", f"sample-{i:06d}.npy", family, ff, 0, vc, 5 * vd, 0])
-    forces = tmp_path / "forces.csv"
-    with open(forces, "w") as f:
-        f.write("\n".join(",".join(str(v) for v in r) for r in rows) + "\n")
-    scale, n, p10, p90, dx = FF.finer_scale(str(fine), str(forces), "rom-x", 1.1, table)
-    assert n == 21 and dx == 5e-4
-    assert abs(scale - 0.9) < 1e-12 and abs(p10 - 0.9) < 1e-12 and abs(p90 - 0.9) < 1e-12
-    assert FF.label_of(str(tmp_path / "rom-default")) == "rom"
-    assert FF.label_of(str(tmp_path / "rom-x") + "/") == "rom-x"
-    with pytest.raises(SystemExit, match="no row of the model 'rom-y'"):
-        FF.finer_scale(str(fine), str(forces), "rom-y", 1.1, table)
-
-
 @pytest.mark.parametrize("flag, conditioning", [
     ([], {"poisson": [0.3, 0.48], "friction": [0.0, 1.0]}),
     (["--poisson-only"], {"poisson": [0.3, 0.48], "friction": [0.5, 0.5]}),

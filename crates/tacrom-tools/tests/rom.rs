@@ -409,16 +409,16 @@ fn rom_linear_is_closer_to_the_reference_than_its_coarse_gel_on_held_out_familie
     held_out_gate(&dir, 0.0007);
 }
 
-/// The same pairs and gates for the linear solver's model with the paper's decoder widths
-/// (`models/rom-linear-wide`, whose encoder `models/rom-linear` shares).
+/// The same pairs and gates for the linear solver's model with a narrower decoder
+/// (`models/rom-linear-narrow`, which shares `models/rom-linear`'s encoder).
 #[test]
-fn rom_linear_wide_is_closer_to_the_reference_than_its_coarse_gel_on_held_out_families() {
-    let dir = tacrom::rom::shipped_model_dir(tacrom::rom::LINEAR_WIDE_MODEL)
-        .expect("models/rom-linear-wide");
+fn rom_linear_narrow_is_closer_to_the_reference_than_its_coarse_gel_on_held_out_families() {
+    let dir = tacrom::rom::shipped_model_dir(tacrom::rom::LINEAR_NARROW_MODEL)
+        .expect("models/rom-linear-narrow");
     held_out_gate(&dir, 0.0007);
 }
 
-/// `models/rom-linear-wide` decodes densely with an 8-bit copy of its decoder (manifest
+/// `models/rom-linear` decodes densely with an 8-bit copy of its decoder (manifest
 /// `files.decoder.quantized`; `training/tacrom_rom/quantize.py`). On the model's held-out
 /// pairs its depth stays close to the float original's (the same model directory, its
 /// manifest pointed back at `decoder.onnx`): the mean difference over the decoded points
@@ -428,9 +428,8 @@ fn rom_linear_wide_is_closer_to_the_reference_than_its_coarse_gel_on_held_out_fa
 /// raises it by about 3 % in quadrature (`tacrom eval-rom` measured 2.05 um with either
 /// decoder, and the same force errors).
 #[test]
-fn rom_linear_wide_8_bit_decoder_follows_its_float_original() {
-    let dir = tacrom::rom::shipped_model_dir(tacrom::rom::LINEAR_WIDE_MODEL)
-        .expect("models/rom-linear-wide");
+fn rom_linear_8_bit_decoder_follows_its_float_original() {
+    let dir = tacrom::rom::shipped_model_dir(tacrom::rom::LINEAR_MODEL).expect("models/rom-linear");
     let float = scratch("float-decoder");
     copy_files(&dir, &float);
     let manifest = float.join("manifest.json");

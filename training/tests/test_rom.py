@@ -338,3 +338,16 @@ def test_pressure_head_trains_exports_and_matches_onnx(tiny_model, tmp_path):
     got = sess.run(["pressure"], {"z": z.numpy(), "query": q.numpy()})[0]
     assert np.abs(got - ref).max() < PARITY_TOL
     assert np.abs(batched - ref[:, 0]).max() < 1e-6
+
+
+def test_small_presses_are_those_of_few_penetrated_lattice_points(tmp_path):
+    from tacrom_rom.small import small_presses
+    for index, count in [(0, 0), (3, 1), (7, 43), (8, 44), (12, 5)]:
+        a = np.zeros((3, 10, 10), np.float32)
+        a[1].flat[:count] = 1e-5
+        a[1].flat[count:count + 3] = -1e-5  # lattice points clear of the indenter
+        np.save(tmp_path / f"sample-{index:06d}.npy", a)
+        (tmp_path / f"sample-{index:06d}.json").write_text("{}")
+    np.save(tmp_path / "sample-000009-pressure.npy", np.ones((10, 10), np.float32))
+    assert small_presses(str(tmp_path)) == [3, 7, 12]
+    assert small_presses(str(tmp_path), 2, 44) == [7, 8, 12]

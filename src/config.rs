@@ -1214,7 +1214,7 @@ mod tests {
 
     /// Unset, the solver is Newton's method exactly where relaxation does not converge
     /// (Poisson's ratio 0.49 and more), on every grid; relaxation elsewhere, the fine
-    /// mode's grid included.
+    /// mode's grid included; for rom's shipped models the linear gel where it factors.
     #[test]
     fn the_automatic_solver_follows_the_material() {
         use crate::mpm::GelParams;
@@ -1231,6 +1231,15 @@ mod tests {
             assert_eq!(auto(&gel(0.49, dx)), Solver::Newton);
             assert_eq!(auto(&gel(0.499, dx)), Solver::Newton);
         }
+        // rom's shipped models: the linear gel wherever it factors, near-incompressible
+        // gels included (its model serves Poisson 0.3 to 0.49); Newton's method from 0.49
+        // on a grid too fine to factor.
+        let rom = |g: &GelParams| crate::mpm::choose(g, None, crate::mpm::Role::ShippedRom).solver;
+        for poisson in [0.3, 0.43, 0.49, 0.499] {
+            assert_eq!(rom(&gel(poisson, 1.4e-3)), Solver::Linear);
+        }
+        assert_eq!(rom(&gel(0.43, 0.3e-3)), Solver::Relaxation);
+        assert_eq!(rom(&gel(0.49, 0.3e-3)), Solver::Newton);
     }
 
     /// A gel that dynamic relaxation alone solves (the fine reference) is named by the

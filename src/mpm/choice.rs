@@ -67,8 +67,10 @@ pub enum Role {
     /// the per-frame fallback for small contacts.
     Coarse,
     /// `rom` with its default model, unnamed or named `model="rom-linear"`: the linear gel
-    /// (`models/rom-linear`) where it factors; the relaxation's rule elsewhere (where the
-    /// shipped models serve no gel). The linear gel's rom is the most accurate mode of the
+    /// (`models/rom-linear`) where it factors, at every Poisson's ratio (its stiffness at
+    /// rest is factored once, so a near-incompressible gel costs it nothing more, and its
+    /// model serves 0.3 to 0.49); the relaxation's rule elsewhere (where the shipped models
+    /// serve no gel). The linear gel's rom is the most accurate mode of the
     /// full profile in depth and SSIM, on shapes outside the training families too, and
     /// the faster rom in both environments (measured: `docs/modes.md`, "The default: rom
     /// on the linear gel").
@@ -107,8 +109,8 @@ impl std::fmt::Display for Choice {
 /// `named` is the solver a configuration names, if any; `role` is what the sensor's
 /// physics asks of the gel ([`Role`]): the per-frame fallback where the automatic rule
 /// picks the relaxation's family (the sensor's `coarse` and `rom`), and for `rom` with
-/// its shipped models the linear gel wherever it factors ([`linear_fits`]) and the
-/// relaxation does not need Newton's method.
+/// its shipped models the linear gel wherever it factors ([`linear_fits`]), at any
+/// Poisson's ratio.
 pub fn choose(params: &GelParams, named: Option<Solver>, role: Role) -> Choice {
     let small_contacts = role != Role::Reference;
     match named {
@@ -117,18 +119,13 @@ pub fn choose(params: &GelParams, named: Option<Solver>, role: Role) -> Choice {
             fallback: false,
             why: "named by the configuration",
         },
-        None if role == Role::ShippedRom
-            && params.poisson < AUTO_NEWTON_POISSON
-            && linear_fits(params) =>
-        {
-            Choice {
-                solver: Solver::Linear,
-                fallback: false,
-                why: "rom's default: the linear gel where it factors, read by the shipped model \
+        None if role == Role::ShippedRom && linear_fits(params) => Choice {
+            solver: Solver::Linear,
+            fallback: false,
+            why: "rom's default: the linear gel where it factors, read by the shipped model \
                       trained on it (the full profile's most accurate mode, and rom's faster \
                       gel in Press-v1 and GripperLift-v1)",
-            }
-        }
+        },
         None if params.poisson >= AUTO_NEWTON_POISSON => Choice {
             solver: Solver::Newton,
             fallback: small_contacts,

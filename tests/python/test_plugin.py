@@ -229,8 +229,8 @@ def test_rigid_refuses_shear_and_markers(press_xml):
 def test_rom_serves_other_gel_materials_and_refuses_others(press_xml):
     """The shipped reduced-order model through MuJoCo: a gel ten times stiffer gives the same
     image and ten times the force (its coarse depth does not depend on Young's modulus);
-    Poisson's ratio and friction inside the ranges it was validated on (0.3 to 0.48, 0 to 1)
-    load and press; Poisson 0.49 is refused at load, naming the sensor and both values."""
+    Poisson's ratio and friction inside the ranges it was validated on (0.3 to 0.49, 0 to 1)
+    load and press; Poisson 0.495 is refused at load, naming the sensor and both values."""
     rom = dict(physics="rom", outputs="depth force", resolution="64 48")
     runs = {}
     for name, extra in {"default": {}, "stiff": {"young": "1.19e6"},
@@ -245,9 +245,9 @@ def test_rom_serves_other_gel_materials_and_refuses_others(press_xml):
     # A softer-in-volume gel (Poisson 0.32) carries less force at the same press.
     assert runs["other"][1][2] < runs["default"][1][2]
     with pytest.raises(ValueError) as err:
-        mujoco.MjModel.from_xml_string(with_config(press_xml, **rom, poisson="0.49"))
+        mujoco.MjModel.from_xml_string(with_config(press_xml, **rom, poisson="0.495"))
     msg = str(err.value)
-    assert "'touch'" in msg and "Poisson's ratio in [0.3, 0.48]" in msg and "0.49" in msg
+    assert "'touch'" in msg and "Poisson's ratio in [0.3, 0.49]" in msg and "0.495" in msg
 
 
 def test_rom_serves_a_thin_gel_of_the_family_through_mujoco(press_xml):

@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes gen-data-linear-small05 gen-data-linear-049 train-linear train-linear-narrow train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes gen-data-linear-small05 gen-data-linear-049 force-factor-linear train-linear train-linear-narrow train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -213,8 +213,17 @@ $(ROM_LINEAR_SHAPES_MERGED)/dataset.json:
 train-linear: train-env $(ROM_LINEAR_MERGED)/dataset.json $(ROM_LINEAR_SHAPES_MERGED)/dataset.json
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_LINEAR_SHAPES_MERGED) --steps $(ROM_STEPS) \
 		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 --out models/rom-linear
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-linear
+	$(MAKE) force-factor-linear ROM_FORCE_MODEL=models/rom-linear
+# The force factor per Poisson's ratio of a linear model, from its own decoded volumes on the
+# training presses of ROM_LINEAR_MERGED (`tacrom eval-rom --all`, then `tacrom_rom.force_factor
+# --decoded`; docs/rom.md, "The force factor from the decoded volume"). A minute.
+ROM_FORCE_MODEL ?= models/rom-linear
+force-factor-linear: build $(ROM_LINEAR_MERGED)/dataset.json
+	target/release/tacrom eval-rom --data $(ROM_LINEAR_MERGED) --all --models $(ROM_FORCE_MODEL) \
+		--out out/force-factor/$(notdir $(ROM_FORCE_MODEL))
+	PYTHONPATH=training $(PY) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) $(ROM_FORCE_MODEL) \
+		--decoded out/force-factor/$(notdir $(ROM_FORCE_MODEL))/forces.csv
 # The presses of small footprint among ROM_LINEAR_DATA's and ROM_SHAPES_DATA's (rigid
 # penetration at 1 to 43 lattice points: `tacrom_rom.small`) solved again at 0.5 mm, where the
 # 0.7 mm reference is furthest from converged (docs/rom.md, "A narrower decoder"), merged as
@@ -244,7 +253,7 @@ train-linear-narrow: train-env $(ROM_LINEAR_MERGED)/dataset.json $(ROM_LINEAR_SH
 		--device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 --no-refinement \
 		--encoder-from models/rom-linear --decoder-hidden $(ROM_LINEAR_DECODER) --out models/rom-linear-narrow
 	rm -f models/rom-linear-narrow/validation/* && cp models/rom-linear/validation/* models/rom-linear-narrow/validation/
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.force_factor $(ROM_LINEAR_MERGED) models/rom-linear-narrow
+	$(MAKE) force-factor-linear ROM_FORCE_MODEL=models/rom-linear-narrow
 train-linear-seeds: train-env $(ROM_LINEAR_MERGED)/dataset.json
 	for s in 0 1 2; do for v in "conditioned:" "latent16:--latent 16" "no-multiscale:--no-multiscale" \
 	    "unconditioned:--no-conditioning" "poisson-only:--poisson-only"; do \

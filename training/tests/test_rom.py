@@ -351,3 +351,51 @@ def test_small_presses_are_those_of_few_penetrated_lattice_points(tmp_path):
     np.save(tmp_path / "sample-000009-pressure.npy", np.ones((10, 10), np.float32))
     assert small_presses(str(tmp_path)) == [3, 7, 12]
     assert small_presses(str(tmp_path), 2, 44) == [7, 8, 12]
+
+
+def test_force_factor_from_the_decoded_volumes(tmp_path):
+    """With the model's decoded volumes (eval-rom's forces.csv), the factor is the median of
+    F_ref / (F_coarse V_dec / V_coarse): here the decoder restores (1 + nu) times the
+    reference's volume, so the volume factor from the references' is (1 + nu) times the one
+    that makes the reported force the reference's; presses of another method, outside the
+    sensor's volume ratio or not in the file are left out."""
+    from tacrom_rom import force_factor as FF
+
+    path = tmp_path / "ranged"
+    os.makedirs(path)
+    with open(path / "dataset.json", "w") as f:
+        json.dump({"poisson": 0.3, "friction": 0.0, "poisson_range": [0.3, 0.48], "held_out": [],
+                   "fine_dx": 7e-4}, f)
+    rng = np.random.default_rng(1)
+    rows = []
+    for i in range(300):
+        nu = float(rng.uniform(0.3, 0.48))
+        a = np.zeros((3, 4, 4), np.float32)
+        a[0], a[2] = 1e-4, 0.5e-4  # coarse volume 16e-4, reference 8e-4
+        vc, vr = 16e-4, 8e-4
+        vd = vr * (1 + nu)
+        fc, fr = 0.1, 0.06
+        np.save(path / f"sample-{i:06d}.npy", a)
+        with open(path / f"sample-{i:06d}.json", "w") as f:
+            json.dump({"index": i, "family": "sphere", "poisson": nu, "friction": 0.5,
+                       "coarse": {"force": [0, 0, fc]}, "reference": {"converged": True, "force": [0, 0, fr]}}, f)
+        if i % 50 == 7:
+            continue  # not in the file
+        if i % 50 == 9:
+            vd = 5.0 * vc  # beyond the sensor's volume ratio
+        rows.append(("model", f"sample-{i:06d}.npy", vc, vd, vr))
+        rows.append(("other", f"sample-{i:06d}.npy", vc, 2 * vd, vr))
+    csv_path = tmp_path / "forces.csv"
+    with open(csv_path, "w") as f:
+        f.write("method,sample,family,force_reference_n,force_reported_n,volume_coarse_m,volume_decoded_m,volume_reference_m\n")
+        for m, s, vc, vd, vr in rows:
+            f.write(f"{m},{s},sphere,0.06,0.06,{vc},{vd},{vr}\n")
+    decoded = FF.decoded_volumes(str(csv_path), str(tmp_path / "model"))
+    k, n, _, _, _, table = FF.factor(str(path), decoded)
+    assert n == 300 - 6 - 6
+    for nu, v in table:
+        assert abs(v - 0.06 / (0.1 * 0.5 * (1 + nu))) < 2e-3, (nu, v)
+    k_ref, *_ = FF.factor(str(path))
+    assert abs(k_ref - 0.06 / (0.1 * 0.5)) < 1e-9
+    with pytest.raises(SystemExit, match="no rows of method 'absent'"):
+        FF.decoded_volumes(str(csv_path), str(tmp_path / "absent"))

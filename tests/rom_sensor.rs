@@ -215,7 +215,7 @@ fn rom_force_follows_the_decoded_surface_closer_to_hertz_than_coarse() {
 
 /// A contact the relaxation misses (a 0.5 mm sphere pressed 0.3 mm between the coarse
 /// gel's top particles) is carried by rom. Its default runs on the linear gel, whose small
-/// contacts follow Hertz (within 10 %: measured 1.07 with the model's force factor); rom
+/// contacts follow Hertz (within 10 %: measured 1.04 with the model's force factor); rom
 /// on the relaxation's model (`model="rom-default"`, no solver) solves such a frame
 /// by the linear solver and reports its force (the decoded surface's volume factor is
 /// fitted to the relaxation's surface; measured 1.01 of Hertz), where the relaxation
@@ -491,9 +491,10 @@ fn the_linear_solver_gets_its_own_shipped_model() {
 /// with the volume factor of the gel's Poisson's ratio (manifest `force.by_poisson`): for
 /// frictionless spheres of radius 2 and 5 mm pressed 0.1 to 0.5 mm on gels of Poisson's
 /// ratio 0.3, 0.43, 0.48 and 0.49 (the range it serves) and friction 0 and 1, its mean
-/// error against Hertz on the bonded layer is at most 12 % for each (measured 3.1 to 11.6
-/// %, the largest at 0.48; at 0.49 6.5 to 8.3 %, the factor held at its last bin's, 0.47). One factor for every Poisson's ratio left the force 22 % low at 0.48
-/// on the gel before its volume term was mended.
+/// error against Hertz on the bonded layer is at most 12 % for each (measured 0.5 to 7.6 %
+/// with the factor fitted to the model's decoded volumes; with the factor from the
+/// reference's volumes up to 11.6 %, at 0.48). One factor for every Poisson's ratio left
+/// the force 22 % low at 0.48 on the gel before its volume term was mended.
 #[test]
 fn rom_linear_force_follows_hertz_at_every_poisson_it_serves() {
     let depths = [0.1e-3, 0.2e-3, 0.3e-3, 0.5e-3];

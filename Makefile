@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes gen-data-linear-small05 gen-data-linear-049 force-factor-linear train-linear train-linear-narrow train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes gen-data-linear-small05 gen-data-linear-049 gen-data-family gen-data-family-shard force-factor-linear train-linear train-linear-narrow train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -194,6 +194,28 @@ gen-data-linear-049: build
 	    --fine-dx 0.7 --fine-max-iterations 1000 --coarse-solver linear \
 	    --poisson 0.49 --friction $(ROM_FRICTION) --shard $$k/$(ROM_SHARDS) & \
 	done; wait
+# Presses over the gel family (issue 54: 12 to 40 mm a side, 1 to 6 mm thick, Poisson's ratio
+# 0.3 to 0.49, friction 0 to 1, pressed anywhere, edges included), every indenter family
+# with the blobs, stones and bricks, each indenter scaled by 0.5 to 2: `tacrom gen-data
+# --gel-family` solves each in the model's units (the default gel's 4 mm thickness, sides
+# in thicknesses, cut at 9) with the linear coarse gel at 1.4 mm and the relaxation at 0.5
+# mm (T / 8, docs/rom.md's reference study) and writes the window of the model's lattice
+# over the contact. Sharded (ROM_SHARDS, one per core) and resumable; about 10 s a press
+# on one core. On a cluster the same command runs as an array, one shard per task:
+#   sbatch --array=0-63 --wrap 'make gen-data-family-shard ROM_SHARD=$$SLURM_ARRAY_TASK_ID/64'
+ROM_FAMILY_DATA ?= data/rom-family
+ROM_FAMILY_SAMPLES ?= 1500
+ROM_FAMILY_FAMILIES := sphere,cylinder,box,edge,bumps,ridges,heightfield,mesh,blob,stone,brick
+GEN_FAMILY = TACROM_CACHE=off target/release/tacrom gen-data --gel-family --out $(ROM_FAMILY_DATA) \
+	--samples $(ROM_FAMILY_SAMPLES) --seed 3 --families $(ROM_FAMILY_FAMILIES) \
+	--poisson 0.3,0.49 --friction 0,1 --coarse-solver linear --fine-dx 0.5 \
+	--fine-max-iterations 3000
+gen-data-family: build
+	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
+	  $(GEN_FAMILY) --shard $$k/$(ROM_SHARDS) & \
+	done; wait
+gen-data-family-shard: build
+	$(GEN_FAMILY) --shard $(ROM_SHARD)
 # Presses of shapes outside the default families (`blob`, `stone` and, held out, `brick`:
 # `tacrom gen-data --families`), the same gel and solvers as ROM_LINEAR_DATA; about 8
 # minutes on two shards. `docs/rom.md`, "Shapes outside the training families".

@@ -444,6 +444,13 @@ pub struct GenDataArgs {
     /// each sample's from [the sensor's default, 0.5].
     #[arg(long, value_name = "MU[,MU]", value_delimiter = ',', num_args = 1..=2)]
     pub friction: Vec<f64>,
+    /// Draw each sample's gel from the gel family (12 to 40 mm a side, 1 to 6 mm thick),
+    /// its indenter scaled by 0.5 to 2 and pressed anywhere, edges included; solve it in
+    /// the model's units (the default gel's thickness; sides beyond 9 thicknesses cut)
+    /// and write the window of the model's lattice over the contact. --coarse-dx and
+    /// --fine-dx are then in the model's units.
+    #[arg(long)]
+    pub gel_family: bool,
 }
 
 /// Options of `tacrom eval-rom`: depth MAE, RMSE, SSIM over the 24 x 18 mm field of view

@@ -35,6 +35,14 @@
 //! [`EXTRA_FAMILIES`] `blob`, `stone` and `brick`. Positions over the gel, depths up to
 //! 1 mm, tilts up to 8 degrees, slides up to 0.6 mm. [`HELD_OUT`] families are for
 //! validation only.
+//!
+//! **Gels of the family** (`--gel-family`, [`GelFamily`]): each sample's gel is drawn too
+//! (12 to 40 mm a side, 1 to 6 mm thick) and solved in the model's units, the model's
+//! thickness with sides in thicknesses; the indenter is scaled by a drawn factor and
+//! pressed anywhere on the gel. The arrays are then the window of the model's lattice that
+//! a sensor on that gel places over the contact (`Rom::serve`; zeros beyond the gel where
+//! it is narrower than the window), so that a model trains on exactly what it reads, and
+//! the sample's JSON records the gel drawn, the gel simulated and the window's corner.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -114,6 +122,97 @@ pub struct GenConfig {
     pub poisson_range: Option<[f64; 2]>,
     /// Draw each sample's friction coefficient uniformly from this range.
     pub friction_range: Option<[f64; 2]>,
+    /// Draw each sample's gel from the gel family ([`GelFamily`]) and write it in the
+    /// model's units, through the window of the model's lattice over the contact.
+    pub gel_family: Option<GelFamily>,
+}
+
+/// The gels a family data set draws from (`tacrom gen-data --gel-family`), and how they
+/// are simulated.
+///
+/// Elasticity has no length of its own: a gel, its grid and its indenters scaled by `s`
+/// are in equilibrium at the same state scaled (the solves are scale-free:
+/// `a_scaled_press_is_the_press_scaled`), and a model reads a gel in its own units,
+/// through a window of its own lattice over the contact (`Rom::serve`). So a gel of
+/// thickness `T` and sides `Lx`, `Ly` is simulated as the model's thickness with sides
+/// `Lx / T` and `Ly / T` thicknesses long, which the drawn thickness then only names. A
+/// side longer than [`GelFamily::crop`] thicknesses is cut to it: the window the model
+/// reads is 7.5 thicknesses across, a bonded layer's response to a press dies out within
+/// a few thicknesses of the contact, and the cut keeps the reference's cost that of the
+/// default gel's (a 40 x 40 x 1 mm gel would be 160 mm across in the model's units).
+/// Every sample's shape is scaled by a factor drawn log-uniformly from
+/// [`GelFamily::indenter_scale`], so that the same family of indenters spans sharper and
+/// blunter contacts for the thickness; it is pressed anywhere within
+/// [`GelFamily::reach`] of the half sides from the centre, edges included.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GelFamily {
+    /// Thickness range (m).
+    pub thickness: [f64; 2],
+    /// Range of each lateral side (m).
+    pub side: [f64; 2],
+    /// Longest side simulated, in thicknesses.
+    pub crop: f64,
+    /// Range of the indenter's scale factor (drawn log-uniformly).
+    pub indenter_scale: [f64; 2],
+    /// How far from the centre the footprint is placed, as a fraction of the half side.
+    pub reach: f64,
+}
+
+impl Default for GelFamily {
+    /// Issue 54's family: 12 to 40 mm on each side, 1 to 6 mm thick.
+    fn default() -> Self {
+        Self {
+            thickness: [1e-3, 6e-3],
+            side: [12e-3, 40e-3],
+            crop: 9.0,
+            indenter_scale: [0.5, 2.0],
+            reach: 0.96,
+        }
+    }
+}
+
+/// One sample's gel of a family data set, as recorded in its JSON (lengths in metres).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FamilyGel {
+    /// The gel drawn: sides and thickness.
+    pub size: [f64; 3],
+    /// The gel simulated, in the model's units: the drawn gel scaled to the model's
+    /// thickness, each side cut to [`GelFamily::crop`] thicknesses.
+    pub simulated: [f64; 3],
+    /// Whether a side was cut.
+    pub cropped: bool,
+    /// The indenter's scale factor.
+    pub indenter_scale: f64,
+    /// The lattice point `[row, column]` of the simulated gel at the window's first corner
+    /// (the sample's arrays are that window); filled in when the sample is solved.
+    #[serde(default)]
+    pub origin: [isize; 2],
+}
+
+/// Salt of the random stream that draws a family sample's gel.
+const GEL_STREAM: u64 = 0x6765_6c73_697a_6573;
+
+impl GelFamily {
+    /// Sample `index`'s gel, for a model of thickness `model_thickness` (m), from a stream
+    /// of its own (the presses are those of a data set on one gel).
+    pub fn draw(&self, seed: u64, index: usize, model_thickness: f64) -> FamilyGel {
+        let mut rng = Rng::new(seed ^ GEL_STREAM, index as u64);
+        let t = rng.uniform(self.thickness[0], self.thickness[1]);
+        let sides = [
+            rng.uniform(self.side[0], self.side[1]),
+            rng.uniform(self.side[0], self.side[1]),
+        ];
+        let [a, b] = self.indenter_scale.map(f64::ln);
+        let indenter_scale = rng.uniform(a, b).exp();
+        let simulated = sides.map(|l| model_thickness * (l / t).min(self.crop));
+        FamilyGel {
+            size: [sides[0], sides[1], t],
+            simulated: [simulated[0], simulated[1], model_thickness],
+            cropped: sides.iter().any(|&l| l / t > self.crop),
+            indenter_scale,
+            origin: [0, 0],
+        }
+    }
 }
 
 impl GenConfig {
@@ -123,6 +222,9 @@ impl GenConfig {
     pub fn sample_gel(&self, index: usize) -> GelParams {
         let mut rng = Rng::new(self.seed ^ MATERIAL_STREAM, index as u64);
         let mut gel = self.gel;
+        if let Some(f) = self.family_gel(index) {
+            gel.size = f.simulated;
+        }
         if let Some([a, b]) = self.poisson_range {
             gel.poisson = rng.uniform(a, b);
         }
@@ -130,6 +232,35 @@ impl GenConfig {
             gel.friction = rng.uniform(a, b);
         }
         gel
+    }
+
+    /// Sample `index`'s gel, for a family data set.
+    pub fn family_gel(&self, index: usize) -> Option<FamilyGel> {
+        self.gel_family
+            .map(|f| f.draw(self.seed, index, self.gel.size[2]))
+    }
+
+    /// Press `index` of the data set: on [`GenConfig::gel`], or on the sample's gel of a
+    /// family data set.
+    pub fn press(&self, index: usize, meshes: &mut MeshLibrary) -> Result<Press, String> {
+        match (self.gel_family, self.family_gel(index)) {
+            (Some(f), Some(g)) => draw_press_with(
+                self.seed,
+                index as u64,
+                meshes,
+                &self.families,
+                g.simulated,
+                [f.reach; 2],
+                g.indenter_scale,
+            ),
+            _ => draw_press(
+                self.seed,
+                index as u64,
+                meshes,
+                &self.families,
+                self.gel.size,
+            ),
+        }
     }
 
     /// The sample indices of this shard, in order: every `N`-th of the selected samples
@@ -143,7 +274,7 @@ impl GenConfig {
                 continue;
             }
             if self.held_out_only {
-                let p = draw_press(self.seed, i as u64, meshes, &self.families, self.gel.size)?;
+                let p = self.press(i, meshes)?;
                 if !HELD_OUT.contains(&p.family.as_str()) {
                     continue;
                 }
@@ -176,6 +307,7 @@ impl Default for GenConfig {
             refresh_coarse: false,
             poisson_range: None,
             friction_range: None,
+            gel_family: None,
         }
     }
 }
@@ -773,13 +905,28 @@ fn lowest_point(shape: &Arc<dyn Sdf>, pose: &Isometry3<f64>, size: [f64; 3]) -> 
     m.is_finite().then_some(m + lift)
 }
 
-/// Draws press `index` of the data set (deterministic in `(seed, index)`).
+/// Draws press `index` of the data set (deterministic in `(seed, index)`) on a gel of
+/// `size`: its footprint within 0.3 and 0.25 of the sides from the centre.
 pub fn draw_press(
     seed: u64,
     index: u64,
     meshes: &mut MeshLibrary,
     only: &[String],
     size: [f64; 3],
+) -> Result<Press, String> {
+    draw_press_with(seed, index, meshes, only, size, [0.6, 0.5], 1.0)
+}
+
+/// As [`draw_press`], the footprint within `reach` of the half sides from the centre, the
+/// shape scaled by `scale` about its own origin (the same random draws).
+pub fn draw_press_with(
+    seed: u64,
+    index: u64,
+    meshes: &mut MeshLibrary,
+    only: &[String],
+    size: [f64; 3],
+    reach: [f64; 2],
+    scale: f64,
 ) -> Result<Press, String> {
     let mut rng = Rng::new(seed, index);
     let mut fams = families(meshes);
@@ -810,7 +957,13 @@ pub fn draw_press(
         u -= w;
     }
     let mut params = PressParams::default();
-    let (shape, local) = draw_shape(&family, &mut rng, meshes, &mut params)?;
+    let (mut shape, local) = draw_shape(&family, &mut rng, meshes, &mut params)?;
+    if scale != 1.0 {
+        shape = Arc::new(Scaled {
+            inner: shape,
+            scale,
+        });
+    }
     let yaw = rng.uniform(0.0, 2.0 * std::f64::consts::PI);
     let tilt_axis = rng.uniform(0.0, 2.0 * std::f64::consts::PI);
     let tilt = rng.uniform(0.0, 8f64.to_radians());
@@ -819,8 +972,8 @@ pub fn draw_press(
         tilt,
     );
     let rot = tilt_q * rot_z(yaw) * local;
-    let x = rng.uniform(-0.3, 0.3) * size[0];
-    let y = rng.uniform(-0.25, 0.25) * size[1];
+    let x = 0.5 * rng.uniform(-reach[0], reach[0]) * size[0];
+    let y = 0.5 * rng.uniform(-reach[1], reach[1]) * size[1];
     // Depths 0 to 1 mm, more of them shallow.
     let depth = 1e-3 * rng.uniform(0.05, 1.0).powf(1.3).min(1.0);
     let slide = if rng.uniform(0.0, 1.0) < 0.3 {
@@ -958,6 +1111,10 @@ pub struct Dataset {
     /// The range each sample's friction coefficient is drawn from (absent: `friction`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction_range: Option<[f64; 2]>,
+    /// The gel family each sample's gel is drawn from; `size` is then the model's gel,
+    /// whose lattice each sample's window is ([`GelFamily`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gel_family: Option<GelFamily>,
 }
 
 /// A solver's report on one press, in a sample's JSON.
@@ -1012,6 +1169,39 @@ pub struct SampleMeta {
     /// This sample's friction coefficient, where the data set draws it per sample.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub friction: Option<f64>,
+    /// This sample's gel, in a family data set.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gel: Option<FamilyGel>,
+}
+
+/// `field` on `spec`'s lattice (row-major), cut to the window of `spec.window` points
+/// whose first corner is lattice point `origin`; 0 beyond the lattice.
+pub fn cut_window(field: &[f64], spec: &LatticeSpec, origin: [isize; 2]) -> Vec<f64> {
+    let [rows, cols] = spec.window;
+    let mut out = Vec::with_capacity(rows * cols);
+    for row in 0..rows as isize {
+        for col in 0..cols as isize {
+            let (r, c) = (origin[0] + row, origin[1] + col);
+            let inside = r >= 0 && c >= 0 && (r as usize) < spec.ny && (c as usize) < spec.nx;
+            out.push(if inside {
+                field[r as usize * spec.nx + c as usize]
+            } else {
+                0.0
+            });
+        }
+    }
+    out
+}
+
+/// `obs` (on `spec`'s lattice, its window placed) cut to its window: the observation of
+/// the model's own gel that the encoder reads.
+fn windowed(obs: &Observation, spec: &LatticeSpec) -> Observation {
+    Observation {
+        coarse: cut_window(&obs.coarse, spec, obs.origin),
+        pen: cut_window(&obs.pen, spec, obs.origin),
+        origin: [0, 0],
+        ..obs.clone()
+    }
 }
 
 /// Rewrites the coarse channel of the sample `npy` and the coarse report of its `json` from
@@ -1066,20 +1256,14 @@ pub fn list(config: &GenConfig) -> Result<Vec<String>, String> {
     let mut meshes = MeshLibrary::new(&config.patterns);
     let mut lines = Vec::new();
     for index in config.shard_indices(&mut meshes)? {
-        let p = draw_press(
-            config.seed,
-            index as u64,
-            &mut meshes,
-            &config.families,
-            config.gel.size,
-        )?;
+        let p = config.press(index, &mut meshes)?;
         let held_out = HELD_OUT.contains(&p.family.as_str());
         if config.held_out_only && !held_out {
             continue;
         }
         let slide = p.params.slide.map_or(0.0, |s| s[0].hypot(s[1]));
         let gel = config.sample_gel(index);
-        lines.push(format!(
+        let mut line = format!(
             "{index} {} held_out={held_out} depth_mm={:.3} slide_mm={:.3} poisson={:.4} \
              friction={:.4}",
             p.family,
@@ -1087,7 +1271,15 @@ pub fn list(config: &GenConfig) -> Result<Vec<String>, String> {
             slide * 1e3,
             gel.poisson,
             gel.friction
-        ));
+        );
+        if let Some(f) = config.family_gel(index) {
+            let mm = f.size.map(|v| v * 1e3);
+            line.push_str(&format!(
+                " gel_mm={:.1}x{:.1}x{:.2} indenter_scale={:.2}",
+                mm[0], mm[1], mm[2], f.indenter_scale
+            ));
+        }
+        lines.push(line);
     }
     Ok(lines)
 }
@@ -1133,6 +1325,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         }),
         poisson_range: config.poisson_range,
         friction_range: config.friction_range,
+        gel_family: config.gel_family,
     };
     let ds_path = config.out.join("dataset.json");
     match std::fs::read_to_string(&ds_path) {
@@ -1192,13 +1385,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             skipped += 1;
             continue;
         }
-        let press = draw_press(
-            config.seed,
-            index as u64,
-            &mut meshes,
-            &config.families,
-            g.size,
-        )?;
+        let press = config.press(index, &mut meshes)?;
         let held_out = HELD_OUT.contains(&press.family.as_str());
         if config.held_out_only && !held_out {
             continue;
@@ -1211,7 +1398,21 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         let last = press.poses.len() - 1;
         let placed = [press.placed(last)];
         let (rc, sc) = solve_press(&mut coarse, &press);
-        obs.update(&coarse, &placed, &spec, &mut zmin);
+        // A family sample's gel has a lattice of its own; the sample is the window of the
+        // model's lattice over the contact, as `Rom::serve` reads it.
+        let mut family = config.family_gel(index);
+        let gel_spec = match family {
+            Some(f) => LatticeSpec {
+                window: [spec.ny, spec.nx],
+                ..LatticeSpec::with_pitch(f.simulated, config.pitch)
+            },
+            None => spec,
+        };
+        obs.update(&coarse, &placed, &gel_spec, &mut zmin);
+        if let Some(f) = family.as_mut() {
+            f.origin = obs.origin;
+            obs = windowed(&obs, &gel_spec);
+        }
         if config.refresh_coarse {
             refresh_coarse(&npy, &json, &obs, &spec, &coarse, &rc, sc)?;
             done += 1;
@@ -1221,18 +1422,27 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
         }
         let fine = fine.as_mut().ok_or("no fine gel")?;
         let (rf, sf) = solve_press(fine, &press);
-        let mut reference = vec![0.0; spec.points()];
-        fine.surface_depth(&spec.grid(), &mut reference);
+        let mut reference = vec![0.0; gel_spec.points()];
+        fine.surface_depth(&gel_spec.grid(), &mut reference);
+        let mut pressure = pressure_array(&coarse, fine, &gel_spec.grid());
+        if let Some(f) = family {
+            reference = cut_window(&reference, &gel_spec, f.origin);
+            let n = gel_spec.points();
+            pressure = pressure
+                .chunks(n)
+                .flat_map(|p| {
+                    let p: Vec<f64> = p.iter().map(|&v| f64::from(v)).collect();
+                    cut_window(&p, &gel_spec, f.origin)
+                })
+                .map(|v| v as f32)
+                .collect();
+        }
         let data = sample_array(&obs, &reference);
         write_npy(&npy, &[3, spec.ny, spec.nx], &data)
             .map_err(|e| format!("{}: {e}", npy.display()))?;
         let pressure_npy = pressure_path(&stem);
-        write_npy(
-            &pressure_npy,
-            &[2, spec.ny, spec.nx],
-            &pressure_array(&coarse, fine, &spec.grid()),
-        )
-        .map_err(|e| format!("{}: {e}", pressure_npy.display()))?;
+        write_npy(&pressure_npy, &[2, spec.ny, spec.nx], &pressure)
+            .map_err(|e| format!("{}: {e}", pressure_npy.display()))?;
         let meta = SampleMeta {
             index,
             family: press.family.clone(),
@@ -1248,6 +1458,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             },
             poisson: config.poisson_range.map(|_| coarse.params().poisson),
             friction: config.friction_range.map(|_| coarse.params().friction),
+            gel: family,
         };
         let mut text = serde_json::to_string_pretty(&meta).map_err(|e| e.to_string())?;
         text.push('\n');

@@ -319,6 +319,7 @@ fn gen_data(a: GenDataArgs) -> Result<(), BenchError> {
         },
         poisson_range: range(&a.poisson)?,
         friction_range: range(&a.friction)?,
+        gel_family: a.gel_family.then(tacrom_tools::datagen::GelFamily::default),
     };
     let [p0, p1] = config.poisson_range.unwrap_or([config.gel.poisson; 2]);
     let [f0, f1] = config.friction_range.unwrap_or([config.gel.friction; 2]);

@@ -805,6 +805,168 @@ fn gen_data_draws_each_samples_material_from_its_ranges() {
     let _ = std::fs::remove_dir_all(&fixed_out);
 }
 
+/// A data set over the gel family: each sample's gel lies in the family, is simulated in
+/// the model's units (the model's thickness, sides in thicknesses, cut at the crop), and
+/// its arrays are the window of the model's lattice over the contact that the sensor's
+/// encoder reads on that gel: the same encoder input, and the same decoder queries
+/// wherever a query's window lies within the window. And the simulated press is the drawn
+/// gel's own scaled: the press at the drawn thickness, its grid and indenter scaled with
+/// it, gives the sample's coarse channel times the scale (elasticity has no length of its
+/// own; the solves are scale-free to their rounding, `a_scaled_press_is_the_press_scaled`:
+/// 3e-8 m on a 0.5 mm press, here allowed 1e-3 of the deepest point).
+#[test]
+fn gen_data_draws_gels_from_the_family_in_the_models_units() {
+    use tacrom::rom::features::query_features;
+    let out = scratch("gendata-family");
+    let family = datagen::GelFamily::default();
+    let config = GenConfig {
+        out: out.clone(),
+        samples: 4,
+        coarse_dx: 2e-3,
+        fine_dx: 2e-3,
+        pitch: 1e-3,
+        families: vec!["sphere".into(), "box".into()],
+        poisson_range: Some([0.3, 0.49]),
+        friction_range: Some([0.0, 1.0]),
+        gel_family: Some(family),
+        ..GenConfig::default()
+    };
+    datagen::generate(&config, |_| {}).unwrap();
+    let model = LatticeSpec::with_pitch(config.gel.size, config.pitch);
+    let t_model = config.gel.size[2];
+    let (mut cropped, mut narrow) = (0, 0);
+    for i in 0..config.samples {
+        let stem = out.join(format!("sample-{i:06}"));
+        let meta: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(stem.with_extension("json")).unwrap())
+                .unwrap();
+        let gel: datagen::FamilyGel = serde_json::from_value(meta["gel"].clone()).unwrap();
+        let [lx, ly, t] = gel.size;
+        assert!(
+            (family.thickness[0]..=family.thickness[1]).contains(&t),
+            "{gel:?}"
+        );
+        for (l, sim) in [(lx, gel.simulated[0]), (ly, gel.simulated[1])] {
+            assert!((family.side[0]..=family.side[1]).contains(&l), "{gel:?}");
+            let want = t_model * (l / t).min(family.crop);
+            assert!((sim - want).abs() <= 1e-12, "{gel:?}");
+        }
+        assert_eq!(gel.simulated[2], t_model);
+        assert_eq!(gel.cropped, lx / t > family.crop || ly / t > family.crop);
+        cropped += usize::from(gel.cropped);
+        narrow += usize::from(gel.simulated[0].min(gel.simulated[1]) < config.gel.size[0]);
+        let [a, b] = family.indenter_scale;
+        assert!((a..=b).contains(&gel.indenter_scale), "{gel:?}");
+        let (shape, data) = read_npy(&stem.with_extension("npy"));
+        assert_eq!(shape, vec![3, model.ny, model.nx]);
+        assert!(data
+            .iter()
+            .all(|v| v.is_finite() && (0.0..=t_model as f32).contains(v)));
+
+        // What the sensor reads on this gel.
+        let press = config
+            .press(i, &mut datagen::MeshLibrary::default())
+            .unwrap();
+        let params = GelParams {
+            dx: config.coarse_dx,
+            material: tacrom::mpm::Material::FixedCorotated,
+            ..config.sample_gel(i)
+        };
+        let mut coarse = Gel::new(params, SolverOptions::default()).unwrap();
+        let _ = datagen::solve_press(&mut coarse, &press);
+        let spec = LatticeSpec {
+            window: [model.ny, model.nx],
+            ..LatticeSpec::with_pitch(gel.simulated, config.pitch)
+        };
+        let last = [press.placed(press.poses.len() - 1)];
+        let sensor = Observation::from_gel(&coarse, &last, &spec);
+        assert_eq!(sensor.origin, gel.origin, "sample {i}");
+        let sample = pair_observation(&model, &data);
+        let (mut e_sensor, mut e_sample) = (Vec::new(), Vec::new());
+        sensor.encoder_input(&spec, &mut e_sensor);
+        sample.encoder_input(&model, &mut e_sample);
+        assert_eq!(e_sensor.len(), e_sample.len());
+        // (The sample holds metres in float32; the sensor rounds millimetres to it.)
+        let close = |a: f32, b: f32| (a - b).abs() <= 1e-6 * a.abs().max(1.0);
+        for (k, (a, b)) in e_sensor.iter().zip(&e_sample).enumerate() {
+            assert!(
+                close(*a, *b),
+                "sample {i}: encoder input {k}: {a} against {b}"
+            );
+        }
+        let reach = (model.patch / 2 * model.patch_step) as isize;
+        let (mut q_sensor, mut q_sample) = (Vec::new(), Vec::new());
+        let mut compared = 0;
+        for row in reach..model.ny as isize - reach {
+            for col in reach..model.nx as isize - reach {
+                let (r, c) = (row + gel.origin[0], col + gel.origin[1]);
+                if r < 0 || c < 0 || r >= spec.ny as isize || c >= spec.nx as isize {
+                    continue;
+                }
+                q_sensor.clear();
+                q_sample.clear();
+                query_features(&sensor, &spec, r as usize, c as usize, &mut q_sensor);
+                query_features(&sample, &model, row as usize, col as usize, &mut q_sample);
+                for (a, b) in q_sensor.iter().zip(&q_sample) {
+                    assert!(close(*a, *b), "sample {i} at {row},{col}: {a} against {b}");
+                }
+                compared += 1;
+            }
+        }
+        assert!(compared > 0, "sample {i}");
+
+        // The drawn gel's own press, at its thickness.
+        let s = t / t_model;
+        let physical = GelParams {
+            size: gel.simulated.map(|v| v * s),
+            dx: config.coarse_dx * s,
+            ..params
+        };
+        let scaled = datagen::Press {
+            shape: Arc::new(datagen::Scaled {
+                inner: press.shape.clone(),
+                scale: s,
+            }),
+            poses: press
+                .poses
+                .iter()
+                .map(|p| Isometry3::from_parts((p.translation.vector * s).into(), p.rotation))
+                .collect(),
+            ..press.clone()
+        };
+        let mut gel_s = Gel::new(physical, SolverOptions::default()).unwrap();
+        let _ = datagen::solve_press(&mut gel_s, &scaled);
+        let spec_s = LatticeSpec {
+            size: physical.size,
+            ..spec
+        };
+        assert_eq!((spec_s.nx, spec_s.ny), (spec.nx, spec.ny));
+        let last = [scaled.placed(scaled.poses.len() - 1)];
+        let obs_s = Observation::from_gel(&gel_s, &last, &spec_s);
+        assert_eq!(obs_s.origin, gel.origin, "sample {i}");
+        let window = datagen::cut_window(&obs_s.coarse, &spec_s, obs_s.origin);
+        let n = model.points();
+        let deepest = data[..n].iter().fold(0f32, |m, &v| m.max(v)) as f64;
+        assert!(deepest > 1e-6, "sample {i}: no mark");
+        for (k, (&a, &b)) in window.iter().zip(&data[..n]).enumerate() {
+            assert!(
+                (a / s - b as f64).abs() <= 1e-3 * deepest,
+                "sample {i} point {k}: {} against {b} m",
+                a / s
+            );
+        }
+    }
+    // The four draws include a side cut at the crop and a gel narrower than the window.
+    assert!(cropped > 0 && narrow > 0, "{cropped} {narrow}");
+    let dataset: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(
+        dataset["gel_family"]["crop"],
+        serde_json::json!(family.crop)
+    );
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 /// Shards of a selection (held-out presses only) get equal counts, and together they are
 /// the selection, each press once: a many-core machine or a batch array keeps every worker
 /// busy (by index modulo N, 56 held-out presses of 300 fell 0 to 8 per shard of 16).

@@ -1047,6 +1047,28 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
     assert_eq!(r.samples, expected.len());
     let row = |l: &str| r.rows.iter().find(|m| m.label == l).unwrap();
     assert_eq!(row("coarse").mae, 0.0);
+    assert_eq!(row("coarse").region_mae, 0.0);
+    // The footprint MAE averages the per-press figures, each over the reference's
+    // footprint only: at least the MAE over the whole field of view where anything differs.
+    for m in &r.rows {
+        assert_eq!(m.per_press.len(), r.samples);
+        let mean = m.per_press.iter().map(|e| e[1]).sum::<f64>() / r.samples as f64;
+        assert!(
+            (mean - m.region_mae).abs() <= 1e-12 * mean.max(1e-9),
+            "{m:?}"
+        );
+    }
+    assert!(
+        row("rigid").region_mae > row("rigid").mae,
+        "{:?}",
+        row("rigid")
+    );
+    let presses = std::fs::read_to_string(out.join("report/presses.csv")).unwrap();
+    assert_eq!(
+        presses.lines().count(),
+        1 + r.rows.len() * r.samples,
+        "{presses}"
+    );
     // The data set compared with itself.
     assert_eq!(row("reference-2.0mm").mae, 0.0);
     assert!((row("coarse").ssim - 1.0).abs() < 1e-9);

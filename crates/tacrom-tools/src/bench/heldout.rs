@@ -59,6 +59,11 @@ pub struct MethodRow {
     pub infer_s: f64,
     /// Depth MAE per family (m), in [`EvalResult::families`] order.
     pub per_family: Vec<f64>,
+    /// Mean over the presses of the depth MAE over the footprint: the points where the
+    /// reference is deeper than 1 um (m).
+    pub region_mae: f64,
+    /// Per press, in the samples' order: depth MAE and footprint MAE (m).
+    pub per_press: Vec<[f64; 2]>,
     /// Mean L-BFGS steps of the latent refinement per press (models only).
     pub steps: f64,
     /// Mean over the presses of how far the decoded surface lay inside the indenters, at
@@ -110,6 +115,9 @@ pub struct EvalResult {
     pub reference_dx: Vec<f64>,
     /// Every sample was evaluated, not only held-out ones.
     pub all: bool,
+    /// Per sample, in order: its file, family and, in a data set over the gel family,
+    /// the thickness of the gel drawn (m).
+    pub presses: Vec<(String, String, Option<f64>)>,
     /// The coarse solve's normal force against the reference's (which `rom` takes as it
     /// is), over the samples whose JSON records both and whose reference force exceeds
     /// 1 mN: count, median and 90th percentile of the relative error, and the median
@@ -127,6 +135,11 @@ struct Sample {
     force: Option<[f64; 2]>,
     /// Poisson's ratio and friction of the sample's gel.
     material: [f64; 2],
+    /// The thickness of the gel drawn, in a data set over the gel family (m).
+    thickness: Option<f64>,
+    /// Whether the whole lattice is scored: a family data set's sample is the window over
+    /// its contact, which need not lie in the field of view's middle.
+    whole: bool,
 }
 
 fn bad(path: &Path, what: impl std::fmt::Display) -> BenchError {
@@ -150,6 +163,15 @@ struct SampleInfo {
     poisson: Option<f64>,
     #[serde(default)]
     friction: Option<f64>,
+    /// The gel drawn, in a data set over the gel family.
+    #[serde(default)]
+    gel: Option<GelInfo>,
+}
+
+/// What the evaluation reads of a family sample's gel ([`crate::datagen::FamilyGel`]).
+#[derive(Deserialize)]
+struct GelInfo {
+    size: [f64; 3],
 }
 
 /// The wall time of a solve and its force, where recorded.
@@ -249,6 +271,8 @@ fn load_samples(
             ],
 
             reference: chan(2),
+            thickness: meta.gel.map(|g| g.size[2]),
+            whole: dataset.gel_family.is_some(),
             solve_s: [meta.coarse.seconds, meta.reference.seconds],
             force: meta
                 .coarse
@@ -290,15 +314,29 @@ fn crop(spec: &LatticeSpec, img: &[f64]) -> Vec<f64> {
         .collect()
 }
 
-/// MAE, RMSE and SSIM of `img` against `reference` over the field of view.
-fn score(spec: &LatticeSpec, img: &[f64], reference: &[f64]) -> [f64; 3] {
-    let (_, _, w, h) = window(spec);
-    let (a, r) = (crop(spec, img), crop(spec, reference));
+/// MAE, RMSE and SSIM of `img` against `reference` over the field of view (the whole
+/// lattice where `whole`), and the MAE over the footprint: the points where the reference
+/// is deeper than 1 um (0 where there are none).
+fn score(spec: &LatticeSpec, img: &[f64], reference: &[f64], whole: bool) -> [f64; 4] {
+    let (w, h, a, r) = if whole {
+        (spec.nx, spec.ny, img.to_vec(), reference.to_vec())
+    } else {
+        let (_, _, w, h) = window(spec);
+        (w, h, crop(spec, img), crop(spec, reference))
+    };
     let peak = r.iter().copied().fold(0.0f64, f64::max);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (x, y) in img.iter().zip(reference) {
+        if *y > 1e-6 {
+            sum += (x - y).abs();
+            n += 1;
+        }
+    }
     [
         metrics::mae(&a, &r),
         metrics::rmse(&a, &r),
         metrics::ssim(&a, &r, w, h, peak).unwrap_or(f64::NAN),
+        if n > 0 { sum / n as f64 } else { 0.0 },
     ]
 }
 
@@ -323,8 +361,10 @@ impl Acc {
         }
     }
 
-    fn add(&mut self, s: [f64; 3], family: usize) {
+    fn add(&mut self, s: [f64; 4], family: usize) {
         self.row.mae += s[0];
+        self.row.region_mae += s[3];
+        self.row.per_press.push([s[0], s[3]]);
         self.row.rmse += s[1];
         if s[2].is_finite() {
             self.row.ssim += s[2];
@@ -336,6 +376,7 @@ impl Acc {
     fn finish(mut self, samples: usize, counts: &[usize]) -> MethodRow {
         let k = samples.max(1) as f64;
         self.row.mae /= k;
+        self.row.region_mae /= k;
         self.row.rmse /= k;
         self.row.steps /= k;
         self.row.into_indenter /= k;
@@ -372,9 +413,9 @@ fn label_of(dir: &Path) -> String {
     }
 }
 
-/// Runs the evaluation and writes report.md, results.csv and forces.csv (per press with
-/// both forces recorded: reference and reported force, displaced volumes) into
-/// `options.out`.
+/// Runs the evaluation and writes report.md, results.csv, forces.csv (per press with
+/// both forces recorded: reference and reported force, displaced volumes) and presses.csv
+/// (per press and method: depth MAE, footprint MAE) into `options.out`.
 pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
     let Some(first) = options.models.first() else {
         return Err(BenchError::Usage("eval-rom: no model given".to_owned()));
@@ -435,8 +476,8 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
     let mut rigid = Acc::new("rigid", names.len());
     let mut coarse = Acc::new("coarse", names.len());
     for (s, &f) in samples.iter().zip(&fam) {
-        rigid.add(score(&spec, &s.obs.pen, &s.reference), f);
-        coarse.add(score(&spec, &s.obs.coarse, &s.reference), f);
+        rigid.add(score(&spec, &s.obs.pen, &s.reference, s.whole), f);
+        coarse.add(score(&spec, &s.obs.coarse, &s.reference, s.whole), f);
     }
     result.rows.push(rigid.finish(samples.len(), &counts));
     result.rows.push(coarse.finish(samples.len(), &counts));
@@ -451,7 +492,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
             }
             let n = spec.points();
             let r: Vec<f64> = data[2 * n..].iter().map(|&v| v as f64).collect();
-            other.add(score(&spec, &r, &s.reference), f);
+            other.add(score(&spec, &r, &s.reference, s.whole), f);
         }
         result.rows.push(other.finish(samples.len(), &counts));
     }
@@ -504,7 +545,7 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
                     ],
                 });
             }
-            acc.add(score(&spec, rom.lattice_depth(), &s.reference), f);
+            acc.add(score(&spec, rom.lattice_depth(), &s.reference, s.whole), f);
             bar.advance(1);
         }
         let mut row = acc.finish(samples.len(), &counts);
@@ -544,6 +585,16 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
     }
     result.samples = samples.len();
     result.all = options.all;
+    result.presses = samples
+        .iter()
+        .map(|s| {
+            (
+                s.file.to_string_lossy().into_owned(),
+                s.family.clone(),
+                s.thickness,
+            )
+        })
+        .collect();
     result.families = names.into_iter().zip(counts).collect();
     write(options, &result)?;
     Ok(result)
@@ -576,10 +627,10 @@ pub fn markdown(r: &EvalResult) -> String {
     );
     let _ = writeln!(
         s,
-        "| method | MAE um | RMSE um | SSIM | MAE / coarse | inference ms | refinement steps | \
-         into the indenter um | below the deepest point um |"
+        "| method | MAE um | RMSE um | SSIM | MAE / coarse | footprint MAE um | inference ms | \
+         refinement steps | into the indenter um | below the deepest point um |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
     let coarse = r
         .rows
         .iter()
@@ -588,12 +639,13 @@ pub fn markdown(r: &EvalResult) -> String {
     for m in &r.rows {
         let _ = writeln!(
             s,
-            "| {} | {:.2} | {:.2} | {:.4} | {:.2} | {:.1} | {} |",
+            "| {} | {:.2} | {:.2} | {:.4} | {:.2} | {:.2} | {:.1} | {} |",
             m.label,
             m.mae * 1e6,
             m.rmse * 1e6,
             m.ssim,
             m.mae / coarse,
+            m.region_mae * 1e6,
             m.infer_s * 1e3,
             if m.infer_s > 0.0 {
                 format!(
@@ -644,7 +696,54 @@ pub fn markdown(r: &EvalResult) -> String {
         }
         s.push('\n');
     }
+    by_thickness(r, &mut s);
     s
+}
+
+/// Bins of the gel's thickness (m) of [`by_thickness`], with their names.
+const THICKNESS_BINS: [(&str, f64, f64); 3] = [
+    ("thin, 1 to 2 mm", 0.0, 2e-3),
+    ("2 to 5 mm", 2e-3, 5e-3),
+    ("thick, 5 to 6 mm", 5e-3, f64::INFINITY),
+];
+
+/// The footprint MAE per bin of the gel's thickness, each method's and its ratio to
+/// coarse's, for a data set over the gel family (nothing otherwise).
+fn by_thickness(r: &EvalResult, s: &mut String) {
+    if r.presses.iter().all(|p| p.2.is_none()) {
+        return;
+    }
+    let _ = write!(
+        s,
+        "\nFootprint MAE um by the gel's thickness (and over coarse's):\n\n| gel | samples |"
+    );
+    for m in &r.rows {
+        let _ = write!(s, " {} |", m.label);
+    }
+    let _ = write!(s, "\n|---|---|");
+    for _ in &r.rows {
+        let _ = write!(s, "---|");
+    }
+    s.push('\n');
+    let coarse = r.rows.iter().position(|m| m.label == "coarse");
+    for (name, lo, hi) in THICKNESS_BINS {
+        let inside: Vec<usize> = (0..r.presses.len())
+            .filter(|&i| r.presses[i].2.is_some_and(|t| t > lo && t <= hi))
+            .collect();
+        if inside.is_empty() {
+            continue;
+        }
+        let mean = |m: &MethodRow| {
+            inside.iter().map(|&i| m.per_press[i][1]).sum::<f64>() / inside.len() as f64
+        };
+        let _ = write!(s, "| {name} | {} |", inside.len());
+        let c = coarse.map_or(f64::NAN, |k| mean(&r.rows[k]));
+        for m in &r.rows {
+            let v = mean(m);
+            let _ = write!(s, " {:.2} ({:.2}) |", v * 1e6, v / c);
+        }
+        s.push('\n');
+    }
 }
 
 fn write(options: &EvalOptions, r: &EvalResult) -> Result<(), BenchError> {
@@ -686,5 +785,14 @@ fn write(options: &EvalOptions, r: &EvalResult) -> Result<(), BenchError> {
         }
     }
     let path = out.join("forces.csv");
+    std::fs::write(&path, csv).map_err(|e| fail(&path, e))?;
+    let mut csv = String::from("method,sample,family,thickness_m,mae_m,footprint_mae_m\n");
+    for m in &r.rows {
+        for ((file, family, t), e) in r.presses.iter().zip(&m.per_press) {
+            let t = t.map_or(String::new(), |t| format!("{t:e}"));
+            let _ = writeln!(csv, "{},{file},{family},{t},{:e},{:e}", m.label, e[0], e[1]);
+        }
+    }
+    let path = out.join("presses.csv");
     std::fs::write(&path, csv).map_err(|e| fail(&path, e))
 }

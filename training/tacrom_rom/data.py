@@ -82,17 +82,22 @@ def conditioning_of(ds):
             "friction": list(ds.get("friction_range") or [ds["friction"]] * 2)}
 
 
-def load_dir(path, drop_unconverged=True, conditioned=True):
+def load_dir(path, drop_unconverged=True, conditioned=True, conditioning=None):
     """(spec, dataset meta, arrays [S, C, ny, nx] in model units, list of sample metas).
     C is 3 (coarse, penetration, reference), and 5 for a data set with per-sample materials:
     two constant channels of material inputs (Spec.material) follow. With `conditioned`
     False such a data set loads without them (a model that reads the material from the
     coarse channel alone); with "poisson", the friction range collapses to its midpoint, so
-    that its input is always 0 (a model of Poisson's ratio alone)."""
+    that its input is always 0 (a model of Poisson's ratio alone). `conditioning` (ranges as
+    `conditioning_of` gives them) maps the materials instead of the data set's own ranges:
+    for a data set trained beside another (`train --also`), whose ranges the model takes."""
     with open(os.path.join(path, "dataset.json")) as f:
         ds = json.load(f)
     ny, nx = ds["lattice"]
-    conditioning = conditioning_of(ds) if conditioned else None
+    if conditioning is None:
+        conditioning = conditioning_of(ds) if conditioned else None
+    elif not conditioned:
+        conditioning = None
     if conditioning and conditioned == "poisson":
         conditioning["friction"] = [sum(conditioning["friction"]) / 2] * 2
     spec = Spec(size=tuple(ds["size"]), nx=nx, ny=ny, conditioning=conditioning)

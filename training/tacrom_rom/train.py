@@ -245,6 +245,9 @@ def gen_command(path, ds):
     return (f"tacrom gen-data --out {path} --samples {n} --seed {ds.get('seed')} "
             f"--coarse-dx {mm('coarse_dx')} --fine-dx {mm('fine_dx')} --pitch {mm('pitch')} "
             + (f"--coarse-solver {solver} " if solver != "relaxation" else "")
+            + ("--gel-family " if ds.get("gel_family") else "")
+            + "".join(f"--{name} {lo:g},{hi:g} " for name in ("poisson", "friction")
+                      for lo, hi in [ds.get(f"{name}_range") or (None, None)] if lo is not None)
             + f"--fine-max-iterations {ds.get('fine_max_iterations')} [--shard K/N for parallel shards]")
 
 
@@ -287,6 +290,10 @@ def main(argv=None):
                    help="lattice steps the manifest's deformable region is grown by at run time (training "
                         "samples the region grown by %(default)s; rom-linear decodes 2, as accurate on the full "
                         "profile at 15 %% less decoder time: docs/rom.md)")
+    p.add_argument("--also", action="append", default=[], metavar="DATA",
+                   help="another paired data set of the same lattice and coarse solve trained on beside "
+                        "--data (repeatable): its materials are read in --data's ranges, its held-out "
+                        "families are validation too (a family data set beside the default gel's)")
     p.add_argument("--max-seconds", type=float, default=None, help="stop training after this wall time")
     p.add_argument("--validation-per-family", type=int, default=2,
                    help="held-out pairs of each held-out family copied into the model for tests")
@@ -298,6 +305,28 @@ def main(argv=None):
     spec, ds, arrays, metas = D.load_dir(
         a.data, conditioned="poisson" if a.poisson_only else not a.no_conditioning)
     held_out = set(ds["held_out"])
+    also = []
+    for path in a.also:
+        spec2, ds2, arrays2, metas2 = D.load_dir(
+            path, conditioned="poisson" if a.poisson_only else not a.no_conditioning,
+            conditioning=spec.conditioning)
+        for key in ("size", "lattice", "pitch", "recipe"):
+            if ds2.get(key) != ds.get(key):
+                raise SystemExit(f"{path}: dataset.json {key} = {ds2.get(key)!r}, {a.data} has {ds.get(key)!r}")
+        if spec.conditioning:
+            for name, (lo, hi) in spec.conditioning.items():
+                for m in metas2:
+                    v = m.get(name, ds2[name])
+                    if not lo <= v <= hi:
+                        raise SystemExit(f"{path}: sample {m['index']}'s {name} {v} lies outside "
+                                         f"{a.data}'s range [{lo}, {hi}]")
+        for m in metas2:
+            m["data"] = path
+        held_out |= set(ds2["held_out"])
+        arrays = np.concatenate([arrays, arrays2])
+        metas = metas + metas2
+        also.append({"path": path, "pairs": len(metas2), "command": gen_command(path, ds2)})
+        print(f"{len(metas2)} pairs from {path} beside {a.data}", flush=True)
     tr, va = split(metas, held_out)
     references = None
     if a.reference:
@@ -365,7 +394,7 @@ def main(argv=None):
                    "consistency": CONSISTENCY_WEIGHT, "consistency_v": 0.4, "consistency_F": 0.6},
         "torch": torch.__version__,
     }
-    indices = sorted(m["index"] for m in metas)
+    indices = sorted(m["index"] for m in metas if "data" not in m)
     all_idx = sample_indices(a.data)
     n_gen = (max(all_idx) + 1) if all_idx else 0
     regenerate = gen_command(a.data, ds)
@@ -377,6 +406,8 @@ def main(argv=None):
                  "families_validation": sorted({metas[i]["family"] for i in va}), "dataset": ds}
     if references:
         data_info["references"] = references
+    if also:
+        data_info["also"] = also
     model_ds = dict(ds, fine_dx=fine_ds["fine_dx"]) if references else ds
     export_model(model, spec, model_ds, a.out, training=training, data=data_info,
                  validation={"held_out": val, "train_subset": train_m},

@@ -399,3 +399,38 @@ def test_force_factor_from_the_decoded_volumes(tmp_path):
     assert abs(k_ref - 0.06 / (0.1 * 0.5)) < 1e-9
     with pytest.raises(SystemExit, match="no rows of method 'absent'"):
         FF.decoded_volumes(str(csv_path), str(tmp_path / "absent"))
+
+
+def test_a_data_set_trained_beside_another(tmp_path):
+    """`train --also`: the second data set's pairs join the first's, its materials read in
+    the first's ranges (a fixed material of 0.43 and 0.5 maps to the inputs the first set's
+    ranges give it), its held-out families are validation too; a data set of another
+    lattice, or with a material outside the first's ranges, is refused naming the folder."""
+    ranged, fixed = tmp_path / "ranged", tmp_path / "fixed"
+    write_synthetic(str(ranged), n=8, seed=2)
+    write_synthetic(str(fixed), n=8, seed=3)
+    ds = json.load(open(ranged / "dataset.json"))
+    ds.update(poisson_range=[0.3, 0.49], friction_range=[0.0, 1.0])
+    json.dump(ds, open(ranged / "dataset.json", "w"))
+    for js in ranged.glob("sample-*.json"):
+        meta = json.load(open(js))
+        meta.update(poisson=0.35, friction=0.2)
+        json.dump(meta, open(js, "w"))
+    spec, _, _, _ = D.load_dir(str(ranged))
+    _, _, arrays, _ = D.load_dir(str(fixed), conditioning=spec.conditioning)
+    assert np.allclose(arrays[:, 3:5, 0, 0], spec.material(0.43, 0.5))
+    out = tmp_path / "model"
+    train_main(["--data", str(ranged), "--also", str(fixed), "--out", str(out), "--steps", "2",
+                "--batch", "4", "--points", "16", "--latent", "16", "--validation-per-family", "1"])
+    m = json.load(open(out / "manifest.json"))
+    assert m["conditioning"] == {"poisson": [0.3, 0.49], "friction": [0.0, 1.0]}
+    assert m["data"]["also"][0]["pairs"] == 8 and m["data"]["pairs"] == 16
+    other = tmp_path / "other"
+    write_synthetic(str(other), n=4, nx=30, ny=30)
+    with pytest.raises(SystemExit, match="other.*lattice"):
+        train_main(["--data", str(ranged), "--also", str(other), "--out", str(tmp_path / "m2"), "--steps", "1"])
+    ds = json.load(open(fixed / "dataset.json"))
+    ds.update(poisson=0.495)
+    json.dump(ds, open(fixed / "dataset.json", "w"))
+    with pytest.raises(SystemExit, match="fixed.*poisson 0.495"):
+        train_main(["--data", str(ranged), "--also", str(fixed), "--out", str(tmp_path / "m3"), "--steps", "1"])

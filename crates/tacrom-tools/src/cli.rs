@@ -454,8 +454,9 @@ pub struct GenDataArgs {
 }
 
 /// Options of `tacrom eval-rom`: depth MAE, RMSE, SSIM over the 24 x 18 mm field of view
-/// and inference time on the held-out families of gen-data sets. Writes report.md and
-/// results.csv into --out.
+/// (a family data set's whole window), the footprint MAE and inference time on the
+/// held-out families of gen-data sets. Writes report.md, results.csv, forces.csv and
+/// presses.csv (per press) into --out.
 #[derive(Debug, Args)]
 #[command(after_help = UNITS)]
 pub struct EvalRomArgs {

@@ -680,15 +680,8 @@ pub fn markdown(r: &EvalResult) -> String {
             );
         }
     }
-    let _ = write!(s, "\nMAE um per family:\n\n| family | samples |");
-    for m in &r.rows {
-        let _ = write!(s, " {} |", m.label);
-    }
-    let _ = write!(s, "\n|---|---|");
-    for _ in &r.rows {
-        let _ = write!(s, "---|");
-    }
-    s.push('\n');
+    let _ = write!(s, "\nMAE um per family:\n\n");
+    method_columns(r, "family", &mut s);
     for (i, (name, count)) in r.families.iter().enumerate() {
         let _ = write!(s, "| {name} | {count} |");
         for m in &r.rows {
@@ -698,6 +691,19 @@ pub fn markdown(r: &EvalResult) -> String {
     }
     by_thickness(r, &mut s);
     s
+}
+
+/// The header of a table with a column per method: `first`, the samples, the methods.
+fn method_columns(r: &EvalResult, first: &str, s: &mut String) {
+    let _ = write!(s, "| {first} | samples |");
+    for m in &r.rows {
+        let _ = write!(s, " {} |", m.label);
+    }
+    let _ = write!(s, "\n|---|---|");
+    for _ in &r.rows {
+        let _ = write!(s, "---|");
+    }
+    s.push('\n');
 }
 
 /// Bins of the gel's thickness (m) of [`by_thickness`], with their names.
@@ -715,16 +721,9 @@ fn by_thickness(r: &EvalResult, s: &mut String) {
     }
     let _ = write!(
         s,
-        "\nFootprint MAE um by the gel's thickness (and over coarse's):\n\n| gel | samples |"
+        "\nFootprint MAE um by the gel's thickness (and over coarse's):\n\n"
     );
-    for m in &r.rows {
-        let _ = write!(s, " {} |", m.label);
-    }
-    let _ = write!(s, "\n|---|---|");
-    for _ in &r.rows {
-        let _ = write!(s, "---|");
-    }
-    s.push('\n');
+    method_columns(r, "gel", s);
     let coarse = r.rows.iter().position(|m| m.label == "coarse");
     for (name, lo, hi) in THICKNESS_BINS {
         let inside: Vec<usize> = (0..r.presses.len())

@@ -194,7 +194,7 @@ const GEL_STREAM: u64 = 0x6765_6c73_697a_6573;
 
 impl GelFamily {
     /// Sample `index`'s gel, for a model of thickness `model_thickness` (m), from a stream
-    /// of its own (the presses are those of a data set on one gel).
+    /// of its own (the press's own draws stay those of a data set on one gel).
     pub fn draw(&self, seed: u64, index: usize, model_thickness: f64) -> FamilyGel {
         let mut rng = Rng::new(seed ^ GEL_STREAM, index as u64);
         let t = rng.uniform(self.thickness[0], self.thickness[1]);

@@ -243,17 +243,20 @@ impl GenConfig {
     /// Press `index` of the data set: on [`GenConfig::gel`], or on the sample's gel of a
     /// family data set.
     pub fn press(&self, index: usize, meshes: &mut MeshLibrary) -> Result<Press, String> {
-        match (self.gel_family, self.family_gel(index)) {
-            (Some(f), Some(g)) => draw_press_with(
-                self.seed,
-                index as u64,
-                meshes,
-                &self.families,
-                g.simulated,
-                [f.reach; 2],
-                g.indenter_scale,
-            ),
-            _ => draw_press(
+        match self.gel_family {
+            Some(f) => {
+                let g = f.draw(self.seed, index, self.gel.size[2]);
+                draw_press_with(
+                    self.seed,
+                    index as u64,
+                    meshes,
+                    &self.families,
+                    g.simulated,
+                    [f.reach; 2],
+                    g.indenter_scale,
+                )
+            }
+            None => draw_press(
                 self.seed,
                 index as u64,
                 meshes,
@@ -1176,7 +1179,11 @@ pub struct SampleMeta {
 
 /// `field` on `spec`'s lattice (row-major), cut to the window of `spec.window` points
 /// whose first corner is lattice point `origin`; 0 beyond the lattice.
-pub fn cut_window(field: &[f64], spec: &LatticeSpec, origin: [isize; 2]) -> Vec<f64> {
+pub fn cut_window<T: Copy + Default>(
+    field: &[T],
+    spec: &LatticeSpec,
+    origin: [isize; 2],
+) -> Vec<T> {
     let [rows, cols] = spec.window;
     let mut out = Vec::with_capacity(rows * cols);
     for row in 0..rows as isize {
@@ -1186,7 +1193,7 @@ pub fn cut_window(field: &[f64], spec: &LatticeSpec, origin: [isize; 2]) -> Vec<
             out.push(if inside {
                 field[r as usize * spec.nx + c as usize]
             } else {
-                0.0
+                T::default()
             });
         }
     }
@@ -1430,11 +1437,7 @@ pub fn generate(config: &GenConfig, mut progress: impl FnMut(&str)) -> Result<St
             let n = gel_spec.points();
             pressure = pressure
                 .chunks(n)
-                .flat_map(|p| {
-                    let p: Vec<f64> = p.iter().map(|&v| f64::from(v)).collect();
-                    cut_window(&p, &gel_spec, f.origin)
-                })
-                .map(|v| v as f32)
+                .flat_map(|p| cut_window(p, &gel_spec, f.origin))
                 .collect();
         }
         let data = sample_array(&obs, &reference);

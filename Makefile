@@ -7,7 +7,7 @@ LIB := target/release/libtacrom.so
 PKG_LIB := python/tacrom/_lib/libtacrom.so
 CARGO ?= cargo
 
-.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes gen-data-linear-small05 gen-data-linear-049 gen-data-family gen-data-family-shard train-family force-factor-linear train-linear train-linear-narrow train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
+.PHONY: all venv build wheel demo test test-rust test-python bench bench-report bench-quick bench-micro bench-mpm stability fuzz soak train-env taxim-env real-data sensor-gelsight-mini real-check real-table gen-data gen-data-linear gen-data-linear-material gen-data-linear-shapes gen-data-linear-small05 gen-data-linear-049 gen-data-family gen-data-family-shard gen-data-family-validation train-family ship-family force-factor-linear train-linear train-linear-narrow train-linear-seeds gen-data-fine reference-study gen-data-pressure train-pressure gen-data-material train train-material eval-rom eval-rom-material force-factor test-train clean
 
 all: build
 
@@ -206,16 +206,32 @@ gen-data-linear-049: build
 ROM_FAMILY_DATA ?= data/rom-family
 ROM_FAMILY_SAMPLES ?= 1500
 ROM_FAMILY_FAMILIES := sphere,cylinder,box,edge,bumps,ridges,heightfield,mesh,blob,stone,brick
-GEN_FAMILY = TACROM_CACHE=off target/release/tacrom gen-data --gel-family --out $(ROM_FAMILY_DATA) \
-	--samples $(ROM_FAMILY_SAMPLES) --seed 3 --families $(ROM_FAMILY_FAMILIES) \
-	--poisson 0.3,0.49 --friction 0,1 --coarse-solver linear --fine-dx 0.5 \
-	--fine-max-iterations 3000
+GEN_FAMILY_FLAGS = --gel-family --families $(ROM_FAMILY_FAMILIES) --poisson 0.3,0.49 --friction 0,1 \
+	--coarse-solver linear --fine-dx 0.5 --fine-max-iterations 3000
+GEN_FAMILY = TACROM_CACHE=off target/release/tacrom gen-data $(GEN_FAMILY_FLAGS) --out $(ROM_FAMILY_DATA) \
+	--samples $(ROM_FAMILY_SAMPLES) --seed 3
 gen-data-family: build
 	for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
 	  $(GEN_FAMILY) --shard $$k/$(ROM_SHARDS) & \
 	done; wait
 gen-data-family-shard: build
 	$(GEN_FAMILY) --shard $(ROM_SHARD)
+# Validation sets of three named gels of the family, thin, default and thick (FOLDER:X,Y,T
+# in mm): the held-out families' presses among ROM_FAMILY_VALIDATION_SAMPLES draws of
+# another seed, every one on that gel (`--gel-size`), solved as above. About 20 held-out
+# presses a gel, 10 minutes on two shards. The family model's `validation/` pairs come
+# from them (`train-family`), gated per gel by tests/rom.rs.
+ROM_FAMILY_VALIDATION := data/rom-family-val-thin:18,14,1.5 data/rom-family-val-default:30,30,4 \
+	data/rom-family-val-thick:40,30,6
+ROM_FAMILY_VALIDATION_SAMPLES ?= 100
+gen-data-family-validation: build
+	for v in $(ROM_FAMILY_VALIDATION); do \
+	  for k in $$(seq 0 $$(($(ROM_SHARDS)-1))); do \
+	    TACROM_CACHE=off target/release/tacrom gen-data $(GEN_FAMILY_FLAGS) --out $${v%%:*} \
+	      --samples $(ROM_FAMILY_VALIDATION_SAMPLES) --seed 4 --gel-size $${v#*:} --held-out-only \
+	      --shard $$k/$(ROM_SHARDS) & \
+	  done; wait; \
+	done
 # A model trained on the family's presses beside every default-gel press of the linear model
 # (ROM_LINEAR_ALL: drawn materials, shapes and the default set, merged), conditioned on the
 # material over the family's ranges, into out/models (measured against models/rom-linear with
@@ -224,10 +240,26 @@ ROM_LINEAR_ALL := data/rom-linear-all
 ROM_FAMILY_MODEL ?= out/models/rom-family
 $(ROM_LINEAR_ALL)/dataset.json:
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.merge $(ROM_LINEAR_ALL) $(ROM_LINEAR_MAT_DATA) $(ROM_SHAPES_DATA) $(ROM_LINEAR_DATA)
+ROM_FAMILY_SEEDS ?= 0 1 2
 train-family: train-env $(ROM_LINEAR_ALL)/dataset.json
-	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_FAMILY_DATA) --also $(ROM_LINEAR_ALL) \
+	for s in $(ROM_FAMILY_SEEDS); do \
+	  PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_FAMILY_DATA) --also $(ROM_LINEAR_ALL) \
 		--steps $(ROM_STEPS) --device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 \
-		--out $(ROM_FAMILY_MODEL)
+		--no-refinement --seed $$s --validation-per-family 1 \
+		$(foreach v,$(ROM_FAMILY_VALIDATION),--validation $(firstword $(subst :, ,$(v)))) \
+		--out $(ROM_FAMILY_MODEL)-s$$s || exit 1; \
+	done
+# models/rom-family: the seed ROM_FAMILY_SEED of train-family (the median of the three on
+# the family's held-out presses: docs/rom.md), its decoder in 8 bits, its force factor per
+# Poisson's ratio fitted to its own decoded volumes on the family's training presses.
+ROM_FAMILY_SEED ?= 0
+ship-family: build
+	rm -rf models/rom-family && cp -r $(ROM_FAMILY_MODEL)-s$(ROM_FAMILY_SEED) models/rom-family
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-family
+	target/release/tacrom eval-rom --data $(ROM_FAMILY_DATA) --all --models models/rom-family \
+		--out out/force-factor/rom-family
+	PYTHONPATH=training $(PY) -m tacrom_rom.force_factor $(ROM_FAMILY_DATA) models/rom-family \
+		--decoded out/force-factor/rom-family/forces.csv
 # Presses of shapes outside the default families (`blob`, `stone` and, held out, `brick`:
 # `tacrom gen-data --families`), the same gel and solvers as ROM_LINEAR_DATA; about 8
 # minutes on two shards. `docs/rom.md`, "Shapes outside the training families".

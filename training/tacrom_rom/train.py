@@ -19,6 +19,7 @@ Adam, lr 1e-4, betas (0.9, 0.999), batch 32 presses.
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import shlex
@@ -179,26 +180,37 @@ def fov_crop(spec, a, fov=(0.024, 0.018)):
     return a[..., y0 : y0 + cy, x0 : x0 + cx]
 
 
+def scored(spec, a, meta):
+    """The part of a pair's [..., ny, nx] arrays that is scored: the sensor's default field of
+    view on the model's own gel, the whole window for a press of the gel family (`gen-data
+    --gel-family`: its contact may lie anywhere in the window, as `tacrom eval-rom` scores it)."""
+    return a if meta.get("gel") else fov_crop(spec, a)
+
+
 def metrics(model, spec, arrays, metas, idx):
+    """Depth MAE (mm) per method over the held-out presses `idx`, the mean of each press's
+    MAE over its scored region, and per family."""
     if len(idx) == 0:
         return {}
     lat = arrays[idx]
     rom = decode_lattice(model, spec, lat)
     ref, coarse, pen = lat[:, 2], lat[:, 0], lat[:, 1]
-    mae = lambda a: float(np.abs(fov_crop(spec, a - ref)).mean())  # noqa: E731
+    per = lambda a: np.array([np.abs(scored(spec, a[k] - ref[k], metas[i])).mean()  # noqa: E731
+                              for k, i in enumerate(idx)])
+    err = {"coarse": per(coarse), "rom": per(rom), "rigid": per(pen)}
     per_family = {}
     for fam in sorted({metas[i]["family"] for i in idx}):
         sel = [k for k, i in enumerate(idx) if metas[i]["family"] == fam]
         per_family[fam] = {
             "samples": len(sel),
-            "mae_coarse_mm": float(np.abs(fov_crop(spec, coarse[sel] - ref[sel])).mean()),
-            "mae_rom_mm": float(np.abs(fov_crop(spec, rom[sel] - ref[sel])).mean()),
+            "mae_coarse_mm": float(err["coarse"][sel].mean()),
+            "mae_rom_mm": float(err["rom"][sel].mean()),
         }
     return {
         "samples": int(len(idx)),
-        "mae_coarse_mm": mae(coarse),
-        "mae_rom_no_refinement_mm": mae(rom),
-        "mae_rigid_mm": mae(pen),
+        "mae_coarse_mm": float(err["coarse"].mean()),
+        "mae_rom_no_refinement_mm": float(err["rom"].mean()),
+        "mae_rigid_mm": float(err["rigid"].mean()),
         "per_family": per_family,
     }
 
@@ -213,24 +225,53 @@ def sample_indices(path):
 VALIDATION_MIN_COARSE_MAE_MM = 5e-4
 
 
-def write_validation_pairs(out, spec, arrays, metas, va, per_family):
+def write_validation_pairs(out, spec, arrays, metas, va, per_family, first=0):
     """Held-out pairs for the Rust test, stratified by family (it gates each family and the
     pool): up to `per_family` of each held-out family, the finest references first, among the
     presses whose coarse depth is at least VALIDATION_MIN_COARSE_MAE_MM off the reference
-    (chosen by the data, not by the model)."""
+    (chosen by the data, not by the model). Files are numbered from `first`; returns the
+    number written."""
     vdir = os.path.join(out, "validation")
     os.makedirs(vdir, exist_ok=True)
     picks = []
     for family in sorted({metas[i]["family"] for i in va}):
         members = [i for i in va if metas[i]["family"] == family]
-        informative = [i for i in members
-                       if np.abs(fov_crop(spec, arrays[i][0] - arrays[i][2])).mean() >= VALIDATION_MIN_COARSE_MAE_MM]
+        informative = [i for i in members if np.abs(scored(spec, arrays[i][0] - arrays[i][2], metas[i])).mean()
+                       >= VALIDATION_MIN_COARSE_MAE_MM]
         members = sorted(informative or members, key=lambda i: metas[i].get("reference_dx") or 1.0)
         picks += members[:per_family]
-    for k, i in enumerate(picks):
+    for k, i in enumerate(picks, start=first):
         np.save(os.path.join(vdir, f"pair-{k}.npy"), (arrays[i][:3] / spec.depth_scale).astype(np.float32))
         with open(os.path.join(vdir, f"pair-{k}.json"), "w") as f:
             json.dump(metas[i], f)
+    return len(picks)
+
+
+def validation_sets(model, spec, paths, out, per_family, conditioning):
+    """The held-out presses of the data sets `paths` (each a validation set of one gel:
+    `tacrom gen-data --gel-family --gel-size ... --held-out-only`) as the model's
+    `validation/` pairs, `per_family` of each family from each set, replacing the pairs of
+    its own held-out presses; returns their metrics per set for the manifest."""
+    vdir = os.path.join(out, "validation")
+    for f in glob.glob(os.path.join(vdir, "pair-*")):
+        os.remove(f)
+    report, written = {}, 0
+    for path in paths:
+        spec2, ds2, arrays2, metas2 = D.load_dir(path, conditioned=conditioning is not None,
+                                                 conditioning=conditioning)
+        if (spec2.size, spec2.nx, spec2.ny) != (spec.size, spec.nx, spec.ny):
+            raise SystemExit(f"{path}: lattice {spec2.nx} x {spec2.ny} over {spec2.size}, the model's is "
+                             f"{spec.nx} x {spec.ny} over {spec.size}")
+        idx = np.array([i for i, m in enumerate(metas2) if m.get("held_out")], dtype=int)
+        if len(idx) == 0:
+            raise SystemExit(f"{path}: no held-out presses")
+        n = write_validation_pairs(out, spec, arrays2, metas2, list(idx), per_family, first=written)
+        written += n
+        gel = (ds2.get("gel_family") or {}).get("gel") or ds2.get("size")
+        report[path] = dict(metrics(model, spec, arrays2, metas2, idx), gel=gel, pairs=n,
+                            command=gen_command(path, ds2))
+        print(f"validation set {path} (gel {gel}): {n} pairs; {json.dumps(report[path])}", flush=True)
+    return report
 
 
 def gen_command(path, ds):
@@ -297,6 +338,10 @@ def main(argv=None):
     p.add_argument("--max-seconds", type=float, default=None, help="stop training after this wall time")
     p.add_argument("--validation-per-family", type=int, default=2,
                    help="held-out pairs of each held-out family copied into the model for tests")
+    p.add_argument("--validation", action="append", default=[], metavar="DATA",
+                   help="a validation set of one gel (gen-data --gel-family --gel-size ... --held-out-only; "
+                        "repeatable): the model's validation pairs come from these sets' held-out presses "
+                        "instead of its own, and the manifest gets their metrics")
     a = p.parse_args(argv)
 
     torch.set_num_threads(a.threads)
@@ -409,11 +454,16 @@ def main(argv=None):
     if also:
         data_info["also"] = also
     model_ds = dict(ds, fine_dx=fine_ds["fine_dx"]) if references else ds
+    validation = {"held_out": val, "train_subset": train_m}
+    if a.validation:
+        validation["gels"] = validation_sets(model, spec, a.validation, a.out, a.validation_per_family,
+                                             spec.conditioning)
     export_model(model, spec, model_ds, a.out, training=training, data=data_info,
-                 validation={"held_out": val, "train_subset": train_m},
+                 validation=validation,
                  refinement=not a.no_refinement, region_eps_mm=a.region_eps_mm,
                  region_grow=a.region_grow)
-    write_validation_pairs(a.out, spec, arrays, metas, va, a.validation_per_family)
+    if not a.validation:
+        write_validation_pairs(a.out, spec, arrays, metas, va, a.validation_per_family)
     print(f"wrote {a.out} in {seconds:.0f}s of training", flush=True)
 
 

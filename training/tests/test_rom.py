@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from tacrom_rom import data as D
+from tacrom_rom import train as T
 from tacrom_rom.model import Autoencoder, DecoderJacobian, hidden_of
 from tacrom_rom.train import main as train_main
 
@@ -434,3 +435,47 @@ def test_a_data_set_trained_beside_another(tmp_path):
     json.dump(ds, open(fixed / "dataset.json", "w"))
     with pytest.raises(SystemExit, match="fixed.*poisson 0.495"):
         train_main(["--data", str(ranged), "--also", str(fixed), "--out", str(tmp_path / "m3"), "--steps", "1"])
+
+
+def test_validation_pairs_from_sets_of_one_gel(tmp_path):
+    """`train --validation`: the model's validation pairs are the held-out presses of the
+    named sets (each a set of one gel), `--validation-per-family` of each family from each,
+    numbered on across the sets, with their own reference spacing; the manifest records each
+    set's metrics, its gel and the command that regenerates it. A family press is scored
+    over its whole window, a press of the model's own gel over the field of view."""
+    train, thin, thick = tmp_path / "train", tmp_path / "thin", tmp_path / "thick"
+    write_synthetic(str(train), n=8, seed=1)
+    for path, seed, gel in ((thin, 4, [0.018, 0.014, 0.0015]), (thick, 5, [0.04, 0.03, 0.006])):
+        write_synthetic(str(path), n=8, seed=seed)
+        ds = json.load(open(path / "dataset.json"))
+        ds.update(fine_dx=0.0005, gel_family={"gel": gel})
+        json.dump(ds, open(path / "dataset.json", "w"))
+        for js in path.glob("sample-*.json"):
+            meta = json.load(open(js))
+            meta.update(gel={"size": gel}, held_out=meta["family"] == "ridges")
+            json.dump(meta, open(js, "w"))
+    out = tmp_path / "model"
+    train_main(["--data", str(train), "--validation", str(thin), "--validation", str(thick), "--out", str(out),
+                "--steps", "2", "--batch", "4", "--points", "16", "--latent", "16",
+                "--validation-per-family", "1"])
+    m = json.load(open(out / "manifest.json"))
+    gels = m["validation"]["gels"]
+    assert [gels[str(p)]["gel"] for p in (thin, thick)] == [[0.018, 0.014, 0.0015], [0.04, 0.03, 0.006]]
+    pairs = sorted((out / "validation").glob("pair-*.json"))
+    written = sum(gels[str(p)]["pairs"] for p in (thin, thick))
+    assert len(pairs) == written > 0
+    assert {f"pair-{k}.json" for k in range(written)} == {p.name for p in pairs}
+    held_out = {p: [json.load(open(js)) for js in sorted(p.glob("sample-*.json"))] for p in (thin, thick)}
+    for p, metas in held_out.items():
+        families = {x["family"] for x in metas if x["held_out"]}
+        assert gels[str(p)]["pairs"] == len(families)
+        assert gels[str(p)]["samples"] == sum(x["held_out"] for x in metas)
+        assert gels[str(p)]["command"].startswith(f"tacrom gen-data --out {p} ")
+    for js in pairs:
+        meta = json.load(open(js))
+        assert meta["held_out"] and meta["reference_dx"] == 0.0005 and "gel" in meta
+    # A family press's MAE is its whole window's; the model's own gel's, the field of view's.
+    spec, _, arrays, metas = D.load_dir(str(thin))
+    a = arrays[0, 0] - arrays[0, 2]
+    assert T.scored(spec, a, metas[0]).shape == a.shape
+    assert T.scored(spec, a, {}).shape == T.fov_crop(spec, a).shape != a.shape

@@ -451,6 +451,16 @@ pub struct GenDataArgs {
     /// --fine-dx are then in the model's units.
     #[arg(long)]
     pub gel_family: bool,
+    /// With --gel-family: every sample on this gel of the family (sides and thickness,
+    /// mm) instead of drawn ones; a validation set of one gel.
+    #[arg(
+        long,
+        value_name = "X,Y,T",
+        value_delimiter = ',',
+        num_args = 3,
+        requires = "gel_family"
+    )]
+    pub gel_size: Vec<f64>,
 }
 
 /// Options of `tacrom eval-rom`: depth MAE, RMSE, SSIM over the 24 x 18 mm field of view

@@ -156,6 +156,11 @@ pub struct GelFamily {
     pub indenter_scale: [f64; 2],
     /// How far from the centre the footprint is placed, as a fraction of the half side.
     pub reach: f64,
+    /// One gel of the family (sides and thickness, m) for every sample instead of drawn
+    /// ones: a validation set of that gel (`--gel-size`). The indenter's scale is drawn
+    /// all the same.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gel: Option<[f64; 3]>,
 }
 
 impl Default for GelFamily {
@@ -167,6 +172,7 @@ impl Default for GelFamily {
             crop: 9.0,
             indenter_scale: [0.5, 2.0],
             reach: 0.96,
+            gel: None,
         }
     }
 }
@@ -193,17 +199,43 @@ pub struct FamilyGel {
 const GEL_STREAM: u64 = 0x6765_6c73_697a_6573;
 
 impl GelFamily {
+    /// The family with every sample on `gel` (sides and thickness, m), which must lie in
+    /// it: the error names the value and the range.
+    pub fn with_gel(mut self, gel: [f64; 3]) -> Result<Self, String> {
+        let within = |v: f64, [lo, hi]: [f64; 2]| v.is_finite() && v >= lo && v <= hi;
+        let mm = |v: f64| 1e3 * v;
+        for (name, v, range) in [
+            ("side x", gel[0], self.side),
+            ("side y", gel[1], self.side),
+            ("thickness", gel[2], self.thickness),
+        ] {
+            if !within(v, range) {
+                return Err(format!(
+                    "gel {name} {} mm lies outside the gel family's {} to {} mm",
+                    mm(v),
+                    mm(range[0]),
+                    mm(range[1])
+                ));
+            }
+        }
+        self.gel = Some(gel);
+        Ok(self)
+    }
+
     /// Sample `index`'s gel, for a model of thickness `model_thickness` (m), from a stream
     /// of its own (the press's own draws stay those of a data set on one gel).
     pub fn draw(&self, seed: u64, index: usize, model_thickness: f64) -> FamilyGel {
         let mut rng = Rng::new(seed ^ GEL_STREAM, index as u64);
-        let t = rng.uniform(self.thickness[0], self.thickness[1]);
-        let sides = [
+        let mut t = rng.uniform(self.thickness[0], self.thickness[1]);
+        let mut sides = [
             rng.uniform(self.side[0], self.side[1]),
             rng.uniform(self.side[0], self.side[1]),
         ];
         let [a, b] = self.indenter_scale.map(f64::ln);
         let indenter_scale = rng.uniform(a, b).exp();
+        if let Some([x, y, z]) = self.gel {
+            (sides, t) = ([x, y], z);
+        }
         let simulated = sides.map(|l| model_thickness * (l / t).min(self.crop));
         FamilyGel {
             size: [sides[0], sides[1], t],

@@ -319,7 +319,20 @@ fn gen_data(a: GenDataArgs) -> Result<(), BenchError> {
         },
         poisson_range: range(&a.poisson)?,
         friction_range: range(&a.friction)?,
-        gel_family: a.gel_family.then(tacrom_tools::datagen::GelFamily::default),
+        gel_family: match (a.gel_family, a.gel_size.as_slice()) {
+            (false, _) => None,
+            (true, []) => Some(tacrom_tools::datagen::GelFamily::default()),
+            (true, &[x, y, t]) => Some(
+                tacrom_tools::datagen::GelFamily::default()
+                    .with_gel([x, y, t].map(|v| 1e-3 * v))
+                    .map_err(|e| BenchError::Usage(format!("gen-data --gel-size: {e}")))?,
+            ),
+            (true, other) => {
+                return Err(BenchError::Usage(format!(
+                    "gen-data --gel-size takes X,Y,T in mm, got {other:?}"
+                )))
+            }
+        },
     };
     let [p0, p1] = config.poisson_range.unwrap_or([config.gel.poisson; 2]);
     let [f0, f1] = config.friction_range.unwrap_or([config.gel.friction; 2]);

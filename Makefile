@@ -245,7 +245,7 @@ train-family: train-env $(ROM_LINEAR_ALL)/dataset.json
 	for s in $(ROM_FAMILY_SEEDS); do \
 	  PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_FAMILY_DATA) --also $(ROM_LINEAR_ALL) \
 		--steps $(ROM_STEPS) --device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 \
-		--no-refinement --seed $$s --validation-per-family 1 \
+		--lr-schedule cosine --no-refinement --seed $$s --validation-per-family 1 \
 		$(foreach v,$(ROM_FAMILY_VALIDATION),--validation $(firstword $(subst :, ,$(v)))) \
 		--out $(ROM_FAMILY_MODEL)-s$$s || exit 1; \
 	done

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import glob
 import json
+import math
 import os
 import shlex
 import sys
@@ -310,6 +311,9 @@ def main(argv=None):
     p.add_argument("--points", type=int, default=96, help="query points per press per step")
     p.add_argument("--batch", type=int, default=32, help="presses per step")
     p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate")
+    p.add_argument("--lr-schedule", choices=("constant", "cosine"), default="constant",
+                   help="the learning rate over the steps: constant, or cosine decay from --lr to zero at "
+                        "--steps (the last weights then do not sit wherever the last noisy steps left them)")
     p.add_argument("--no-multiscale", action="store_true", help="no multi-scale supervision loss")
     p.add_argument("--no-refinement", action="store_true", help="ablation 'w/o physics': manifest disables latent refinement")
     p.add_argument("--seed", type=int, default=0, help="seed of the weights, the batches and the query points")
@@ -406,6 +410,9 @@ def main(argv=None):
     t0 = time.time()
     step = 0
     for step in range(1, a.steps + 1):
+        if a.lr_schedule == "cosine":
+            for group in opt.param_groups:
+                group["lr"] = a.lr * 0.5 * (1.0 + math.cos(math.pi * (step - 1) / a.steps))
         idx = rng.choice(tr_aug, size=min(a.batch, len(tr_aug)), replace=len(tr_aug) < a.batch)
         out = losses(model, batcher, idx, a.points, not a.no_multiscale, rng)
         opt.zero_grad()
@@ -434,7 +441,7 @@ def main(argv=None):
         "batch": a.batch,
         "points_per_press": a.points,
         "augmentation": "none" if a.no_augment else "8 lattice symmetries",
-        "optimizer": {"name": "adam", "lr": a.lr, "betas": [0.9, 0.999]},
+        "optimizer": {"name": "adam", "lr": a.lr, "betas": [0.9, 0.999], "schedule": a.lr_schedule},
         "losses": {"reconstruction": 1.0, "multiscale": 0.0 if a.no_multiscale else MULTISCALE_WEIGHT,
                    "consistency": CONSISTENCY_WEIGHT, "consistency_v": 0.4, "consistency_F": 0.6},
         "torch": torch.__version__,

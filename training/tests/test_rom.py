@@ -479,3 +479,25 @@ def test_validation_pairs_from_sets_of_one_gel(tmp_path):
     a = arrays[0, 0] - arrays[0, 2]
     assert T.scored(spec, a, metas[0]).shape == a.shape
     assert T.scored(spec, a, {}).shape == T.fov_crop(spec, a).shape != a.shape
+
+
+def test_cosine_schedule_decays_the_learning_rate_to_zero(tmp_path, monkeypatch):
+    """`--lr-schedule cosine`: the Adam learning rate of step k of n is lr (1 + cos(pi (k-1)
+    / n)) / 2, from --lr at the first step towards zero at the last; the manifest records
+    it."""
+    data = tmp_path / "data"
+    write_synthetic(str(data), n=8, seed=6)
+    seen = []
+    step = torch.optim.Adam.step
+
+    def record(self, *args, **kwargs):
+        seen.append(self.param_groups[0]["lr"])
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(torch.optim.Adam, "step", record)
+    out = tmp_path / "model"
+    train_main(["--data", str(data), "--out", str(out), "--steps", "4", "--batch", "4", "--points", "16",
+                "--latent", "16", "--lr", "1e-3", "--lr-schedule", "cosine"])
+    want = [1e-3 * 0.5 * (1 + np.cos(np.pi * k / 4)) for k in range(4)]
+    assert np.allclose(seen, want, rtol=1e-12)
+    assert json.load(open(out / "manifest.json"))["training"]["optimizer"]["schedule"] == "cosine"

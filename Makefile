@@ -218,9 +218,9 @@ gen-data-family-shard: build
 	$(GEN_FAMILY) --shard $(ROM_SHARD)
 # Validation sets of three named gels of the family, thin, default and thick (FOLDER:X,Y,T
 # in mm): the held-out families' presses among ROM_FAMILY_VALIDATION_SAMPLES draws of
-# another seed, every one on that gel (`--gel-size`), solved as above. About 20 held-out
-# presses a gel, 10 minutes on two shards. The family model's `validation/` pairs come
-# from them (`train-family`), gated per gel by tests/rom.rs.
+# another seed, every one on that gel (`--gel-size`), solved as above: the same 19 presses
+# of six held-out families on each gel, 13 minutes on two shards. The family model's
+# `validation/` pairs come from them (`ship-family`), gated per gel by tests/rom.rs.
 ROM_FAMILY_VALIDATION := data/rom-family-val-thin:18,14,1.5 data/rom-family-val-default:30,30,4 \
 	data/rom-family-val-thick:40,30,6
 ROM_FAMILY_VALIDATION_SAMPLES ?= 100
@@ -245,16 +245,17 @@ train-family: train-env $(ROM_LINEAR_ALL)/dataset.json
 	for s in $(ROM_FAMILY_SEEDS); do \
 	  PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.train --data $(ROM_FAMILY_DATA) --also $(ROM_LINEAR_ALL) \
 		--steps $(ROM_STEPS) --device $(ROM_DEVICE) --threads 2 --region-eps-mm 0.01 --region-grow 2 \
-		--lr-schedule cosine --no-refinement --seed $$s --validation-per-family 1 \
-		$(foreach v,$(ROM_FAMILY_VALIDATION),--validation $(firstword $(subst :, ,$(v)))) \
-		--out $(ROM_FAMILY_MODEL)-s$$s || exit 1; \
+		--lr-schedule cosine --no-refinement --seed $$s --out $(ROM_FAMILY_MODEL)-s$$s || exit 1; \
 	done
 # models/rom-family: the seed ROM_FAMILY_SEED of train-family (the median of the three on
-# the family's held-out presses: docs/rom.md), its decoder in 8 bits, its force factor per
+# the family's held-out presses: docs/rom.md), its validation pairs from the three named
+# gels' sets (gen-data-family-validation), its decoder in 8 bits, its force factor per
 # Poisson's ratio fitted to its own decoded volumes on the family's training presses.
 ROM_FAMILY_SEED ?= 0
 ship-family: build
 	rm -rf models/rom-family && cp -r $(ROM_FAMILY_MODEL)-s$(ROM_FAMILY_SEED) models/rom-family
+	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.validate models/rom-family \
+		$(foreach v,$(ROM_FAMILY_VALIDATION),$(firstword $(subst :, ,$(v))))
 	PYTHONPATH=training $(PY_TRAIN) -m tacrom_rom.quantize models/rom-family
 	target/release/tacrom eval-rom --data $(ROM_FAMILY_DATA) --all --models models/rom-family \
 		--out out/force-factor/rom-family

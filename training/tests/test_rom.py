@@ -479,6 +479,16 @@ def test_validation_pairs_from_sets_of_one_gel(tmp_path):
     a = arrays[0, 0] - arrays[0, 2]
     assert T.scored(spec, a, metas[0]).shape == a.shape
     assert T.scored(spec, a, {}).shape == T.fov_crop(spec, a).shape != a.shape
+    # The same pairs attached to a trained model afterwards (`tacrom_rom.validate`).
+    from tacrom_rom.validate import main as validate_main
+    plain = tmp_path / "plain"
+    train_main(["--data", str(train), "--out", str(plain), "--steps", "2", "--batch", "4", "--points", "16",
+                "--latent", "16"])
+    validate_main([str(plain), str(thin), str(thick)])
+    again = json.load(open(plain / "manifest.json"))["validation"]["gels"]
+    assert [again[str(p)]["pairs"] for p in (thin, thick)] == [gels[str(p)]["pairs"] for p in (thin, thick)]
+    assert sorted(x.name for x in (plain / "validation").glob("pair-*")) == sorted(
+        x.name for x in (out / "validation").glob("pair-*"))
 
 
 def test_cosine_schedule_decays_the_learning_rate_to_zero(tmp_path, monkeypatch):

@@ -457,7 +457,7 @@ pub struct GenDataArgs {
         long,
         value_name = "X,Y,T",
         value_delimiter = ',',
-        num_args = 3,
+        num_args = 1..=3,
         requires = "gel_family"
     )]
     pub gel_size: Vec<f64>,

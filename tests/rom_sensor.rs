@@ -866,16 +866,19 @@ fn rom_force_follows_hertz_on_thin_and_thick_gels() {
 /// rom (`rom-linear`, trained on the default gel at Poisson 0.43, friction 0.5). The sensor
 /// loads it on both gels and materials without a warning; no pixel is NaN or deeper than
 /// the sphere reaches; its force is within FORCE of the reference's; on the thin gel its
-/// depth error over the deformed pixels is at most THIN of its coarse gel's. The measured
-/// figures and why the thick gel has no depth gate: docs/rom.md, "One model for the
-/// family".
+/// depth error over the deformed pixels is at most THIN of its coarse gel's. On the thick
+/// gel a 5 mm sphere 0.5 mm deep is already close in the coarse gel (4.5 to 9.5 um) and no
+/// model gains much (0.68 and 0.97 of it; `rom-linear` 0.57 and 1.30), so it has no depth
+/// gate there: docs/rom.md, "One model for the family".
 #[test]
 fn the_family_model_serves_thin_and_thick_gels_through_the_sensor() {
     use tacrom::config::ATTR_FOV;
     use tacrom::geometry::PixelGrid;
     use tacrom::mpm::{Gel, GelParams, SolverOptions};
-    const FORCE: f64 = 0.10;
-    const THIN: f64 = 0.7;
+    // Issue 54's force target; measured +0.2 to +2.4 %.
+    const FORCE: f64 = 0.05;
+    // Half the coarse gel's error; measured 0.37 and 0.41.
+    const THIN: f64 = 0.5;
     let mut failed = Vec::new();
     for (poisson, friction) in [(0.45, 0.5), (0.32, 0.1)] {
         for (size, r, d, [x, y], fov) in [

@@ -219,7 +219,7 @@ gen-data-family-shard: build
 # Validation sets of three named gels of the family, thin, default and thick (FOLDER:X,Y,T
 # in mm): the held-out families' presses among ROM_FAMILY_VALIDATION_SAMPLES draws of
 # another seed, every one on that gel (`--gel-size`), solved as above: the same 19 presses
-# of six held-out families on each gel, 13 minutes on two shards. The family model's
+# of six held-out families on each gel, about 15 minutes on two shards. The family model's
 # `validation/` pairs come from them (`ship-family`), gated per gel by tests/rom.rs.
 ROM_FAMILY_VALIDATION := data/rom-family-val-thin:18,14,1.5 data/rom-family-val-default:30,30,4 \
 	data/rom-family-val-thick:40,30,6

@@ -366,7 +366,8 @@ pub const MODEL: Attribute = Attribute {
     valid: Valid::Described(
         "a directory with a `manifest.json` that serves this gel, or a shipped model's \
          name: `rom-linear`, `rom-linear-narrow` (its encoder, a narrower decoder; in the \
-         checkout, not the wheel), `rom-default` (the relaxation's, with the linear \
+         checkout, not the wheel), `rom-family` (trained over the gel family; in the \
+         checkout), `rom-default` (the relaxation's, with the linear \
          solver for contacts it misses: `physics=\"rom\"` as it was before the linear gel)",
     ),
 };

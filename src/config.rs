@@ -356,12 +356,16 @@ impl Config {
     /// The gel's solver on a grid of spacing `dx` (m) and why ([`crate::mpm::choice`]).
     pub fn choice(&self, dx: f64) -> Choice {
         use crate::mpm::Role;
-        // rom's own default model, unnamed or named by its shipped name (or its narrow
-        // decoder's, on the same gel).
+        // rom's own default model, unnamed or named by its shipped name, or another
+        // shipped model of the same coarse solve (the narrow decoder, the gel family's).
         let linear = |m: &std::path::Path| {
-            [crate::rom::LINEAR_MODEL, crate::rom::LINEAR_NARROW_MODEL]
-                .iter()
-                .any(|name| m == std::path::Path::new(name))
+            [
+                crate::rom::LINEAR_MODEL,
+                crate::rom::LINEAR_NARROW_MODEL,
+                crate::rom::FAMILY_MODEL,
+            ]
+            .iter()
+            .any(|name| m == std::path::Path::new(name))
         };
         let role = match self.physics {
             Physics::Rom if self.model.as_deref().is_none_or(linear) => Role::ShippedRom,

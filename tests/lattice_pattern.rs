@@ -10,7 +10,9 @@
 use std::sync::Arc;
 
 use nalgebra::{Isometry3, Vector3};
-use tacrom::config::{Config, RawConfig, ATTR_FOV, ATTR_PHYSICS, ATTR_RESOLUTION, ATTR_SOLVER};
+use tacrom::config::{
+    Config, RawConfig, ATTR_FOV, ATTR_MODEL, ATTR_PHYSICS, ATTR_RESOLUTION, ATTR_SOLVER,
+};
 use tacrom::geometry::{Ellipsoid, Placed, Sdf, Sphere};
 use tacrom::sensor::TactileSensor;
 
@@ -74,7 +76,14 @@ fn worst_over_median(sum: &[f64; BINS], count: &[usize; BINS]) -> f64 {
 /// The ratio of `physics` (with `solver`) for `shape` pressed `depth` at four positions a
 /// quarter pitch apart along the diagonal (so that the contact's rim, where the slope
 /// changes most, falls evenly over the phases), off the lattice's symmetry lines.
-fn ratio(physics: &str, solver: Option<&str>, shape: Arc<dyn Sdf>, lowest: f64, depth: f64) -> f64 {
+/// The worst over the median phase bin of `physics` with the attributes `extra` beside it.
+fn ratio(
+    physics: &str,
+    extra: &[(&str, &str)],
+    shape: Arc<dyn Sdf>,
+    lowest: f64,
+    depth: f64,
+) -> f64 {
     let mut raw = RawConfig::default()
         .with(ATTR_PHYSICS, physics)
         .with(ATTR_RESOLUTION, &format!("{WIDTH} {HEIGHT}"))
@@ -82,8 +91,8 @@ fn ratio(physics: &str, solver: Option<&str>, shape: Arc<dyn Sdf>, lowest: f64, 
             ATTR_FOV,
             &format!("{} {}", WIDTH as f64 * PIXEL, HEIGHT as f64 * PIXEL),
         );
-    if let Some(s) = solver {
-        raw = raw.with(ATTR_SOLVER, s);
+    for (attribute, value) in extra {
+        raw = raw.with(attribute, value);
     }
     let config = Config::from_raw("touch", &raw).unwrap();
     let grid = (config.width, config.height, config.fov);
@@ -131,13 +140,18 @@ fn the_depth_image_shows_no_lattice_at_the_minis_pixel() {
     let sphere: Arc<dyn Sdf> = Arc::new(Sphere::new(2e-3));
     let ellipsoid: Arc<dyn Sdf> = Arc::new(Ellipsoid::new(Vector3::new(3e-3, 1.5e-3, 1.5e-3)));
     let shapes = [("sphere", sphere, 2e-3), ("ellipsoid", ellipsoid, 1.5e-3)];
-    let modes = [("coarse", None), ("rom", None), ("rom", Some("linear"))];
+    let modes: [(&str, &[(&str, &str)]); 4] = [
+        ("coarse", &[]),
+        ("rom", &[]),
+        ("rom", &[(ATTR_SOLVER, "linear")]),
+        ("rom", &[(ATTR_MODEL, tacrom::rom::FAMILY_MODEL)]),
+    ];
     let mut worst = Vec::new();
     for (name, shape, lowest) in &shapes {
-        for (physics, solver) in modes {
-            let r = ratio(physics, solver, shape.clone(), *lowest, 0.3e-3);
-            eprintln!("{name}, {physics} {solver:?}: worst / median phase bin {r:.2}");
-            worst.push((format!("{name}, {physics} {solver:?}"), r));
+        for (physics, extra) in modes {
+            let r = ratio(physics, extra, shape.clone(), *lowest, 0.3e-3);
+            eprintln!("{name}, {physics} {extra:?}: worst / median phase bin {r:.2}");
+            worst.push((format!("{name}, {physics} {extra:?}"), r));
         }
     }
     for (what, r) in worst {

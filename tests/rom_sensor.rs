@@ -696,7 +696,6 @@ fn rom_serves_its_gel_at_any_thickness_scaled() {
 fn rom_serves_the_gel_family_through_a_window_over_the_contact() {
     use tacrom::config::ATTR_FOV;
     use tacrom::geometry::PixelGrid;
-    use tacrom::mpm::{Gel, GelParams, SolverOptions};
     let size = [0.012, 0.012, 0.001];
     let (r, d, x) = (2e-3, 0.1e-3, 0.4e-3);
     let ball: Arc<dyn tacrom::geometry::Sdf> = Arc::new(Sphere::new(r));
@@ -710,18 +709,7 @@ fn rom_serves_the_gel_family_through_a_window_over_the_contact() {
         fov_x: 0.006,
         fov_y: 0.006,
     };
-    let gel = GelParams {
-        size,
-        poisson: 0.45,
-        dx: size[2] / 8.0,
-        ..Default::default()
-    };
-    let mut fine = Gel::new(gel, SolverOptions::default()).unwrap();
-    let report = fine.solve(&placed);
-    assert!(report.converged, "{report:?}");
-    let mut reference = vec![0.0; 96 * 96];
-    fine.surface_depth(&grid, &mut reference);
-    let reference_force = fine.force().z;
+    let (reference, reference_force) = fine_reference(size, 0.45, None, &placed, &grid);
     let run = |physics: &str| {
         let raw = RawConfig::default()
             .with(ATTR_PHYSICS, physics)
@@ -733,18 +721,7 @@ fn rom_serves_the_gel_family_through_a_window_over_the_contact() {
             .with(ATTR_OUTPUTS, "depth force");
         let config = Config::from_raw("touch", &raw).unwrap();
         assert_eq!(config.dx, Some(0.35e-3), "{physics}");
-        let mut out = vec![0.0; config.sensordata_len()];
-        let mut sensor = TactileSensor::new(config).unwrap();
-        let eval = sensor.evaluate(&placed, &mut out);
-        assert!(eval.warnings.is_empty(), "{physics}: {:?}", eval.warnings);
-        let (mut sum, mut n) = (0.0, 0);
-        for (a, b) in out[..96 * 96].iter().zip(&reference) {
-            if a.max(*b) > 1e-6 {
-                sum += (a - b).abs();
-                n += 1;
-            }
-        }
-        (sum / n as f64, sensor.force().z / reference_force - 1.0)
+        against_reference(config, &placed, d, &reference, reference_force)
     };
     let (coarse, coarse_force) = run("coarse");
     let (rom, rom_force) = run("rom");
@@ -874,7 +851,6 @@ fn rom_force_follows_hertz_on_thin_and_thick_gels() {
 fn the_family_model_serves_thin_and_thick_gels_through_the_sensor() {
     use tacrom::config::ATTR_FOV;
     use tacrom::geometry::PixelGrid;
-    use tacrom::mpm::{Gel, GelParams, SolverOptions};
     // Issue 54's force target; measured +0.2 to +2.4 %.
     const FORCE: f64 = 0.05;
     // Half the coarse gel's error; measured 0.37 and 0.41.
@@ -902,19 +878,8 @@ fn the_family_model_serves_thin_and_thick_gels_through_the_sensor() {
                 fov_x: fov,
                 fov_y: fov,
             };
-            let gel = GelParams {
-                size,
-                poisson,
-                friction,
-                dx: size[2] / 8.0,
-                ..Default::default()
-            };
-            let mut fine = Gel::new(gel, SolverOptions::default()).unwrap();
-            let report = fine.solve(&placed);
-            assert!(report.converged, "{size:?}: {report:?}");
-            let mut reference = vec![0.0; 96 * 96];
-            fine.surface_depth(&grid, &mut reference);
-            let reference_force = fine.force().z;
+            let (reference, reference_force) =
+                fine_reference(size, poisson, Some(friction), &placed, &grid);
             let run = |physics: &str, model: Option<&str>| {
                 let mut raw = RawConfig::default()
                     .with(ATTR_PHYSICS, physics)
@@ -929,19 +894,7 @@ fn the_family_model_serves_thin_and_thick_gels_through_the_sensor() {
                     raw = raw.with(ATTR_MODEL, m);
                 }
                 let config = Config::from_raw("touch", &raw).unwrap();
-                let mut out = vec![0.0; config.sensordata_len()];
-                let mut sensor = TactileSensor::new(config).unwrap();
-                let eval = sensor.evaluate(&placed, &mut out);
-                assert!(eval.warnings.is_empty(), "{physics}: {:?}", eval.warnings);
-                let (mut sum, mut n) = (0.0, 0);
-                for (a, b) in out[..96 * 96].iter().zip(&reference) {
-                    assert!(a.is_finite() && *a <= d + 1e-9, "{physics} {model:?}: {a}");
-                    if a.max(*b) > 1e-6 {
-                        sum += (a - b).abs();
-                        n += 1;
-                    }
-                }
-                (sum / n as f64, sensor.force().z / reference_force - 1.0)
+                against_reference(config, &placed, d, &reference, reference_force)
             };
             let (coarse, coarse_force) = run("coarse", None);
             let (rom, rom_force) = run("rom", None);
@@ -967,4 +920,58 @@ fn the_family_model_serves_thin_and_thick_gels_through_the_sensor() {
         }
     }
     assert!(failed.is_empty(), "{failed:?}");
+}
+
+/// The relaxation at `T / 8` of `placed` pressed into a gel of `size` (Poisson's ratio
+/// `poisson`, friction `friction` or the default): its depth image on `grid` and its
+/// normal force.
+fn fine_reference(
+    size: [f64; 3],
+    poisson: f64,
+    friction: Option<f64>,
+    placed: &[Placed],
+    grid: &tacrom::geometry::PixelGrid,
+) -> (Vec<f64>, f64) {
+    use tacrom::mpm::{Gel, GelParams, SolverOptions};
+    let defaults = GelParams::default();
+    let gel = GelParams {
+        size,
+        poisson,
+        friction: friction.unwrap_or(defaults.friction),
+        dx: size[2] / 8.0,
+        ..defaults
+    };
+    let mut fine = Gel::new(gel, SolverOptions::default()).unwrap();
+    let report = fine.solve(placed);
+    assert!(report.converged, "{size:?}: {report:?}");
+    let mut depth = vec![0.0; grid.width * grid.height];
+    fine.surface_depth(grid, &mut depth);
+    (depth, fine.force().z)
+}
+
+/// A sensor of `config` (depth, then force) pressed by `placed` once, against a
+/// reference: the depth image's mean absolute error over the pixels deeper than 1 um in
+/// either, and its normal force's relative error. Every pixel is finite and no deeper than
+/// `deepest`, the indenter's deepest reach into the gel; a warning fails.
+fn against_reference(
+    config: Config,
+    placed: &[Placed],
+    deepest: f64,
+    reference: &[f64],
+    reference_force: f64,
+) -> (f64, f64) {
+    let physics = config.physics;
+    let mut out = vec![0.0; config.sensordata_len()];
+    let mut sensor = TactileSensor::new(config).unwrap();
+    let eval = sensor.evaluate(placed, &mut out);
+    assert!(eval.warnings.is_empty(), "{physics:?}: {:?}", eval.warnings);
+    let (mut sum, mut n) = (0.0, 0);
+    for (a, b) in out[..reference.len()].iter().zip(reference) {
+        assert!(a.is_finite() && *a <= deepest + 1e-9, "{physics:?}: {a}");
+        if a.max(*b) > 1e-6 {
+            sum += (a - b).abs();
+            n += 1;
+        }
+    }
+    (sum / n as f64, sensor.force().z / reference_force - 1.0)
 }

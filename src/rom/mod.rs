@@ -182,6 +182,11 @@ pub const LINEAR_MODEL: &str = "rom-linear";
 /// (`docs/rom.md`, "A narrower decoder"). Named, it runs on the linear gel as the
 /// default does.
 pub const LINEAR_NARROW_MODEL: &str = "rom-linear-narrow";
+/// The linear solver's model trained on presses over the whole gel family beside the
+/// default gel's: closer over the family and at materials away from the default gel's,
+/// less close on spheres near it, so not the default (`docs/rom.md`, "One model for the
+/// family"). Named, it runs on the linear gel as the default does.
+pub const FAMILY_MODEL: &str = "rom-family";
 
 /// The shipped model (its directory's name under `models/`) trained on the coarse solve of
 /// the solver named `solver`.

@@ -288,6 +288,8 @@ def gen_command(path, ds):
             f"--coarse-dx {mm('coarse_dx')} --fine-dx {mm('fine_dx')} --pitch {mm('pitch')} "
             + (f"--coarse-solver {solver} " if solver != "relaxation" else "")
             + ("--gel-family " if ds.get("gel_family") else "")
+            + "".join(f"--gel-size {','.join(f'{1e3 * v:g}' for v in gel)} --held-out-only "
+                      for gel in [(ds.get("gel_family") or {}).get("gel")] if gel)
             + "".join(f"--{name} {lo:g},{hi:g} " for name in ("poisson", "friction")
                       for lo, hi in [ds.get(f"{name}_range") or (None, None)] if lo is not None)
             + f"--fine-max-iterations {ds.get('fine_max_iterations')} [--shard K/N for parallel shards]")

@@ -471,6 +471,9 @@ def test_validation_pairs_from_sets_of_one_gel(tmp_path):
         assert gels[str(p)]["pairs"] == len(families)
         assert gels[str(p)]["samples"] == sum(x["held_out"] for x in metas)
         assert gels[str(p)]["command"].startswith(f"tacrom gen-data --out {p} ")
+        gel = json.load(open(p / "dataset.json"))["gel_family"]["gel"]
+        assert f"--gel-family --gel-size {','.join(f'{1e3 * v:g}' for v in gel)} --held-out-only " in \
+            gels[str(p)]["command"]
     for js in pairs:
         meta = json.load(open(js))
         assert meta["held_out"] and meta["reference_dx"] == 0.0005 and "gel" in meta

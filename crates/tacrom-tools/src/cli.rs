@@ -473,13 +473,17 @@ pub struct EvalRomArgs {
     /// Data sets (gen-data --out).
     #[arg(long, value_name = "DIR", value_delimiter = ',', required = true)]
     pub data: Vec<PathBuf>,
-    /// Model folders; the first also runs without refinement
-    /// [models/rom-default,models/rom-latent16,models/rom-no-multiscale].
+    /// Model folders, each run as its manifest says; the first also runs without
+    /// refinement [models/rom-default,models/rom-latent16,models/rom-no-multiscale].
     #[arg(long, value_name = "DIR", value_delimiter = ',')]
     pub models: Vec<PathBuf>,
     /// Every sample, not only held-out families.
     #[arg(long)]
     pub all: bool,
+    /// Every model also runs with the latent refinement on (rows MODEL-refined), whatever
+    /// its manifest says.
+    #[arg(long)]
+    pub refined: bool,
     /// A data set of the same presses (same seed and indices) whose reference gets a row,
     /// e.g. the 0.7 mm set against the 0.3 mm one.
     #[arg(long, value_name = "DIR")]

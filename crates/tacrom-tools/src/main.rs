@@ -376,6 +376,7 @@ fn eval_rom(a: EvalRomArgs) -> Result<(), BenchError> {
         data: a.data,
         models,
         all: a.all,
+        refined: a.refined,
         compare: a.compare,
         out: a.out,
     };

@@ -1182,6 +1182,7 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
         data: vec![out.clone()],
         models: vec![model_dir()],
         all: false,
+        refined: true,
         compare: Some(out.clone()),
         out: out.join("report"),
     };
@@ -1215,13 +1216,15 @@ fn held_out_only_sets_hold_the_full_sets_presses_and_eval_rom_scores_them() {
     assert_eq!(row("reference-2.0mm").mae, 0.0);
     assert!((row("coarse").ssim - 1.0).abs() < 1e-9);
     assert!(row("rigid").mae > 1e-7, "rigid MAE {}", row("rigid").mae);
-    for l in ["rom", "rom-norefine"] {
+    for l in ["rom", "rom-norefine", "rom-refined"] {
         let m = row(l);
         assert!(
             m.mae.is_finite() && m.rmse >= m.mae && m.ssim <= 1.0,
             "{l}: {m:?}"
         );
     }
+    // The shipped manifest leaves the refinement off; `refined` adds a row with it on.
+    assert_eq!(row("rom").steps, 0.0);
     assert!(out.join("report/report.md").is_file());
     // A data set on another lattice is refused with the folder in the message.
     let other = scratch("heldout-lattice");

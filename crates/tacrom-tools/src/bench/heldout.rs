@@ -32,8 +32,12 @@ pub const FOV: [f64; 2] = [0.024, 0.018];
 pub struct EvalOptions {
     /// Data set folders (`gen-data --out`).
     pub data: Vec<PathBuf>,
-    /// Model folders; each gives a row with refinement, the first also one without.
+    /// Model folders; each gives a row as its manifest says (refinement on or off), the
+    /// first also one without refinement.
     pub models: Vec<PathBuf>,
+    /// Every model also gives a row with the latent refinement on (`MODEL-refined`): the
+    /// refinement's ablation for each seed of a recipe.
+    pub refined: bool,
     /// Every sample, not only held-out ones.
     pub all: bool,
     /// Another data set of the same presses (same seed and indices, e.g. the full set
@@ -505,6 +509,14 @@ pub fn run(options: &EvalOptions) -> Result<EvalResult, BenchError> {
         1.min(runs.len()),
         (format!("{}-norefine", label_of(first)), first, Some(false)),
     );
+    if options.refined {
+        runs.extend(
+            options
+                .models
+                .iter()
+                .map(|m| (format!("{}-refined", label_of(m)), m, Some(true))),
+        );
+    }
     let bar = Progress::new(runs.len() * samples.len(), true);
     for (label, dir, refine) in runs {
         bar.message(label.clone());

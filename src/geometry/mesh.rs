@@ -960,28 +960,59 @@ mod tests {
     use crate::geometry::{Cuboid, Sphere};
     use std::time::Instant;
 
-    /// Exact signed distance by brute force: nearest triangle, sign by pseudo-normal.
-    fn brute(mesh: &TriMesh, p: &Point3<f64>) -> f64 {
-        let topo = Topology::new(&mesh.vertices, &mesh.faces).unwrap();
-        brute_with(&topo, &mesh.vertices, p)
+    /// Exact signed distance by brute force: nearest triangle, sign by pseudo-normal. A
+    /// triangle whose bounding sphere is no nearer than the nearest so far is skipped: it
+    /// cannot be nearer, so the answer is that of visiting every triangle.
+    struct Brute<'a> {
+        topo: Topology,
+        vertices: &'a [Point3<f64>],
+        spheres: Vec<(Point3<f64>, f64)>,
     }
 
-    fn brute_with(topo: &Topology, v: &[Point3<f64>], p: &Point3<f64>) -> f64 {
-        let mut best = (f64::INFINITY, 1.0);
-        for (t, tri) in topo.tris.iter().enumerate() {
-            let [a, b, c] = tri.map(|i| v[i as usize]);
-            let (q, f) = closest_on_triangle(p, &a, &b, &c);
-            let d = (p - q).norm();
-            if d < best.0 {
-                let s = if (p - q).dot(&topo.pseudo_normal(t, f)) >= 0.0 {
-                    1.0
-                } else {
-                    -1.0
-                };
-                best = (d, s);
+    impl<'a> Brute<'a> {
+        fn new(mesh: &'a TriMesh) -> Self {
+            let topo = Topology::new(&mesh.vertices, &mesh.faces).unwrap();
+            let spheres = topo
+                .tris
+                .iter()
+                .map(|tri| {
+                    let [a, b, c] = tri.map(|i| mesh.vertices[i as usize]);
+                    let centre = Point3::from((a.coords + b.coords + c.coords) / 3.0);
+                    let r = [a, b, c]
+                        .iter()
+                        .map(|q| (q - centre).norm())
+                        .fold(0.0, f64::max);
+                    (centre, r)
+                })
+                .collect();
+            Brute {
+                topo,
+                vertices: &mesh.vertices,
+                spheres,
             }
         }
-        best.0 * best.1
+
+        fn distance(&self, p: &Point3<f64>) -> f64 {
+            let mut best = (f64::INFINITY, 1.0);
+            for (t, tri) in self.topo.tris.iter().enumerate() {
+                let (centre, r) = self.spheres[t];
+                if (p - centre).norm() - r >= best.0 {
+                    continue;
+                }
+                let [a, b, c] = tri.map(|i| self.vertices[i as usize]);
+                let (q, f) = closest_on_triangle(p, &a, &b, &c);
+                let d = (p - q).norm();
+                if d < best.0 {
+                    let s = if (p - q).dot(&self.topo.pseudo_normal(t, f)) >= 0.0 {
+                        1.0
+                    } else {
+                        -1.0
+                    };
+                    best = (d, s);
+                }
+            }
+            best.0 * best.1
+        }
     }
 
     /// A box as 12 triangles, outward normals.
@@ -1087,7 +1118,7 @@ mod tests {
             let mesh = TriMesh::new(v, f).unwrap();
             let built = start.elapsed();
             assert!(mesh.is_closed(), "{name} is not closed");
-            let topo = Topology::new(&mesh.vertices, &mesh.faces).unwrap();
+            let brute = Brute::new(&mesh);
             let bb = mesh.aabb.inflated(0.002);
             let mut rng = Rng::new(21);
             let tol = mesh.error_bound();
@@ -1096,7 +1127,7 @@ mod tests {
             for _ in 0..n {
                 let u = Vector3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
                 let p = bb.min + (bb.max - bb.min).component_mul(&u);
-                let want = brute_with(&topo, &mesh.vertices, &p);
+                let want = brute.distance(&p);
                 let got = mesh.distance(&p);
                 if !mesh.in_grid(&p) {
                     assert!(
@@ -1122,7 +1153,7 @@ mod tests {
                 let p = mesh.grid().origin
                     + Vector3::new(idx[0] as f64, idx[1] as f64, idx[2] as f64) * mesh.cell_size();
                 let got = mesh.grid().values[mesh.grid().index(idx[0], idx[1], idx[2])] as f64;
-                let want = brute_with(&topo, &mesh.vertices, &p);
+                let want = brute.distance(&p);
                 assert!(
                     got.abs() >= want.abs() - 1e-8,
                     "{name} node {idx:?}: {got} below exact {want}"
@@ -1181,9 +1212,10 @@ mod tests {
         let (v, f) = load_pattern("cone.stl");
         let mesh = TriMesh::new(v, f).unwrap();
         let mut rng = Rng::new(22);
+        let brute = Brute::new(&mesh);
         for _ in 0..300 {
             let p = rng.point(0.08);
-            let exact = brute(&mesh, &p);
+            let exact = brute.distance(&p);
             let got = mesh.distance(&p);
             assert!(got <= exact + mesh.error_bound(), "{p}: {got} > {exact}");
             assert!(got > 0.0 || exact < 0.01, "{p}");

@@ -51,8 +51,10 @@ test-rust test-python bench-quick: export TACROM_CACHE := $(CURDIR)/target/tacro
 test-rust: venv
 	$(CARGO) test --release
 
+# The Python tests run one worker per core (pytest-xdist), each test file on one worker so
+# that its module fixtures are built once; the slowest tests are listed at the end.
 test-python: build
-	$(PY) -m pytest tests/python -q
+	$(PY) -m pytest tests/python -q -n auto --dist loadfile --durations=15
 
 test: build test-rust test-python bench-quick real-check
 

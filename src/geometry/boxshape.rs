@@ -2,7 +2,7 @@
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use super::{check_size, convex_lower_surface, Aabb, GeometryError, PixelGrid, Sdf};
+use super::{check_size, convex_lower_surface, Aabb, Chord, GeometryError, PixelGrid, Sdf};
 
 /// A box `[-h.x, h.x] x [-h.y, h.y] x [-h.z, h.z]` for half extents `h`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -81,40 +81,62 @@ impl Sdf for Cuboid {
         z_top: f64,
         zmin: &mut [f64],
     ) {
-        let h = self.half_extents;
         let bounds = self.aabb().transformed(pose);
         let inv = pose.inverse();
         let ex = inv.rotation * Vector3::x();
         let ey = inv.rotation * Vector3::y();
         let d = inv.rotation * Vector3::z();
         let o0 = inv.translation.vector;
-        // Axes the line runs parallel to need a containment test instead of a slab.
-        let parallel = d.map(|v| v.abs() <= 1e-300);
-        let inv_d = d.map(|v| 1.0 / v);
         convex_lower_surface(&bounds, grid, z_bottom, z_top, zmin, |x, y| {
-            let o = o0 + ex * x + ey * y;
-            let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
-            for k in 0..3 {
-                if parallel[k] {
-                    if o[k].abs() > h[k] {
-                        return None;
-                    }
-                } else {
-                    let s0 = (-h[k] - o[k]) * inv_d[k];
-                    let s1 = (h[k] - o[k]) * inv_d[k];
-                    t0 = t0.max(s0.min(s1));
-                    t1 = t1.min(s0.max(s1));
-                }
-            }
-            (t0 <= t1).then_some((t0, t1))
+            self.interval(&(o0 + ex * x + ey * y), &d)
         });
+    }
+
+    fn chord(&self, o: &Point3<f64>, d: &Vector3<f64>) -> Chord {
+        Chord::of(self.interval(&o.coords, d))
+    }
+}
+
+impl Cuboid {
+    /// The interval of `t` where `o + t d` (local frame) lies in the box: the slabs of the
+    /// three axes intersected (an axis the line runs parallel to, a containment test).
+    fn interval(&self, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<(f64, f64)> {
+        let h = self.half_extents;
+        let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
+        for k in 0..3 {
+            if d[k].abs() <= 1e-300 {
+                if o[k].abs() > h[k] {
+                    return None;
+                }
+            } else {
+                let s0 = (-h[k] - o[k]) / d[k];
+                let s1 = (h[k] - o[k]) / d[k];
+                t0 = t0.max(s0.min(s1));
+                t1 = t1.min(s0.max(s1));
+            }
+        }
+        (t0 <= t1).then_some((t0, t1))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::test_support::{check_gradient, check_lower_surface, Rng};
+    use crate::geometry::test_support::{check_chord, check_gradient, check_lower_surface, Rng};
+
+    /// The exact chord agrees with the signed distance along lines of every direction.
+    #[test]
+    fn the_chord_is_where_the_line_is_inside() {
+        let mut rng = Rng::new(42);
+        assert!(
+            check_chord(
+                &Cuboid::new(Vector3::new(0.003, 0.002, 0.004)),
+                &mut rng,
+                400,
+                1e-10
+            ) > 100
+        );
+    }
 
     fn brute(b: &Cuboid, p: &Point3<f64>) -> f64 {
         // Distance to the nearest point of the box, or minus the distance to the nearest face.

@@ -13,7 +13,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
-use super::{check_size, convex_lower_surface, Aabb, GeometryError, PixelGrid, Sdf};
+use super::{check_size, convex_lower_surface, Aabb, Chord, GeometryError, PixelGrid, Sdf};
 
 /// An ellipsoid with semi-axes `semi_axes.x`, `.y`, `.z` along the local axes.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -189,6 +189,16 @@ impl Sdf for Ellipsoid {
         Aabb::new(Point3::from(-self.semi_axes), Point3::from(self.semi_axes))
     }
 
+    /// Exact: scaled by the semi-axes the solid is the unit ball, and `|q + t e| = 1` (`q`,
+    /// `e` the scaled `o`, `d`) a quadratic in `t`.
+    fn chord(&self, o: &Point3<f64>, d: &Vector3<f64>) -> Chord {
+        let q = o.coords.component_div(&self.semi_axes);
+        let e = d.component_div(&self.semi_axes);
+        let (a, b) = (e.norm_squared(), q.dot(&e));
+        let s = b * b - a * (q.norm_squared() - 1.0);
+        Chord::of((s >= 0.0 && a > 0.0).then(|| ((-b - s.sqrt()) / a, (-b + s.sqrt()) / a)))
+    }
+
     /// Exact: in the sensor frame the ellipsoid is `q^T M q <= 1` with `q` relative to the
     /// centre and `M = R diag(1/a^2) R^T`; on a vertical line that is a quadratic in z.
     fn lower_surface(
@@ -236,7 +246,21 @@ impl Sdf for Ellipsoid {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::test_support::{check_gradient, check_lower_surface, Rng};
+    use crate::geometry::test_support::{check_chord, check_gradient, check_lower_surface, Rng};
+
+    /// The exact chord agrees with the signed distance along lines of every direction.
+    #[test]
+    fn the_chord_is_where_the_line_is_inside() {
+        let mut rng = Rng::new(45);
+        assert!(
+            check_chord(
+                &Ellipsoid::new(Vector3::new(0.003, 0.0015, 0.002)),
+                &mut rng,
+                400,
+                1e-10
+            ) > 100
+        );
+    }
     use crate::geometry::Sphere;
 
     #[test]

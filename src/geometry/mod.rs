@@ -132,6 +132,27 @@ fn clamp_range(lo: f64, hi: f64, n: usize) -> std::ops::Range<usize> {
     lo..hi.max(lo)
 }
 
+/// Where a line meets a solid ([`Sdf::chord`]), in the line's parameter (m along it).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Chord {
+    /// The shape has no closed form for it.
+    Unknown,
+    /// The line misses the solid.
+    Miss,
+    /// The line is inside the solid for `t` in `[t_in, t_out]`.
+    Span(f64, f64),
+}
+
+impl Chord {
+    /// The chord of an interval `(t_in, t_out)` found by a primitive, `None` a miss.
+    pub(crate) fn of(interval: Option<(f64, f64)>) -> Chord {
+        match interval {
+            Some((a, b)) if a <= b => Chord::Span(a, b),
+            _ => Chord::Miss,
+        }
+    }
+}
+
 /// A rigid shape described by its signed distance, in its local frame.
 pub trait Sdf: Send + Sync + Debug {
     /// Signed distance from `p` to the surface (m); negative inside.
@@ -169,6 +190,13 @@ pub trait Sdf: Send + Sync + Debug {
 
     /// Bounding box of the solid in the local frame.
     fn aabb(&self) -> Aabb;
+
+    /// Where the line `o + t d` (local frame, `d` a unit vector) lies inside the solid
+    /// ([`Chord`]). The convex primitives know it exactly; the default, for shapes without
+    /// a closed form, is [`Chord::Unknown`] (callers march the signed distance instead).
+    fn chord(&self, _o: &Point3<f64>, _d: &Vector3<f64>) -> Chord {
+        Chord::Unknown
+    }
 
     /// Lowest surface of the solid seen from below: for every pixel of `grid` whose vertical
     /// line (in the sensor frame) meets the solid with `z < z_top`, lower `zmin[pixel]` to the

@@ -2,7 +2,7 @@
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use super::{check_size, Aabb, GeometryError, PixelGrid, Sdf};
+use super::{check_size, Aabb, Chord, GeometryError, PixelGrid, Sdf};
 
 /// A sphere of radius `radius` centred at the local origin.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -40,6 +40,13 @@ impl Sdf for Sphere {
     fn aabb(&self) -> Aabb {
         let r = Vector3::repeat(self.radius);
         Aabb::new(Point3::from(-r), Point3::from(r))
+    }
+
+    /// Exact: `|o + t d| = r`, a quadratic in `t`.
+    fn chord(&self, o: &Point3<f64>, d: &Vector3<f64>) -> Chord {
+        let b = o.coords.dot(d);
+        let s = b * b - (o.coords.norm_squared() - self.radius * self.radius);
+        Chord::of((s >= 0.0).then(|| (-b - s.sqrt(), -b + s.sqrt())))
     }
 
     /// Exact: the vertical line at horizontal distance `rho` from the centre enters at
@@ -92,7 +99,14 @@ impl Sdf for Sphere {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::test_support::{check_gradient, check_lower_surface, Rng};
+    use crate::geometry::test_support::{check_chord, check_gradient, check_lower_surface, Rng};
+
+    /// The exact chord agrees with the signed distance along lines of every direction.
+    #[test]
+    fn the_chord_is_where_the_line_is_inside() {
+        let mut rng = Rng::new(41);
+        assert!(check_chord(&Sphere::new(0.003), &mut rng, 400, 1e-10) > 100);
+    }
 
     #[test]
     fn distance_is_norm_minus_radius() {

@@ -188,3 +188,55 @@ pub fn check_gradient(shape: &dyn Sdf, p: &Point3<f64>, tol: f64) -> bool {
     );
     true
 }
+
+/// Checks `shape.chord` on `lines` random lines through the neighbourhood of the solid
+/// (origins in its box grown by half, directions uniform, and the axes' own directions,
+/// which the primitives treat apart): the chord's ends lie on the surface (the exact
+/// signed distance within `tol`), samples of the line inside the chord are inside the
+/// solid and samples outside it outside (each by more than `tol` from its ends), and a
+/// line reported missing has no sample inside. Returns the number of lines that met it.
+pub fn check_chord(shape: &dyn Sdf, rng: &mut Rng, lines: usize, tol: f64) -> usize {
+    let b = shape.aabb();
+    let half = (b.max - b.min) * 0.75;
+    let centre = nalgebra::center(&b.min, &b.max);
+    let reach = 2.0 * half.norm();
+    let mut met = 0;
+    for n in 0..lines {
+        let o = centre + Vector3::from_fn(|k, _| rng.uniform(-half[k], half[k]));
+        let d = match n % 4 {
+            0 => Vector3::ith(n / 4 % 3, 1.0),
+            _ => rng.rotation() * Vector3::z(),
+        };
+        let at = |t: f64| shape.distance(&(o + d * t));
+        let span = match shape.chord(&o, &d) {
+            super::Chord::Span(a, b) => Some((a, b)),
+            super::Chord::Miss => None,
+            super::Chord::Unknown => panic!("{shape:?} has no chord"),
+        };
+        if let Some((a, b)) = span {
+            met += 1;
+            assert!(
+                at(a).abs() <= tol && at(b).abs() <= tol,
+                "{shape:?}: ends {a} {b}"
+            );
+        }
+        for k in 0..=400 {
+            let t = -reach + 2.0 * reach * k as f64 / 400.0;
+            let d = at(t);
+            match span {
+                Some((a, b)) if t > a + tol && t < b - tol => {
+                    assert!(d <= tol, "{shape:?}: t {t} in ({a}, {b}) at distance {d}")
+                }
+                Some((a, b)) if t < a - tol || t > b + tol => {
+                    assert!(
+                        d >= -tol,
+                        "{shape:?}: t {t} out of ({a}, {b}) at distance {d}"
+                    )
+                }
+                Some(_) => {}
+                None => assert!(d >= -tol, "{shape:?}: a miss with t {t} inside ({d})"),
+            }
+        }
+    }
+    met
+}

@@ -1157,7 +1157,7 @@ fn chord_gaps_agree_with_the_march() {
         Arc::new(Ellipsoid::new(Vector3::new(2e-3, 1e-3, 1.5e-3))),
     ];
     let mut noise = Noise(7);
-    let mut pose = |noise: &mut Noise| {
+    let pose = |noise: &mut Noise| {
         let axis = Vector3::new(noise.next(), noise.next(), noise.next());
         Isometry3::from_parts(
             Translation3::new(

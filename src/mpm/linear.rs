@@ -29,8 +29,9 @@
 //! model (as Hertz's): the point sinks in place, and must sink at least as deep as the
 //! indenters' lower surface reaches below its rest position, `s_p >= delta_p`, with
 //! `s_p = -u_p.z` and `delta_p` the vertical distance (negative where the indenters are
-//! above it; marched along the vertical by the signed distance, and bisected on the way
-//! out of an indenter). With the contact's own compliance `eps` (Newton's penalty over a
+//! above it; from the primitives' chords along the vertical, [`Sdf::chord`], exactly; for
+//! a mesh marched by the signed distance, and bisected on the way out of an indenter).
+//! With the contact's own compliance `eps` (Newton's penalty over a
 //! point's share of the face, [`PENALTY`]), `H = eps I + W G_zz W^T` is symmetric and
 //! positive definite (Maxwell-Betti reciprocity), and the contact is the linear
 //! complementarity problem `f >= 0, H f - delta >= 0, f . (H f - delta) = 0`. On the gel
@@ -702,9 +703,10 @@ impl Compliance {
 
     /// The vertical distance (cells) from the point at `x` (cells) up to the indenters'
     /// lower surface: positive where it lies below them, negative inside them (how far
-    /// down it must move to leave them); `None` where nothing lies above it. Marched by
-    /// the signed distance, which never overshoots an exact distance's surface, and the
-    /// way out from inside bisected.
+    /// down it must move to leave them); `None` where nothing lies above it. From the
+    /// indenters' chords where they have them ([`chord_gap`]); otherwise marched by the
+    /// signed distance, which never overshoots an exact distance's surface, and the way
+    /// out from inside bisected.
     fn vertical_gap(&self, x: &Vector3<f64>, indenters: &[StepIndenter]) -> Option<f64> {
         self.vertical_gap_to(x, indenters, BISECTIONS)
     }

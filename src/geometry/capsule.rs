@@ -120,27 +120,10 @@ impl Capsule {
                 hi = hi.max(-bq + sq);
             }
         }
-        // Cylindrical part: radial interval intersected with the axial slab.
-        let qa = d.x * d.x + d.y * d.y;
-        if qa > 1e-300 {
-            let qb = o.x * d.x + o.y * d.y;
-            let qc = o.x * o.x + o.y * o.y - r2;
-            let s = qb * qb - qa * qc;
-            if s >= 0.0 {
-                let sq = s.sqrt();
-                let (mut t0, mut t1) = ((-qb - sq) / qa, (-qb + sq) / qa);
-                if d.z.abs() > 1e-300 {
-                    let (s0, s1) = ((-h - o.z) / d.z, (h - o.z) / d.z);
-                    t0 = t0.max(s0.min(s1));
-                    t1 = t1.min(s0.max(s1));
-                } else if o.z.abs() > h {
-                    t1 = f64::NEG_INFINITY;
-                }
-                if t0 <= t1 {
-                    lo = lo.min(t0);
-                    hi = hi.max(t1);
-                }
-            }
+        // Cylindrical part: the finite cylinder's interval.
+        if let Some((t0, t1)) = super::Cylinder::new(r, h).interval(o, d) {
+            lo = lo.min(t0);
+            hi = hi.max(t1);
         }
         (lo <= hi).then_some((lo, hi))
     }

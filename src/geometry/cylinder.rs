@@ -106,7 +106,7 @@ impl Sdf for Cylinder {
 impl Cylinder {
     /// The interval of `t` where `o + t d` (local frame) lies in the cylinder: the radial
     /// quadratic's interval intersected with the axial slab.
-    fn interval(&self, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<(f64, f64)> {
+    pub(super) fn interval(&self, o: &Vector3<f64>, d: &Vector3<f64>) -> Option<(f64, f64)> {
         let (r, h) = (self.radius, self.half_length);
         let qa = d.x * d.x + d.y * d.y;
         let qc = o.x * o.x + o.y * o.y - r * r;

@@ -2190,7 +2190,8 @@ fn minimise(
 /// overlapping ones in turn). As the march it replaces, `Some(None)` where no indenter's
 /// bounds hold `p` or nothing lies above it; `None` where an indenter has no closed form
 /// (then the march runs). Exact where the march stops within its tolerance and bisects
-/// its way out, and a tenth of its cost a point under a sphere.
+/// its way out (`docs/solvers.md`, "The contact's vertical gaps from the primitives'
+/// chords").
 fn chord_gap(p: &Point3<f64>, indenters: &[StepIndenter]) -> Option<Option<f64>> {
     if !indenters.iter().any(|ind| contains(&ind.bounds, p)) {
         return Some(None);

@@ -1,7 +1,8 @@
 """Builds the tacrom wheel: the Python package with the plugin library
 (``tacrom/_lib/libtacrom.so``), the shipped reduced-order models
-(``tacrom/models/rom-default`` and, for ``solver="linear"``, ``tacrom/models/rom-linear``:
-manifests and the ONNX files they name), the shipped sensors (``tacrom/sensors``:
+(``tacrom/models/rom-default`` and, for ``solver="linear"``, ``tacrom/models/rom-linear``
+and ``rom-linear-narrow``, the default on gels of 3.5 mm and more: manifests and the ONNX
+files they name), the shipped sensors (``tacrom/sensors``:
 ``gelsight-mini``'s sensor file, optics and licence) and the environments' scenes
 (``tacrom/envs/assets``: ``examples/gripper.xml`` and its mesh).
 
@@ -26,7 +27,7 @@ import sysconfig
 import tempfile
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-MODELS = ("rom-default", "rom-linear")
+MODELS = ("rom-default", "rom-linear", "rom-linear-narrow")
 SENSORS = ("gelsight-mini",)
 
 

@@ -360,13 +360,14 @@ pub const MODEL: Attribute = Attribute {
     meaning: "directory of the reduced-order model (`rom`)",
     unit: "",
     default: Default::Depends(
-        "the shipped `rom-linear`, on the linear solver (`rom-default`, the relaxation's, \
-         with `solver=\"relaxation\"`)",
+        "the shipped `rom-linear-narrow` on gels of 3.5 mm and more, `rom-linear` on \
+         thinner ones, on the linear solver (`rom-default`, the relaxation's, with \
+         `solver=\"relaxation\"`)",
     ),
     valid: Valid::Described(
         "a directory with a `manifest.json` that serves this gel, or a shipped model's \
-         name: `rom-linear`, `rom-linear-narrow` (its encoder, a narrower decoder; in the \
-         checkout, not the wheel), `rom-family` (trained over the gel family; in the \
+         name: `rom-linear-narrow`, `rom-linear` (its encoder, the paper's decoder widths), \
+         `rom-family` (trained over the gel family; in the \
          checkout), `rom-default` (the relaxation's, with the linear \
          solver for contacts it misses: `physics=\"rom\"` as it was before the linear gel)",
     ),

@@ -427,15 +427,23 @@ fn a_coarse_solve_other_than_the_models_recipe_is_refused() {
     assert!(e.contains("recipe"), "{e}");
 }
 
-/// `solver="linear"` gets the shipped model trained on that solver's coarse solve
-/// (`models/rom-linear`, whose recipe names it: a model of another solver is refused, as
-/// the default model is when named explicitly), presses a sphere with it, and serves the
-/// materials its manifest was validated on.
+/// `solver="linear"` gets the shipped models trained on that solver's coarse solve
+/// (`models/rom-linear-narrow` on gels of 3.5 mm and more, `models/rom-linear` on thinner
+/// ones; their recipes name the solver: a model of another solver is refused, as the
+/// default model is when named explicitly), presses a sphere with each, and serves the
+/// materials their manifests were validated on.
 #[test]
 fn the_linear_solver_gets_its_own_shipped_model() {
-    use tacrom::rom::{shipped_model, shipped_model_dir, LINEAR_MODEL};
-    assert_eq!(shipped_model("linear"), LINEAR_MODEL);
-    assert_eq!(shipped_model("relaxation"), tacrom::rom::DEFAULT_MODEL);
+    use tacrom::rom::{shipped_model, shipped_model_dir, LINEAR_MODEL, LINEAR_NARROW_MODEL};
+    assert_eq!(shipped_model("linear", 4e-3), LINEAR_NARROW_MODEL);
+    assert_eq!(shipped_model("linear", 3.5e-3), LINEAR_NARROW_MODEL);
+    assert_eq!(shipped_model("linear", 6e-3), LINEAR_NARROW_MODEL);
+    assert_eq!(shipped_model("linear", 3.4e-3), LINEAR_MODEL);
+    assert_eq!(shipped_model("linear", 1.41e-3), LINEAR_MODEL);
+    assert_eq!(
+        shipped_model("relaxation", 4e-3),
+        tacrom::rom::DEFAULT_MODEL
+    );
     // rom's default: the linear gel, without the per-frame fallback it does not need; a
     // model of one's own keeps the gel's automatic rule (its recipe names its solver).
     let default = Config::from_raw("touch", &RawConfig::default()).unwrap();
@@ -462,13 +470,11 @@ fn the_linear_solver_gets_its_own_shipped_model() {
         .with(ATTR_RESOLUTION, "160 120")
         .with(ATTR_SOLVER, "linear");
     presses_a_sphere(Config::from_raw("touch", &raw).unwrap());
-    let text = std::fs::read_to_string(
-        shipped_model_dir(LINEAR_MODEL)
-            .unwrap()
-            .join("manifest.json"),
-    );
-    let manifest: serde_json::Value = serde_json::from_str(&text.unwrap()).unwrap();
-    assert_eq!(manifest["recipe"]["solver"], "linear");
+    for name in [LINEAR_MODEL, LINEAR_NARROW_MODEL] {
+        let text = std::fs::read_to_string(shipped_model_dir(name).unwrap().join("manifest.json"));
+        let manifest: serde_json::Value = serde_json::from_str(&text.unwrap()).unwrap();
+        assert_eq!(manifest["recipe"]["solver"], "linear", "{name}");
+    }
     let default = tacrom::rom::default_model_dir().unwrap();
     let e = load_error(raw.clone().with(ATTR_MODEL, default.to_str().unwrap()));
     assert!(e.contains("linear") && e.contains("relaxation"), "{e}");
@@ -594,13 +600,18 @@ fn a_model_serves_its_inputs_ranges_then_its_validated_ones() {
 /// by a half or a quarter (15 x 15 x 2 and 7.5 x 7.5 x 1 mm) give the default gel's image
 /// scaled and its force times the scale squared, to the images' own absolute accuracy
 /// (their inverse map stops at 10 nm, `ONE_STEP_ERROR`) and the networks' rounding (the
-/// relaxation's model: bit for bit; the linear gel's, decoding in 8 bits: below). A gel
+/// relaxation's model and the linear gel's narrow decoder, in float: to nanometres; the
+/// linear gel's wide decoder, in 8 bits: below). Each linear model is named: the default
+/// on the linear gel is the narrow decoder from 3.5 mm and the wide one below
+/// ([`tacrom::rom::NARROW_FROM_THICKNESS`]), so the default itself changes model between
+/// these thicknesses. A gel
 /// outside the family (12 to 40 mm across, 1 to 6 mm thick) that is not the model's shape
 /// at a family thickness is refused, naming the size and both.
 #[test]
 fn rom_serves_its_gel_at_any_thickness_scaled() {
-    let run = |solver: &str, s: f64| {
+    let run = |(solver, model): (&str, &str), s: f64| {
         let raw = RawConfig::default()
+            .with(ATTR_MODEL, model)
             .with(ATTR_RESOLUTION, "80 60")
             .with(ATTR_OUTPUTS, "depth force")
             .with(ATTR_SOLVER, solver)
@@ -629,12 +640,16 @@ fn rom_serves_its_gel_at_any_thickness_scaled() {
         out.truncate(80 * 60);
         (out, sensor.force())
     };
-    for solver in ["relaxation", "linear"] {
-        let (image, force) = run(solver, 1.0);
+    for (solver, model) in [
+        ("relaxation", tacrom::rom::DEFAULT_MODEL),
+        ("linear", tacrom::rom::LINEAR_MODEL),
+        ("linear", tacrom::rom::LINEAR_NARROW_MODEL),
+    ] {
+        let (image, force) = run((solver, model), 1.0);
         let peak = image.iter().cloned().fold(0.0, f64::max);
         assert!(peak > 0.5e-3, "{solver}: peak {peak}");
         for s in [0.5, 0.25] {
-            let (other, f) = run(solver, s);
+            let (other, f) = run((solver, model), s);
             let worst = image
                 .iter()
                 .zip(&other)
@@ -642,22 +657,22 @@ fn rom_serves_its_gel_at_any_thickness_scaled() {
                 .fold(0.0, f64::max);
             let df = (f / (s * s) - force).norm() / force.norm();
             eprintln!(
-                "{solver}, scale {s}: worst depth {worst:.2e} m of {peak:.2e}, force {df:.1e}"
+                "{model}, scale {s}: worst depth {worst:.2e} m of {peak:.2e}, force {df:.1e}"
             );
-            // The linear gel's model decodes in 8 bits, each activation quantised on a
-            // scale set per run: inputs that differ by rounding (nanometres) may round an
+            // The wide decoder runs in 8 bits, each activation quantised on a scale set
+            // per run: inputs that differ by rounding (nanometres) may round an
             // activation to the next of its 255 levels. With its float decoder the same
             // press differs by 2.2 and 2.8 nm (measured); in 8 bits by 0.3 um, 5e-4 of
-            // the press.
-            let (depth_bound, force_bound) = if solver == "linear" {
+            // the press. The narrow decoder, in float: 2.2 and 2.8 nm, force 3e-7.
+            let (depth_bound, force_bound) = if model == tacrom::rom::LINEAR_MODEL {
                 (2e-3 * peak, 1e-4)
             } else {
                 (1e-8 * (1.0 + 1.0 / s) + 1e-6 * peak, 1e-6)
             };
-            assert!(worst <= depth_bound, "{solver}, scale {s}: {worst} m");
+            assert!(worst <= depth_bound, "{model}, scale {s}: {worst} m");
             assert!(
                 df <= force_bound,
-                "{solver}, scale {s}: force {f:?} against {force:?}"
+                "{model}, scale {s}: force {f:?} against {force:?}"
             );
         }
     }

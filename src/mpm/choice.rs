@@ -66,11 +66,11 @@ pub enum Role {
     /// one of the user's, whose recipe names the solver it needs): the automatic rule with
     /// the per-frame fallback for small contacts.
     Coarse,
-    /// `rom` with its default model, unnamed or named `model="rom-linear"`: the linear gel
-    /// (`models/rom-linear`) where it factors, at every Poisson's ratio (its stiffness at
-    /// rest is factored once, so a near-incompressible gel costs it nothing more, and its
-    /// model serves 0.3 to 0.49); the relaxation's rule elsewhere (where the shipped models
-    /// serve no gel). The linear gel's rom is the most accurate mode of the
+    /// `rom` with its default model, unnamed or named (`rom-linear-narrow` from 3.5 mm,
+    /// `rom-linear` below, [`crate::rom::shipped_model`]): the linear gel where it
+    /// factors, at every Poisson's ratio (its stiffness at rest is factored once, so a
+    /// near-incompressible gel costs it nothing more, and its models serve 0.3 to 0.49);
+    /// the relaxation's rule elsewhere (where the shipped models serve no gel). The linear gel's rom is the most accurate mode of the
     /// full profile in depth and SSIM, on shapes outside the training families too, and
     /// the faster rom in both environments (measured: `docs/modes.md`, "The default: rom
     /// on the linear gel").

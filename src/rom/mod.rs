@@ -172,26 +172,33 @@ pub const FORMAT: &str = "tacrom-rom-1";
 /// Name of the shipped model's directory under `models/` for the relaxation's coarse
 /// solve (`solver="relaxation"`; the default before the linear gel's model became it).
 pub const DEFAULT_MODEL: &str = "rom-default";
-/// Name of the shipped model for the linear solver's coarse solve: `physics="rom"`'s
-/// default ([`crate::mpm::Role::ShippedRom`]).
+/// Name of the shipped model for the linear solver's coarse solve with the paper's decoder
+/// widths [512, 256, 128]: `physics="rom"`'s default on gels thinner than
+/// [`NARROW_FROM_THICKNESS`] ([`crate::mpm::Role::ShippedRom`]).
 pub const LINEAR_MODEL: &str = "rom-linear";
 /// The linear solver's model with [`LINEAR_MODEL`]'s encoder and a decoder of widths [128,
-/// 64, 32] instead of the paper's [512, 256, 128]: more accurate in depth on the full
-/// profile at about a third of the cost per decoded point, but its force misses the
-/// Hertz bounds the default meets on small spheres, so it is not the default
-/// (`docs/rom.md`, "A narrower decoder"). Named, it runs on the linear gel as the
-/// default does.
+/// 64, 32]: on its own gel more accurate in depth and structure on the full profile at a
+/// third of the cost per decoded point, so `physics="rom"`'s default on gels at least
+/// [`NARROW_FROM_THICKNESS`] thick; a thinner gel shows the models its presses scaled up,
+/// which the wider decoder carries better (`docs/rom.md`, "Which decoder by thickness").
 pub const LINEAR_NARROW_MODEL: &str = "rom-linear-narrow";
+/// The thinnest gel (m) whose default model on the linear gel is [`LINEAR_NARROW_MODEL`];
+/// thinner gels get [`LINEAR_MODEL`]. Measured (`tacrom probe decoder_thickness`): the
+/// narrow decoder's summed depth error over three sphere presses is 1.3 to 1.6 times the
+/// wide one's on gels of 1 to 2 mm, 1.07 at 3 mm, 0.97 at 3.5 mm, 0.95 at 4 mm and 0.82 at
+/// 6 mm.
+pub const NARROW_FROM_THICKNESS: f64 = 3.5e-3;
 /// The linear solver's model trained on presses over the whole gel family beside the
 /// default gel's: closer over the family and at materials away from the default gel's,
 /// less close on spheres near it, so not the default (`docs/rom.md`, "One model for the
 /// family"). Named, it runs on the linear gel as the default does.
 pub const FAMILY_MODEL: &str = "rom-family";
 
-/// The shipped model (its directory's name under `models/`) trained on the coarse solve of
-/// the solver named `solver`.
-pub fn shipped_model(solver: &str) -> &'static str {
+/// The shipped model (its directory's name under `models/`) that is `physics="rom"`'s
+/// default for a coarse solve of the solver named `solver` on a gel `thickness` (m) thick.
+pub fn shipped_model(solver: &str, thickness: f64) -> &'static str {
     match solver {
+        "linear" if thickness >= NARROW_FROM_THICKNESS * (1.0 - 1e-9) => LINEAR_NARROW_MODEL,
         "linear" => LINEAR_MODEL,
         _ => DEFAULT_MODEL,
     }

@@ -516,7 +516,7 @@ fn model_dir(value: &std::path::Path) -> std::path::PathBuf {
 /// gel and coarse solve.
 fn load_rom(config: &Config, dx: f64, solver: Solver) -> Result<Rom, String> {
     let attr = crate::config::ATTR_MODEL;
-    let shipped = crate::rom::shipped_model(solver.name());
+    let shipped = crate::rom::shipped_model(solver.name(), config.size[2]);
     let dir = match &config.model {
         Some(d) => model_dir(d),
         None => crate::rom::shipped_model_dir(shipped).ok_or_else(|| {

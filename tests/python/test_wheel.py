@@ -82,6 +82,10 @@ def test_the_wheel_holds_the_library_the_model_and_the_package(wheel):
         "tacrom/models/rom-linear/encoder.onnx",
         "tacrom/models/rom-linear/decoder_int8.onnx",
         "tacrom/models/rom-linear/decoder_jacobian.onnx",
+        "tacrom/models/rom-linear-narrow/manifest.json",
+        "tacrom/models/rom-linear-narrow/encoder.onnx",
+        "tacrom/models/rom-linear-narrow/decoder.onnx",
+        "tacrom/models/rom-linear-narrow/decoder_jacobian.onnx",
         "tacrom/sensors/gelsight-mini/sensor.json",
         "tacrom/sensors/gelsight-mini/optics.json",
         "tacrom/sensors/gelsight-mini/LICENSE-taxim",
@@ -95,11 +99,13 @@ def test_the_wheel_holds_the_library_the_model_and_the_package(wheel):
         entry_points = z.read("tacrom-0.1.0.dist-info/entry_points.txt").decode()
         manifest = json.loads(z.read("tacrom/models/rom-default/manifest.json"))
         linear = json.loads(z.read("tacrom/models/rom-linear/manifest.json"))
+        narrow = json.loads(z.read("tacrom/models/rom-linear-narrow/manifest.json"))
         lib = z.read("tacrom/_lib/libtacrom.so")
     assert "[mujoco.plugins]" in entry_points and "tacrom:_register_with_mujoco" in entry_points
     assert manifest["format"] == "tacrom-rom-1"
     assert manifest["recipe"]["solver"] == "relaxation"
     assert linear["recipe"]["solver"] == "linear"
+    assert narrow["recipe"]["solver"] == "linear" and narrow["decoder_hidden"] == [128, 64, 32]
     assert lib == (ROOT / "python" / "tacrom" / "_lib" / "libtacrom.so").read_bytes()
 
 
@@ -205,9 +211,10 @@ def test_the_installed_wheel_presses_from_outside_the_checkout(wheel, tmp_path):
     assert result["gripper_depth"] > 3e-4, result
 
     # The library reads the model inside the installed package (not the checkout's): with
-    # that copy of rom's default (the linear gel's model) broken, rom fails to load.
+    # that copy of rom's default on the default gel (the linear gel's narrow decoder)
+    # broken, rom fails to load.
     site = pathlib.Path(result["tacrom"]).parent
-    manifest = site / "models" / "rom-linear" / "manifest.json"
+    manifest = site / "models" / "rom-linear-narrow" / "manifest.json"
     manifest.write_text("{}")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "TACROM_PLUGIN")}
     broken = subprocess.run(

@@ -4,6 +4,7 @@
 //! the plugin's public API only, and their numbers are quoted in `docs/solvers.md`.
 
 pub mod contact_size;
+pub mod decoder_thickness;
 pub mod deep;
 pub mod fine_press;
 pub mod first_contact;
@@ -23,6 +24,7 @@ type Probe = (&'static str, fn(Vec<String>));
 
 const PROBES: &[Probe] = &[
     ("contact_size", contact_size::run),
+    ("decoder_thickness", decoder_thickness::run),
     ("deep", deep::run),
     ("fine_press", fine_press::run),
     ("first_contact", first_contact::run),
@@ -39,8 +41,9 @@ const PROBES: &[Probe] = &[
 ];
 
 /// The probes' names, for the command line.
-pub const NAMES: [&str; 14] = [
+pub const NAMES: [&str; 15] = [
     "contact_size",
+    "decoder_thickness",
     "deep",
     "fine_press",
     "first_contact",

@@ -506,7 +506,7 @@ fn solve(
     let mut force = gel.force()[2];
     let mut seconds = seconds;
     if let Method::Rom(solver) = m {
-        let name = tacrom::rom::shipped_model(solver.name());
+        let name = tacrom::rom::shipped_model(solver.name(), params.size[2]);
         let dir = tacrom::rom::shipped_model_dir(name)
             .ok_or(format!("the shipped model {name} was not found"))?;
         let options = tacrom::rom::RomOptions {

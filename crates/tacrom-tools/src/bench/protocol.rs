@@ -25,8 +25,9 @@ pub const MODES: &[(&str, &[(&str, &str)])] = &[
     // before its default moved to the linear gel; the labels keep their meaning across the
     // committed baselines and reports.
     ("rom", &[("physics", "rom"), ("model", "rom-default")]),
-    // The linear solver's coarse gel, and rom on it (`models/rom-linear`): `physics="rom"`'s
-    // default.
+    // The linear solver's coarse gel, and rom on it: `physics="rom"`'s default (on the
+    // profile's 4 mm gel `models/rom-linear-narrow`; the committed report's row is
+    // `models/rom-linear`'s, measured while it was the default on every gel).
     (
         "coarse-linear",
         &[("physics", "coarse"), ("solver", "linear")],

@@ -133,9 +133,10 @@ enum Method {
     /// given, its 3e-3 tolerance): the candidates for a coarse grid that follows the
     /// thickness.
     CoarseAt(Option<Solver>, f64),
-    /// `rom` at `dx = 0.35 T` with a shipped model (`rom-linear` on the linear gel, the
-    /// default; `rom-default` on the relaxation) on the press's gel, the model reading a
-    /// window of its own lattice over the contact.
+    /// `rom` at `dx = 0.35 T` with the shipped model `physics="rom"` takes by default for
+    /// the press's gel ([`tacrom::rom::shipped_model`]: on the linear gel `rom-linear-narrow`
+    /// from 3.5 mm and `rom-linear` below; `rom-default` on the relaxation), the model
+    /// reading a window of its own lattice over the contact.
     Rom(Solver),
     /// Richardson extrapolation of two methods' depths and forces (the second at half the
     /// first's spacing), for convergence of this order.

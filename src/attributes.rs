@@ -379,7 +379,7 @@ pub const REFINE: Attribute = Attribute {
     meaning: "latent refinement of `rom` (L-BFGS on the reduced energy)",
     unit: "",
     default: Default::Depends(
-        "as the model's manifest says (off in both shipped models: it measured no gain)",
+        "as the model's manifest says (off in every shipped model: it measured no gain)",
     ),
     valid: Valid::Words {
         words: &["true", "false"],

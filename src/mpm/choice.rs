@@ -70,10 +70,10 @@ pub enum Role {
     /// `rom-linear` below, [`crate::rom::shipped_model`]): the linear gel where it
     /// factors, at every Poisson's ratio (its stiffness at rest is factored once, so a
     /// near-incompressible gel costs it nothing more, and its models serve 0.3 to 0.49);
-    /// the relaxation's rule elsewhere (where the shipped models serve no gel). The linear gel's rom is the most accurate mode of the
-    /// full profile in depth and SSIM, on shapes outside the training families too, and
-    /// the faster rom in both environments (measured: `docs/modes.md`, "The default: rom
-    /// on the linear gel").
+    /// the relaxation's rule elsewhere (where the shipped models serve no gel). The linear
+    /// gel's rom is the most accurate mode of the full profile in depth and SSIM, on
+    /// shapes outside the training families too, and the faster rom in both environments
+    /// (measured: `docs/modes.md`, "The default: rom on the linear gel").
     ShippedRom,
 }
 

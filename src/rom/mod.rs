@@ -184,7 +184,7 @@ pub const LINEAR_MODEL: &str = "rom-linear";
 pub const LINEAR_NARROW_MODEL: &str = "rom-linear-narrow";
 /// The thinnest gel (m) whose default model on the linear gel is [`LINEAR_NARROW_MODEL`];
 /// thinner gels get [`LINEAR_MODEL`]. Measured (`tacrom probe decoder_thickness`): the
-/// narrow decoder's summed depth error over three sphere presses is 1.3 to 1.6 times the
+/// narrow decoder's summed depth error over three sphere presses is 1.36 to 1.64 times the
 /// wide one's on gels of 1 to 2 mm, 1.07 at 3 mm, 0.97 at 3.5 mm, 0.95 at 4 mm and 0.82 at
 /// 6 mm.
 pub const NARROW_FROM_THICKNESS: f64 = 3.5e-3;

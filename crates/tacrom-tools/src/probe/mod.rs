@@ -13,6 +13,7 @@ pub mod mesh_press;
 pub mod newton_profile;
 pub mod overshoot;
 pub mod poisson;
+pub mod press_sweep;
 pub mod reference_study;
 pub mod ridge;
 pub mod rom_profile;
@@ -33,6 +34,7 @@ const PROBES: &[Probe] = &[
     ("newton_profile", newton_profile::run),
     ("overshoot", overshoot::run),
     ("poisson", poisson::run),
+    ("press_sweep", press_sweep::run),
     ("reference_study", reference_study::run),
     ("ridge", ridge::run),
     ("rom_profile", rom_profile::run),
@@ -41,7 +43,7 @@ const PROBES: &[Probe] = &[
 ];
 
 /// The probes' names, for the command line.
-pub const NAMES: [&str; 15] = [
+pub const NAMES: [&str; 16] = [
     "contact_size",
     "decoder_thickness",
     "deep",
@@ -52,6 +54,7 @@ pub const NAMES: [&str; 15] = [
     "newton_profile",
     "overshoot",
     "poisson",
+    "press_sweep",
     "reference_study",
     "ridge",
     "rom_profile",

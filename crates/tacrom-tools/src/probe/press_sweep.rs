@@ -61,7 +61,7 @@ pub fn run(args: Vec<String>) {
         let t = Instant::now();
         let eval = sensor.evaluate(&placed, &mut out);
         total.push(t.elapsed().as_secs_f64() * 1e3);
-        let rom = eval.rom.clone().unwrap_or_default();
+        let rom = eval.rom.unwrap_or_default();
         encode.push(rom.encode_s * 1e3);
         decode.push(rom.decode_s * 1e3);
     }

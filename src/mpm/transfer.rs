@@ -348,7 +348,7 @@ pub(crate) fn particle_to_grid<M: ConstitutiveModel>(
 /// (wider vectors, no FMA contraction, so the same IEEE operations in the same order and
 /// bit-identical results).
 #[inline]
-fn has_avx2() -> bool {
+pub(super) fn has_avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("avx2")

@@ -3,6 +3,7 @@
 //! module's doc gives its arguments; each prints a table to standard output. They use
 //! the plugin's public API only, and their numbers are quoted in `docs/solvers.md`.
 
+pub mod configs;
 pub mod contact_size;
 pub mod decoder_thickness;
 pub mod deep;
@@ -24,6 +25,7 @@ pub mod small;
 type Probe = (&'static str, fn(Vec<String>));
 
 const PROBES: &[Probe] = &[
+    ("configs", configs::run),
     ("contact_size", contact_size::run),
     ("decoder_thickness", decoder_thickness::run),
     ("deep", deep::run),
@@ -43,7 +45,8 @@ const PROBES: &[Probe] = &[
 ];
 
 /// The probes' names, for the command line.
-pub const NAMES: [&str; 16] = [
+pub const NAMES: [&str; 17] = [
+    "configs",
     "contact_size",
     "decoder_thickness",
     "deep",

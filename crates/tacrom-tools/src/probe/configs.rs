@@ -14,6 +14,7 @@
 //! configurations fit in minutes. Counts per mode of configurations loaded, refused (with the attribute named)
 //! and evaluated, panics (each printed with its configuration, to replay), non-finite
 //! outputs, and the resident memory (free heap pages handed back first) at each tenth.
+//! With `TACROM_CONFIGS_TRACE` set, each configuration is printed before it is loaded.
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand_core::{Rng as _, SeedableRng};
@@ -229,6 +230,9 @@ pub fn run(args: Vec<String>) {
     let count: usize = args.get(1).map_or(1000, |s| s.parse().expect("count"));
     let seed: u64 = args.get(2).map_or(1, |s| s.parse().expect("seed"));
     let max_cells: f64 = args.get(3).map_or(5e4, |s| s.parse().expect("cells"));
+    // Each configuration printed before it is loaded: the last one printed is the one
+    // that is running (for a run that stalls).
+    let trace = std::env::var_os("TACROM_CONFIGS_TRACE").is_some();
     let mut rng = Rng(Xoshiro256PlusPlus::seed_from_u64(seed));
     let mut tally: BTreeMap<String, Tally> = BTreeMap::new();
     let mut refusals: BTreeMap<String, usize> = BTreeMap::new();
@@ -251,6 +255,9 @@ pub fn run(args: Vec<String>) {
         t.drawn += 1;
         let scene_seed = rng.0.next_u64();
         let began = Instant::now();
+        if trace {
+            eprintln!("configuration {i}: {attrs:?}");
+        }
         let outcome = catch_unwind(AssertUnwindSafe(|| {
             let config = match Config::from_raw("fuzz", &raw) {
                 Ok(c) => c,

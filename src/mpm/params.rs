@@ -293,6 +293,9 @@ pub struct SolveReport {
     /// Newton steps of the coarse start's gels ([`SolverOptions::coarse_start_above`]),
     /// not counted in `iterations`.
     pub coarse_iterations: usize,
+    /// Newton: the frame spent its bound on Newton steps and ended at the last
+    /// equilibrium it found, short of the indenters' poses.
+    pub work_bound: bool,
 }
 impl SolveReport {
     /// The report of a solve with `indenters` usable indenters that has not stepped yet.
@@ -316,6 +319,7 @@ impl SolveReport {
             gain_halvings: 0,
             substep_splits: 0,
             coarse_iterations: 0,
+            work_bound: false,
         }
     }
 }

@@ -237,7 +237,15 @@ impl SurfaceModel for Mpm {
             return;
         }
         let report = gel.solve(scene.indenters);
-        if !report.converged {
+        if report.work_bound {
+            eval.warnings.push(format!(
+                "tacrom.tactile sensor '{name}': gel did not reach equilibrium within its \
+                 bound of {} Newton steps a frame (residual {:.3e}); it stops where they took \
+                 it, short of the indenters' poses, and the next frame carries on from there \
+                 (a lower 'friction' or slower motion per frame converges sooner)",
+                report.iterations, report.residual
+            ));
+        } else if !report.converged {
             eval.warnings.push(format!(
                 "tacrom.tactile sensor '{name}': gel did not reach equilibrium in {} \
                  iterations (residual {:.3e})",

@@ -199,6 +199,18 @@ const LAG_BELOW: f64 = 0.03;
 /// Newton steps per minimisation at most.
 const MAX_NEWTON: usize = 60;
 
+/// Newton steps per frame at most, over all its substeps, splits and lagged-term
+/// refreshes: ten minimisations' worth. A frame that spends them ends where its last
+/// minimisation got to (each accepted step lowered the energy), short of the indenters'
+/// poses, and says so ([`SolveReport::work_bound`]); the next frame carries on from
+/// there. Counted, not timed, so that the answer does not depend on the machine. The
+/// stability suite's frames take at most 181 (336 for the press through the gel's
+/// bottom, which cannot converge); a box slid and turned across a 37 mm gel at friction
+/// 1.85, whose lagged friction forces cycle, took 4,968 in one frame (4.5 minutes)
+/// before this bound (measured: `docs/solvers.md`, "A bound on a frame's Newton
+/// steps").
+const FRAME_NEWTON: usize = 10 * MAX_NEWTON;
+
 /// A substep whose minimisation ends with a relative residual above this many times the
 /// tolerance (or in an undefined state) has not found an equilibrium but stalled: it is
 /// taken again from its start as two substeps of half the motion, at most
@@ -514,6 +526,9 @@ pub(crate) struct Newton {
     /// Load scale of the previous equilibrium (so that unloading is measured against it).
     last_scale: f64,
     min_scale: f64,
+    /// Newton steps a frame may take ([`FRAME_NEWTON`]) and those left to the current one.
+    pub(in crate::mpm) frame_steps: usize,
+    steps_left: usize,
     /// Per run of Newton steps with the same lagged terms in the last solve: the energy at
     /// its start and after each accepted step.
     pub history: Vec<Vec<f64>>,
@@ -689,6 +704,8 @@ impl Newton {
             friction: params.friction,
             last_scale: 0.0,
             min_scale: 1e-4 * mu,
+            frame_steps: FRAME_NEWTON,
+            steps_left: FRAME_NEWTON,
             history: Vec::new(),
             coarse_step: Vec::new(),
             last_change: Vec::new(),
@@ -1580,11 +1597,16 @@ impl Newton {
                 self.last_scale = Self::max_node_norm(&self.load);
                 return Some(residual);
             }
+            if self.steps_left == 0 {
+                report.work_bound = true;
+                return Some(residual);
+            }
             if last_residual.is_finite() {
                 eta = forcing(residual / last_residual, eta);
             }
             last_residual = residual;
             report.iterations += 1;
+            self.steps_left -= 1;
             let mut work = std::mem::take(&mut self.work);
             let mut direction = std::mem::take(&mut self.direction);
             let [rhs, scratch @ ..] = &mut work;
@@ -1882,17 +1904,25 @@ impl Newton {
             residual = self.minimise(indenters, tolerance, starts, start, report)?;
         }
         // The lagged terms (friction's normal forces, tip points) are refreshed and the
-        // minimisation repeated until they settle.
+        // minimisation repeated until they settle, while they settle: not after a
+        // minimisation that ran out of steps, nor once the friction's change stops
+        // falling (a high friction's lagged forces can cycle; each round is a
+        // minimisation).
+        let mut last_friction = f64::INFINITY;
         for _ in 0..MAX_OUTER {
+            if self.steps_left == 0 {
+                break;
+            }
             let tips = self.update_tips(indenters);
             let friction = if self.friction > 0.0 {
                 self.lag_friction(indenters, starts, start)
             } else {
                 0.0
             };
-            if tips <= tolerance && friction <= tolerance {
+            if tips <= tolerance && (friction <= tolerance || friction >= last_friction) {
                 break;
             }
+            last_friction = friction;
             residual = self.minimise(indenters, tolerance, starts, start, report)?;
         }
         report.residual = report.residual.max(residual);
@@ -1927,7 +1957,9 @@ impl Newton {
     /// `Err(residual)` when a substep stalls at the last split: the state is then that of
     /// its start, the last equilibrium found, and the caller goes no further (a grid
     /// crushed under a ridged mesh had ended at a force no gel carries). Measured:
-    /// `docs/solvers.md`, "A Newton substep that stalls".
+    /// `docs/solvers.md`, "A Newton substep that stalls". Also when the frame's Newton
+    /// steps are spent ([`FRAME_NEWTON`]): the state is then the one the minimisation
+    /// reached, short of equilibrium, for the next frame to carry on from.
     fn substep_split(
         &mut self,
         indenters: &[StepIndenter],
@@ -1941,7 +1973,14 @@ impl Newton {
         // A pull on the indenters asks for a split but does not stall a substep at the last
         // one: a body pressed deeper than its own size (a 0.2 mm sphere 0.6 mm deep) has
         // the top surface closing over it, and no split changes that.
-        let stalled = match self.substep(indenters, starts, &saved.u, span[1], tolerance, report) {
+        let got = self.substep(indenters, starts, &saved.u, span[1], tolerance, report);
+        if report.work_bound {
+            // The frame's Newton steps are spent: the state the minimisation reached (each
+            // accepted step lowered the energy) is kept, so that the next frame carries on
+            // from it, and the frame ends here.
+            return Err(got.map_or(f64::INFINITY, |(_, residual)| residual));
+        }
+        let stalled = match got {
             Some((force, residual))
                 if residual <= SPLIT_ABOVE * tolerance
                     && (splits == 0 || self.normal_lift(indenters) >= 0.0) =>
@@ -2504,6 +2543,7 @@ impl NewtonSolver {
         newton.forget_factors();
         newton.remap(matched);
         newton.history.clear();
+        newton.steps_left = newton.frame_steps;
         let motion = sweep.steps as f64 * gel.options.sweep_rate;
         // A body smaller than a couple of cells in every direction moves by at most
         // [`SOFT_EXTENT`] of its size per substep: moved past its radius in one go, it
@@ -2637,8 +2677,9 @@ impl NewtonSolver {
             {
                 Ok(f) => force = Some(f),
                 Err(residual) if residual.is_finite() => {
-                    // Stalled: the gel stays at the last equilibrium it found, short of
-                    // the indenters' pose, and the report says so.
+                    // Stalled: the gel stays at the last equilibrium it found (or, its
+                    // Newton steps spent, where they took it), short of the indenters'
+                    // pose, and the report says so.
                     report.converged = false;
                     report.residual = report.residual.max(residual);
                     force = Some(newton.loads.iter().map(|l| l.1).sum());

@@ -14,7 +14,9 @@
 //! configurations fit in minutes. Counts per mode of configurations loaded, refused (with the attribute named)
 //! and evaluated, panics (each printed with its configuration, to replay), non-finite
 //! outputs, and the resident memory (free heap pages handed back first) at each tenth.
-//! With `TACROM_CONFIGS_TRACE` set, each configuration is printed before it is loaded.
+//! With `TACROM_CONFIGS_TRACE` set, each configuration is printed before it is loaded;
+//! `TACROM_CONFIGS_ONLY=I` evaluates configuration `I` alone (the others are drawn, not
+//! loaded), to replay one.
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand_core::{Rng as _, SeedableRng};
@@ -233,6 +235,10 @@ pub fn run(args: Vec<String>) {
     // Each configuration printed before it is loaded: the last one printed is the one
     // that is running (for a run that stalls).
     let trace = std::env::var_os("TACROM_CONFIGS_TRACE").is_some();
+    // One configuration replayed alone (its index), the others drawn and skipped.
+    let only: Option<usize> = std::env::var("TACROM_CONFIGS_ONLY")
+        .ok()
+        .and_then(|s| s.parse().ok());
     let mut rng = Rng(Xoshiro256PlusPlus::seed_from_u64(seed));
     let mut tally: BTreeMap<String, Tally> = BTreeMap::new();
     let mut refusals: BTreeMap<String, usize> = BTreeMap::new();
@@ -251,9 +257,12 @@ pub fn run(args: Vec<String>) {
             .iter()
             .find(|(a, _)| a == "solver")
             .map_or(physics.clone(), |(_, s)| format!("{physics}-{s}"));
+        let scene_seed = rng.0.next_u64();
+        if only.is_some_and(|o| o != i) {
+            continue;
+        }
         let t = tally.entry(mode).or_default();
         t.drawn += 1;
-        let scene_seed = rng.0.next_u64();
         let began = Instant::now();
         if trace {
             eprintln!("configuration {i}: {attrs:?}");
@@ -279,7 +288,16 @@ pub fn run(args: Vec<String>) {
                     shape: shape.clone(),
                     pose,
                 }];
-                let _ = sensor.evaluate(&placed, &mut out);
+                let frame = Instant::now();
+                let eval = sensor.evaluate(&placed, &mut out);
+                if trace {
+                    eprintln!(
+                        "  frame: {:.3} s, solve {:?}, warnings {:?}",
+                        frame.elapsed().as_secs_f64(),
+                        eval.solve,
+                        eval.warnings
+                    );
+                }
                 bad += usize::from(out.iter().any(|v| !v.is_finite()));
             }
             Ok(bad)

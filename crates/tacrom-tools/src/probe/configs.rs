@@ -314,6 +314,9 @@ pub fn run(args: Vec<String>) {
             }
             Ok(Err(why)) => {
                 t.refused += 1;
+                if trace {
+                    eprintln!("  refused: {why}");
+                }
                 // The attribute a refusal names (`attribute 'NAME'`), or what it says.
                 let named = match why.split("attribute '").nth(1) {
                     Some(rest) => rest.split('\'').next().unwrap_or("").to_string(),

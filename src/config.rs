@@ -589,6 +589,30 @@ impl Config {
                 )
             })?),
         };
+        if let (Some(Solver::Linear), Some(dx)) = (solver, dx) {
+            // The linear solver factors its whole grid: refused here, naming the attribute
+            // that made the grid too fine, not later by the gel in its own words.
+            let params = GelParams {
+                size,
+                dx,
+                ..GelParams::default()
+            };
+            if !crate::mpm::choice::linear_fits(&params) {
+                let at = if raw.get(ATTR_DX).is_some() {
+                    ATTR_DX
+                } else {
+                    ATTR_SIZE
+                };
+                return Err(p.error(
+                    at,
+                    format!(
+                        "gives a grid of more than the {} unknowns that solver=\"linear\" \
+                         factors: a larger 'dx' or solver=\"newton\"",
+                        crate::mpm::choice::LINEAR_UNKNOWNS
+                    ),
+                ));
+            }
+        }
         let indenters = raw
             .get(ATTR_INDENTERS)
             .map(|v| v.split_whitespace().map(str::to_owned).collect())
@@ -1618,5 +1642,37 @@ mod tests {
         ]);
         assert_eq!(e.attribute, "dx", "{e}");
         assert!(parse(&[("physics", "rigid"), ("size", "1 1 1")]).is_ok());
+    }
+
+    // Regression: `solver="linear"` on a grid finer than it factors was refused by the gel
+    // at load ("invalid gel parameter `dx`"), not by the configuration with the attribute.
+    #[test]
+    fn a_grid_too_fine_for_the_linear_solver_blames_its_spacing_or_size() {
+        let e = err(&[
+            ("physics", "coarse"),
+            ("solver", "linear"),
+            ("dx", "0.00038"),
+        ]);
+        assert_eq!(e.attribute, "dx", "{e}");
+        assert!(
+            e.reason.contains("30000") && e.reason.contains("newton"),
+            "{e}"
+        );
+        let e = err(&[
+            ("physics", "coarse"),
+            ("solver", "linear"),
+            ("size", "0.2 0.2 0.004"),
+        ]);
+        assert_eq!(e.attribute, "size", "{e}");
+        for solver in ["linear", "newton"] {
+            let ok = [("physics", "coarse"), ("solver", solver)];
+            assert!(parse(&ok).is_ok(), "{solver}");
+        }
+        assert!(parse(&[
+            ("physics", "coarse"),
+            ("solver", "newton"),
+            ("dx", "0.00038")
+        ])
+        .is_ok());
     }
 }

@@ -1632,20 +1632,36 @@ fn spd_inverse(a: &DMatrix<f64>) -> Option<DMatrix<f64>> {
     Some(out)
 }
 
+/// Rows of a dense factorisation below which it runs in the calling thread even in a
+/// pool of several: a contact system of tens of pressed points gains nothing from a
+/// second thread but its hand-offs. `cargo bench --bench sensor`, two threads, median ms
+/// over four alternated runs each (parallel at every size, then below 256 rows in the
+/// calling thread): `coarse` with `solver="linear"`, sphere 7.17, 7.30, 7.98, 8.09 ->
+/// 4.90, 4.95, 5.63, 6.49; the default `rom`, sphere 4.35, 4.55, 6.29, 4.30 -> 4.25,
+/// 4.24, 4.31, 4.94; the cones unchanged within the drift. One thread is untouched (its
+/// factorisations were sequential already), and two threads now give the one thread's
+/// bits below this size.
+const PARALLEL_CHOLESKY_FROM: usize = 256;
+
 /// Overwrites the lower triangle of the symmetric positive definite `a` with its
 /// Cholesky factor (faer, in the calling thread's pool; in double or single precision);
 /// `None` if it is not positive definite.
 fn cholesky<T: faer::traits::RealField + nalgebra::Scalar>(a: &mut DMatrix<T>) -> Option<()> {
     let n = a.nrows();
+    let par = if n < PARALLEL_CHOLESKY_FROM {
+        Par::Seq
+    } else {
+        par()
+    };
     let mut mem = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<T>(
         n,
-        par(),
+        par,
         Default::default(),
     ));
     llt::factor::cholesky_in_place(
         MatMut::from_column_major_slice_mut(a.as_mut_slice(), n, n),
         Default::default(),
-        par(),
+        par,
         MemStack::new(&mut mem),
         Default::default(),
     )

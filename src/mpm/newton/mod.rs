@@ -1904,10 +1904,9 @@ impl Newton {
             residual = self.minimise(indenters, tolerance, starts, start, report)?;
         }
         // The lagged terms (friction's normal forces, tip points) are refreshed and the
-        // minimisation repeated until they settle, while they settle: not after a
-        // minimisation that ran out of steps, nor once the friction's change stops
-        // falling (a high friction's lagged forces can cycle; each round is a
-        // minimisation).
+        // minimisation repeated until they settle, and only while they do: not once the
+        // friction's change stops falling (a high friction's lagged forces can cycle, and
+        // each round is a minimisation), nor once the frame's Newton steps are spent.
         let mut last_friction = f64::INFINITY;
         for _ in 0..MAX_OUTER {
             if self.steps_left == 0 {

@@ -19,7 +19,8 @@ detected (`calibration.presses[i].contact.centre` of its optics file, in the sen
 orientation, mirrored back to the camera's), as the project's own renderers are scored.
 `--fit-depth` replaces the geometric depth by the one whose render best matches the real
 image within 1.5 annotated contact radii of the annotated centre (golden-section search
-on the mean absolute error over 0.4 to 1.6 times the cap depth R - sqrt(R^2 - a^2)).
+on the mean absolute error from 0.4 times the cap depth R - sqrt(R^2 - a^2) to the
+half-space's depth a/2 ln((R + a) / (R - a)), as `tacrom compare` searches).
 `--only-every N` renders only the presses with (index + 1) % N == 0 (the held-out presses
 of `--holdout N`). The error region is always the annotated circle.
 """
@@ -42,11 +43,22 @@ from gelsight_mini import read_png, write_png  # noqa: E402
 
 # The region of the contact MAE, in contact radii from the centre.
 CONTACT_REGION = 1.5
-# --fit-depth: the bracket of the search, in cap depths R - sqrt(R^2 - a^2), and its
-# golden-section steps after the two initial points.
-DEPTH_BRACKET = (0.4, 1.6)
+# --fit-depth: the lower end of the search, in cap depths R - sqrt(R^2 - a^2) (its upper
+# end is the half-space's depth, `half_space_depth`), and its golden-section steps after
+# the two initial points.
+DEPTH_FLOOR = 0.4
 DEPTH_STEPS = 12
 GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+def half_space_depth(a: float, radius: float) -> float:
+    """The depth to which a rigid sphere of `radius` sinks into an elastic half-space
+    when its contact circle has radius `a` (Sneddon: a/2 ln((R + a) / (R - a)), twice the
+    cap's depth for a << R): a gel bonded to its window sinks less, so no press of that
+    circle lies deeper (`half_space_depth` of crates/tacrom-tools/src/calibrate/gel.rs)."""
+    if a >= radius:
+        return radius
+    return min(0.5 * a * np.log((radius + a) / (radius - a)), radius)
 
 
 def ball_height_map(shape: tuple[int, int], centre_px, radius_mm: float, pixel_mm: float) -> np.ndarray:
@@ -157,7 +169,7 @@ def main() -> None:
         radius = p["ball_radius_mm"]
         if args.fit_depth:
             cap = radius - np.sqrt(radius**2 - a_mm**2)
-            lo, hi = DEPTH_BRACKET[0] * cap, DEPTH_BRACKET[1] * cap
+            lo, hi = DEPTH_FLOOR * cap, half_space_depth(a_mm, radius)
             start = time.perf_counter()
             depth, _, seen = golden_section(lambda d: mae(render(p, centres[i], d)[0], real, near), lo, hi, DEPTH_STEPS)
             fits.append({"press": i, "cap_mm": float(cap), "bracket_mm": [float(lo), float(hi)],
@@ -191,7 +203,7 @@ def main() -> None:
         "mae_contact_mean": float(np.mean([r[1] for r in rows])),
     }
     if args.fit_depth:
-        timing["depth_fit"] = {"bracket_caps": list(DEPTH_BRACKET), "steps": DEPTH_STEPS,
+        timing["depth_fit"] = {"floor_caps": DEPTH_FLOOR, "ceiling": "half-space", "steps": DEPTH_STEPS,
                                "error": "mean absolute (colour in [0, 1], all channels) within 1.5 annotated contact radii of the annotated centre",
                                "presses": fits}
     (args.out / "timing.json").write_text(json.dumps(timing, indent=1) + "\n")

@@ -49,13 +49,16 @@ pub const CELLS_THROUGH: f64 = 2.0;
 /// The gel's lateral margin beyond the image on each side (m): several thicknesses, so
 /// that its free sides do not shape the imprint.
 pub const MARGIN: f64 = 1e-3;
-/// The depth search's bracket, as multiples of the rigid cap's depth `R - sqrt(R^2 - a^2)`.
-const DEPTH_BRACKET: [f64; 2] = [0.4, 1.6];
+/// The depth search's lower end, as a multiple of the rigid cap's depth `R - sqrt(R^2 -
+/// a^2)` of the press's circle: a nearly incompressible thin layer bulges around the ball,
+/// so its contact circle is wider than the cap's at the same depth. The upper end is the
+/// half-space's ([`half_space_depth`]).
+const DEPTH_FLOOR: f64 = 0.4;
 /// Golden-section steps of each axis's refinement of the gel: the bracket between the best
 /// grid point's neighbours shrinks to 0.618^5 = 9 % of its width.
 const REFINE_STEPS: usize = 5;
 /// Golden-section steps of the depth search: the bracket shrinks to 0.618^n of its width
-/// (1.2 times the cap's depth, to 0.4 % of it after 12).
+/// (to 0.3 % of it after 12).
 const DEPTH_STEPS: usize = 12;
 
 /// A gel candidate.
@@ -389,11 +392,32 @@ pub fn region_error(
     super::metrics::mae(scratch, &press.image.data, Some(mask))
 }
 
-/// The depth of the rigid cap whose contact circle is `press`'s (m).
+/// The press's contact radius (m): the circle `presses.json` draws where it gives one
+/// (the annotation of the contact itself), else the detected one (which takes in the
+/// imprint's rim around the contact, so is wider).
+pub fn contact_radius(press: &Press) -> f64 {
+    press.given.unwrap_or(press.contact).radius * press.pixel_size
+}
+
+/// The depth of the rigid cap whose contact circle is `press`'s ([`contact_radius`], m).
 pub fn cap_depth(press: &Press) -> f64 {
-    let a = press.contact.radius * press.pixel_size;
+    let a = contact_radius(press);
     let r = press.ball_radius;
     r - (r * r - a * a).max(0.0).sqrt()
+}
+
+/// The depth (m) to which a rigid sphere of radius `R` sinks into an elastic half-space
+/// when its frictionless contact circle has radius `a`: `a/2 ln((R + a) / (R - a))`
+/// (Sneddon's solution for a sphere; Hertz's `a^2 / R` for `a << R`, twice the cap's
+/// depth). A gel bonded to its window is confined and sinks less around the ball, so no
+/// ball press of that circle lies deeper: the depth search's upper end. The sphere's
+/// surface past `a` stays out of the depth: `R` where `a >= R`.
+pub fn half_space_depth(press: &Press) -> f64 {
+    let (a, r) = (contact_radius(press), press.ball_radius);
+    if a >= r {
+        return r;
+    }
+    (0.5 * a * ((r + a) / (r - a)).ln()).min(r)
 }
 
 /// Golden-section minimum of `f` over `[lo, hi]` in `steps` steps: the best point seen
@@ -427,20 +451,20 @@ pub fn golden(mut f: impl FnMut(f64) -> f64, lo: f64, hi: f64, steps: usize) -> 
 }
 
 /// `press`'s depth and `error` there: the depth `presses.json` gives, or else the one of
-/// least `error` (m to error), by a golden-section search over [`DEPTH_BRACKET`] times the
-/// rigid cap's depth. The one depth search of the gel fit and of `tacrom compare`.
+/// least `error` (m to error), by a golden-section search from [`DEPTH_FLOOR`] times the
+/// rigid cap's depth to the half-space's ([`half_space_depth`]): the depths a ball of the
+/// press's contact circle can have reached in an elastic gel, so that the fit cannot buy
+/// an image's colours with a press no gel would take. The one depth search of the gel fit
+/// and of `tacrom compare`.
 pub fn press_depth(press: &Press, mut error: impl FnMut(f64) -> f64) -> (f64, f64) {
     match press.depth {
         Some(d) => (d, error(d)),
-        None => {
-            let cap = cap_depth(press);
-            golden(
-                error,
-                DEPTH_BRACKET[0] * cap,
-                DEPTH_BRACKET[1] * cap,
-                DEPTH_STEPS,
-            )
-        }
+        None => golden(
+            error,
+            DEPTH_FLOOR * cap_depth(press),
+            half_space_depth(press),
+            DEPTH_STEPS,
+        ),
     }
 }
 
@@ -826,6 +850,54 @@ pub fn fit_gel(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A press of a ball of radius 2 mm whose drawn circle has `a` pixels of 0.01 mm, its
+    /// detected circle 1.5 times wider.
+    fn press(a: f64) -> Press {
+        let circle = |radius| Contact {
+            centre: [10.0, 10.0],
+            radius,
+        };
+        Press {
+            name: "p".into(),
+            image: RgbImage {
+                width: 1,
+                height: 1,
+                data: vec![0.0; CHANNELS],
+            },
+            ball_radius: 2e-3,
+            pixel_size: 1e-5,
+            contact: circle(1.5 * a),
+            given: Some(circle(a)),
+            depth: None,
+            force: None,
+            detected: true,
+        }
+    }
+
+    /// The depth search's upper end is the half-space's depth for the drawn circle:
+    /// Hertz's `a^2 / R` (twice the cap's depth) for a small circle, more than twice the
+    /// cap's for a wide one (Sneddon's sphere), never the ball's radius; and a press whose
+    /// images match best at 1.9 times the cap's depth (a soft gel's, beyond the 1.6 times
+    /// the search stopped at before) is found there.
+    #[test]
+    fn the_depth_search_reaches_the_half_spaces_depth() {
+        let small = press(10.0);
+        let (a, r) = (1e-4, 2e-3);
+        assert_eq!(contact_radius(&small), a, "the drawn circle, not the detected one");
+        let hertz = a * a / r;
+        assert!((half_space_depth(&small) / hertz - 1.0).abs() < 1e-3);
+        assert!((half_space_depth(&small) / cap_depth(&small) - 2.0).abs() < 2e-3);
+        for a in [50.0, 100.0, 150.0] {
+            let p = press(a);
+            let (cap, deep) = (cap_depth(&p), half_space_depth(&p));
+            assert!(deep > 2.0 * cap && deep < p.ball_radius, "{a}: {cap} {deep}");
+        }
+        let p = press(100.0);
+        let target = 1.9 * cap_depth(&p);
+        let (found, _) = press_depth(&p, |d| (d - target).abs());
+        assert!((found / target - 1.0).abs() < 0.01, "{found} against {target}");
+    }
 
     /// The golden section finds a parabola's minimum to its bracket's final width.
     #[test]

@@ -884,19 +884,29 @@ mod tests {
     fn the_depth_search_reaches_the_half_spaces_depth() {
         let small = press(10.0);
         let (a, r) = (1e-4, 2e-3);
-        assert_eq!(contact_radius(&small), a, "the drawn circle, not the detected one");
+        assert_eq!(
+            contact_radius(&small),
+            a,
+            "the drawn circle, not the detected one"
+        );
         let hertz = a * a / r;
         assert!((half_space_depth(&small) / hertz - 1.0).abs() < 1e-3);
         assert!((half_space_depth(&small) / cap_depth(&small) - 2.0).abs() < 2e-3);
         for a in [50.0, 100.0, 150.0] {
             let p = press(a);
             let (cap, deep) = (cap_depth(&p), half_space_depth(&p));
-            assert!(deep > 2.0 * cap && deep < p.ball_radius, "{a}: {cap} {deep}");
+            assert!(
+                deep > 2.0 * cap && deep < p.ball_radius,
+                "{a}: {cap} {deep}"
+            );
         }
         let p = press(100.0);
         let target = 1.9 * cap_depth(&p);
         let (found, _) = press_depth(&p, |d| (d - target).abs());
-        assert!((found / target - 1.0).abs() < 0.01, "{found} against {target}");
+        assert!(
+            (found / target - 1.0).abs() < 0.01,
+            "{found} against {target}"
+        );
     }
 
     /// The golden section finds a parabola's minimum to its bracket's final width.

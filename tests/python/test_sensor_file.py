@@ -72,3 +72,33 @@ def test_gripper_env_takes_the_preset():
     for _ in range(3):
         obs, *_ = env.step(np.array([0.0, -1.0, -1.0], np.float32))
     assert env.observation_space.contains(obs)
+
+
+def test_the_gripper_scene_carries_minis_and_each_pad_fits_its_gel():
+    import pathlib
+
+    from tacrom.envs.gripper import PAD_SINK
+
+    mini = [float(v) for v in tacrom.attribute({"sensor": "gelsight-mini"}, "size").split()]
+    default = [float(v) for v in tacrom.attribute({}, "size").split()]
+    scene = pathlib.Path(__file__).resolve().parents[2] / "examples" / "gripper.xml"
+    spec = mujoco.MjSpec.from_file(str(scene))
+    for s in spec.sensors:
+        assert dict(s.plugin.config)["sensor"] == "gelsight-mini"
+
+    def pads(model):
+        return [(model.geom(p).size, model.geom(p).pos) for p in ("left_pad", "right_pad")]
+
+    # The scene's pads, the default environment's and the Minis' environment's: each pad's
+    # face the gel's face, PAD_SINK of its thickness below the gel's surface (x = 0).
+    for model, (lx, ly, t) in (
+        (spec.compile(), mini),
+        (gym.make("tacrom/GripperLift-v1").unwrapped.model, default),
+        (gym.make("tacrom/GripperLift-v1", sensor="gelsight-mini").unwrapped.model, mini),
+    ):
+        for side, (size, pos) in zip((-1.0, 1.0), pads(model)):
+            np.testing.assert_allclose(size[1:], [lx / 2, ly / 2], rtol=1e-6)
+            np.testing.assert_allclose(pos[0], side * (size[0] + PAD_SINK * t), rtol=1e-4)
+    # The default environment's pads are the scene's as it was designed: 30 x 30 mm, 0.3 mm below.
+    size, pos = pads(gym.make("tacrom/GripperLift-v1").unwrapped.model)[0]
+    np.testing.assert_allclose([*size, pos[0]], [0.005, 0.015, 0.015, -0.0053], rtol=1e-9)

@@ -34,6 +34,25 @@ START_LIFT = 0.05
 
 #: Each fingertip's pad geom, the finger body it hangs on and the side its gel faces.
 PADS = (("left_pad", "left_finger", 1.0), ("right_pad", "right_finger", -1.0))
+#: How far each pad's collision face lies below its gel's free surface, as a fraction of
+#: the gel's thickness (0.3 mm of the default 4 mm gel): a held object indents the gel by
+#: that and MuJoCo's own penetration.
+PAD_SINK = 0.075
+
+
+def fit_pads(spec: mujoco.MjSpec, sensors: Sequence[str] = SENSORS) -> None:
+    """Fits each fingertip's pad to its sensor's gel as configured in ``spec``: its face the
+    gel's face (the gel's ``size`` along the site's x and y: the finger's y and z) and
+    :data:`PAD_SINK` of the gel's thickness below its surface. The scene's pads are its
+    GelSight Minis'; the default gel's are 30 x 30 mm, 0.3 mm below."""
+    found = {s.name: s for s in spec.sensors}
+    for sensor, (pad, _, side) in zip(sensors, PADS):
+        size = tacrom.attribute(dict(found[sensor].plugin.config), "size")
+        lx, ly, thickness = (float(v) for v in size.split())
+        geom = spec.geom(pad)
+        half = float(geom.size[0])
+        geom.size = [half, 0.5 * lx, 0.5 * ly]
+        geom.pos = [-side * (half + PAD_SINK * thickness), geom.pos[1], geom.pos[2]]
 
 
 def couple_pads(spec: mujoco.MjSpec, sensors: Sequence[str] = SENSORS) -> None:
@@ -75,7 +94,8 @@ class GripperLiftEnv(TactileEnv):
 
     The scene is ``examples/gripper.xml`` (shipped in the package as
     ``tacrom/envs/assets/gripper.xml``): a gripper on a carry (y) and a lift (z) slide with
-    two fingers closing along x, a 30 x 30 x 4 mm gel on each fingertip, and three objects
+    two fingers closing along x, a tactile gel on each fingertip (the scene's GelSight Minis
+    when ``sensor="gelsight-mini"``, else the default 30 x 30 x 4 mm gel), and three objects
     (box 24 x 16 x 40 mm, cylinder R = 12 mm x 40 mm, the ``hexagon`` mesh); one is placed
     under the gripper per episode (``object``: one name, or ``"random"``), 0 to 4 mm off
     centre along y and turned up to 0.15 rad about z, the others parked out of reach.
@@ -108,8 +128,9 @@ class GripperLiftEnv(TactileEnv):
     ``physics``: ``"rigid"`` by default (no gel: a grasp's fingertip gels cost the sensor's
     default ``"rom"`` about 120 ms a step, docs/rl.md), ``"coarse"`` or ``"rom"``.
     ``sensor``: a sensor file or a shipped sensor's name for both fingertips
-    (``"gelsight-mini"``: its gel, window and optics; the grasp was designed for the
-    default 4 mm gel). ``sensor_config``: further attributes of both sensors
+    (``"gelsight-mini"``: its gel, window and optics, as the scene's own fingertips);
+    without one, the default 30 x 30 x 4 mm gel, on which the grasp was designed. Each pad
+    is fitted to its gel (:func:`fit_pads`). ``sensor_config``: further attributes of both sensors
     (``{"tolerance": "1e-2"}``, ``{"threads": 2}``; docs/configuration.md).
     ``coupling``: the gels push back and hold the object (:func:`couple_pads`; needs
     ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad;
@@ -141,6 +162,14 @@ class GripperLiftEnv(TactileEnv):
             raise ValueError("coupling needs a gel physics ('coarse' or 'rom'), not 'rigid'")
         spec = mujoco.MjSpec.from_file(str(asset_path("gripper.xml")))
         extra = {**(sensor_config or {}), **({"sensor": sensor} if sensor else {})}
+        if "sensor" not in extra:
+            # The scene's fingertips are GelSight Minis; the environment's default is the
+            # default gel, on which its costs and its coupled grasp are measured.
+            for s in spec.sensors:
+                if s.name in SENSORS:
+                    config = dict(s.plugin.config)
+                    config.pop("sensor", None)
+                    s.plugin.config = config
         if coupling and physics == "rom" and not sensor and "model" not in extra:
             extra["model"] = COUPLED_MODEL
         outputs = ["depth", "rgb"] if tactile_rgb else ["depth"]
@@ -155,6 +184,7 @@ class GripperLiftEnv(TactileEnv):
             outputs=outputs,
             extra=extra,
         )
+        fit_pads(spec)
         if coupling:
             couple_pads(spec)
         super().__init__(

@@ -249,6 +249,9 @@ pub(crate) struct Compliance {
     /// Unknowns from which a frictional solve may split ([`SPLIT_UNKNOWNS`]; tests
     /// compare with Newton's method alone).
     split_unknowns: usize,
+    /// Whether large frictional solves precondition their Newton steps with a kept
+    /// factor ([`Problem::precondition`]; tests compare with a factor every step).
+    precondition: bool,
 }
 
 /// The dense systems of one set of node columns under a contact.
@@ -461,6 +464,7 @@ impl Compliance {
             locals: Vec::new(),
             built_large: false,
             split_unknowns: SPLIT_UNKNOWNS,
+            precondition: true,
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
         Ok((c, newton))
@@ -1250,6 +1254,7 @@ impl Compliance {
                         inverse: &vertical.inverse,
                         inverse32: None,
                         scratch: &vertical.scratch,
+                        precondition: false,
                         w: &rows,
                         delta: &d,
                         eps: &eps,
@@ -1271,11 +1276,13 @@ impl Compliance {
                     None => solved = false,
                 }
             }
+            system.scratch.new_pass();
             let problem = Problem {
                 g: &system.g,
                 inverse: &system.inverse,
                 inverse32: system.inverse32.as_ref(),
                 scratch: &system.scratch,
+                precondition: self.precondition,
                 w: &rows,
                 delta: &d,
                 eps: &eps,
@@ -1672,15 +1679,18 @@ fn cholesky<T: faer::traits::RealField + nalgebra::Scalar>(a: &mut DMatrix<T>) -
 /// `a x` (faer's product, in the calling thread): the contact solves' matrix-vector
 /// products (with nalgebra's, `tacrom/Press-v1`'s sweep on the linear gel ran about 5 %
 /// slower).
-fn product(a: &DMatrix<f64>, x: &DVector<f64>) -> DVector<f64> {
+fn product<T: faer::traits::RealField + nalgebra::Scalar>(
+    a: &DMatrix<T>,
+    x: &DVector<T>,
+) -> DVector<T> {
     let (n, k) = a.shape();
-    let mut out = DVector::zeros(n);
+    let mut out = DVector::from_element(n, T::zero());
     faer::linalg::matmul::matmul(
         MatMut::from_column_major_slice_mut(out.as_mut_slice(), n, 1),
         faer::Accum::Replace,
         MatRef::from_column_major_slice(a.as_slice(), n, k),
         MatRef::from_column_major_slice(x.as_slice(), k, 1),
-        1.0,
+        T::one(),
         Par::Seq,
     );
     out
@@ -1712,6 +1722,11 @@ struct Problem<'a> {
     inverse32: Option<&'a DMatrix<f32>>,
     /// The matrices Newton's steps assemble their systems in ([`Problem::system_in`]).
     scratch: &'a Workspace,
+    /// Whether the frictional solve's Newton steps from [`MIXED_UNKNOWNS`] on keep their
+    /// factor within the pass and solve the next steps' systems by conjugate gradients
+    /// preconditioned with it ([`Problem::conjugate_gradients`]), factoring anew only
+    /// where that does not converge quickly.
+    precondition: bool,
     w: &'a [Columns],
     delta: &'a [f64],
     eps: &'a [f64],
@@ -1752,7 +1767,12 @@ impl Problem<'_> {
     /// of `G^-1` in single precision (`inverse32`, or made here), and the direction
     /// refined once in double with the system's product taken as `G^-1 x` plus the points'
     /// `W^T Phi'' W x`: the double-precision system is never formed.
-    fn stiff_descent(&self, stiff: &[(usize, Matrix3<f64>)], r: &DVector<f64>) -> Option<Descent> {
+    fn stiff_descent(
+        &self,
+        stiff: &[(usize, Matrix3<f64>)],
+        r: &DVector<f64>,
+        target: f64,
+    ) -> Option<Descent> {
         let k = self.inverse.nrows();
         let mut scratch = self.scratch.lock();
         if k < MIXED_UNKNOWNS {
@@ -1760,6 +1780,24 @@ impl Problem<'_> {
             add_stiffness(system, self.w, stiff, |x| x);
             return self.descent(system, r);
         }
+        if self.precondition && scratch.factored {
+            if let Some(d) = self.conjugate_gradients(&scratch.single, stiff, r, target) {
+                scratch.preconditioned += 1;
+                return Some(d);
+            }
+        }
+        self.factored_descent(&mut scratch, stiff, r)
+    }
+
+    /// [`Problem::stiff_descent`] from a factor of this step's own system, made in single
+    /// precision and kept ([`Scratch::factored`]) for the next steps of the pass.
+    fn factored_descent(
+        &self,
+        scratch: &mut Scratch,
+        stiff: &[(usize, Matrix3<f64>)],
+        r: &DVector<f64>,
+    ) -> Option<Descent> {
+        scratch.factored = false;
         let made;
         let inverse32 = match self.inverse32 {
             Some(low) => low,
@@ -1771,7 +1809,8 @@ impl Problem<'_> {
         let low = Self::system_in(&mut scratch.single, inverse32);
         add_stiffness(low, self.w, stiff, |x| x as f32);
         cholesky(low)?;
-        let low = &*low;
+        scratch.factored = true;
+        let low = &scratch.single;
         let solve = |b: &DVector<f64>| {
             let mut x = b.map(|x| x as f32);
             cholesky_solve(low, &mut x);
@@ -1793,6 +1832,86 @@ impl Problem<'_> {
         let residual = &z - applied;
         let z = first + solve(&residual);
         Some(self.along(r, z))
+    }
+
+    /// The Newton system `(G^-1 + W^T Phi'' W) z = -r` of [`Problem::stiff_descent`] solved
+    /// by conjugate gradients, preconditioned by `factor` (the single-precision Cholesky
+    /// factor of an earlier step's system in this pass), until the predicted residual after
+    /// the full step, `|r + A z|` (max norm), is at most `target`: the descent, or `None`
+    /// where [`PRECONDITIONED_ITERATIONS`] do not get there (the caller then factors this
+    /// step's system). The system is applied in double precision (`G^-1 p` plus the
+    /// points' `W^T Phi'' W p`), and the step `d = G^-1 z` is gathered from the same
+    /// products, so an iteration costs one product with `G^-1` and one pair of triangular
+    /// solves with `factor`, against a factorisation (`k^3 / 3`) for a new factor.
+    fn conjugate_gradients(
+        &self,
+        factor: &DMatrix<f32>,
+        stiff: &[(usize, Matrix3<f64>)],
+        r: &DVector<f64>,
+        target: f64,
+    ) -> Option<Descent> {
+        let k = r.len();
+        let precondition = |b: &DVector<f64>| {
+            let mut x = b.map(|x| x as f32);
+            cholesky_solve(factor, &mut x);
+            x.map(f64::from)
+        };
+        // The system's products in single precision where `G^-1` is kept so (their error,
+        // about 1e-7 of the product, lies far below the iterations' target, at least a
+        // thousandth of `r`); the step `G^-1 z` once, in double, at the end.
+        let inverse = |p: &DVector<f64>| match self.inverse32 {
+            Some(low) => product(low, &p.map(|x| x as f32)).map(f64::from),
+            None => product(self.inverse, p),
+        };
+        let mut z = DVector::zeros(k);
+        let mut res = -r;
+        let mut y = precondition(&res);
+        let mut p = y.clone();
+        let mut ry = res.dot(&y);
+        let start = res.amax();
+        for it in 0..PRECONDITIONED_ITERATIONS {
+            let mut q = inverse(&p);
+            let at = at_points(self.w, &p);
+            for &(i, h) in stiff {
+                let t = h * at[i];
+                for &(c, wt) in &self.w[i] {
+                    let c = 3 * c as usize;
+                    for j in 0..3 {
+                        q[c + j] += wt * t[j];
+                    }
+                }
+            }
+            let pq = p.dot(&q);
+            if !(pq > 0.0 && ry.is_finite()) {
+                return None;
+            }
+            let alpha = ry / pq;
+            z.axpy(alpha, &p, 1.0);
+            res.axpy(-alpha, &q, 1.0);
+            if res.amax() <= target {
+                let slope = r.dot(&z);
+                return (slope < 0.0).then(|| Descent {
+                    step: product(self.inverse, &z),
+                    sinking: z,
+                    slope,
+                });
+            }
+            if it >= 1 {
+                // Where the residual's rate so far would not reach the target within the
+                // iterations allowed, a factorisation costs less than going on.
+                let done = (it + 1) as f64;
+                let rate = (res.amax() / start).ln() / done;
+                let left = (target / res.amax()).ln() / rate;
+                if !(rate < 0.0 && done + left <= PRECONDITIONED_ITERATIONS as f64) {
+                    return None;
+                }
+            }
+            y = precondition(&res);
+            let next = res.dot(&y);
+            p = &y + &p * (next / ry);
+            ry = next;
+        }
+        None
     }
 
     /// The descent `d = G^-1 z` for the solution `z` of the Newton system with right-hand
@@ -1883,6 +2002,14 @@ fn add_stiffness<T: nalgebra::RealField + Copy>(
 pub(super) struct Scratch {
     double: DMatrix<f64>,
     single: DMatrix<f32>,
+    /// Whether `single` holds the factor of a system of the present contact pass (the
+    /// preconditioner of [`Problem::stiff_descent`]'s conjugate gradients). Cleared when
+    /// a pass poses its problem ([`Workspace::new_pass`]), so that no factor outlives the
+    /// pass that made it: a frame's path depends on the frame alone.
+    factored: bool,
+    /// Newton steps solved by [`Problem::conjugate_gradients`] so far (tests check
+    /// that the path they compare ran).
+    preconditioned: usize,
 }
 
 /// A [`Scratch`] kept with a set of columns' systems. Its contents are overwritten before
@@ -1894,6 +2021,11 @@ impl Workspace {
     fn lock(&self) -> std::sync::MutexGuard<'_, Scratch> {
         // A poisoned lock left matrices that are overwritten before use anyway.
         self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Forgets the factor a past pass left ([`Scratch::factored`]).
+    fn new_pass(&self) {
+        self.lock().factored = false;
     }
 }
 
@@ -1922,6 +2054,22 @@ const MAX_NEWTON: usize = 60;
 /// solve keeps double precision: its last step is exact on its pressed set.) Measured:
 /// `docs/solvers.md`, "A held grasp split first".
 const MIXED_UNKNOWNS: usize = SPLIT_UNKNOWNS;
+
+/// Conjugate-gradient iterations with a kept factor at most before a Newton step
+/// factors its own system instead ([`Problem::conjugate_gradients`]); fewer where the
+/// residual's rate so far says they will not suffice. An iteration costs about a
+/// twentieth of a factorisation and its solves on a pad's 1,300 unknowns.
+const PRECONDITIONED_ITERATIONS: usize = 20;
+
+/// How closely a Newton step's conjugate gradients solve its system at the least: the
+/// residual after the full step at most this fraction of the present one (the forcing
+/// term of an inexact Newton method; a tighter one, 1e-3, took more iterations and no
+/// fewer Newton steps), and at most [`STEP_RESIDUAL`] of the solve's stopping residual.
+const STEP_FORCING: f64 = 1e-2;
+
+/// The predicted residual after a Newton step's full step, relative to the solve's
+/// stopping residual, at which its conjugate gradients stop.
+const STEP_RESIDUAL: f64 = 0.1;
 
 /// Newton steps of a warm frictional solve before it starts again through the larger
 /// stick radii, and the residual (relative to the loads) at which those stages stop. A
@@ -2197,6 +2345,9 @@ fn minimise(
         // The frame's first step assumes every point with a cap stuck (see
         // [`Friction::predict_stick`]).
         let predict = it == 0 && friction.predict_stick;
+        // How closely a step's conjugate gradients solve its system: to a tenth of the
+        // residual the solve stops at, or a hundredth of the present one if larger.
+        let target = (STEP_RESIDUAL * tolerance * scale).max(STEP_FORCING * r.amax());
         // Each point's stiffness (penalty where it presses, friction's where it carries a
         // cap), for the system `G^-1 + W^T Phi'' W`: symmetric positive definite.
         let mut stiff = Vec::with_capacity(w.len());
@@ -2234,13 +2385,13 @@ fn minimise(
                 })
                 .collect();
             // Its slope on this frame's energy: `(G r) . d = r . G d`.
-            let d = p.stiff_descent(&stiff, &(&*l - loads(&stuck)))?;
+            let d = p.stiff_descent(&stiff, &(&*l - loads(&stuck)), target)?;
             match r.dot(&d.sinking) {
                 slope if slope < 0.0 => Descent { slope, ..d },
                 _ => p.gradient(&r),
             }
         } else {
-            p.stiff_descent(&stiff, &r)?
+            p.stiff_descent(&stiff, &r, target)?
         };
         let Descent {
             step,

@@ -110,6 +110,7 @@ impl FrictionProblem {
             inverse: &self.inverse,
             inverse32: None,
             scratch,
+            precondition: true,
             w: &self.rows,
             delta: &self.delta,
             eps: &self.eps,
@@ -144,6 +145,7 @@ fn the_penalty_contact_solves_the_complementarity_problem() {
             inverse: &inverse,
             inverse32: None,
             scratch: &Workspace::default(),
+            precondition: false,
             w: &rows,
             delta: &delta,
             eps: &eps,
@@ -668,13 +670,58 @@ fn splitting_first_finds_newtons_minimum() {
     }
 }
 
+/// On random problems of [`MIXED_UNKNOWNS`] unknowns and more (150 to 170 columns, 300 to
+/// 600 points), Newton's steps solved by conjugate gradients preconditioned with the last
+/// factor reach the minimum that steps which each factor their own system reach: the
+/// energy is strictly convex, so its minimum is unique, and both stop at a residual of
+/// `FRICTION_RESIDUAL` of the loads, so the loads agree to 1e-7 of the largest.
+#[test]
+fn preconditioned_steps_find_the_factored_minimum() {
+    let mut noise = Noise(0x5851_f42d_4c95_7f2d);
+    for trial in 0..3 {
+        let k = MIXED_UNKNOWNS / 3 + 10 * trial;
+        let m = 300 + 150 * trial;
+        let random = noise.friction_problem(k, m);
+        let solve = |precondition: bool| {
+            let scratch = Workspace::default();
+            let problem = Problem {
+                precondition,
+                ..random.problem(&scratch)
+            };
+            let friction = Friction {
+                caps: &random.caps,
+                anchors: &random.anchors,
+                warm: false,
+                residual: FRICTION_RESIDUAL,
+                predict_stick: trial % 2 == 0,
+                split: usize::MAX,
+            };
+            let mut l = DVector::zeros(3 * k);
+            frictional_contact(&problem, &friction, &mut None, &mut l).expect("solved");
+            let used = scratch.lock().preconditioned;
+            (l, used)
+        };
+        let ((l, used), (factored, none)) = (solve(true), solve(false));
+        assert!(used > 0, "trial {trial}: no Newton step was preconditioned");
+        assert_eq!(none, 0, "trial {trial}");
+        let scale = factored.amax().max(1e-300);
+        assert!(
+            (&l - &factored).amax() <= 1e-7 * scale,
+            "trial {trial}: {} of {scale} ({used} steps preconditioned)",
+            (&l - &factored).amax()
+        );
+    }
+}
+
 /// A 24 mm box face pressed 0.4 mm into the default gel (friction 0.5, 441 node columns
 /// under it), slid 0.3 mm and shaken by a few microns a frame, as a simulated grasp
 /// holds an object: with splitting every frame converges, the shaken frames take less
 /// than half of the Newton steps of Newton's method alone, and the forces are Newton's
 /// alone: both take the same refreshes of the lagged normal forces and solve each to a
 /// residual of `INNER_RESIDUAL * tolerance` of the loads, so they agree to ten times
-/// that (6.6e-8 of the normal force when written).
+/// that (6.6e-8 of the normal force when written). Likewise Newton's steps solved by
+/// conjugate gradients preconditioned with the pass's last factor (the default, which
+/// solves most of them so) and Newton's steps that each factor their own system.
 #[test]
 fn a_shaken_grasp_splits_to_newtons_answer() {
     let params = GelParams {
@@ -689,13 +736,14 @@ fn a_shaken_grasp_splits_to_newtons_answer() {
         12e-3, 12e-3, half,
     )));
     let tolerance = 3e-3;
-    let run = |split: bool| {
+    let run = |split: bool, precondition: bool| {
         let mut c = Compliance::new(&gel).unwrap();
         if !split {
             c.split_unknowns = usize::MAX;
         }
+        c.precondition = precondition;
         let mut last = Isometry3::identity();
-        (0..20)
+        let frames = (0..20)
             .map(|f| {
                 let shake = |k: f64| match f {
                     12.. => 2.0 * (f as f64 * k).fract() - 1.0,
@@ -717,9 +765,18 @@ fn a_shaken_grasp_splits_to_newtons_answer() {
                     contact.iterations,
                 )
             })
-            .collect::<Vec<_>>()
+            .collect::<Vec<_>>();
+        let preconditioned: usize = c
+            .locals
+            .iter()
+            .map(|s| s.scratch.lock().preconditioned)
+            .sum();
+        (frames, preconditioned)
     };
-    let (split, newton) = (run(true), run(false));
+    let ((split, used), (newton, _)) = (run(true, true), run(false, true));
+    let (factored, none) = run(true, false);
+    assert!(used > 0, "no Newton step was preconditioned");
+    assert_eq!(none, 0);
     let steps = |r: &[(Vector3<f64>, usize)]| r[12..].iter().map(|x| x.1).sum::<usize>();
     // (43 against 126 when written.)
     assert!(
@@ -728,11 +785,15 @@ fn a_shaken_grasp_splits_to_newtons_answer() {
         steps(&split),
         steps(&newton)
     );
-    for (f, (a, b)) in split.iter().zip(&newton).enumerate() {
-        let (a, b) = (a.0, b.0);
+    for (f, ((a, b), c)) in split.iter().zip(&newton).zip(&factored).enumerate() {
+        let (a, b, c) = (a.0, b.0, c.0);
         assert!(
             (a - b).norm() <= 10.0 * INNER_RESIDUAL * tolerance * b.z,
             "frame {f}: {a} against {b}"
+        );
+        assert!(
+            (a - c).norm() <= 10.0 * INNER_RESIDUAL * tolerance * c.z,
+            "frame {f}: {a} preconditioned against {c} factored"
         );
     }
 }
@@ -1020,6 +1081,7 @@ fn a_whole_pad_pressed_by_a_box_face_converges() {
         inverse: &inverse,
         inverse32: None,
         scratch: &Workspace::default(),
+        precondition: false,
         w: &rows,
         delta: &delta,
         eps: &eps,

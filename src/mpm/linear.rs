@@ -1819,16 +1819,7 @@ impl Problem<'_> {
         let z = -r;
         let first = solve(&z);
         let mut applied = product(self.inverse, &first);
-        let at = at_points(self.w, &first);
-        for &(i, h) in stiff {
-            let t = h * at[i];
-            for &(c, wt) in &self.w[i] {
-                let c = 3 * c as usize;
-                for j in 0..3 {
-                    applied[c + j] += wt * t[j];
-                }
-            }
-        }
+        self.add_points(stiff, &first, &mut applied);
         let residual = &z - applied;
         let z = first + solve(&residual);
         Some(self.along(r, z))
@@ -1871,16 +1862,7 @@ impl Problem<'_> {
         let start = res.amax();
         for it in 0..PRECONDITIONED_ITERATIONS {
             let mut q = inverse(&p);
-            let at = at_points(self.w, &p);
-            for &(i, h) in stiff {
-                let t = h * at[i];
-                for &(c, wt) in &self.w[i] {
-                    let c = 3 * c as usize;
-                    for j in 0..3 {
-                        q[c + j] += wt * t[j];
-                    }
-                }
-            }
+            self.add_points(stiff, &p, &mut q);
             let pq = p.dot(&q);
             if !(pq > 0.0 && ry.is_finite()) {
                 return None;
@@ -1912,6 +1894,26 @@ impl Problem<'_> {
             ry = next;
         }
         None
+    }
+
+    /// Adds the points' part of the Newton system's product, `W^T Phi'' W x`, to `out`
+    /// (`stiff` as in [`Problem::stiff_descent`]).
+    fn add_points(
+        &self,
+        stiff: &[(usize, Matrix3<f64>)],
+        x: &DVector<f64>,
+        out: &mut DVector<f64>,
+    ) {
+        let at = at_points(self.w, x);
+        for &(i, h) in stiff {
+            let t = h * at[i];
+            for &(c, wt) in &self.w[i] {
+                let c = 3 * c as usize;
+                for j in 0..3 {
+                    out[c + j] += wt * t[j];
+                }
+            }
+        }
     }
 
     /// The descent `d = G^-1 z` for the solution `z` of the Newton system with right-hand

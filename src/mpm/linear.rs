@@ -1711,6 +1711,14 @@ fn cholesky_solve<T: faer::traits::RealField + nalgebra::Scalar>(
     );
 }
 
+/// `A^-1 b` in double precision from `A`'s single-precision Cholesky factor (`factor`'s
+/// lower triangle, as [`cholesky`] leaves it), solved in single precision.
+fn solve_single(factor: &DMatrix<f32>, b: &DVector<f64>) -> DVector<f64> {
+    let mut x = b.map(|x| x as f32);
+    cholesky_solve(factor, &mut x);
+    x.map(f64::from)
+}
+
 /// One contact solve in the loads of the node columns under the contact: their
 /// compliance `g` (symmetric, positive definite) and its inverse, the points' rows of
 /// column weights `w`, the depths `delta` they must sink and their contact compliances
@@ -1810,12 +1818,7 @@ impl Problem<'_> {
         add_stiffness(low, self.w, stiff, |x| x as f32);
         cholesky(low)?;
         scratch.factored = true;
-        let low = &scratch.single;
-        let solve = |b: &DVector<f64>| {
-            let mut x = b.map(|x| x as f32);
-            cholesky_solve(low, &mut x);
-            x.map(f64::from)
-        };
+        let solve = |b: &DVector<f64>| solve_single(&scratch.single, b);
         let z = -r;
         let first = solve(&z);
         let mut applied = product(self.inverse, &first);
@@ -1830,10 +1833,11 @@ impl Problem<'_> {
     /// factor of an earlier step's system in this pass), until the predicted residual after
     /// the full step, `|r + A z|` (max norm), is at most `target`: the descent, or `None`
     /// where [`PRECONDITIONED_ITERATIONS`] do not get there (the caller then factors this
-    /// step's system). The system is applied in double precision (`G^-1 p` plus the
-    /// points' `W^T Phi'' W p`), and the step `d = G^-1 z` is gathered from the same
-    /// products, so an iteration costs one product with `G^-1` and one pair of triangular
-    /// solves with `factor`, against a factorisation (`k^3 / 3`) for a new factor.
+    /// step's system). The system is applied as `G^-1 p` (in single precision where
+    /// `inverse32` is kept) plus the points' `W^T Phi'' W p`, and the step `d = G^-1 z`
+    /// is taken once in double precision at the end, so an iteration costs one product
+    /// with `G^-1` and one pair of triangular solves with `factor`, against a
+    /// factorisation (`k^3 / 3`) for a new factor.
     fn conjugate_gradients(
         &self,
         factor: &DMatrix<f32>,
@@ -1842,11 +1846,7 @@ impl Problem<'_> {
         target: f64,
     ) -> Option<Descent> {
         let k = r.len();
-        let precondition = |b: &DVector<f64>| {
-            let mut x = b.map(|x| x as f32);
-            cholesky_solve(factor, &mut x);
-            x.map(f64::from)
-        };
+        let precondition = |b: &DVector<f64>| solve_single(factor, b);
         // The system's products in single precision where `G^-1` is kept so (their error,
         // about 1e-7 of the product, lies far below the iterations' target, at least a
         // thousandth of `r`); the step `G^-1 z` once, in double, at the end.
@@ -2660,9 +2660,7 @@ fn split_start(
         // In single precision, the change from the start only (`G^-1 v0 = l`): its
         // error is a fraction of the change, not of the displacements (a start at the
         // answer stays there).
-        let mut rhs = (spread(&target) * rho - &base).map(|x| x as f32);
-        cholesky_solve(system, &mut rhs);
-        v = &start + rhs.map(f64::from);
+        v = &start + solve_single(system, &(spread(&target) * rho - &base));
         let s = project(&v);
         let mut primal: f64 = 0.0;
         let mut dual: f64 = 0.0;

@@ -187,10 +187,13 @@ pub struct RawConfig {
 }
 
 /// Whether a sensor file's `attribute` applies to a sensor of `physics` (the attribute's
-/// text): all do but `dx` for `rom`, since a file's grid spacing is its coarse gel's and
-/// `rom` runs on its model's grid (a fixed fraction of the thickness).
+/// text): all do but `dx` and `solver` for `rom`, since a file's grid spacing and solver
+/// are its coarse gel's, and `rom` runs on its model's grid (a fixed fraction of the
+/// thickness) with its model's solver (the shipped GelSight Mini's `solver="linear"`
+/// refused `model="rom-default"`, trained on the relaxation). Written in the MJCF, both
+/// still apply, and are checked against the model.
 pub fn file_attribute_applies(physics: &str, attribute: &str) -> bool {
-    !(physics.trim() == Physics::Rom.name() && attribute == ATTR_DX)
+    !(physics.trim() == Physics::Rom.name() && [ATTR_DX, ATTR_SOLVER].contains(&attribute))
 }
 
 impl RawConfig {
@@ -212,8 +215,8 @@ impl RawConfig {
     }
 
     /// These attributes over the sensor file `file`'s: each attribute the file gives and
-    /// these do not is added, marked as the file's (for messages); its `dx` is left out
-    /// where the sensor is `rom`, whose grid its model fixes.
+    /// these do not is added, marked as the file's (for messages); its `dx` and `solver`
+    /// are left out where the sensor is `rom`, whose grid and solver its model fixes.
     pub fn with_sensor_file(&self, file: &crate::sensor_file::SensorFile) -> RawConfig {
         let mut merged = self.clone();
         let mut given = Vec::new();

@@ -778,7 +778,10 @@ fn rom_serves_the_gel_family_through_a_window_over_the_contact() {
 /// solver at the 0.5 mm its calibration used) made `rom`: the file's grid spacing is its
 /// coarse gel's and is left out, so the sensor runs on the model's grid, `0.35 T`, and
 /// presses a sphere with its image peak at the sphere's deepest point; `dx` written beside
-/// the file is still checked against the model.
+/// the file is still checked against the model. The file's solver is its coarse gel's
+/// too: with `model="rom-default"` (trained on the relaxation) the preset runs that
+/// model on its own solver, and `solver="linear"` written beside the file is refused by
+/// name.
 #[test]
 fn the_gelsight_mini_preset_runs_rom_on_the_models_grid() {
     let raw = RawConfig::default()
@@ -807,8 +810,20 @@ fn the_gelsight_mini_preset_runs_rom_on_the_models_grid() {
     );
     let peak = out[..160 * 120].iter().cloned().fold(0.0, f64::max);
     assert!((peak - d).abs() <= 0.1 * d, "peak {peak}");
-    let e = load_error(raw.with(tacrom::config::ATTR_DX, "5e-4"));
+    let e = load_error(raw.clone().with(tacrom::config::ATTR_DX, "5e-4"));
     assert!(e.contains("attribute 'dx'"), "{e}");
+    let relaxed = raw.with(tacrom::config::ATTR_MODEL, "rom-default");
+    let mut sensor = TactileSensor::new(Config::from_raw("mini", &relaxed).unwrap()).unwrap();
+    let eval = sensor.evaluate(&placed, &mut out);
+    assert!(
+        eval.rom.is_some() && eval.warnings.is_empty(),
+        "{:?}",
+        eval.warnings
+    );
+    let peak = out[..160 * 120].iter().cloned().fold(0.0, f64::max);
+    assert!((peak - d).abs() <= 0.1 * d, "rom-default: peak {peak}");
+    let e = load_error(relaxed.with(tacrom::config::ATTR_SOLVER, "linear"));
+    assert!(e.contains("attribute 'solver'"), "{e}");
 }
 
 /// The default rom's force on gels of the family against Hertz on the bonded layer

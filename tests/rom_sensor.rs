@@ -795,33 +795,29 @@ fn the_gelsight_mini_preset_runs_rom_on_the_models_grid() {
         "{:?}",
         config.dx
     );
-    let mut sensor = TactileSensor::new(config).unwrap();
     let (r, d) = (2e-3, 0.15e-3);
     let placed = [Placed {
         shape: Arc::new(Sphere::new(r)),
         pose: Isometry3::translation(1e-3, 0.0, r - d),
     }];
-    let mut out = vec![0.0; sensor.config().sensordata_len()];
-    let eval = sensor.evaluate(&placed, &mut out);
-    assert!(
-        eval.rom.is_some() && eval.warnings.is_empty(),
-        "{:?}",
-        eval.warnings
-    );
-    let peak = out[..160 * 120].iter().cloned().fold(0.0, f64::max);
-    assert!((peak - d).abs() <= 0.1 * d, "peak {peak}");
+    // A press of the sensor, its image's peak within a tenth of the sphere's depth.
+    let presses = |config: Config, what: &str| {
+        let mut sensor = TactileSensor::new(config).unwrap();
+        let mut out = vec![0.0; sensor.config().sensordata_len()];
+        let eval = sensor.evaluate(&placed, &mut out);
+        assert!(
+            eval.rom.is_some() && eval.warnings.is_empty(),
+            "{what}: {:?}",
+            eval.warnings
+        );
+        let peak = out[..160 * 120].iter().cloned().fold(0.0, f64::max);
+        assert!((peak - d).abs() <= 0.1 * d, "{what}: peak {peak}");
+    };
+    presses(config, "rom");
     let e = load_error(raw.clone().with(tacrom::config::ATTR_DX, "5e-4"));
     assert!(e.contains("attribute 'dx'"), "{e}");
     let relaxed = raw.with(tacrom::config::ATTR_MODEL, "rom-default");
-    let mut sensor = TactileSensor::new(Config::from_raw("mini", &relaxed).unwrap()).unwrap();
-    let eval = sensor.evaluate(&placed, &mut out);
-    assert!(
-        eval.rom.is_some() && eval.warnings.is_empty(),
-        "{:?}",
-        eval.warnings
-    );
-    let peak = out[..160 * 120].iter().cloned().fold(0.0, f64::max);
-    assert!((peak - d).abs() <= 0.1 * d, "rom-default: peak {peak}");
+    presses(Config::from_raw("mini", &relaxed).unwrap(), "rom-default");
     let e = load_error(relaxed.with(tacrom::config::ATTR_SOLVER, "linear"));
     assert!(e.contains("attribute 'solver'"), "{e}");
 }

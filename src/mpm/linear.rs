@@ -252,6 +252,9 @@ pub(crate) struct Compliance {
     /// Whether large frictional solves precondition their Newton steps with a kept
     /// factor ([`Problem::precondition`]; tests compare with a factor every step).
     precondition: bool,
+    /// Whether a frame that slides as a whole starts from its normal forces found first
+    /// ([`vertical_start`]; tests compare with the last frame's loads alone).
+    vertical: bool,
 }
 
 /// The dense systems of one set of node columns under a contact.
@@ -465,6 +468,7 @@ impl Compliance {
             built_large: false,
             split_unknowns: SPLIT_UNKNOWNS,
             precondition: true,
+            vertical: true,
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
         Ok((c, newton))
@@ -1310,39 +1314,54 @@ impl Compliance {
                 // its lags never settled.
                 let start_total: f64 = cand.iter().map(|&i| lag[i]).sum();
                 for lags in 0..MAX_LAGS {
-                    // Points that carry a lagged normal force without an anchor stick where
-                    // they were at the start of the frame, in their indenter's frame there.
-                    for &i in &cand {
-                        // (Tip points, which stand for a patch, carry no friction.)
-                        if lag[i] > 0.0 && near[i] < count && !self.anchors.contains_key(&near[i]) {
-                            let x0 = rest[i]
-                                + if self.last.is_empty() {
-                                    Vector3::zeros()
-                                } else {
-                                    Self::displacement(&stencils[i], &self.last)
+                    let (mut caps, mut anchors) = self.frictions(
+                        &cand,
+                        &lag,
+                        &near,
+                        &rest,
+                        &stencils,
+                        starts,
+                        indenters,
+                        &mut offsets,
+                    );
+                    // A frame that slides as a whole, from the last frame's answer, on a
+                    // contact too small to split: its normal forces first found for the
+                    // friction there ([`vertical_start`]), the caps following them.
+                    if lags == 0
+                        && from_last
+                        && self.vertical
+                        && 3 * local.len() < self.split_unknowns
+                        && slip_ratio(&problem, &caps, &anchors, &l) > GROSS_SLIP
+                    {
+                        if let Some(inverse_zz) = vertical_inverse(&system.g) {
+                            for _ in 0..VERTICAL_PASSES {
+                                let Some(normal) = vertical_start(
+                                    &problem,
+                                    &inverse_zz,
+                                    self.friction,
+                                    &caps,
+                                    &anchors,
+                                    tolerance,
+                                    &mut l,
+                                ) else {
+                                    break;
                                 };
-                            if let Some(m) = self.nearest(&rest[i], indenters) {
-                                let p0 = Point3::from(self.origin + x0 * self.dx);
-                                let local = starts[m].inverse_transform_point(&p0);
-                                self.anchors.insert(near[i], Anchor { indenter: m, local });
+                                for (&i, &fi) in cand.iter().zip(&normal) {
+                                    lag[i] = fi;
+                                }
+                                (caps, anchors) = self.frictions(
+                                    &cand,
+                                    &lag,
+                                    &near,
+                                    &rest,
+                                    &stencils,
+                                    starts,
+                                    indenters,
+                                    &mut offsets,
+                                );
                             }
                         }
                     }
-                    let caps: Vec<f64> = cand
-                        .iter()
-                        .map(|&i| match self.anchors.contains_key(&near[i]) {
-                            true => self.friction * lag[i],
-                            false => 0.0,
-                        })
-                        .collect();
-                    for &i in &cand {
-                        offsets[i] = self
-                            .anchors
-                            .get(&near[i])
-                            .and_then(|a| self.anchor_at(a, indenters))
-                            .map_or(Vector2::zeros(), |a| (a - rest[i]).xy());
-                    }
-                    let anchors: Vec<Vector2<f64>> = cand.iter().map(|&i| offsets[i]).collect();
                     let friction = Friction {
                         caps: &caps,
                         anchors: &anchors,
@@ -1440,6 +1459,57 @@ impl Compliance {
             iterations,
             converged,
         }
+    }
+
+    /// Friction's data for a refresh of the lagged normal forces `lag` on the candidate
+    /// points `cand`: each point that carries a lagged normal force without an anchor
+    /// sticks where it was at the start of the frame, in its indenter's frame there
+    /// (`starts`); the caps (`friction` times the lagged force, where anchored) and the
+    /// anchors' lateral offsets from the rest positions (also kept in `offsets`).
+    #[allow(clippy::too_many_arguments)]
+    fn frictions(
+        &mut self,
+        cand: &[usize],
+        lag: &[f64],
+        near: &[u32],
+        rest: &[Vector3<f64>],
+        stencils: &[Columns],
+        starts: &[Isometry3<f64>],
+        indenters: &[StepIndenter],
+        offsets: &mut [Vector2<f64>],
+    ) -> (Vec<f64>, Vec<Vector2<f64>>) {
+        let count = (self.lattice[0] * self.lattice[1]) as u32;
+        for &i in cand {
+            // (Tip points, which stand for a patch, carry no friction.)
+            if lag[i] > 0.0 && near[i] < count && !self.anchors.contains_key(&near[i]) {
+                let x0 = rest[i]
+                    + if self.last.is_empty() {
+                        Vector3::zeros()
+                    } else {
+                        Self::displacement(&stencils[i], &self.last)
+                    };
+                if let Some(m) = self.nearest(&rest[i], indenters) {
+                    let p0 = Point3::from(self.origin + x0 * self.dx);
+                    let local = starts[m].inverse_transform_point(&p0);
+                    self.anchors.insert(near[i], Anchor { indenter: m, local });
+                }
+            }
+        }
+        let caps = cand
+            .iter()
+            .map(|&i| match self.anchors.contains_key(&near[i]) {
+                true => self.friction * lag[i],
+                false => 0.0,
+            })
+            .collect();
+        for &i in cand {
+            offsets[i] = self
+                .anchors
+                .get(&near[i])
+                .and_then(|a| self.anchor_at(a, indenters))
+                .map_or(Vector2::zeros(), |a| (a - rest[i]).xy());
+        }
+        (caps, cand.iter().map(|&i| offsets[i]).collect())
     }
 
     /// After a frame with friction (points `near`, their forces on the gel, displacements,
@@ -2300,6 +2370,247 @@ fn frictional_contact(
         }
     }
     None
+}
+
+/// Most iterations of [`vertical_start`]'s active-set search.
+const VERTICAL_ITERATIONS: usize = 50;
+
+/// [`vertical_start`]s a frame takes at most, each from the last one's normal forces: the
+/// points it finds pressed that had no anchor take theirs before the next (they slide
+/// from where they were at the frame's start), so the second one sees their friction.
+const VERTICAL_PASSES: usize = 2;
+
+/// The [`slip_ratio`] above which a frame's first frictional solve starts from
+/// [`vertical_start`] rather than from the last frame's loads alone. A face held, slid or
+/// shaken by microns asks its points for 0 to 0.07 of what friction can move the gel
+/// (its first Newton step, which assumes every point sticks, is what it needs); the
+/// 5 mm sphere of `tacrom/Press-v1`'s sweep, 0.07 to 1.25. Measured: `docs/solvers.md`,
+/// "The sliding sphere's frame: the normal forces found first".
+const GROSS_SLIP: f64 = 0.15;
+
+/// The inverse of the vertical block `G_zz` of the columns' compliance `g` (three
+/// unknowns per column, the vertical last): [`vertical_start`]'s system.
+fn vertical_inverse(g: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let cols = g.nrows() / 3;
+    spd_inverse(&DMatrix::from_fn(cols, cols, |a, b| {
+        g[(3 * a + 2, 3 * b + 2)]
+    }))
+}
+
+/// A start for a frame's first frictional solve whose pressed set is already nearly the
+/// answer's. Each anchored point's friction (cap `mu` times its normal force, where
+/// `caps` gives it one) is held in the direction and share of its cap it has at `l`, and
+/// the normal forces are solved for it by the primal-dual active set method without a
+/// line search on the vertical block of the columns' compliance: on the pressed set `S`
+/// the columns' sinking `y` under the normal forces solves `(G_zz^-1 + W_S^T E_S^-1 W_S)
+/// y = W_S^T E_S^-1 (delta_S - c_S)` (`c` the points' sinking under the friction forces,
+/// `E` their contact compliances; `inverse_zz` is `G_zz^-1`), a system of the columns
+/// alone (a third of the frictional solve's unknowns); the next set is the points that
+/// sink less than their depths, and the friction forces follow the new normal forces.
+/// Where the set repeats and the normal forces move by at most `settled` of their sum
+/// (the frame's tolerance, as the lagged forces' refresh), `l` becomes the loads of those
+/// forces and the normal forces are returned; `None` (and `l` unchanged) where that does
+/// not happen within [`VERTICAL_ITERATIONS`] or a solve fails.
+fn vertical_start(
+    p: &Problem,
+    inverse_zz: &DMatrix<f64>,
+    mu: f64,
+    caps: &[f64],
+    anchors: &[Vector2<f64>],
+    settled: f64,
+    l: &mut DVector<f64>,
+) -> Option<Vec<f64>> {
+    let Problem {
+        g, w, delta, eps, ..
+    } = *p;
+    let k = g.nrows();
+    let cols = k / 3;
+    let n = w.len();
+    let v = product(g, l);
+    let at = at_points(w, &v);
+    let sink_at =
+        |y: &[f64], i: usize| -> f64 { w[i].iter().map(|&(c, wt)| wt * y[c as usize]).sum() };
+    // Each anchored point's friction per unit normal force, as it is at `l`, and the
+    // columns' sinking under it.
+    let mut unit = vec![Vector2::zeros(); n];
+    let mut lifts: Vec<(usize, Vec<f64>)> = Vec::new();
+    for i in (0..n).filter(|&i| caps[i] > 0.0) {
+        let (f, _, _) = point_force(&at[i], delta[i], eps[i], mu, &anchors[i], STICK);
+        unit[i] = f.xy();
+        let mut sink = vec![0.0; cols];
+        for &(c, wt) in &w[i] {
+            for (axis, t) in [(0, f.x), (1, f.y)] {
+                let col = g.column(3 * c as usize + axis);
+                let t = t * wt;
+                for (s, j) in sink.iter_mut().zip((0..cols).map(|j| 3 * j + 2)) {
+                    *s += t * col[j];
+                }
+            }
+        }
+        lifts.push((i, sink));
+    }
+    let mut set: Vec<usize> = (0..n).filter(|&i| delta[i] - at[i].z > 0.0).collect();
+    // The normal forces the friction follows (at first the lagged ones), changed only
+    // once the pressed set repeats.
+    let mut follow: Vec<f64> = (0..n)
+        .map(|i| if mu > 0.0 { caps[i] / mu } else { 0.0 })
+        .collect();
+    let mut normal = vec![0.0; n];
+    let mut system = vec![0.0; cols * cols];
+    let mut factored: Option<Vec<usize>> = None;
+    let mut lifted = vec![0.0; cols];
+    let mut need = vec![0.0; n];
+    let mut y = vec![0.0; cols];
+    let mut followed = false;
+    for _ in 0..VERTICAL_ITERATIONS {
+        if !followed {
+            // The columns' sinking under the friction forces, and what is left to sink.
+            lifted.fill(0.0);
+            for (i, sink) in &lifts {
+                for (to, s) in lifted.iter_mut().zip(sink) {
+                    *to += follow[*i] * s;
+                }
+            }
+            for i in 0..n {
+                need[i] = delta[i] - sink_at(&lifted, i);
+            }
+            followed = true;
+        }
+        if factored.as_ref() != Some(&set) {
+            system.copy_from_slice(inverse_zz.as_slice());
+            for &i in &set {
+                let e = 1.0 / eps[i];
+                for &(a, wa) in &w[i] {
+                    let a = a as usize;
+                    for &(b, wb) in &w[i] {
+                        if (b as usize) <= a {
+                            system[a * cols + b as usize] += wa * wb * e;
+                        }
+                    }
+                }
+            }
+            small_cholesky(&mut system, cols)?;
+            factored = Some(set.clone());
+        }
+        y.fill(0.0);
+        for &i in &set {
+            let e = need[i] / eps[i];
+            for &(a, wa) in &w[i] {
+                y[a as usize] += wa * e;
+            }
+        }
+        small_solve(&system, cols, &mut y);
+        let mut next = Vec::with_capacity(set.len());
+        for i in 0..n {
+            normal[i] = ((need[i] - sink_at(&y, i)) / eps[i]).max(0.0);
+            if normal[i] > 0.0 {
+                next.push(i);
+            }
+        }
+        if next == set {
+            let (change, total) = normal
+                .iter()
+                .zip(&follow)
+                .fold((0.0, 0.0), |(c, t), (a, b)| (c + (a - b).abs(), t + a));
+            if change <= settled * total || lifts.is_empty() {
+                let forces: Vec<Vector3<f64>> = (0..n)
+                    .map(|i| Vector3::new(unit[i].x * normal[i], unit[i].y * normal[i], normal[i]))
+                    .collect();
+                *l = on_columns(w, &forces, k);
+                return Some(normal);
+            }
+            follow.copy_from_slice(&normal);
+            followed = false;
+        }
+        set = next;
+    }
+    None
+}
+
+/// `a . b`, summed in four lanes (a reduction the compiler vectorises).
+fn lanes_dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut acc = [0.0; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for j in 0..4 {
+            acc[j] += x[j] * y[j];
+        }
+    }
+    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
+/// The Cholesky factor of the symmetric positive definite `n x n` matrix `a` (row major;
+/// its lower triangle read and overwritten), in place: for the small systems of
+/// [`vertical_start`], where a library's dispatch costs more than the arithmetic. `None`
+/// where a pivot is not positive.
+fn small_cholesky(a: &mut [f64], n: usize) -> Option<()> {
+    for j in 0..n {
+        let row_j = &mut a[j * n..j * n + j + 1];
+        let d = row_j[j] - lanes_dot(&row_j[..j], &row_j[..j]);
+        if !(d > 0.0) {
+            return None;
+        }
+        row_j[j] = d.sqrt();
+        let (upper, lower) = a.split_at_mut((j + 1) * n);
+        let row_j = &upper[j * n..j * n + j + 1];
+        for row_i in lower.chunks_exact_mut(n) {
+            row_i[j] = (row_i[j] - lanes_dot(&row_i[..j], &row_j[..j])) / row_j[j];
+        }
+    }
+    Some(())
+}
+
+/// Solves `a x = b` in place from [`small_cholesky`]'s factor (`L L^T`, `L` row major).
+fn small_solve(a: &[f64], n: usize, b: &mut [f64]) {
+    for i in 0..n {
+        let row = &a[i * n..i * n + i];
+        let s = b[i] - lanes_dot(row, &b[..i]);
+        b[i] = s / a[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let s = b[i] / a[i * n + i];
+        b[i] = s;
+        for k in 0..i {
+            b[k] -= a[i * n + k] * s;
+        }
+    }
+}
+
+/// How far the anchored points are asked to slide at loads `l` (the cap-weighted mean of
+/// their lateral offsets from their anchors) over how far the gel's surface under them
+/// moves when every one pulls with its whole cap along that mean: above one, friction
+/// cannot hold them all, and the contact slides as a whole.
+fn slip_ratio(p: &Problem, caps: &[f64], anchors: &[Vector2<f64>], l: &DVector<f64>) -> f64 {
+    let Problem { g, w, .. } = *p;
+    let k = g.nrows();
+    let at = at_points(w, &product(g, l));
+    let (mut demand, mut weight) = (Vector2::zeros(), 0.0);
+    for i in (0..w.len()).filter(|&i| caps[i] > 0.0) {
+        demand += (at[i].xy() - anchors[i]) * caps[i];
+        weight += caps[i];
+    }
+    if !(weight > 0.0) {
+        return 0.0;
+    }
+    let demand = demand / weight;
+    let Some(towards) = (-demand).try_normalize(0.0) else {
+        return 0.0;
+    };
+    let pulls: Vec<Vector3<f64>> = (0..w.len())
+        .map(|i| Vector3::new(towards.x, towards.y, 0.0) * caps[i])
+        .collect();
+    let moved = at_points(w, &product(g, &on_columns(w, &pulls, k)));
+    let follow: f64 = (0..w.len())
+        .filter(|&i| caps[i] > 0.0)
+        .map(|i| moved[i].xy().dot(&towards) * caps[i])
+        .sum::<f64>()
+        / weight;
+    match follow > 0.0 {
+        true => demand.norm() / follow,
+        false => 0.0,
+    }
 }
 
 /// [`frictional_contact`] with stick radius `radius` (cells), to a residual of

@@ -1314,54 +1314,53 @@ impl Compliance {
                 // its lags never settled.
                 let start_total: f64 = cand.iter().map(|&i| lag[i]).sum();
                 for lags in 0..MAX_LAGS {
-                    let (mut caps, mut anchors) = self.frictions(
-                        &cand,
-                        &lag,
-                        &near,
-                        &rest,
-                        &stencils,
-                        starts,
-                        indenters,
-                        &mut offsets,
-                    );
                     // A frame that slides as a whole, from the last frame's answer, on a
                     // contact too small to split: its normal forces first found for the
-                    // friction there ([`vertical_start`]), the caps following them.
-                    if lags == 0
+                    // friction there ([`vertical_start`], in passes), the caps following
+                    // them.
+                    let may_slide = lags == 0
                         && from_last
                         && self.vertical
-                        && 3 * local.len() < self.split_unknowns
-                        && slip_ratio(&problem, &caps, &anchors, &l) > GROSS_SLIP
-                    {
-                        if let Some(inverse_zz) = vertical_inverse(&system.g) {
-                            for _ in 0..VERTICAL_PASSES {
-                                let Some(normal) = vertical_start(
-                                    &problem,
-                                    &inverse_zz,
-                                    self.friction,
-                                    &caps,
-                                    &anchors,
-                                    tolerance,
-                                    &mut l,
-                                ) else {
-                                    break;
-                                };
-                                for (&i, &fi) in cand.iter().zip(&normal) {
-                                    lag[i] = fi;
-                                }
-                                (caps, anchors) = self.frictions(
-                                    &cand,
-                                    &lag,
-                                    &near,
-                                    &rest,
-                                    &stencils,
-                                    starts,
-                                    indenters,
-                                    &mut offsets,
-                                );
-                            }
+                        && 3 * local.len() < self.split_unknowns;
+                    let mut vertical = None;
+                    let mut pass = 0;
+                    let (caps, anchors) = loop {
+                        let (caps, anchors) = self.frictions(
+                            &cand,
+                            &lag,
+                            &near,
+                            &rest,
+                            &stencils,
+                            starts,
+                            indenters,
+                            &mut offsets,
+                        );
+                        if pass == 0
+                            && may_slide
+                            && slip_ratio(&problem, &caps, &anchors, &l) > GROSS_SLIP
+                        {
+                            vertical = vertical_inverse(&system.g);
                         }
-                    }
+                        let Some(inverse_zz) = vertical.as_ref().filter(|_| pass < VERTICAL_PASSES)
+                        else {
+                            break (caps, anchors);
+                        };
+                        let Some(normal) = vertical_start(
+                            &problem,
+                            inverse_zz,
+                            self.friction,
+                            &caps,
+                            &anchors,
+                            tolerance,
+                            &mut l,
+                        ) else {
+                            break (caps, anchors);
+                        };
+                        for (&i, &fi) in cand.iter().zip(&normal) {
+                            lag[i] = fi;
+                        }
+                        pass += 1;
+                    };
                     let friction = Friction {
                         caps: &caps,
                         anchors: &anchors,

@@ -1326,7 +1326,10 @@ fn a_sliding_sphere_starts_from_its_normal_forces() {
                 let contact = c.contact(&step(&placed, dx), &[start], tolerance);
                 last = Some(placed[0].pose);
                 assert!(contact.converged, "frame {k}, vertical start {vertical}");
-                (contact.forces.iter().sum::<Vector3<f64>>(), contact.iterations)
+                (
+                    contact.forces.iter().sum::<Vector3<f64>>(),
+                    contact.iterations,
+                )
             })
             .collect::<Vec<_>>()
     };

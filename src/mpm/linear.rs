@@ -1337,7 +1337,7 @@ impl Compliance {
                         );
                         if pass == 0
                             && may_slide
-                            && slip_ratio(&problem, &caps, &anchors, &l) > GROSS_SLIP
+                            && StartDemand::at(&problem, &caps, &anchors, &l).asks_vertical()
                         {
                             vertical = vertical_inverse(&system.g);
                         }
@@ -2379,7 +2379,7 @@ const VERTICAL_ITERATIONS: usize = 50;
 /// from where they were at the frame's start), so the second one sees their friction.
 const VERTICAL_PASSES: usize = 2;
 
-/// The [`slip_ratio`] above which a frame's first frictional solve starts from
+/// The [`StartDemand::slip`] above which a frame's first frictional solve starts from
 /// [`vertical_start`] rather than from the last frame's loads alone. A face held, slid or
 /// shaken by microns asks its points for 0 to 0.07 of what friction can move the gel
 /// (its first Newton step, which assumes every point sticks, is what it needs); the
@@ -2577,38 +2577,92 @@ fn small_solve(a: &[f64], n: usize, b: &mut [f64]) {
     }
 }
 
-/// How far the anchored points are asked to slide at loads `l` (the cap-weighted mean of
-/// their lateral offsets from their anchors) over how far the gel's surface under them
-/// moves when every one pulls with its whole cap along that mean: above one, friction
-/// cannot hold them all, and the contact slides as a whole.
-fn slip_ratio(p: &Problem, caps: &[f64], anchors: &[Vector2<f64>], l: &DVector<f64>) -> f64 {
-    let Problem { g, w, .. } = *p;
-    let k = g.nrows();
-    let at = at_points(w, &product(g, l));
-    let (mut demand, mut weight) = (Vector2::zeros(), 0.0);
-    for i in (0..w.len()).filter(|&i| caps[i] > 0.0) {
-        demand += (at[i].xy() - anchors[i]) * caps[i];
-        weight += caps[i];
+/// The [`StartDemand::imbalance`] above which a frame's first frictional solve starts from
+/// [`vertical_start`] whatever its slip: the face moved into or out of the gel since the
+/// last frame, so the last frame's normal forces no longer balance the points' penalty
+/// there. Its values are nearly two-valued: a face held or slid along the gel gives 0 to
+/// 1.3e-3 (the start already balances its normal forces, and its first Newton step,
+/// which assumes every point sticks, is what it needs), a press deepening, a face shaken
+/// into the gel by a micron or a coupled object moving in a grasp 0.49 to 1 (a micron
+/// deeper changes a penalty force by about as much as the force). Measured:
+/// `docs/solvers.md`, "A face moved into the gel: the normal forces found first too".
+const NORMAL_IMBALANCE: f64 = 0.1;
+
+/// What a frame's start, the last frame's loads `l`, asks of its frictional solve: the
+/// gate of [`vertical_start`].
+struct StartDemand {
+    /// How far the anchored points are asked to slide (the cap-weighted mean of their
+    /// lateral offsets from their anchors) over how far the gel's surface under them
+    /// moves when every one pulls with its whole cap along that mean: above one, friction
+    /// cannot hold them all, and the contact slides as a whole.
+    slip: f64,
+    /// The largest vertical residual of the columns, `|l_z - (W^T f)_z|` (`f` the points'
+    /// forces at the displacements `G l`), over the largest vertical load of either: how
+    /// far the normal forces at the start are from balancing the loads.
+    imbalance: f64,
+}
+
+impl StartDemand {
+    /// The demand of loads `l` on problem `p` with friction caps `caps` and anchors
+    /// `anchors`: two products with the compliance (the start's displacements, and the
+    /// surface's under the caps' pull).
+    fn at(p: &Problem, caps: &[f64], anchors: &[Vector2<f64>], l: &DVector<f64>) -> StartDemand {
+        let Problem {
+            g, w, delta, eps, ..
+        } = *p;
+        let k = g.nrows();
+        let at = at_points(w, &product(g, l));
+        let forces: Vec<Vector3<f64>> = (0..w.len())
+            .map(|i| point_force(&at[i], delta[i], eps[i], caps[i], &anchors[i], STICK).0)
+            .collect();
+        let wf = on_columns(w, &forces, k);
+        let (mut residual, mut scale) = (0.0f64, 0.0f64);
+        for c in (2..k).step_by(3) {
+            residual = residual.max((l[c] - wf[c]).abs());
+            scale = scale.max(l[c].abs()).max(wf[c].abs());
+        }
+        let imbalance = if scale > 0.0 { residual / scale } else { 0.0 };
+        StartDemand {
+            slip: Self::slip(p, caps, anchors, &at),
+            imbalance,
+        }
     }
-    if !(weight > 0.0) {
-        return 0.0;
+
+    /// [`StartDemand::slip`] from the points' displacements `at` at the start.
+    fn slip(p: &Problem, caps: &[f64], anchors: &[Vector2<f64>], at: &[Vector3<f64>]) -> f64 {
+        let Problem { g, w, .. } = *p;
+        let k = g.nrows();
+        let (mut demand, mut weight) = (Vector2::zeros(), 0.0);
+        for i in (0..w.len()).filter(|&i| caps[i] > 0.0) {
+            demand += (at[i].xy() - anchors[i]) * caps[i];
+            weight += caps[i];
+        }
+        if !(weight > 0.0) {
+            return 0.0;
+        }
+        let demand = demand / weight;
+        let Some(towards) = (-demand).try_normalize(0.0) else {
+            return 0.0;
+        };
+        let pulls: Vec<Vector3<f64>> = (0..w.len())
+            .map(|i| Vector3::new(towards.x, towards.y, 0.0) * caps[i])
+            .collect();
+        let moved = at_points(w, &product(g, &on_columns(w, &pulls, k)));
+        let follow: f64 = (0..w.len())
+            .filter(|&i| caps[i] > 0.0)
+            .map(|i| moved[i].xy().dot(&towards) * caps[i])
+            .sum::<f64>()
+            / weight;
+        match follow > 0.0 {
+            true => demand.norm() / follow,
+            false => 0.0,
+        }
     }
-    let demand = demand / weight;
-    let Some(towards) = (-demand).try_normalize(0.0) else {
-        return 0.0;
-    };
-    let pulls: Vec<Vector3<f64>> = (0..w.len())
-        .map(|i| Vector3::new(towards.x, towards.y, 0.0) * caps[i])
-        .collect();
-    let moved = at_points(w, &product(g, &on_columns(w, &pulls, k)));
-    let follow: f64 = (0..w.len())
-        .filter(|&i| caps[i] > 0.0)
-        .map(|i| moved[i].xy().dot(&towards) * caps[i])
-        .sum::<f64>()
-        / weight;
-    match follow > 0.0 {
-        true => demand.norm() / follow,
-        false => 0.0,
+
+    /// Whether the frame starts from [`vertical_start`]: its contact slides as a whole
+    /// ([`GROSS_SLIP`]) or its face moved into or out of the gel ([`NORMAL_IMBALANCE`]).
+    fn asks_vertical(&self) -> bool {
+        self.slip > GROSS_SLIP || self.imbalance > NORMAL_IMBALANCE
     }
 }
 

@@ -1300,6 +1300,50 @@ fn chord_gaps_agree_with_the_march() {
     );
 }
 
+/// The total force and the Newton steps of each of `frames` frames of one indenter placed
+/// by `placed` (each frame starting from the last one's pose) on a fresh compliance of
+/// `gel`, with the active-set start ([`vertical_start`]) on or off; every frame converged.
+fn vertical_frames(
+    gel: &Gel,
+    frames: usize,
+    placed: &dyn Fn(usize) -> Placed,
+    vertical: bool,
+    tolerance: f64,
+) -> Vec<(Vector3<f64>, usize)> {
+    let mut c = Compliance::new(gel).unwrap();
+    c.vertical = vertical;
+    let mut last = None;
+    (0..frames)
+        .map(|f| {
+            let placed = [placed(f)];
+            let start = last.unwrap_or(placed[0].pose);
+            let contact = c.contact(&step(&placed, gel.layout.dx), &[start], tolerance);
+            last = Some(placed[0].pose);
+            assert!(contact.converged, "frame {f}, vertical start {vertical}");
+            (
+                contact.forces.iter().sum::<Vector3<f64>>(),
+                contact.iterations,
+            )
+        })
+        .collect()
+}
+
+/// Asserts that `run(vertical, tolerance)` ([`vertical_frames`]) gives each frame the same
+/// force with the active-set start and without, at a tight tolerance of the lagged forces'
+/// refresh (1e-7): within ten times it. The frictional problem for given caps is convex,
+/// and the lags settle to the same fixed point either way.
+fn assert_same_answer(run: &dyn Fn(bool, f64) -> Vec<(Vector3<f64>, usize)>) {
+    let tight = 1e-7;
+    for (f, (a, b)) in run(true, tight).iter().zip(run(false, tight)).enumerate() {
+        assert!(
+            (a.0 - b.0).norm() <= 10.0 * tight * b.0.norm(),
+            "frame {f}: {} against {}",
+            a.0,
+            b.0
+        );
+    }
+}
+
 /// `tacrom/Press-v1`'s sweep (a 5 mm sphere moving up to 0.78 mm a frame over the default
 /// gel with friction 0.5, pressed 0.5 to 1 mm): the frames that slide as a whole start
 /// from their normal forces found first ([`vertical_start`]) and reach the same answer as
@@ -1313,37 +1357,15 @@ fn a_sliding_sphere_starts_from_its_normal_forces() {
         ..Default::default()
     };
     let gel = Gel::new(params, options(1)).unwrap();
-    let dx = gel.layout.dx;
     let sphere = ball(5e-3);
-    let run = |vertical: bool, tolerance: f64| {
-        let mut c = Compliance::new(&gel).unwrap();
-        c.vertical = vertical;
-        let mut last = None;
-        (0..16)
-            .map(|k| {
-                let phase = 2.0 * std::f64::consts::PI * k as f64 / 40.0;
-                let depth = 0.5e-3 + 0.5e-3 * (0.5 + 0.5 * (phase / 3.0).sin());
-                let placed = [at(&sphere, 5e-3, 5e-3 * phase.sin(), 0.0, depth)];
-                let start = last.unwrap_or(placed[0].pose);
-                let contact = c.contact(&step(&placed, dx), &[start], tolerance);
-                last = Some(placed[0].pose);
-                assert!(contact.converged, "frame {k}, vertical start {vertical}");
-                (
-                    contact.forces.iter().sum::<Vector3<f64>>(),
-                    contact.iterations,
-                )
-            })
-            .collect::<Vec<_>>()
+    let placed = |k: usize| {
+        let phase = 2.0 * std::f64::consts::PI * k as f64 / 40.0;
+        let depth = 0.5e-3 + 0.5e-3 * (0.5 + 0.5 * (phase / 3.0).sin());
+        at(&sphere, 5e-3, 5e-3 * phase.sin(), 0.0, depth)
     };
-    let tight = 1e-7;
-    for (k, (a, b)) in run(true, tight).iter().zip(run(false, tight)).enumerate() {
-        assert!(
-            (a.0 - b.0).norm() <= 10.0 * tight * b.0.norm(),
-            "frame {k}: {} against {}",
-            a.0,
-            b.0
-        );
-    }
+    let run =
+        |vertical: bool, tolerance: f64| vertical_frames(&gel, 16, &placed, vertical, tolerance);
+    assert_same_answer(&run);
     let steps = |r: Vec<(Vector3<f64>, usize)>| r.iter().map(|x| x.1).sum::<usize>();
     let tolerance = SolverOptions::default().tolerance;
     // (167 against 364 when written; the forces above agreed to 1.4e-9.)
@@ -1366,50 +1388,27 @@ fn a_face_moved_into_the_gel_starts_from_its_normal_forces() {
         ..Default::default()
     };
     let gel = Gel::new(params, options(1)).unwrap();
-    let dx = gel.layout.dx;
     let half = 5e-3;
     let face: Arc<dyn Sdf> = Arc::new(crate::geometry::Cuboid::new(Vector3::new(5e-3, 5e-3, half)));
-    let run = |vertical: bool, tolerance: f64| {
-        let mut c = Compliance::new(&gel).unwrap();
-        c.vertical = vertical;
-        let mut last = None;
-        (0..18)
-            .map(|f| {
-                // Fixed, irregular offsets in [-1, 1) while shaken (golden-ratio steps).
-                let shake = |k: f64| match f {
-                    8.. => 2.0 * (f as f64 * k).fract() - 1.0,
-                    _ => 0.0,
-                };
-                let depth = 0.1e-3 + 0.3e-3 * (f.min(4) as f64 / 4.0) + 1e-6 * shake(0.618_034);
-                let pose = Isometry3::translation(
-                    3e-6 * shake(0.754_878),
-                    3e-6 * shake(0.569_840),
-                    half - depth,
-                );
-                let placed = [Placed {
-                    shape: face.clone(),
-                    pose,
-                }];
-                let start = last.unwrap_or(pose);
-                let contact = c.contact(&step(&placed, dx), &[start], tolerance);
-                last = Some(pose);
-                assert!(contact.converged, "frame {f}, vertical start {vertical}");
-                (
-                    contact.forces.iter().sum::<Vector3<f64>>(),
-                    contact.iterations,
-                )
-            })
-            .collect::<Vec<_>>()
+    let placed = |f: usize| {
+        // Fixed, irregular offsets in [-1, 1) while shaken (golden-ratio steps).
+        let shake = |k: f64| match f {
+            8.. => 2.0 * (f as f64 * k).fract() - 1.0,
+            _ => 0.0,
+        };
+        let depth = 0.1e-3 + 0.3e-3 * (f.min(4) as f64 / 4.0) + 1e-6 * shake(0.618_034);
+        Placed {
+            shape: face.clone(),
+            pose: Isometry3::translation(
+                3e-6 * shake(0.754_878),
+                3e-6 * shake(0.569_840),
+                half - depth,
+            ),
+        }
     };
-    let tight = 1e-7;
-    for (f, (a, b)) in run(true, tight).iter().zip(run(false, tight)).enumerate() {
-        assert!(
-            (a.0 - b.0).norm() <= 10.0 * tight * b.0.norm(),
-            "frame {f}: {} against {}",
-            a.0,
-            b.0
-        );
-    }
+    let run =
+        |vertical: bool, tolerance: f64| vertical_frames(&gel, 18, &placed, vertical, tolerance);
+    assert_same_answer(&run);
     let tolerance = SolverOptions::default().tolerance;
     let (new, old) = (run(true, tolerance), run(false, tolerance));
     // Newton steps of frames `range`, with and without the start.

@@ -90,10 +90,12 @@
 //! took 20 to 100 steps, a dense factorisation each, as the line search brought the points
 //! back to sticking a group at a time. A large warm solve that one Newton step does not
 //! finish is therefore *split* first ([`split_start`]: the alternating direction method
-//! of multipliers, which settles which points press, stick and slide in iterations of two
-//! triangular solves with one kept factor) and finished by Newton's method from there: the
-//! same minimum, in two to four steps, each factored in single precision and refined once
-//! in double ([`MIXED_UNKNOWNS`]).
+//! of multipliers, which settles which points press, stick and slide in iterations of
+//! triangular solves with kept factors, one per direction) and finished by Newton's method
+//! from there: the same minimum, in two to four steps, each solved by conjugate gradients
+//! preconditioned with a factor of the step's lateral and vertical blocks (a third of the
+//! whole system's work; the whole system factored in single precision and refined once in
+//! double where they do not serve, [`MIXED_UNKNOWNS`]).
 //!
 //! # Cost
 //!
@@ -276,15 +278,16 @@ struct LocalSystem {
     split: Option<SplitFactor>,
 }
 
-/// The factor of `G^-1 + rho W^T W` that [`split_start`] solves with, and the points'
-/// rows `W` and `rho` it was made for.
+/// The factors that [`split_start`] solves with, one per direction: `G^-1_jj + rho W^T W`
+/// for the columns' `x`, `y` and vertical loads `j` (`G^-1`'s coupling of one direction
+/// with another left out), and the points' rows `W` and `rho` they were made for.
 #[derive(Clone)]
 struct SplitFactor {
     rows: Vec<Columns>,
     rho: f64,
     /// In single precision: the iterations only start Newton's method, and their
-    /// triangular solves, which stream the factor, take half the time.
-    factor: DMatrix<f32>,
+    /// triangular solves, which stream the factors, take half the time.
+    factors: [DMatrix<f32>; 3],
 }
 
 /// Entries of a system's compliance from which a reset after it was built hands the
@@ -1857,10 +1860,20 @@ impl Problem<'_> {
             add_stiffness(system, self.w, stiff, |x| x);
             return self.descent(system, r);
         }
-        if self.precondition && scratch.factored {
-            if let Some(d) = self.conjugate_gradients(&scratch.single, stiff, r, target) {
-                scratch.preconditioned += 1;
-                return Some(d);
+        if self.precondition {
+            if scratch.factored {
+                if let Some(d) = self.conjugate_gradients(scratch.kept(), stiff, r, target) {
+                    scratch.preconditioned += 1;
+                    return Some(d);
+                }
+            }
+            // The kept factor no longer serves: this step's blocks, a third of a whole
+            // factorisation's work, and the whole system's only where they do not.
+            if self.block_factor(&mut scratch, stiff).is_some() {
+                if let Some(d) = self.conjugate_gradients(scratch.kept(), stiff, r, target) {
+                    scratch.preconditioned += 1;
+                    return Some(d);
+                }
             }
         }
         self.factored_descent(&mut scratch, stiff, r)
@@ -1887,6 +1900,7 @@ impl Problem<'_> {
         add_stiffness(low, self.w, stiff, |x| x as f32);
         cholesky(low)?;
         scratch.factored = true;
+        scratch.blocks = false;
         let solve = |b: &DVector<f64>| solve_single(&scratch.single, b);
         let z = -r;
         let first = solve(&z);
@@ -1909,13 +1923,13 @@ impl Problem<'_> {
     /// factorisation (`k^3 / 3`) for a new factor.
     fn conjugate_gradients(
         &self,
-        factor: &DMatrix<f32>,
+        factor: Preconditioner,
         stiff: &[(usize, Matrix3<f64>)],
         r: &DVector<f64>,
         target: f64,
     ) -> Option<Descent> {
         let k = r.len();
-        let precondition = |b: &DVector<f64>| solve_single(factor, b);
+        let precondition = |b: &DVector<f64>| factor.solve(b);
         // The system's products in single precision where `G^-1` is kept so (their error,
         // about 1e-7 of the product, lies far below the iterations' target, at least a
         // thousandth of `r`); the step `G^-1 z` once, in double, at the end.
@@ -1965,6 +1979,75 @@ impl Problem<'_> {
         None
     }
 
+    /// Factors the lateral and vertical blocks of this step's system `G^-1 + W^T Phi''
+    /// W` in single precision (into `scratch.xy`, the columns' `x` and `y` loads in
+    /// column order, and `scratch.z`) and keeps them as the pass's factor: the system
+    /// less `G^-1`'s coupling of the lateral loads with the vertical ones (the points'
+    /// stiffness has none), at about a third of a whole factorisation's work
+    /// (`(2k/3)^3 / 3 + (k/3)^3 / 3` against `k^3 / 3`). `None` (and no factor kept)
+    /// where a block is not positive definite.
+    fn block_factor(&self, scratch: &mut Scratch, stiff: &[(usize, Matrix3<f64>)]) -> Option<()> {
+        scratch.factored = false;
+        let k = self.inverse.nrows();
+        let n = k / 3;
+        let made;
+        let inverse32 = match self.inverse32 {
+            Some(low) => low,
+            None => {
+                made = self.inverse.map(|x| x as f32);
+                &made
+            }
+        };
+        if scratch.z.nrows() != n {
+            scratch.xy = DMatrix::zeros(2 * n, 2 * n);
+            scratch.z = DMatrix::zeros(n, n);
+        }
+        let src = inverse32.as_slice();
+        let (xy, z) = (scratch.xy.as_mut_slice(), scratch.z.as_mut_slice());
+        // The lower triangles (all the factorisation reads), column by column.
+        for b in 0..n {
+            for j in 0..2 {
+                let from = &src[(3 * b + j) * k..][..k];
+                let to = &mut xy[(2 * b + j) * 2 * n..][..2 * n];
+                for a in b..n {
+                    to[2 * a] = from[3 * a];
+                    to[2 * a + 1] = from[3 * a + 1];
+                }
+            }
+            let from = &src[(3 * b + 2) * k..][..k];
+            let to = &mut z[b * n..][..n];
+            for a in b..n {
+                to[a] = from[3 * a + 2];
+            }
+        }
+        for &(i, h) in stiff {
+            let row = &self.w[i];
+            let vertical = h[(2, 2)] as f32;
+            for &(a, wa) in row {
+                for &(b, wb) in row.iter().filter(|&&(b, _)| b <= a) {
+                    let ww = (wa * wb) as f32;
+                    let (a, b) = (a as usize, b as usize);
+                    for (r, c) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let v = h[(r, c)] as f32;
+                        if v != 0.0 {
+                            // Within a diagonal block, its upper entry too (never read).
+                            xy[(2 * b + c) * 2 * n + 2 * a + r] += v * ww;
+                        }
+                    }
+                    if vertical != 0.0 {
+                        z[b * n + a] += vertical * ww;
+                    }
+                }
+            }
+        }
+        cholesky(&mut scratch.xy)?;
+        cholesky(&mut scratch.z)?;
+        scratch.factored = true;
+        scratch.blocks = true;
+        scratch.block_factors += 1;
+        Some(())
+    }
+
     /// Adds the points' part of the Newton system's product, `W^T Phi'' W x`, to `out`
     /// (`stiff` as in [`Problem::stiff_descent`]).
     fn add_points(
@@ -2008,6 +2091,36 @@ impl Problem<'_> {
             slope: -gr.dot(r),
             step: -r,
             sinking: -gr,
+        }
+    }
+}
+
+/// A factored approximation of a Newton system that [`Problem::conjugate_gradients`]
+/// preconditions with: a whole system's single-precision factor, or its lateral and
+/// vertical blocks' ([`Problem::block_factor`]).
+#[derive(Clone, Copy)]
+enum Preconditioner<'a> {
+    Whole(&'a DMatrix<f32>),
+    Blocks(&'a DMatrix<f32>, &'a DMatrix<f32>),
+}
+
+impl Preconditioner<'_> {
+    /// The approximation's solution for `b` (three unknowns per column), in double
+    /// precision.
+    fn solve(&self, b: &DVector<f64>) -> DVector<f64> {
+        match *self {
+            Preconditioner::Whole(factor) => solve_single(factor, b),
+            Preconditioner::Blocks(xy, z) => {
+                let n = z.nrows();
+                let mut lateral = DVector::from_fn(2 * n, |i, _| b[3 * (i / 2) + i % 2] as f32);
+                let mut vertical = DVector::from_fn(n, |i, _| b[3 * i + 2] as f32);
+                cholesky_solve(xy, &mut lateral);
+                cholesky_solve(z, &mut vertical);
+                DVector::from_fn(3 * n, |i, _| match i % 3 {
+                    2 => f64::from(vertical[i / 3]),
+                    j => f64::from(lateral[2 * (i / 3) + j]),
+                })
+            }
         }
     }
 }
@@ -2078,6 +2191,15 @@ pub(super) struct Scratch {
     /// a pass poses its problem ([`Workspace::new_pass`]), so that no factor outlives the
     /// pass that made it: a frame's path depends on the frame alone.
     factored: bool,
+    /// The factors of a system's lateral block (the columns' `x` and `y` loads, in
+    /// column order) and vertical block ([`Problem::block_factor`]), and whether they are
+    /// the kept factor rather than `single`.
+    xy: DMatrix<f32>,
+    z: DMatrix<f32>,
+    blocks: bool,
+    /// Block factors made so far ([`Problem::block_factor`]; tests check that the path
+    /// they compare ran).
+    block_factors: usize,
     /// Newton steps solved by [`Problem::conjugate_gradients`] so far (tests check
     /// that the path they compare ran).
     preconditioned: usize,
@@ -2087,6 +2209,17 @@ pub(super) struct Scratch {
 /// every use, so a copy of the gel starts with an empty one.
 #[derive(Default)]
 pub(super) struct Workspace(Mutex<Scratch>);
+
+impl Scratch {
+    /// The pass's kept factor ([`Scratch::factored`]): the blocks' or the whole
+    /// system's.
+    fn kept(&self) -> Preconditioner<'_> {
+        match self.blocks {
+            true => Preconditioner::Blocks(&self.xy, &self.z),
+            false => Preconditioner::Whole(&self.single),
+        }
+    }
+}
 
 impl Workspace {
     fn lock(&self) -> std::sync::MutexGuard<'_, Scratch> {
@@ -2921,8 +3054,11 @@ const SPLIT_RELAXATION: f64 = 1.6;
 /// alternating direction method of multipliers, one factorisation for every iteration:
 /// the columns' displacements `v` (`v = G l`) and a copy `z_p` of each point's
 /// displacement, bound by `z_p = W_p v`. The gel's part (`v^T G^-1 v / 2` with the copies
-/// held by springs of stiffness `rho`) is one solve with the factor of `G^-1 + rho W^T W`;
-/// each point's part (its penalty and its friction, with the springs) is in closed form.
+/// held by springs of stiffness `rho`) is one solve with the factors of `G^-1 + rho W^T W`
+/// per direction ([`SplitFactor`]: the coupling of the lateral loads with the vertical
+/// ones, and of `x` with `y`, kept at the start's displacements, so that an iteration
+/// streams a third of the whole system's factor); each point's part (its penalty and its
+/// friction, with the springs) is in closed form.
 /// Newton's method on this problem damps every step that changes which points stick, so
 /// a frame whose points start sliding (a held grasp trembling by microns) took 20 to 100
 /// steps, a factorisation each; here those choices cost an iteration of two triangular
@@ -2960,28 +3096,52 @@ fn split_start(
     let share =
         weight.iter().sum::<f64>() / weight.iter().filter(|&&x| x > 0.0).count().max(1) as f64;
     let rho = SPLIT_STIFFNESS * diagonal / share.max(1e-12);
+    let cols = k / 3;
     if !kept.as_ref().is_some_and(|k| k.rho == rho && k.rows == w) {
         *kept = None;
-        let mut factor = inverse.clone();
+        // Lower triangles (all the factorisation reads).
+        let mut springs = DMatrix::<f64>::zeros(cols, cols);
         for row in w {
             for &(a, wa) in row {
-                for &(b, wb) in row {
-                    for j in 0..3 {
-                        factor[(3 * a as usize + j, 3 * b as usize + j)] += rho * wa * wb;
-                    }
+                for &(b, wb) in row.iter().filter(|&&(b, _)| b <= a) {
+                    springs[(a as usize, b as usize)] += rho * wa * wb;
                 }
             }
         }
-        if cholesky(&mut factor).is_none() {
-            return 0;
+        let mut factors = Vec::with_capacity(3);
+        for j in 0..3 {
+            let mut factor = DMatrix::from_fn(cols, cols, |a, b| match a >= b {
+                true => inverse[(3 * a + j, 3 * b + j)] + springs[(a, b)],
+                false => 0.0,
+            });
+            if cholesky(&mut factor).is_none() {
+                return 0;
+            }
+            factors.push(factor.map(|x| x as f32));
         }
         *kept = Some(SplitFactor {
             rows: w.to_vec(),
             rho,
-            factor: factor.map(|x| x as f32),
+            factors: factors.try_into().expect("three directions"),
         });
     }
-    let system = &kept.as_ref().expect("made above").factor;
+    let factors = &kept.as_ref().expect("made above").factors;
+    // `b` solved with each direction's factor: the system less `G^-1`'s coupling of one
+    // direction's loads with another's.
+    let solve = |b: &DVector<f64>| {
+        let mut out = DVector::zeros(k);
+        let mut x = DVector::<f32>::zeros(cols);
+        for (j, factor) in factors.iter().enumerate() {
+            for i in 0..cols {
+                x[i] = b[3 * i + j] as f32;
+            }
+            cholesky_solve(factor, &mut x);
+            for i in 0..cols {
+                out[3 * i + j] = f64::from(x[i]);
+            }
+        }
+        out
+    };
     // Each point's part: its displacement `z` nearest `q` against its penalty and friction.
     // Also its state: pressed (1), sticking (2).
     let prox = |i: usize, q: Vector3<f64>| -> (Vector3<f64>, u8) {
@@ -3024,7 +3184,7 @@ fn split_start(
         // In single precision, the change from the start only (`G^-1 v0 = l`): its
         // error is a fraction of the change, not of the displacements (a start at the
         // answer stays there).
-        v = &start + solve_single(system, &(spread(&target) * rho - &base));
+        v = &start + solve(&(spread(&target) * rho - &base));
         let s = project(&v);
         let mut primal: f64 = 0.0;
         let mut dual: f64 = 0.0;

@@ -644,7 +644,7 @@ fn splitting_first_finds_newtons_minimum() {
         let mut kept = None;
         let mut split = DVector::zeros(3 * k);
         split_start(&problem, &friction, STICK, &mut kept, &mut split);
-        let made = kept.as_ref().map(|k| k.factor.as_ptr());
+        let made = kept.as_ref().map(|k| k.factors[0].as_ptr());
         assert!(made.is_some(), "trial {trial}: no factor kept");
         minimise(
             &problem,
@@ -663,7 +663,7 @@ fn splitting_first_finds_newtons_minimum() {
         );
         split_start(&problem, &friction, STICK, &mut kept, &mut split);
         assert_eq!(
-            kept.as_ref().map(|k| k.factor.as_ptr()),
+            kept.as_ref().map(|k| k.factors[0].as_ptr()),
             made,
             "trial {trial}"
         );
@@ -672,7 +672,8 @@ fn splitting_first_finds_newtons_minimum() {
 
 /// On random problems of [`MIXED_UNKNOWNS`] unknowns and more (150 to 170 columns, 300 to
 /// 600 points), Newton's steps solved by conjugate gradients preconditioned with the last
-/// factor reach the minimum that steps which each factor their own system reach: the
+/// factor (a step's lateral and vertical blocks, [`Problem::block_factor`], or its whole
+/// system's) reach the minimum that steps which each factor their own system reach: the
 /// energy is strictly convex, so its minimum is unique, and both stop at a residual of
 /// `FRICTION_RESIDUAL` of the loads, so the loads agree to 1e-7 of the largest.
 #[test]
@@ -698,11 +699,15 @@ fn preconditioned_steps_find_the_factored_minimum() {
             };
             let mut l = DVector::zeros(3 * k);
             frictional_contact(&problem, &friction, &mut None, &mut l).expect("solved");
-            let used = scratch.lock().preconditioned;
-            (l, used)
+            let (used, blocks) = {
+                let s = scratch.lock();
+                (s.preconditioned, s.block_factors)
+            };
+            (l, used, blocks)
         };
-        let ((l, used), (factored, none)) = (solve(true), solve(false));
+        let ((l, used, blocks), (factored, none, _)) = (solve(true), solve(false));
         assert!(used > 0, "trial {trial}: no Newton step was preconditioned");
+        assert!(blocks > 0, "trial {trial}: no block factor was made");
         assert_eq!(none, 0, "trial {trial}");
         let scale = factored.amax().max(1e-300);
         assert!(

@@ -1841,6 +1841,14 @@ impl Problem<'_> {
         scratch
     }
 
+    /// `G^-1` in single precision: `inverse32` where kept, else made here.
+    fn single_inverse(&self) -> std::borrow::Cow<'_, DMatrix<f32>> {
+        match self.inverse32 {
+            Some(low) => std::borrow::Cow::Borrowed(low),
+            None => std::borrow::Cow::Owned(self.inverse.map(|x| x as f32)),
+        }
+    }
+
     /// [`Problem::descent`] with the system `G^-1 + W^T Phi'' W` given by the points'
     /// stiffnesses `stiff` (`(point, Phi''_p)`, the points without one left out). From
     /// [`MIXED_UNKNOWNS`] on it is assembled and factored in single precision, on a copy
@@ -1888,15 +1896,8 @@ impl Problem<'_> {
         r: &DVector<f64>,
     ) -> Option<Descent> {
         scratch.factored = false;
-        let made;
-        let inverse32 = match self.inverse32 {
-            Some(low) => low,
-            None => {
-                made = self.inverse.map(|x| x as f32);
-                &made
-            }
-        };
-        let low = Self::system_in(&mut scratch.single, inverse32);
+        let inverse32 = self.single_inverse();
+        let low = Self::system_in(&mut scratch.single, &inverse32);
         add_stiffness(low, self.w, stiff, |x| x as f32);
         cholesky(low)?;
         scratch.factored = true;
@@ -1990,14 +1991,7 @@ impl Problem<'_> {
         scratch.factored = false;
         let k = self.inverse.nrows();
         let n = k / 3;
-        let made;
-        let inverse32 = match self.inverse32 {
-            Some(low) => low,
-            None => {
-                made = self.inverse.map(|x| x as f32);
-                &made
-            }
-        };
+        let inverse32 = self.single_inverse();
         if scratch.z.nrows() != n {
             scratch.xy = DMatrix::zeros(2 * n, 2 * n);
             scratch.z = DMatrix::zeros(n, n);

@@ -157,6 +157,9 @@ pub fn shares(
 /// the force along the normal and both tangents; a pyramidal one along the normal only,
 /// on each of its edges alike. Torsional and rolling rows stay MuJoCo's.
 ///
+/// Returns, for each pressing geom, the couple (world, N m) that its rows leave out
+/// ([`Couple`]).
+///
 /// # Safety
 /// `m` and `d` must be a valid model and data after MuJoCo's position stage and before its
 /// constraint solve; `contacts` must be [`gel_contacts`] of this `d`.
@@ -168,22 +171,20 @@ pub unsafe fn write_rows(
     tau: f64,
     friction: f64,
     push: impl Fn(usize) -> Option<Linearised>,
-) {
+) -> Vec<Couple> {
+    let mut couples = Vec::new();
     let h = m.opt.timestep;
     if !(h > 0.0) || contacts.is_empty() {
-        return;
+        return couples;
     }
     let elliptic = m.opt.cone == sys::mjCONE_ELLIPTIC as i32;
     let islands = m.opt.disableflags & sys::mjDSBL_ISLAND as i32 == 0;
     // SAFETY: valid data per the caller; no other reference into it lives here.
     let d = unsafe { &mut *d };
     let nefc = usize::try_from(d.nefc).unwrap_or(0);
-    // Each contact's share of its geom's push-back ([`shares`]), its offset from the
-    // centre of pressure (sensor frame) and its geom's spread ([`Linearised::at_point`]).
-    let mut weight = vec![0.0; contacts.len()];
-    let mut offset = vec![Vector3::zeros(); contacts.len()];
-    let mut spread = vec![0.0; contacts.len()];
-    let axes = [site.rotation * Vector3::x(), site.rotation * Vector3::y()];
+    // How each pressing geom's push-back is carried by its contacts ([`carry`]).
+    let mut carried = vec![(0, 0); contacts.len()];
+    let mut ways: Vec<(Option<Linearised>, Carried)> = Vec::new();
     for (k, c) in contacts.iter().enumerate() {
         if contacts[..k].iter().any(|e| e.geom == c.geom) {
             continue;
@@ -196,34 +197,30 @@ pub unsafe fn write_rows(
             .iter()
             .map(|&j| Vector3::from(unsafe { (*d.contact.add(contacts[j].index)).pos }))
             .collect();
-        let centre = push(c.geom)
-            .and_then(|p| p.centre)
-            .map(|x| site * nalgebra::Point3::from(x))
-            .map(|p| p.coords);
-        for (&j, w) in mine.iter().zip(shares(&points, centre, axes)) {
-            weight[j] = w;
+        let p = push(c.geom);
+        let way = carry(&points, p.as_ref(), site);
+        if let Some(torque) = way.couple {
+            couples.push(Couple {
+                geom: c.geom,
+                torque,
+            });
         }
-        if let Some(centre) = centre {
-            let mut sum = 0.0;
-            for (&j, p) in mine.iter().zip(&points) {
-                offset[j] = site.rotation.inverse() * (p - centre);
-                sum += weight[j] * offset[j].xy().norm_squared();
-            }
-            mine.iter().for_each(|&j| spread[j] = sum);
+        for (i, &j) in mine.iter().enumerate() {
+            carried[j] = (ways.len(), i);
         }
+        ways.push((p, way));
     }
-    for (k, (c, &n)) in contacts.iter().zip(&weight).enumerate() {
+    for (c, &(g, i)) in contacts.iter().zip(&carried) {
         // SAFETY: `c.index` < ncon (gel_contacts).
         let con = unsafe { &mut *d.contact.add(c.index) };
         let dim = usize::try_from(con.dim).unwrap_or(0).max(1);
         let Ok(efc) = usize::try_from(con.efc_address) else {
             continue;
         };
-        let p = push(c.geom);
+        let (p, way) = &ways[g];
+        let (p, n) = (*p, way.shares[i]);
         // The force (world) and the stiffness along a world axis, this contact's share.
-        let force = p.map_or_else(Vector3::zeros, |p| {
-            site.rotation * (p.force * n + p.at_point(offset[k], n, spread[k]))
-        });
+        let force = p.map_or_else(Vector3::zeros, |p| way.force(&p, i, site));
         let stiffness = |axis: &Vector3<f64>| {
             p.map_or(0.0, |p| {
                 let a = site.rotation.inverse() * axis;
@@ -289,6 +286,89 @@ pub unsafe fn write_rows(
             }
         }
     }
+    couples
+}
+
+/// How a pressing geom's push-back is carried by its contacts ([`carry`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Carried {
+    /// Each contact's share of the push-back ([`shares`]).
+    pub shares: Vec<f64>,
+    /// Each contact's offset (sensor frame) from the shares' centre.
+    pub offsets: Vec<Vector3<f64>>,
+    /// The sum of the shares times the squared in-plane offsets
+    /// ([`Linearised::at_point`]).
+    pub spread: f64,
+    /// The couple (world, N m) that the contacts leave out ([`Couple`]), where the push
+    /// has a centre of pressure.
+    pub couple: Option<Vector3<f64>>,
+}
+
+impl Carried {
+    /// The force (world) on contact `k`: its share of the push-back's force and its part
+    /// of the turn and the twist about the shares' centre.
+    pub fn force(&self, p: &Linearised, k: usize, site: &Isometry3<f64>) -> Vector3<f64> {
+        let n = self.shares[k];
+        site.rotation * (p.force * n + p.at_point(self.offsets[k], n, self.spread))
+    }
+}
+
+/// How a push-back `p` (sensor frame, [`Linearised`]) is carried by a pressing geom's
+/// contacts at `points` (world), the sensor at `site`: shares that put their centre on the
+/// gel's centre of pressure where the points reach it ([`shares`]), the offsets from the
+/// shares' own centre (so that the turn's and the twist's parts add up to no force,
+/// whatever the points), and the couple that makes up what they leave out: the force at
+/// the shares' centre in place of the gel's centre of pressure, and the twist where the
+/// points have no spread to carry it. Together, the gel's wrench.
+pub fn carry(points: &[Vector3<f64>], p: Option<&Linearised>, site: &Isometry3<f64>) -> Carried {
+    let axes = [site.rotation * Vector3::x(), site.rotation * Vector3::y()];
+    let gels = p
+        .and_then(|p| p.centre)
+        .map(|x| (site * nalgebra::Point3::from(x)).coords);
+    let shares = shares(points, gels, axes);
+    let (Some(p), Some(gels)) = (p, gels) else {
+        return Carried {
+            offsets: vec![Vector3::zeros(); points.len()],
+            shares,
+            spread: 0.0,
+            couple: None,
+        };
+    };
+    let centre: Vector3<f64> = points.iter().zip(&shares).map(|(q, &w)| q * w).sum();
+    let offsets: Vec<Vector3<f64>> = points
+        .iter()
+        .map(|q| site.rotation.inverse() * (q - centre))
+        .collect();
+    let spread = offsets
+        .iter()
+        .zip(&shares)
+        .map(|(o, w)| w * o.xy().norm_squared())
+        .sum::<f64>();
+    let twist = if spread > 0.0 { 0.0 } else { p.twist };
+    let couple =
+        (gels - centre).cross(&(site.rotation * p.force)) + site.rotation * Vector3::z() * twist;
+    Carried {
+        shares,
+        offsets,
+        spread,
+        couple: Some(couple),
+    }
+}
+
+/// The part of a pressing geom's push-back that its contact rows cannot carry: a couple
+/// (world, N m, on the pressing geom; the gel's body takes the opposite). The rows carry
+/// the gel's force at their points' weighted centre ([`shares`]); where MuJoCo's contacts
+/// do not surround the gel's centre of pressure (a mesh's contacts on a face come and go
+/// from step to step, and two of them on one edge form a line), that centre lies elsewhere,
+/// and a single point carries no twist. Without the couple each such change of MuJoCo's
+/// contacts turns the held object by the force times the centres' distance (a 6 N grasp
+/// whose contacts fell to one edge of its face: 0.09 N m).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Couple {
+    /// The pressing geom.
+    pub geom: usize,
+    /// The couple on it (world, N m).
+    pub torque: Vector3<f64>,
 }
 
 #[cfg(test)]
@@ -297,6 +377,71 @@ mod tests {
 
     fn centre_of(points: &[Vector3<f64>], w: &[f64]) -> Vector3<f64> {
         points.iter().zip(w).map(|(p, w)| p * *w).sum()
+    }
+
+    /// The contacts' forces and the couple together are the gel's wrench (its force at its
+    /// centre of pressure and its twist about the normal) whatever MuJoCo's points: around
+    /// the centre (the contacts carry it all), on one edge of the face, at one point; and a
+    /// turn since the solve adds no force.
+    #[test]
+    fn the_contacts_and_their_couple_carry_the_gels_wrench() {
+        use nalgebra::UnitQuaternion;
+        let site = Isometry3::new(
+            Vector3::new(0.01, -0.02, 0.05),
+            Vector3::new(0.3, -0.2, 0.5),
+        );
+        let mut p = Linearised {
+            force: Vector3::new(0.4, -0.7, 5.9),
+            normal: 3e4,
+            tangential: 5e3,
+            centre: Some(Vector3::new(1e-3, 2e-3, 0.0)),
+            twist: 2e-3,
+            turned: UnitQuaternion::identity(),
+        };
+        let local = |xy: &[(f64, f64)]| -> Vec<Vector3<f64>> {
+            xy.iter()
+                .map(|&(x, y)| (site * nalgebra::Point3::new(x * 1e-3, y * 1e-3, -2e-4)).coords)
+                .collect()
+        };
+        let square = local(&[(-5.0, -5.0), (5.0, -5.0), (5.0, 5.0), (-5.0, 5.0)]);
+        let edge = local(&[(-5.0, -15.0), (5.0, -15.0), (5.0, -15.0)]);
+        let one = local(&[(4.0, -3.0)]);
+        let gel_force = site.rotation * p.force;
+        let gel_centre = (site * nalgebra::Point3::from(p.centre.unwrap())).coords;
+        let gel_torque = gel_centre.cross(&gel_force) + site.rotation * Vector3::z() * p.twist;
+        for (name, points) in [("square", &square), ("edge", &edge), ("one", &one)] {
+            let way = carry(points, Some(&p), &site);
+            let forces: Vec<Vector3<f64>> =
+                (0..points.len()).map(|k| way.force(&p, k, &site)).collect();
+            let force: Vector3<f64> = forces.iter().sum();
+            let couple = way.couple.unwrap();
+            let torque: Vector3<f64> = points
+                .iter()
+                .zip(&forces)
+                .map(|(q, f)| q.cross(f))
+                .sum::<Vector3<f64>>()
+                + couple;
+            assert!(
+                (force - gel_force).norm() < 1e-12,
+                "{name}: {force} {gel_force}"
+            );
+            assert!(
+                (torque - gel_torque).norm() < 1e-13,
+                "{name}: {torque} {gel_torque}"
+            );
+            if name == "square" {
+                // Around the centre, in the face's plane: the contacts carry it all but the
+                // tangential force's arm from the face's depth.
+                let arm = (site.rotation * Vector3::z() * 2e-4).cross(&gel_force);
+                assert!((couple - arm).norm() < 1e-13, "{couple} {arm}");
+            } else {
+                assert!(couple.norm() > 1e-3, "{name}: {couple}");
+            }
+        }
+        p.turned = UnitQuaternion::from_euler_angles(0.01, -0.02, 0.03);
+        let way = carry(&square, Some(&p), &site);
+        let force: Vector3<f64> = (0..4).map(|k| way.force(&p, k, &site)).sum();
+        assert!((force - gel_force).norm() < 1e-12, "{force} {gel_force}");
     }
 
     #[test]

@@ -692,6 +692,9 @@ pub unsafe extern "C" fn tacrom_compute(
 /// the indenter's motion since ([`linearise`]); the gel is solved again where no sensor
 /// evaluation solved it at this state and an indenter moved further than
 /// [`needs_solve`] allows, or presses the gel's geom without a force from the last solve.
+/// What the contacts' rows cannot carry of the gel's torque (where MuJoCo's contact points
+/// do not surround the gel's centre of pressure) goes into `qfrc_passive` as a couple
+/// ([`gel_contacts::Couple`]).
 ///
 /// # Safety
 /// `m` and `d` must be a valid model and data of this instance after MuJoCo's position
@@ -804,7 +807,33 @@ unsafe fn implicit(
         })
     };
     // SAFETY: valid model and data per the caller; `contacts` are this data's.
-    unsafe { gel_contacts::write_rows(m, d, &contacts, site, tau, friction, push) };
+    let couples = unsafe { gel_contacts::write_rows(m, d, &contacts, site, tau, friction, push) };
+    let model = Model(m);
+    let bodies = model.geom_bodyid();
+    let sensor_body = model.site_bodyid()[inst.scene.site()];
+    for c in couples {
+        let (t, nt) = (c.torque, -c.torque);
+        if !t.iter().all(|v| v.is_finite()) {
+            continue;
+        }
+        let (zero, point) = (Vector3::<f64>::zeros(), site.translation.vector);
+        // SAFETY: valid model and data; the vectors hold three numbers each; the bodies
+        // are ids of this model; qfrc_passive has nv entries.
+        unsafe {
+            let qfrc = (*d).qfrc_passive;
+            let body = bodies[c.geom];
+            sys::mj_applyFT(m, d, zero.as_ptr(), t.as_ptr(), point.as_ptr(), body, qfrc);
+            sys::mj_applyFT(
+                m,
+                d,
+                zero.as_ptr(),
+                nt.as_ptr(),
+                point.as_ptr(),
+                sensor_body,
+                qfrc,
+            );
+        }
+    }
     warnings
 }
 

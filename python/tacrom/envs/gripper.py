@@ -83,12 +83,6 @@ def couple_pads(spec: mujoco.MjSpec, sensors: Sequence[str] = SENSORS) -> None:
         plugin.config = config
 
 
-# The model of coupled "rom" pads when none is named: the linear gel's with the paper's
-# decoder widths. The narrow decoder, rom's default on 4 mm gels, leaves a held hexagon's
-# grasp cycling (docs/rl.md, "A coupled grasp").
-COUPLED_MODEL = "rom-linear"
-
-
 class GripperLiftEnv(TactileEnv):
     """Grasp an object on the table and lift it, with a tactile sensor in each fingertip.
 
@@ -135,11 +129,7 @@ class GripperLiftEnv(TactileEnv):
     ``coupling``: the gels push back and hold the object (:func:`couple_pads`; needs
     ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad;
     ``info["gel_force"]`` ``(2, 3)``: each gel's force on the object (N, in its sensor's
-    frame: ``[..., 2]`` the squeeze). Coupled ``"rom"`` decodes with ``COUPLED_MODEL``
-    (the paper's decoder widths) unless ``sensor_config`` or ``sensor`` names another:
-    with the narrow decoder, rom's default on the pads' 4 mm gels, a held hexagon's
-    left gel force keeps cycling between 5.8 and 6.5 N at seed 0 (docs/rl.md, "A coupled
-    grasp").
+    frame: ``[..., 2]`` the squeeze).
     """
 
     def __init__(
@@ -170,8 +160,6 @@ class GripperLiftEnv(TactileEnv):
                     config = dict(s.plugin.config)
                     config.pop("sensor", None)
                     s.plugin.config = config
-        if coupling and physics == "rom" and not sensor and "model" not in extra:
-            extra["model"] = COUPLED_MODEL
         outputs = ["depth", "rgb"] if tactile_rgb else ["depth"]
         if coupling:
             # How hard each gel squeezes, for info["gel_force"].

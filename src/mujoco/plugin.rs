@@ -694,7 +694,8 @@ pub unsafe extern "C" fn tacrom_compute(
 /// [`needs_solve`] allows, or presses the gel's geom without a force from the last solve.
 /// What the contacts' rows cannot carry of the gel's torque (where MuJoCo's contact points
 /// do not surround the gel's centre of pressure) goes into `qfrc_passive` as a couple
-/// ([`gel_contacts::Couple`]).
+/// ([`gel_contacts::Couple`]). Also returns whether the coupling's state changed (a new
+/// base, a solve).
 ///
 /// # Safety
 /// `m` and `d` must be a valid model and data of this instance after MuJoCo's position
@@ -709,7 +710,7 @@ unsafe fn implicit(
     geoms: Vec<usize>,
     evaluated: bool,
     site: &Isometry3<f64>,
-) -> Vec<String> {
+) -> (Vec<String>, bool) {
     let mut warnings = Vec::new();
     let config = inst.sensor.config();
     let (name, poisson, friction, tau) = (
@@ -724,7 +725,7 @@ unsafe fn implicit(
              MuJoCo's Newton or CG solver (the model uses PGS); the gel's geom acts as a rigid \
              contact"
         ));
-        return warnings;
+        return (warnings, false);
     }
     let normal = site.rotation * Vector3::z();
     // SAFETY: valid data per the caller.
@@ -766,7 +767,8 @@ unsafe fn implicit(
     // this state (for its images). Each keeps the normal and tangential stiffness measured
     // between its last two solves ([`secant`], [`tangential_secant`]).
     let solved_here = evaluated && inst.sensor.solved_at(&inst.placed);
-    if stale || solved_here {
+    let changed = stale || solved_here;
+    if changed {
         if !evaluated {
             warnings.extend(inst.evaluate_here(placed.clone(), geoms.clone()));
         }
@@ -834,7 +836,7 @@ unsafe fn implicit(
             );
         }
     }
-    warnings
+    (warnings, changed)
 }
 
 /// The coupling (`coupling="on"`), called in MuJoCo's passive-force stage: applies the
@@ -890,8 +892,13 @@ pub unsafe extern "C" fn tacrom_passive(
         if let Some(gel) = inst.scene.gel_geom() {
             // SAFETY: valid model and data, past the position stage; `data` is not used
             // after this.
-            warnings.extend(unsafe { implicit(inst, mr, d, gel, placed, geoms, evaluated, &site) });
-            warnings.extend(inst.store(state, m.ngeom()));
+            let (said, changed) =
+                unsafe { implicit(inst, mr, d, gel, placed, geoms, evaluated, &site) };
+            warnings.extend(said);
+            // Between solves nothing of the state changes: `plugin_state` holds it already.
+            if changed {
+                warnings.extend(inst.store(state, m.ngeom()));
+            }
             return Ok(inst.limit(warnings));
         }
         if !evaluated {

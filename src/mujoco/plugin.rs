@@ -814,29 +814,64 @@ unsafe fn implicit(
     let bodies = model.geom_bodyid();
     let sensor_body = model.site_bodyid()[inst.scene.site()];
     for c in couples {
-        let (t, nt) = (c.torque, -c.torque);
-        if !t.iter().all(|v| v.is_finite()) {
-            continue;
-        }
-        let (zero, point) = (Vector3::<f64>::zeros(), site.translation.vector);
-        // SAFETY: valid model and data; the vectors hold three numbers each; the bodies
-        // are ids of this model; qfrc_passive has nv entries.
+        let zero = Vector3::zeros();
+        // SAFETY: valid model and data per the caller; both bodies are ids of this model.
         unsafe {
-            let qfrc = (*d).qfrc_passive;
-            let body = bodies[c.geom];
-            sys::mj_applyFT(m, d, zero.as_ptr(), t.as_ptr(), point.as_ptr(), body, qfrc);
-            sys::mj_applyFT(
+            apply_between(
                 m,
                 d,
-                zero.as_ptr(),
-                nt.as_ptr(),
-                point.as_ptr(),
+                &zero,
+                &c.torque,
+                &site.translation.vector,
+                bodies[c.geom],
                 sensor_body,
-                qfrc,
-            );
-        }
+            )
+        };
     }
     (warnings, changed)
+}
+
+/// Applies `force` and `torque` (world; the force at `point`) to `body` and their
+/// opposites to `sensor_body`, into `qfrc_passive`; nothing where a number is not finite.
+///
+/// # Safety
+/// `m` and `d` must be a valid model and data; both bodies ids of `m`.
+unsafe fn apply_between(
+    m: &sys::mjModel,
+    d: *mut sys::mjData,
+    force: &Vector3<f64>,
+    torque: &Vector3<f64>,
+    point: &Vector3<f64>,
+    body: i32,
+    sensor_body: i32,
+) {
+    if !(force.iter().chain(torque.iter()).all(|v| v.is_finite())) {
+        return;
+    }
+    let (nf, nt) = (-force, -torque);
+    // SAFETY: valid model and data per the caller; the vectors hold three numbers each;
+    // qfrc_passive has nv entries.
+    unsafe {
+        let qfrc = (*d).qfrc_passive;
+        sys::mj_applyFT(
+            m,
+            d,
+            force.as_ptr(),
+            torque.as_ptr(),
+            point.as_ptr(),
+            body,
+            qfrc,
+        );
+        sys::mj_applyFT(
+            m,
+            d,
+            nf.as_ptr(),
+            nt.as_ptr(),
+            point.as_ptr(),
+            sensor_body,
+            qfrc,
+        );
+    }
 }
 
 /// The coupling (`coupling="on"`), called in MuJoCo's passive-force stage: applies the
@@ -869,7 +904,7 @@ pub unsafe extern "C" fn tacrom_passive(
         // SAFETY: valid data, a read-only view for the time and the poses; its last use is
         // before mj_applyFT writes through `d` below.
         let data = Data(unsafe { &*d });
-        let (time, qfrc) = (data.0.time, data.0.qfrc_passive);
+        let time = data.0.time;
         // SAFETY: valid data of this model; no other reference into plugin_state lives.
         let state = unsafe { plugin_state(m, d, instance) };
         let mut warnings: Vec<String> = inst.sync(state, m.ngeom()).into_iter().collect();
@@ -951,24 +986,8 @@ pub unsafe extern "C" fn tacrom_passive(
                 site.rotation * push.wrench.force,
                 site.rotation * push.wrench.torque,
             );
-            if !(f.iter().chain(t.iter()).all(|v| v.is_finite())) {
-                continue;
-            }
-            let (nf, nt) = (-f, -t);
-            // SAFETY: valid model and data; the vectors hold three numbers each; the
-            // bodies are ids of this model; qfrc_passive has nv entries.
-            unsafe {
-                sys::mj_applyFT(mr, d, f.as_ptr(), t.as_ptr(), point.as_ptr(), body, qfrc);
-                sys::mj_applyFT(
-                    mr,
-                    d,
-                    nf.as_ptr(),
-                    nt.as_ptr(),
-                    point.as_ptr(),
-                    sensor_body,
-                    qfrc,
-                );
-            }
+            // SAFETY: valid model and data; the bodies are ids of this model.
+            unsafe { apply_between(mr, d, &f, &t, &point, body, sensor_body) };
         }
         warnings.extend(inst.store(state, m.ngeom()));
         Ok(inst.limit(warnings))

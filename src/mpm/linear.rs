@@ -105,7 +105,9 @@
 //! multi-column solve each, so a column's bits depend on nothing else), and cached. The
 //! sensors of one gel in a process share them. A first contact is then an ordinary frame. A frame then costs dense algebra of the size of
 //! the node columns under its contact and a sum over its loaded columns: no pass over the
-//! particles or the grid.
+//! particles or the grid. A contact that moves on by a few columns updates its dense
+//! systems from those of the set last made afresh ([`Compliance::updated`]) rather than
+//! inverting its compliance again.
 //!
 //! # What it leaves out
 //!
@@ -245,7 +247,7 @@ pub(crate) struct Compliance {
     /// The dense systems of the node columns under the last contact (at most
     /// [`LOCAL_SYSTEMS`]): a contact that loads the same columns as the frame before (a
     /// grasp held) builds and inverts nothing.
-    locals: Vec<LocalSystem>,
+    locals: Vec<Kept>,
     /// Whether a system of [`TRIM_ENTRIES`] or more was built since the last reset.
     built_large: bool,
     /// Unknowns from which a frictional solve may split ([`SPLIT_UNKNOWNS`]; tests
@@ -262,21 +264,99 @@ pub(crate) struct Compliance {
 /// The dense systems of one set of node columns under a contact.
 #[derive(Clone)]
 struct LocalSystem {
-    /// The node columns, and whether with their lateral loads (3 per column) or not.
+    /// The node columns (with their lateral loads, 3 per column, where `base.lateral`).
     local: Vec<u32>,
-    lateral: bool,
-    /// Their compliance ([`Compliance::local_compliance`]) and its inverse.
-    g: DMatrix<f64>,
-    inverse: DMatrix<f64>,
+    /// Their compliance ([`Compliance::local_compliance`]) and its inverse (shared with
+    /// `base` where these are its columns).
+    g: Arc<DMatrix<f64>>,
+    inverse: Arc<DMatrix<f64>>,
     /// `inverse` in single precision, for a frictional solve of [`MIXED_UNKNOWNS`] or
     /// more ([`Problem::stiff_descent`]).
     inverse32: Option<DMatrix<f32>>,
+    /// The columns whose systems were made afresh and these updated from
+    /// ([`Compliance::updated`]).
+    base: Base,
     /// The matrices the contact solves on these columns assemble and factor their
     /// systems in, kept so that a frame's Newton steps do not allocate them.
     scratch: Workspace,
     /// The factor [`split_start`] made for these columns, kept for the next solve.
     split: Option<SplitFactor>,
 }
+
+/// A set of node columns whose dense systems were made afresh, from which those of the
+/// sets that overlap it are updated ([`Compliance::updated`]): a set's systems are a
+/// function of its base and itself, so that the bases alone, in the gel's state, make a
+/// gel read back solve as the original bit for bit.
+#[derive(Clone)]
+struct Base {
+    local: Vec<u32>,
+    lateral: bool,
+    /// Its compliance and inverse, where made (a state read back names the columns).
+    made: Option<Shared>,
+}
+
+/// A compliance and its inverse, shared by a base and the set made from it where they
+/// are the same columns.
+type Shared = (Arc<DMatrix<f64>>, Arc<DMatrix<f64>>);
+
+/// A kept set of node columns: its systems, or (read back from a state) its base alone.
+#[derive(Clone)]
+enum Kept {
+    Made(Box<LocalSystem>),
+    Named(Base),
+}
+
+impl Kept {
+    fn base(&self) -> &Base {
+        match self {
+            Kept::Made(s) => &s.base,
+            Kept::Named(b) => b,
+        }
+    }
+}
+
+/// The entries of the compliance of node columns `local` ([`Compliance::entries`]):
+/// the responses at them to their loads, three unknowns per column (`+x`, `+y`, down)
+/// with `lateral`, else the sinking alone.
+struct Entries<'a> {
+    down: Vec<&'a [f32]>,
+    shear: Vec<&'a [f32]>,
+    local: &'a [u32],
+    /// Values per response.
+    values: usize,
+    lateral: bool,
+}
+
+impl Entries<'_> {
+    /// Unknowns.
+    fn len(&self) -> usize {
+        self.local.len() * if self.lateral { 3 } else { 1 }
+    }
+
+    /// Unknown `p`'s displacement under a unit load of unknown `q` (cells per internal
+    /// force unit; sinking counts positive).
+    fn at(&self, p: usize, q: usize) -> f64 {
+        if !self.lateral {
+            return -f64::from(self.down[q][3 * self.local[p] as usize + 2]);
+        }
+        let (a, i, b, j) = (p / 3, p % 3, q / 3, q % 3);
+        let r = match j {
+            2 => self.down[b],
+            _ => &self.shear[b][j * self.values..(j + 1) * self.values],
+        };
+        let u = f64::from(r[3 * self.local[a] as usize + i]);
+        if i == 2 {
+            -u
+        } else {
+            u
+        }
+    }
+}
+
+/// The most columns removed and added, as a fraction of the new set, for which a kept
+/// base's dense systems are updated rather than made afresh: beyond a quarter, the
+/// update's `k^2 (r + n)` work nears the fresh inverse's `k^3`.
+const UPDATE_FRACTION: f64 = 0.25;
 
 /// The factors that [`split_start`] solves with, one per direction: `G^-1_jj + rho W^T W`
 /// for the columns' `x`, `y` and vertical loads `j` (`G^-1`'s coupling of one direction
@@ -300,7 +380,7 @@ const TRIM_ENTRIES: usize = 1 << 17;
 
 /// Sets of node columns whose dense systems are kept: the frictional problem's and the
 /// vertical one of a frame that starts without friction.
-const LOCAL_SYSTEMS: usize = 2;
+pub(super) const LOCAL_SYSTEMS: usize = 2;
 
 /// One solve's answer.
 pub(crate) struct Contact {
@@ -1080,62 +1160,210 @@ impl Compliance {
     /// else their sinking alone): the columns' responses at each other, made symmetric
     /// (the mean of the two ways, each pair read once for both).
     fn local_compliance(&self, local: &[u32], lateral: bool) -> DMatrix<f64> {
-        let down: Vec<&[f32]> = local.iter().map(|&c| self.responses.down(c)).collect();
-        if !lateral {
-            let at = |a: usize, b: usize| -f64::from(down[b][3 * local[a] as usize + 2]);
-            return symmetric(local.len(), at);
-        }
-        let shear: Vec<&[f32]> = local.iter().map(|&c| self.responses.lateral(c)).collect();
-        let n = 3 * self.levels.len();
-        let at = |p: usize, q: usize| {
-            let (a, i, b, j) = (p / 3, p % 3, q / 3, q % 3);
-            let r = if j == 2 {
-                down[b]
-            } else {
-                &shear[b][j * n..(j + 1) * n]
-            };
-            let u = f64::from(r[3 * local[a] as usize + i]);
-            if i == 2 {
-                -u
-            } else {
-                u
-            }
-        };
-        symmetric(3 * local.len(), at)
+        let entries = self.entries(local, lateral);
+        symmetric(entries.len(), |p, q| entries.at(p, q))
     }
 
-    /// The dense systems of node columns `local` (kept from an earlier contact, or built);
-    /// `None` where their compliance is not positive definite.
-    fn take_local(&mut self, local: &[u32], lateral: bool) -> Option<LocalSystem> {
-        if let Some(i) = self
-            .locals
-            .iter()
-            .position(|s| s.lateral == lateral && s.local == local)
-        {
-            return Some(self.locals.remove(i));
+    /// The entries of [`Compliance::local_compliance`], read from the responses.
+    fn entries<'a>(&'a self, local: &'a [u32], lateral: bool) -> Entries<'a> {
+        Entries {
+            down: local.iter().map(|&c| self.responses.down(c)).collect(),
+            shear: match lateral {
+                true => local.iter().map(|&c| self.responses.lateral(c)).collect(),
+                false => Vec::new(),
+            },
+            local,
+            values: 3 * self.levels.len(),
+            lateral,
         }
-        let g = self.local_compliance(local, lateral);
+    }
+
+    /// The dense systems of node columns `local`: kept from an earlier contact, updated
+    /// from the kept base that shares the most columns with them where it shares all but
+    /// [`UPDATE_FRACTION`] ([`Compliance::updated`]), or made afresh (and then their own
+    /// base); `None` where their compliance is not positive definite. The choice reads the
+    /// bases alone, so a gel read back from a state chooses as the original.
+    fn take_local(&mut self, local: &[u32], lateral: bool) -> Option<LocalSystem> {
+        let shared = |b: &Base| {
+            local
+                .iter()
+                .filter(|c| b.local.binary_search(c).is_ok())
+                .count()
+        };
+        let nearest = (0..self.locals.len())
+            .filter(|&i| self.locals[i].base().lateral == lateral)
+            .map(|i| (shared(self.locals[i].base()), i))
+            .max();
+        let near = nearest.filter(|&(n, i)| {
+            let changed = (local.len() - n) + (self.locals[i].base().local.len() - n);
+            n > 0 && changed as f64 <= UPDATE_FRACTION * local.len() as f64
+        });
+        if let Some((_, i)) = near {
+            let mut base = match self.locals.remove(i) {
+                Kept::Made(system) if system.local == local => return Some(*system),
+                Kept::Made(system) => system.base,
+                Kept::Named(base) => base,
+            };
+            let (g, inverse) = match base.made.take() {
+                Some(made) => made,
+                None => {
+                    let g = self.local_compliance(&base.local, lateral);
+                    let inverse = spd_inverse(&g)?;
+                    (Arc::new(g), Arc::new(inverse))
+                }
+            };
+            base.made = Some((g.clone(), inverse.clone()));
+            let made = if base.local == local {
+                Some((g, inverse))
+            } else {
+                self.updated(&base, local)
+                    .map(|(g, inverse)| (Arc::new(g), Arc::new(inverse)))
+            };
+            if let Some((g, inverse)) = made {
+                return Some(self.system(local, g, inverse, base));
+            }
+        }
+        let g = Arc::new(self.local_compliance(local, lateral));
+        let inverse = Arc::new(spd_inverse(&g)?);
+        let base = Base {
+            local: local.to_vec(),
+            lateral,
+            made: Some((g.clone(), inverse.clone())),
+        };
+        Some(self.system(local, g, inverse, base))
+    }
+
+    /// The dense systems of `local` from their compliance `g` and its inverse.
+    fn system(
+        &mut self,
+        local: &[u32],
+        g: Arc<DMatrix<f64>>,
+        inverse: Arc<DMatrix<f64>>,
+        base: Base,
+    ) -> LocalSystem {
         self.built_large |= g.len() >= TRIM_ENTRIES;
-        let inverse = spd_inverse(&g)?;
         // The frictional solve's Newton steps assemble their systems on it in single
         // precision from [`MIXED_UNKNOWNS`] on.
         let inverse32 =
-            (lateral && inverse.nrows() >= MIXED_UNKNOWNS).then(|| inverse.map(|x| x as f32));
-        Some(LocalSystem {
+            (base.lateral && inverse.nrows() >= MIXED_UNKNOWNS).then(|| inverse.map(|x| x as f32));
+        LocalSystem {
             local: local.to_vec(),
-            lateral,
             g,
             inverse,
             inverse32,
+            base,
             scratch: Workspace::default(),
             split: None,
-        })
+        }
+    }
+
+    /// The compliance of node columns `local` and its inverse from those of `base` (made),
+    /// on columns that overlap them: the shared columns' block of the compliance copied, the rest read
+    /// from the responses; the inverse by removing `kept`'s columns that are gone (the
+    /// shared block's inverse is `B_ss - B_sr B_rr^-1 B_rs` in `kept`'s inverse `B`) and
+    /// bordering it with the new ones (their Schur complement `S = G_nn - G_ns P G_sn`, `P`
+    /// the shared block's inverse: `[[P + X S^-1 X^T, -X S^-1], [-S^-1 X^T, S^-1]]` with `X
+    /// = P G_sn`). Work of `k^2 (r + n)` for `k` unknowns, `r` and `n` removed and new,
+    /// against a factorisation and an inverse's `k^3`. `None` where a Schur complement is
+    /// not positive definite.
+    fn updated(&self, base: &Base, local: &[u32]) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+        let (kept_g, kept_inverse) = base.made.as_ref()?;
+        let per = if base.lateral { 3 } else { 1 };
+        let unknowns = |columns: &[usize]| -> Vec<usize> {
+            columns
+                .iter()
+                .flat_map(|&c| (0..per).map(move |i| per * c + i))
+                .collect()
+        };
+        // Positions (in `local`, and in `kept.local`) of the shared columns, the new ones,
+        // and the removed ones.
+        let (mut shared, mut shared_old, mut added) = (Vec::new(), Vec::new(), Vec::new());
+        for (a, c) in local.iter().enumerate() {
+            match base.local.binary_search(c) {
+                Ok(b) => {
+                    shared.push(a);
+                    shared_old.push(b);
+                }
+                Err(_) => added.push(a),
+            }
+        }
+        let removed: Vec<usize> = (0..base.local.len())
+            .filter(|b| local.binary_search(&base.local[*b]).is_err())
+            .collect();
+        let (s_new, s_old, a_new, r_old) = (
+            unknowns(&shared),
+            unknowns(&shared_old),
+            unknowns(&added),
+            unknowns(&removed),
+        );
+        let (ns, na) = (s_new.len(), a_new.len());
+        let b = &**kept_inverse;
+        // The shared block's inverse.
+        let mut p = DMatrix::from_fn(ns, ns, |i, j| b[(s_old[i], s_old[j])]);
+        if !r_old.is_empty() {
+            let b_rr = DMatrix::from_fn(r_old.len(), r_old.len(), |i, j| b[(r_old[i], r_old[j])]);
+            let b_rs = DMatrix::from_fn(r_old.len(), ns, |i, j| b[(r_old[i], s_old[j])]);
+            let y = b_rr.cholesky()?.solve(&b_rs);
+            add_product(&mut p, -1.0, &b_rs, true, &y, false);
+        }
+        // The new compliance: the shared block kept, the new columns' rows read.
+        let k = ns + na;
+        let entries = self.entries(local, base.lateral);
+        let mut g = DMatrix::zeros(k, k);
+        for j in 0..ns {
+            for i in 0..ns {
+                g[(s_new[i], s_new[j])] = kept_g[(s_old[i], s_old[j])];
+            }
+        }
+        for &q in &a_new {
+            for r in 0..k {
+                let v = (entries.at(r, q) + entries.at(q, r)) * 0.5;
+                g[(r, q)] = v;
+                g[(q, r)] = v;
+            }
+        }
+        let mut inverse = DMatrix::zeros(k, k);
+        if na == 0 {
+            for j in 0..ns {
+                for i in 0..ns {
+                    inverse[(s_new[i], s_new[j])] = p[(i, j)];
+                }
+            }
+        } else {
+            let g_sn = DMatrix::from_fn(ns, na, |i, j| g[(s_new[i], a_new[j])]);
+            let mut x = DMatrix::zeros(ns, na);
+            add_product(&mut x, 1.0, &p, false, &g_sn, false);
+            let mut schur = DMatrix::from_fn(na, na, |i, j| g[(a_new[i], a_new[j])]);
+            add_product(&mut schur, -1.0, &g_sn, true, &x, false);
+            let schur = schur.cholesky()?;
+            // `X S^-1`, and `S^-1`.
+            let xs = schur.solve(&x.transpose()).transpose();
+            let s_inv = schur.inverse();
+            add_product(&mut p, 1.0, &xs, false, &x, true);
+            for j in 0..ns {
+                for i in 0..ns {
+                    inverse[(s_new[i], s_new[j])] = p[(i, j)];
+                }
+            }
+            for j in 0..na {
+                for i in 0..ns {
+                    inverse[(s_new[i], a_new[j])] = -xs[(i, j)];
+                    inverse[(a_new[j], s_new[i])] = -xs[(i, j)];
+                }
+                for i in 0..na {
+                    inverse[(a_new[i], a_new[j])] = s_inv[(i, j)];
+                }
+            }
+        }
+        // The two triangles agree to round-off: the lower one for both, as a fresh inverse.
+        inverse.fill_upper_triangle_with_lower_triangle();
+        Some((g, inverse))
     }
 
     /// Keeps `system` for the next contacts (the oldest kept goes beyond
     /// [`LOCAL_SYSTEMS`]).
     fn put_local(&mut self, system: LocalSystem) {
-        self.locals.push(system);
+        self.locals.push(Kept::Made(Box::new(system)));
         if self.locals.len() > LOCAL_SYSTEMS {
             self.locals.remove(0);
         }
@@ -1559,6 +1787,58 @@ impl Compliance {
         remap_anchors(&mut self.anchors, matched);
     }
 
+    /// Writes or reads the kept sets' bases ([`Base`]: the sets' systems follow from
+    /// them): whether lateral and the node columns of each. Read back, a base that this
+    /// compliance keeps already keeps its systems; the others are made where next used.
+    fn persist_bases(&mut self, io: &mut Io<'_>) {
+        let columns = self.levels.len();
+        let mut bases: Vec<(bool, Vec<u32>)> = self
+            .locals
+            .iter()
+            .map(|k| (k.base().lateral, k.base().local.clone()))
+            .collect();
+        let n = io.len(bases.len(), LOCAL_SYSTEMS, "the kept systems");
+        if io.loading() {
+            if io.fault().is_some() {
+                return;
+            }
+            bases.resize_with(n, Default::default);
+        }
+        for (lateral, local) in bases.iter_mut() {
+            lateral.persist(io);
+            state::list(io, local, columns, "a kept system's node columns");
+        }
+        if !io.loading() || io.fault().is_some() {
+            return;
+        }
+        let valid = |local: &[u32]| {
+            !local.is_empty()
+                && local.windows(2).all(|w| w[0] < w[1])
+                && local.iter().all(|&c| (c as usize) < columns)
+        };
+        if !bases.iter().all(|(_, local)| valid(local)) {
+            io.fail(|| "a kept system's node columns are not increasing ids of the gel's".into());
+            return;
+        }
+        let mut old = std::mem::take(&mut self.locals);
+        self.locals = bases
+            .into_iter()
+            .map(|(lateral, local)| {
+                match old
+                    .iter()
+                    .position(|k| k.base().lateral == lateral && k.base().local == local)
+                {
+                    Some(i) => old.remove(i),
+                    None => Kept::Named(Base {
+                        local,
+                        lateral,
+                        made: None,
+                    }),
+                }
+            })
+            .collect();
+    }
+
     /// Back to the undeformed gel without contact history (the factor and the
     /// responses stay: they depend on the gel alone). The kept dense systems go too: a
     /// fresh gel has none, and an episode's last contact seldom recurs in the next.
@@ -1766,6 +2046,35 @@ fn product<T: faer::traits::RealField + nalgebra::Scalar>(
         Par::Seq,
     );
     out
+}
+
+/// `c += alpha a b` with `a` and `b` each transposed where asked (faer, in the calling
+/// thread).
+fn add_product(
+    c: &mut DMatrix<f64>,
+    alpha: f64,
+    a: &DMatrix<f64>,
+    a_transposed: bool,
+    b: &DMatrix<f64>,
+    b_transposed: bool,
+) {
+    fn view(m: &DMatrix<f64>, t: bool) -> MatRef<'_, f64> {
+        let m = MatRef::from_column_major_slice(m.as_slice(), m.nrows(), m.ncols());
+        if t {
+            m.transpose()
+        } else {
+            m
+        }
+    }
+    let (n, k) = c.shape();
+    faer::linalg::matmul::matmul(
+        MatMut::from_column_major_slice_mut(c.as_mut_slice(), n, k),
+        faer::Accum::Add,
+        view(a, a_transposed),
+        view(b, b_transposed),
+        alpha,
+        Par::Seq,
+    );
 }
 
 /// Solves `a x = b` in place, `a` overwritten by [`cholesky`] (either precision).
@@ -3347,6 +3656,7 @@ impl Equilibrium for LinearSolver {
                 io.fail(|| format!("the columns' displacement has {n} values, not {columns}"));
                 c.last.clear();
             }
+            c.persist_bases(io);
         }
         true
     }

@@ -69,14 +69,16 @@ impl StateBounds {
         let prev = 1 + 8 * i;
         // Each solver's own: the secant memory (per particle and per indenter), one
         // linear solver's history (anchors, lagged forces, the columns' mean
-        // displacement), the total relaxation's nodal displacements and secant memory
+        // displacement, the kept systems' bases: a flag and the columns of each), the total relaxation's nodal displacements and secant memory
         // (per node and per indenter), Newton's nodal displacements and secant memory
         // (at most three unknowns per node), stick anchors, lagged forces and loads (per
         // point of its contact lattice, and one tip point per indenter).
         let solver_len = |kind: Solver| {
             1 + match kind {
                 Solver::Relaxation => 2 + 12 * n + 3 * i,
-                Solver::Linear => 4 + 5 * l + 4 * l + 3 * c,
+                Solver::Linear => {
+                    4 + 5 * l + 4 * l + 3 * c + (1 + super::linear::LOCAL_SYSTEMS * (2 + c))
+                }
                 Solver::Total => 1 + 3 * g + (1 + 3 * g) + (1 + 3 * i),
                 Solver::Newton => {
                     2 + 3 * g

@@ -1516,3 +1516,73 @@ fn a_contact_that_moves_on_updates_its_systems() {
         assert!(*system.inverse == spd_inverse(&system.g).unwrap());
     }
 }
+
+/// [`small_rank_one`] keeps [`small_cholesky`]'s factor of a random symmetric positive
+/// definite matrix the factor of the matrix with rank-one terms added and removed, as
+/// [`vertical_start`] does when points go in and out of its pressed set: a point's term
+/// added, another's, the first removed, each factor within 1e-12 (relative) of the
+/// matrix's own factor made afresh (round-off of a few sweeps of `n = 30` rotations); a
+/// removal that would leave the matrix indefinite is refused.
+#[test]
+fn a_rank_one_change_updates_the_small_factor() {
+    let mut noise = Noise(0x5eed_1234);
+    let n = 30;
+    let b = DMatrix::from_fn(n, n, |_, _| noise.next());
+    let a = &b * b.transpose() + DMatrix::identity(n, n) * 0.5;
+    // A point's term: nine columns' weights, as a stencil's.
+    let mut term = |first: usize| {
+        let mut x = vec![0.0; n];
+        for k in 0..9 {
+            x[(first + 2 * k) % n] += 1.0 + noise.next();
+        }
+        x
+    };
+    let (x1, x2) = (term(7), term(3));
+    let lower = |m: &DMatrix<f64>| -> Vec<f64> {
+        let mut f: Vec<f64> = (0..n * n).map(|p| m[(p / n, p % n)]).collect();
+        small_cholesky(&mut f, n).expect("positive definite");
+        // The upper triangle holds what small_cholesky leaves there: compare the factor.
+        (0..n * n)
+            .map(|p| if p % n <= p / n { f[p] } else { 0.0 })
+            .collect()
+    };
+    let outer = |x: &[f64]| DMatrix::from_fn(n, n, |i, j| x[i] * x[j]);
+    let mut factor: Vec<f64> = (0..n * n).map(|p| a[(p / n, p % n)]).collect();
+    small_cholesky(&mut factor, n).unwrap();
+    let steps = [
+        (&x1, false, &a + outer(&x1)),
+        (&x2, false, &a + outer(&x1) + outer(&x2)),
+        (&x1, true, &a + outer(&x2)),
+    ];
+    for (x, remove, matrix) in steps {
+        let mut column = x.clone();
+        small_rank_one(&mut factor, n, &mut column, remove).expect("definite");
+        let fresh = lower(&matrix);
+        let scale = fresh.iter().fold(0.0, |m: f64, v| m.max(v.abs()));
+        for p in (0..n * n).filter(|p| p % n <= p / n) {
+            let error = (factor[p] - fresh[p]).abs() / scale;
+            assert!(
+                error < 1e-12,
+                "entry {p}: {} against {} ({error:e})",
+                factor[p],
+                fresh[p]
+            );
+        }
+    }
+    // Removing a term larger than the matrix can lose: refused.
+    let big: Vec<f64> = x2.iter().map(|v| 100.0 * v).collect();
+    let mut column = big;
+    assert!(small_rank_one(&mut factor, n, &mut column, true).is_none());
+}
+
+/// [`set_changes`] finds the points gone in and out between two sorted sets.
+#[test]
+fn the_set_changes_are_the_points_in_and_out() {
+    assert_eq!(
+        set_changes(&[1, 3, 5, 8], &[0, 3, 5, 9, 10]),
+        (vec![0, 9, 10], vec![1, 8])
+    );
+    assert_eq!(set_changes(&[], &[2, 4]), (vec![2, 4], vec![]));
+    assert_eq!(set_changes(&[2, 4], &[]), (vec![], vec![2, 4]));
+    assert_eq!(set_changes(&[2, 4], &[2, 4]), (vec![], vec![]));
+}

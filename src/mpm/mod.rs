@@ -885,8 +885,13 @@ impl Gel {
     /// is lost, or when a particle is not finite. Returns whether one was not finite.
     fn restart_if_needed(&mut self, report: &mut SolveReport) -> bool {
         // A solve moves only its active region, so a particle outside it that went
-        // non-finite (from outside the solver) would never be seen: check them all.
-        let repaired = !self.particles.iter().all(Particle::is_finite);
+        // non-finite (from outside the solver) would never be seen: check them all. Only
+        // a relaxation moves them (and only its state carries them): under the other
+        // solvers they stay at rest, and a frame does not stream them all.
+        let relaxes =
+            |s: &Option<Box<dyn Equilibrium>>| s.as_ref().is_some_and(|s| s.kind().relaxes());
+        let moved = self.solver.is_none() || relaxes(&self.solver) || relaxes(&self.fallback);
+        let repaired = moved && !self.particles.iter().all(Particle::is_finite);
         if self.clamped || repaired {
             self.reset();
             report.restarted = true;

@@ -174,6 +174,18 @@ def grasp(n: int) -> tuple[int, int, float, float, bool]:
         success |= info["is_success"]
         if step == len(GRIPPER_CYCLE) - 1:
             lifted += success
+            if episodes % 50 == 0:
+                # A long grasp soak cut short still leaves its record: steps, episodes
+                # lifted, resident memory and time so far (on stdout: stderr is the
+                # warnings' count while the grasp runs).
+                print(
+                    f"grasp: {k + 1} steps, {lifted} of {episodes} episodes lifted, "
+                    f"{rss_kib()} KiB resident, "
+                    f"{1e3 * (time.perf_counter() - start) / (k + 1):.1f} ms a step, "
+                    f"finite {ok}",
+                    file=sys.stdout,
+                    flush=True,
+                )
         d = env.data
         ok &= bool(
             np.isfinite(obs["tactile_depth"]).all()

@@ -67,12 +67,21 @@ fn catmull_rom(t: f64) -> [f64; 4] {
     ]
 }
 
+/// `c.floor()` for a lattice coordinate already clamped to `[0, n - 1]`: truncation, the
+/// same value (and the same for NaN: the cast gives 0, as `NaN.floor() as isize` does, and
+/// the cell position `c - 0` stays NaN), without the call to libm's `floor` that the
+/// baseline x86-64 target makes for every sample.
+#[inline]
+fn clamped_floor(c: f64) -> f64 {
+    (c as i64) as f64
+}
+
 /// Bicubic interpolation of the lattice field `u` (row-major, `nx` columns) at lattice
 /// coordinates `(a, b)`, clamped at the lattice edges.
 pub(super) fn sample(u: &[Vector3<f64>], nx: usize, ny: usize, a: f64, b: f64) -> Vector3<f64> {
     let a = a.clamp(0.0, (nx - 1) as f64);
     let b = b.clamp(0.0, (ny - 1) as f64);
-    let (ia, ib) = (a.floor(), b.floor());
+    let (ia, ib) = (clamped_floor(a), clamped_floor(b));
     let (wa, wb) = (catmull_rom(a - ia), catmull_rom(b - ib));
     let (ia, ib) = (ia as isize, ib as isize);
     let mut acc = Vector3::zeros();
@@ -113,11 +122,29 @@ fn sample_with_slope(
     let inside_b = (0.0..=(ny - 1) as f64).contains(&b);
     let a = a.clamp(0.0, (nx - 1) as f64);
     let b = b.clamp(0.0, (ny - 1) as f64);
-    let (ia, ib) = (a.floor(), b.floor());
+    let (ia, ib) = (clamped_floor(a), clamped_floor(b));
     let (wa, wb) = (catmull_rom(a - ia), catmull_rom(b - ib));
     let (sa, sb) = (catmull_rom_slope(a - ia), catmull_rom_slope(b - ib));
     let (ia, ib) = (ia as isize, ib as isize);
     let mut acc = [Vector3::zeros(); 3];
+    // Away from the lattice's edges no tap is clamped: the same sums, read from four
+    // contiguous runs of the field.
+    let interior = |i: isize, n: usize| i >= 1 && i + 2 < n as isize;
+    if interior(ia, nx) && interior(ib, ny) {
+        for j in 0..4 {
+            let start = (ib + j as isize - 1) as usize * nx + ia as usize - 1;
+            let run = &u[start..start + 4];
+            let (mut row, mut row_a) = (Vector3::zeros(), Vector3::zeros());
+            for i in 0..4 {
+                row += run[i] * wa[i];
+                row_a += run[i] * sa[i];
+            }
+            acc[0] += row * wb[j];
+            acc[1] += row_a * wb[j];
+            acc[2] += row * sb[j];
+        }
+        return acc;
+    }
     for j in 0..4 {
         let y = (ib + j as isize - 1).clamp(0, ny as isize - 1) as usize;
         let (mut row, mut row_a) = (Vector3::zeros(), Vector3::zeros());
@@ -211,23 +238,28 @@ fn seen_with(
                     if curvature.is_some() {
                         vertical.mix_rows(u, nx, mixed);
                     }
-                    // The previous pixel's displacement: the next pixel's surface point is
-                    // displaced nearly as much, so Newton's method starts close to it.
-                    let mut guess = Vector3::zeros();
-                    for ((d, col), horizontal) in line.iter_mut().zip(cols.clone()).zip(&columns) {
-                        let pa = (grid.x(col) - x0) / sx;
+                    for (k, (col, horizontal)) in cols.clone().zip(&columns).enumerate() {
+                        let pa = || (grid.x(col) - x0) / sx;
                         let first = curvature
                             .as_ref()
                             .and_then(|c| one_newton_step(mixed, horizontal, &vertical, sx, sy, c));
-                        *d = match first {
+                        line[k] = match first {
                             Some((d, true)) => d,
                             // Newton's method goes on from the first step's root.
-                            Some((d, false)) => solve_inverse_map(u, nx, ny, pa, pb, sx, sy, &d),
-                            None => solve_inverse_map(u, nx, ny, pa, pb, sx, sy, &guess),
+                            Some((d, false)) => solve_inverse_map(u, nx, ny, pa(), pb, sx, sy, &d),
+                            // From the last finite displacement of the row's pixels before
+                            // it: the next pixel's surface point is displaced nearly as
+                            // much, so Newton's method starts close to it.
+                            None => {
+                                let guess = line[..k]
+                                    .iter()
+                                    .rev()
+                                    .find(|d| d.iter().all(|v| v.is_finite()))
+                                    .copied()
+                                    .unwrap_or_else(Vector3::zeros);
+                                solve_inverse_map(u, nx, ny, pa(), pb, sx, sy, &guess)
+                            }
                         };
-                        if d.iter().all(|v| v.is_finite()) {
-                            guess = *d;
-                        }
                     }
                 },
             )
@@ -253,7 +285,7 @@ impl Taps {
     fn at(p: f64, n: usize) -> Taps {
         let inside = (0.0..=(n - 1) as f64).contains(&p);
         let c = p.clamp(0.0, (n - 1) as f64);
-        let i = c.floor();
+        let i = clamped_floor(c);
         let t = c - i;
         let i = i as isize;
         Taps {
@@ -309,22 +341,25 @@ impl Curvature {
                 xx.amax().max(yy.amax()).max(xy.amax())
             })
             .collect();
-        let cells = (0..ny as isize)
-            .flat_map(|y| (0..nx as isize).map(move |x| (x, y)))
-            .map(|(x, y)| {
-                let mut m = 0.0f64;
-                for j in -1..=2 {
-                    for i in -1..=2 {
-                        let (xi, yj) = (
-                            (x + i).clamp(0, nx as isize - 1) as usize,
-                            (y + j).clamp(0, ny as isize - 1) as usize,
-                        );
-                        m = m.max(node[yj * nx + xi]);
-                    }
-                }
-                m
-            })
-            .collect();
+        // The largest over each cell's 4 x 4 stencil (offsets -1 to 2, clamped at the
+        // edges), along the rows and then down the columns: the same maxima.
+        let clamp = |k: isize, n: usize| k.clamp(0, n as isize - 1) as usize;
+        let stencil_max = |at: &dyn Fn(usize) -> f64, k: usize, n: usize| {
+            (-1..=2).fold(0.0f64, |m, o| m.max(at(clamp(k as isize + o, n))))
+        };
+        let mut along = vec![0.0; nx * ny];
+        for y in 0..ny {
+            let line = &node[y * nx..(y + 1) * nx];
+            for x in 0..nx {
+                along[y * nx + x] = stencil_max(&|i| line[i], x, nx);
+            }
+        }
+        let mut cells = vec![0.0; nx * ny];
+        for y in 0..ny {
+            for x in 0..nx {
+                cells[y * nx + x] = stencil_max(&|j| along[j * nx + x], y, ny);
+            }
+        }
         Curvature { nx, cells }
     }
 
@@ -337,6 +372,7 @@ impl Curvature {
 /// (`mixed`, [`Taps::mix_rows`]) and the pixel's column taps: the displacement at its
 /// root, the sample moved on by its derivatives, and whether that is accurate to
 /// [`ONE_STEP_ERROR`] (`None` where the step is not Newton's).
+#[inline(always)]
 fn one_newton_step(
     mixed: &[[Vector3<f64>; 2]],
     a: &Taps,

@@ -1,8 +1,10 @@
 //! Time of the gel's depth image (the inverse map from pixels to surface points) after a
-//! press: `tacrom probe image_time [SOLVER] [DEPTH_MM] [THREADS] [lattice]` (defaults:
-//! linear, 0.5, 1). Prints the median of 20 images at 320 x 240 (with `lattice`: on rom's
-//! 100 x 100 lattice over the whole 30 mm gel, its observation's coarse depth) and a
-//! checksum of the image's bits.
+//! press: `tacrom probe image_time [SOLVER] [DEPTH_MM] [THREADS] [lattice|full] [slide]
+//! [reps=N]` (defaults: linear, 0.5, 1, full, pressed only, 20). Prints the median of N
+//! images at 320 x 240 (with `lattice`: on rom's 100 x 100 lattice over the whole 30 mm
+//! gel, its observation's coarse depth) and a checksum of the image's bits. With `slide`
+//! the ball then slides 1 mm along x in four frames (the gel's friction drags the surface
+//! sideways, as in `tacrom/Press-v1`'s sweep) before the images are made.
 
 use nalgebra::Isometry3;
 use std::sync::Arc;
@@ -25,10 +27,17 @@ pub fn run(args: Vec<String>) {
     )
     .unwrap();
     let ball: Arc<dyn Sdf> = Arc::new(Sphere::new(5e-3));
-    g.solve(&[Placed {
-        shape: ball,
-        pose: Isometry3::translation(0.0, 0.0, 5e-3 - depth),
-    }]);
+    let frames = if args.iter().any(|a| a == "slide") { 5 } else { 1 };
+    for k in 0..frames {
+        g.solve(&[Placed {
+            shape: ball.clone(),
+            pose: Isometry3::translation(0.25e-3 * k as f64, 0.0, 5e-3 - depth),
+        }]);
+    }
+    let reps: usize = args
+        .iter()
+        .find_map(|a| a.strip_prefix("reps=").and_then(|n| n.parse().ok()))
+        .unwrap_or(20);
     let grid = match args.get(4).map(|s| s.as_str()) {
         Some("lattice") => PixelGrid {
             width: 100,
@@ -45,7 +54,7 @@ pub fn run(args: Vec<String>) {
     };
     let mut out = vec![0.0; grid.width * grid.height];
     let mut times = Vec::new();
-    for _ in 0..20 {
+    for _ in 0..reps {
         let t0 = Instant::now();
         g.surface_depth(&grid, &mut out);
         times.push(t0.elapsed().as_secs_f64() * 1e3);
@@ -55,6 +64,6 @@ pub fn run(args: Vec<String>) {
     let bits = out.iter().fold(0u64, |h, v| h.rotate_left(5) ^ v.to_bits());
     println!(
         "median {:.2} ms, peak {peak:.6e} m, bits {bits:016x}",
-        times[10]
+        times[reps / 2]
     );
 }

@@ -351,6 +351,28 @@ impl Entries<'_> {
             u
         }
     }
+
+    /// Column `q` of the entries, `out[p] = self.at(p, q)` for every unknown `p`.
+    fn column(&self, q: usize, out: &mut [f64]) {
+        if !self.lateral {
+            let r = self.down[q];
+            for (o, &c) in out.iter_mut().zip(self.local) {
+                *o = -f64::from(r[3 * c as usize + 2]);
+            }
+            return;
+        }
+        let (b, j) = (q / 3, q % 3);
+        let r = match j {
+            2 => self.down[b],
+            _ => &self.shear[b][j * self.values..(j + 1) * self.values],
+        };
+        for (o, &c) in out.chunks_exact_mut(3).zip(self.local) {
+            let at = &r[3 * c as usize..3 * c as usize + 3];
+            o[0] = f64::from(at[0]);
+            o[1] = f64::from(at[1]);
+            o[2] = -f64::from(at[2]);
+        }
+    }
 }
 
 /// The most columns removed and added, as a fraction of the new set, for which a kept
@@ -1161,7 +1183,21 @@ impl Compliance {
     /// (the mean of the two ways, each pair read once for both).
     fn local_compliance(&self, local: &[u32], lateral: bool) -> DMatrix<f64> {
         let entries = self.entries(local, lateral);
-        symmetric(entries.len(), |p, q| entries.at(p, q))
+        let n = entries.len();
+        // Column by column (one response read along its rows), then made symmetric in
+        // place: the same values as `symmetric(n, |p, q| entries.at(p, q))`.
+        let mut g = DMatrix::zeros(n, n);
+        for q in 0..n {
+            entries.column(q, g.column_mut(q).as_mut_slice());
+        }
+        for q in 0..n {
+            for p in q + 1..n {
+                let v = (g[(p, q)] + g[(q, p)]) * 0.5;
+                g[(p, q)] = v;
+                g[(q, p)] = v;
+            }
+        }
+        g
     }
 
     /// The entries of [`Compliance::local_compliance`], read from the responses.
@@ -1315,9 +1351,11 @@ impl Compliance {
                 g[(s_new[i], s_new[j])] = kept_g[(s_old[i], s_old[j])];
             }
         }
+        let mut column = vec![0.0; k];
         for &q in &a_new {
+            entries.column(q, &mut column);
             for r in 0..k {
-                let v = (entries.at(r, q) + entries.at(q, r)) * 0.5;
+                let v = (column[r] + entries.at(q, r)) * 0.5;
                 g[(r, q)] = v;
                 g[(q, r)] = v;
             }
@@ -1853,7 +1891,9 @@ impl Compliance {
     }
 }
 
-/// The `n x n` matrix `(A + A^T) / 2` of `a(p, q) = A[p, q]`, each entry of `A` read once.
+/// The `n x n` matrix `(A + A^T) / 2` of `a(p, q) = A[p, q]`, each entry of `A` read once:
+/// what [`Compliance::local_compliance`] makes column by column.
+#[cfg(test)]
 fn symmetric(n: usize, a: impl Fn(usize, usize) -> f64) -> DMatrix<f64> {
     let mut out = DMatrix::zeros(n, n);
     for q in 0..n {

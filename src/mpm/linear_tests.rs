@@ -1446,6 +1446,30 @@ fn a_face_moved_into_the_gel_starts_from_its_normal_forces() {
 /// other; measured 2e-13 or less), with and without the lateral loads; a base that
 /// shares too little is replaced by a fresh one; and a compliance given the bases alone
 /// (as read back from a state) makes the same systems bit for bit.
+/// The columns' compliance read a response at a time and made symmetric in place is the
+/// one read entry by entry, bit for bit, with and without the lateral unknowns.
+#[test]
+fn the_compliance_read_by_columns_is_the_one_read_by_entries() {
+    let g = Gel::new(rough_gel(0.5), options(1)).unwrap();
+    let c = Compliance::new(&g).unwrap();
+    // Columns free to move (the side walls' are held), spread over the face.
+    let local: Vec<u32> = (0..c.levels.len() as u32)
+        .filter(|&k| spd_inverse(&c.local_compliance(&[k], true)).is_some())
+        .step_by(5)
+        .take(30)
+        .collect();
+    assert_eq!(local.len(), 30);
+    for lateral in [true, false] {
+        let entries = c.entries(&local, lateral);
+        let by_entries = symmetric(entries.len(), |p, q| entries.at(p, q));
+        let by_columns = c.local_compliance(&local, lateral);
+        assert_eq!(by_columns.shape(), (entries.len(), entries.len()));
+        assert!(by_columns.iter().zip(by_entries.iter()).all(|(a, b)| a.to_bits() == b.to_bits()));
+        // Not a matrix of zeros: the diagonal is each unknown's own compliance.
+        assert!((0..entries.len()).all(|p| by_columns[(p, p)] != 0.0));
+    }
+}
+
 #[test]
 fn a_contact_that_moves_on_updates_its_systems() {
     let g = Gel::new(rough_gel(0.5), options(1)).unwrap();

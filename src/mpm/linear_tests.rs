@@ -1464,7 +1464,10 @@ fn the_compliance_read_by_columns_is_the_one_read_by_entries() {
         let by_entries = symmetric(entries.len(), |p, q| entries.at(p, q));
         let by_columns = c.local_compliance(&local, lateral);
         assert_eq!(by_columns.shape(), (entries.len(), entries.len()));
-        assert!(by_columns.iter().zip(by_entries.iter()).all(|(a, b)| a.to_bits() == b.to_bits()));
+        assert!(by_columns
+            .iter()
+            .zip(by_entries.iter())
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
         // Not a matrix of zeros: the diagonal is each unknown's own compliance.
         assert!((0..entries.len()).all(|p| by_columns[(p, p)] != 0.0));
     }

@@ -27,7 +27,11 @@ pub fn run(args: Vec<String>) {
     )
     .unwrap();
     let ball: Arc<dyn Sdf> = Arc::new(Sphere::new(5e-3));
-    let frames = if args.iter().any(|a| a == "slide") { 5 } else { 1 };
+    let frames = if args.iter().any(|a| a == "slide") {
+        5
+    } else {
+        1
+    };
     for k in 0..frames {
         g.solve(&[Placed {
             shape: ball.clone(),

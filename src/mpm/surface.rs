@@ -329,9 +329,11 @@ impl Curvature {
             u[(y.clamp(0, ny as isize - 1) as usize) * nx + x.clamp(0, nx as isize - 1) as usize]
         };
         // Per node: its largest second difference.
-        let node: Vec<f64> = (0..ny as isize)
-            .flat_map(|y| (0..nx as isize).map(move |x| (x, y)))
-            .map(|(x, y)| {
+        // (Filled in place: collected from the nested iterators, whose length it could
+        // not know, the buffer grew by reallocations.)
+        let mut node = Vec::with_capacity(nx * ny);
+        for y in 0..ny as isize {
+            node.extend((0..nx as isize).map(|x| {
                 let c = at(x, y);
                 let xx = at(x - 1, y) - c * 2.0 + at(x + 1, y);
                 let yy = at(x, y - 1) - c * 2.0 + at(x, y + 1);
@@ -339,8 +341,8 @@ impl Curvature {
                     + at(x - 1, y - 1))
                     * 0.25;
                 xx.amax().max(yy.amax()).max(xy.amax())
-            })
-            .collect();
+            }));
+        }
         // The largest over each cell's 4 x 4 stencil (offsets -1 to 2, clamped at the
         // edges), along the rows and then down the columns: the same maxima.
         let clamp = |k: isize, n: usize| k.clamp(0, n as isize - 1) as usize;
@@ -354,7 +356,8 @@ impl Curvature {
                 along[y * nx + x] = stencil_max(&|i| line[i], x, nx);
             }
         }
-        let mut cells = vec![0.0; nx * ny];
+        // (Into the nodes' buffer, which the rows' maxima no longer need.)
+        let mut cells = std::mem::take(&mut node);
         for y in 0..ny {
             for x in 0..nx {
                 cells[y * nx + x] = stencil_max(&|j| along[j * nx + x], y, ny);

@@ -7,7 +7,8 @@
 //! `cargo bench --bench allocations`; `TACROM_ALLOCATION_SITES=MODE cargo bench --bench
 //! allocations` also prints, for that mode's counted frames, the functions of the plugin
 //! that allocate (the innermost `tacrom::` frame of each allocation's backtrace), with
-//! their calls and bytes per frame.
+//! their calls and bytes per frame (`TACROM_ALLOCATION_LINES=1` as well: with the
+//! allocating source line of each).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
@@ -58,13 +59,22 @@ fn print_sites(frames: usize) {
     let mut by: HashMap<String, (usize, usize)> = HashMap::new();
     for (trace, bytes) in SITES.lock().unwrap().drain(..) {
         let text = trace.to_string();
-        let site = text
-            .lines()
-            .map(str::trim)
-            .filter_map(|l| l.split_once(": ").map(|(_, f)| f))
-            .find(|f| f.starts_with("tacrom::") || f.starts_with("<tacrom::"))
-            .unwrap_or("(outside the plugin)")
-            .to_owned();
+        let lines: Vec<&str> = text.lines().map(str::trim).collect();
+        let innermost = lines.iter().enumerate().find_map(|(n, l)| {
+            let (_, f) = l.split_once(": ")?;
+            (f.starts_with("tacrom::") || f.starts_with("<tacrom::")).then_some((n, f))
+        });
+        let site = match innermost {
+            None => "(outside the plugin)".to_owned(),
+            // With `TACROM_ALLOCATION_LINES`, the function's source line too.
+            Some((n, f)) => match lines.get(n + 1).and_then(|l| l.strip_prefix("at ")) {
+                Some(at) if std::env::var_os("TACROM_ALLOCATION_LINES").is_some() => {
+                    let at = at.rsplit_once("/src/").map_or(at, |(_, tail)| tail);
+                    format!("{f} ({at})")
+                }
+                _ => f.to_owned(),
+            },
+        };
         let e = by.entry(site).or_default();
         e.0 += 1;
         e.1 += bytes;

@@ -17,6 +17,7 @@ pub mod mpm;
 pub mod mujoco;
 pub mod render;
 pub mod rom;
+pub mod scratch;
 pub mod sensor;
 pub mod sensor_file;
 pub mod state;

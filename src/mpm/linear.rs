@@ -137,6 +137,7 @@ use super::{
     LINEAR_UNKNOWNS,
 };
 use crate::geometry::{Chord, Sdf};
+use crate::scratch::refill;
 use crate::state::{self, Io, Persist};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt;
@@ -259,6 +260,34 @@ pub(crate) struct Compliance {
     /// Whether a frame that slides as a whole starts from its normal forces found first
     /// ([`vertical_start`]; tests compare with the last frame's loads alone).
     vertical: bool,
+    /// The contact solve's vectors, kept between frames.
+    buffers: crate::scratch::Kept<ContactBuffers>,
+}
+
+/// The vectors of [`Compliance::contact`], kept between frames for their allocations
+/// (each cleared and refilled before it is read).
+#[derive(Default)]
+struct ContactBuffers {
+    near: Vec<u32>,
+    rest: Vec<Vector3<f64>>,
+    clear: Vec<f64>,
+    soft: Vec<f64>,
+    stencils: Vec<Columns>,
+    forces: Vec<Vector3<f64>>,
+    u: Vec<Vector3<f64>>,
+    delta: Vec<f64>,
+    known: Vec<bool>,
+    lag: Vec<f64>,
+    offsets: Vec<Vector2<f64>>,
+    columns: Vec<f64>,
+    cand: Vec<usize>,
+    chosen: Vec<Columns>,
+    local: Vec<u32>,
+    rows: Vec<Columns>,
+    d: Vec<f64>,
+    eps: Vec<f64>,
+    present: Vec<(u32, Vector3<f64>)>,
+    surface: Vec<Vector3<f64>>,
 }
 
 /// The dense systems of one set of node columns under a contact.
@@ -574,6 +603,7 @@ impl Compliance {
             split_unknowns: SPLIT_UNKNOWNS,
             precondition: true,
             vertical: true,
+            buffers: Default::default(),
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
         Ok((c, newton))
@@ -756,13 +786,19 @@ impl Compliance {
 
     /// The column loads (+x, +y, downward) of forces `forces` on the gel (the same) at
     /// points with columns `stencils`.
-    fn column_loads(stencils: &[Columns], forces: &[Vector3<f64>]) -> Vec<(u32, Vector3<f64>)> {
-        let mut loads: Vec<(u32, Vector3<f64>)> = stencils
-            .iter()
-            .zip(forces)
-            .filter(|(_, f)| *f != &Vector3::zeros())
-            .flat_map(|(s, &f)| s.map(|(c, w)| (c, f * w)))
-            .collect();
+    fn column_loads(
+        stencils: &[Columns],
+        forces: &[Vector3<f64>],
+        loads: &mut Vec<(u32, Vector3<f64>)>,
+    ) {
+        loads.clear();
+        loads.extend(
+            stencils
+                .iter()
+                .zip(forces)
+                .filter(|(_, f)| *f != &Vector3::zeros())
+                .flat_map(|(s, &f)| s.map(|(c, w)| (c, f * w))),
+        );
         loads.sort_by_key(|&(c, _)| c);
         loads.dedup_by(|b, a| {
             if a.0 == b.0 {
@@ -772,23 +808,22 @@ impl Compliance {
                 false
             }
         });
-        loads
     }
 
     /// The mean displacement (cells) of every node column under column loads `loads`
-    /// (computed), 3 per column. Each load adds its column's responses (single precision,
-    /// a few megabytes a frame streamed from memory) to every column: in a copy compiled
-    /// for AVX2 where the processor has it (the same operations, so the same bits).
-    fn column_displacements(&self, loads: &[(u32, Vector3<f64>)]) -> Vec<f64> {
-        let mut u = vec![0.0; 3 * self.levels.len()];
+    /// (computed), 3 per column, into `u` (its allocation reused). Each load adds its
+    /// column's responses (single precision, a few megabytes a frame streamed from
+    /// memory) to every column: in a copy compiled for AVX2 where the processor has it
+    /// (the same operations, so the same bits).
+    fn column_displacements(&self, loads: &[(u32, Vector3<f64>)], u: &mut Vec<f64>) {
+        refill(u, 3 * self.levels.len(), 0.0);
         #[cfg(target_arch = "x86_64")]
         if super::transfer::has_avx2() {
             // SAFETY: the processor has AVX2 (checked just above).
-            unsafe { add_responses_avx2(&self.responses, loads, &mut u) };
-            return u;
+            unsafe { add_responses_avx2(&self.responses, loads, u) };
+            return;
         }
-        add_responses(&self.responses, loads, &mut u);
-        u
+        add_responses(&self.responses, loads, u);
     }
 
     /// Displacement (cells) of the surface point with columns `s` from the columns' mean
@@ -907,8 +942,16 @@ impl Compliance {
 
     /// The contact lattice points under the indenters' own boxes, grown by
     /// [`NEAR_CELLS`] (the only ones that can touch them).
+    #[cfg(test)]
     fn near(&self, indenters: &[StepIndenter]) -> Vec<u32> {
         let mut out = Vec::new();
+        self.near_into(indenters, &mut out);
+        out
+    }
+
+    /// [`Self::near`] into `out` (cleared first).
+    fn near_into(&self, indenters: &[StepIndenter], out: &mut Vec<u32>) {
+        out.clear();
         for ind in indenters {
             let b = ind
                 .shape
@@ -938,7 +981,6 @@ impl Compliance {
             out.sort_unstable();
             out.dedup();
         }
-        out
     }
 
     /// Index of the indenter nearest to the point at `x` (cells), among those whose
@@ -1161,21 +1203,32 @@ impl Compliance {
     /// The node columns that the points of `stencils` load (their responses computed),
     /// less those whose nodes are all fixed (beyond the gel's edge: they do not move, and
     /// their weights are left out with them), and the points' rows of weights over them.
+    #[cfg(test)]
     fn columns_under(&self, stencils: &[Columns]) -> (Vec<u32>, Vec<Columns>) {
-        let mut local: Vec<u32> = stencils.iter().flat_map(|s| s.map(|(c, _)| c)).collect();
+        let (mut local, mut rows) = (Vec::new(), Vec::new());
+        self.columns_under_into(stencils, &mut local, &mut rows);
+        (local, rows)
+    }
+
+    /// [`Self::columns_under`] into `local` and `rows` (cleared first).
+    fn columns_under_into(
+        &self,
+        stencils: &[Columns],
+        local: &mut Vec<u32>,
+        rows: &mut Vec<Columns>,
+    ) {
+        local.clear();
+        local.extend(stencils.iter().flat_map(|s| s.map(|(c, _)| c)));
         local.sort_unstable();
         local.dedup();
         local.retain(|&c| self.levels[c as usize].iter().any(|&d| d != u32::MAX));
-        let rows = stencils
-            .iter()
-            .map(|s| {
-                s.map(|(c, w)| match local.binary_search(&c) {
-                    Ok(k) => (k as u32, w),
-                    Err(_) => (0, 0.0),
-                })
+        rows.clear();
+        rows.extend(stencils.iter().map(|s| {
+            s.map(|(c, w)| match local.binary_search(&c) {
+                Ok(k) => (k as u32, w),
+                Err(_) => (0, 0.0),
             })
-            .collect();
-        (local, rows)
+        }));
     }
 
     /// The compliance of node columns `local` (three unknowns per column with `lateral`,
@@ -1417,11 +1470,36 @@ impl Compliance {
         starts: &[Isometry3<f64>],
         tolerance: f64,
     ) -> Contact {
-        let mut near = self.near(indenters);
-        let mut rest: Vec<Vector3<f64>> = near.iter().map(|&k| self.point(k)).collect();
-        let mut clear: Vec<f64> = rest.iter().map(|x| self.clearance(x, indenters)).collect();
+        // The frame's vectors, their allocations kept from the frame before.
+        let ContactBuffers {
+            mut near,
+            mut rest,
+            mut clear,
+            mut soft,
+            mut stencils,
+            mut forces,
+            mut u,
+            mut delta,
+            mut known,
+            mut lag,
+            mut offsets,
+            mut columns,
+            mut cand,
+            mut chosen,
+            mut local,
+            mut rows,
+            mut d,
+            mut eps,
+            mut present,
+            mut surface,
+        } = std::mem::take(self.buffers.get_mut());
+        self.near_into(indenters, &mut near);
+        rest.clear();
+        rest.extend(near.iter().map(|&k| self.point(k)));
+        clear.clear();
+        clear.extend(rest.iter().map(|x| self.clearance(x, indenters)));
         // Each point's contact compliance; a tip point's, over its share of the face.
-        let mut soft = vec![self.softness; near.len()];
+        refill(&mut soft, near.len(), self.softness);
         let count = (self.lattice[0] * self.lattice[1]) as u32;
         for (m, indenter) in indenters.iter().enumerate() {
             if let Some((at, share, c, fullness)) = self.tip(indenter, &rest, &clear) {
@@ -1440,13 +1518,14 @@ impl Compliance {
         let _replaced = self.small_contacts(
             first, indenters, &mut near, &mut rest, &mut clear, &mut soft,
         );
-        let stencils: Vec<Columns> = rest.iter().map(|x| self.columns_at(x)).collect();
-        let mut forces = vec![Vector3::zeros(); near.len()];
-        let mut u: Vec<Vector3<f64>> = vec![Vector3::zeros(); near.len()];
+        stencils.clear();
+        stencils.extend(rest.iter().map(|x| self.columns_at(x)));
+        refill(&mut forces, near.len(), Vector3::zeros());
+        refill(&mut u, near.len(), Vector3::zeros());
         let (mut passes, mut iterations) = (0, 0);
         let mut penetration = 0.0;
         let mut converged = false;
-        let mut columns = vec![0.0; 3 * self.levels.len()];
+        refill(&mut columns, 3 * self.levels.len(), 0.0);
         let friction = self.friction > 0.0;
         // Each point's constraint in the linear model's small-displacement setting: it
         // sinks at least as deep as the indenters' lower surface reaches below its rest
@@ -1457,8 +1536,8 @@ impl Compliance {
             c.vertical_gap(x, indenters)
                 .map_or(f64::NEG_INFINITY, |h| -h)
         };
-        let mut delta = vec![f64::NEG_INFINITY; near.len()];
-        let mut known = vec![false; near.len()];
+        refill(&mut delta, near.len(), f64::NEG_INFINITY);
+        refill(&mut known, near.len(), false);
         for i in (0..near.len()).filter(|&i| clear[i] < 0.0) {
             (delta[i], known[i]) = (depth(self, &rest[i]), true);
         }
@@ -1484,13 +1563,14 @@ impl Compliance {
         for (f, k) in forces.iter_mut().zip(&near) {
             *f = self.lagged.get(k).copied().unwrap_or(Vector3::zeros());
         }
-        let mut lag: Vec<f64> = forces.iter().map(|f| f.z).collect();
+        lag.clear();
+        lag.extend(forces.iter().map(|f| f.z));
         // Whether the last frame pressed some of these points: then its normal forces are
         // the first lagged ones and its loads the start (a grasp held, a press moving
         // on), not a solve without friction and the larger stick radii, which in a held
         // grasp took 57 Newton steps a frame to find the frame before's answer again.
         let from_last = friction && lag.iter().any(|&f| f > 0.0);
-        let mut offsets = vec![Vector2::zeros(); near.len()];
+        refill(&mut offsets, near.len(), Vector2::zeros());
 
         for pass in 0..MAX_PASSES {
             passes = pass + 1;
@@ -1499,12 +1579,12 @@ impl Compliance {
                 penetration = 0.0;
                 break;
             }
-            let cand: Vec<usize> = (0..near.len())
-                .filter(|&i| delta[i] > -reach || forces[i].z > 0.0)
-                .collect();
+            cand.clear();
+            cand.extend((0..near.len()).filter(|&i| delta[i] > -reach || forces[i].z > 0.0));
             // The node columns the candidates touch, and their compliance.
-            let chosen: Vec<Columns> = cand.iter().map(|&i| stencils[i]).collect();
-            let (local, rows) = self.columns_under(&chosen);
+            chosen.clear();
+            chosen.extend(cand.iter().map(|&i| stencils[i]));
+            self.columns_under_into(&chosen, &mut local, &mut rows);
             if local.is_empty() {
                 break;
             }
@@ -1512,8 +1592,10 @@ impl Compliance {
                 break;
             };
             let mut kept = system.split.take();
-            let d: Vec<f64> = cand.iter().map(|&i| delta[i]).collect();
-            let eps: Vec<f64> = cand.iter().map(|&i| soft[i]).collect();
+            d.clear();
+            d.extend(cand.iter().map(|&i| delta[i]));
+            eps.clear();
+            eps.extend(cand.iter().map(|&i| soft[i]));
             let mut solved = true;
             if friction && pass == 0 && !from_last {
                 // The normal forces without friction first: the first lagged ones (the
@@ -1561,7 +1643,7 @@ impl Compliance {
                 eps: &eps,
             };
             // Start from the columns' present loads.
-            let present = Self::column_loads(&stencils, &forces);
+            Self::column_loads(&stencils, &forces, &mut present);
             let load = |c: &u32| {
                 present
                     .binary_search_by_key(c, |&(col, _)| col)
@@ -1677,7 +1759,8 @@ impl Compliance {
             if !solved {
                 break;
             }
-            columns = self.column_displacements(&Self::column_loads(&stencils, &forces));
+            Self::column_loads(&stencils, &forces, &mut present);
+            self.column_displacements(&present, &mut columns);
             for (u, s) in u.iter_mut().zip(&stencils) {
                 *u = Self::displacement(s, &columns);
             }
@@ -1705,14 +1788,12 @@ impl Compliance {
         if friction {
             self.slide(&near, &forces, &u, &offsets, &rest, indenters);
         }
-        let surface = self
-            .slots
-            .iter()
-            .map(|s| Self::displacement(s, &columns))
-            .collect();
-        self.last = columns;
+        surface.clear();
+        surface.extend(self.slots.iter().map(|s| Self::displacement(s, &columns)));
+        // The frame's columns kept as the last; the last's allocation kept for the next.
+        std::mem::swap(&mut self.last, &mut columns);
         let loaded: Vec<usize> = (0..near.len()).filter(|&i| forces[i].z > 0.0).collect();
-        Contact {
+        let contact = Contact {
             #[cfg(test)]
             loaded: loaded.iter().map(|&i| near[i]).collect(),
             #[cfg(test)]
@@ -1726,7 +1807,36 @@ impl Compliance {
             passes,
             iterations,
             converged,
-        }
+        };
+        *self.buffers.get_mut() = ContactBuffers {
+            near,
+            rest,
+            clear,
+            soft,
+            stencils,
+            forces,
+            u,
+            delta,
+            known,
+            lag,
+            offsets,
+            columns,
+            cand,
+            chosen,
+            local,
+            rows,
+            d,
+            eps,
+            present,
+            surface: Vec::new(),
+        };
+        contact
+    }
+
+    /// Takes back the surface of a frame's [`Contact`] once it is read, for the next
+    /// frame's (its allocation reused).
+    pub fn recycle(&mut self, contact: Contact) {
+        self.buffers.get_mut().surface = contact.surface;
     }
 
     /// Friction's data for a refresh of the lagged normal forces `lag` on the candidate
@@ -2908,11 +3018,12 @@ fn vertical_start(
     // Each anchored point's friction per unit normal force, as it is at `l`, and the
     // columns' sinking under it.
     let mut unit = vec![Vector2::zeros(); n];
-    let mut lifts: Vec<(usize, Vec<f64>)> = Vec::new();
-    for i in (0..n).filter(|&i| caps[i] > 0.0) {
+    // The anchored points, and their columns' sinking one after another (`cols` each).
+    let lifted_points: Vec<usize> = (0..n).filter(|&i| caps[i] > 0.0).collect();
+    let mut sinks = vec![0.0; lifted_points.len() * cols];
+    for (&i, sink) in lifted_points.iter().zip(sinks.chunks_exact_mut(cols.max(1))) {
         let (f, _, _) = point_force(&at[i], delta[i], eps[i], mu, &anchors[i], STICK);
         unit[i] = f.xy();
-        let mut sink = vec![0.0; cols];
         for &(c, wt) in &w[i] {
             for (axis, t) in [(0, f.x), (1, f.y)] {
                 let col = g.column(3 * c as usize + axis);
@@ -2922,7 +3033,6 @@ fn vertical_start(
                 }
             }
         }
-        lifts.push((i, sink));
     }
     // The pressed set starts from the points the last frame pressed (those with a cap),
     // else from those the start's loads leave inside: a set that slid on with its
@@ -2950,9 +3060,9 @@ fn vertical_start(
         if !followed {
             // The columns' sinking under the friction forces, and what is left to sink.
             lifted.fill(0.0);
-            for (i, sink) in &lifts {
+            for (&i, sink) in lifted_points.iter().zip(sinks.chunks_exact(cols.max(1))) {
                 for (to, s) in lifted.iter_mut().zip(sink) {
-                    *to += follow[*i] * s;
+                    *to += follow[i] * s;
                 }
             }
             for i in 0..n {
@@ -3017,7 +3127,7 @@ fn vertical_start(
                 .iter()
                 .zip(&follow)
                 .fold((0.0, 0.0), |(c, t), (a, b)| (c + (a - b).abs(), t + a));
-            if change <= settled * total || lifts.is_empty() {
+            if change <= settled * total || lifted_points.is_empty() {
                 let forces: Vec<Vector3<f64>> = (0..n)
                     .map(|i| Vector3::new(unit[i].x * normal[i], unit[i].y * normal[i], normal[i]))
                     .collect();
@@ -3246,12 +3356,15 @@ fn minimise(
     } = *p;
     let Friction { caps, anchors, .. } = *friction;
     let k = g.nrows();
-    // The points' displacements and forces at loads `l` whose columns sink `v = G l`, and
-    // the energy there.
-    let evaluate = |l: &DVector<f64>, v: &DVector<f64>| {
+    // The points' displacements (into `at`) and forces (into `out`) at loads `l` whose
+    // columns sink `v = G l`, and the energy there.
+    let evaluate = |l: &DVector<f64>,
+                    v: &DVector<f64>,
+                    at: &mut Vec<Vector3<f64>>,
+                    out: &mut Vec<Vector3<f64>>| {
         let mut e = 0.5 * l.dot(v);
-        let at = at_points(w, v);
-        let mut out = Vec::with_capacity(w.len());
+        at_points_into(w, v, at);
+        out.clear();
         for (i, s) in at.iter().enumerate() {
             let (f, pressed, slipped) =
                 point_force(s, delta[i], eps[i], caps[i], &anchors[i], radius);
@@ -3259,13 +3372,17 @@ fn minimise(
             e += slipped;
             out.push(f);
         }
-        (at, out, e)
+        e
     };
     let loads = |f: &[Vector3<f64>]| on_columns(w, f, k);
     // The columns' sinking, carried along each step's own (`G d`, from the descent): one
     // product with `G` a solve, not one a trial.
     let mut v = product(g, l);
-    let (mut s, mut f, mut e) = evaluate(l, &v);
+    let (mut s, mut f) = (Vec::with_capacity(w.len()), Vec::with_capacity(w.len()));
+    let mut e = evaluate(l, &v, &mut s, &mut f);
+    // A trial's, and the points' stiffnesses: allocated once for the solve.
+    let (mut st, mut ft) = (Vec::with_capacity(w.len()), Vec::with_capacity(w.len()));
+    let mut stiff = Vec::with_capacity(w.len());
     for it in 0..budget {
         let wf = loads(&f);
         let r = &*l - &wf;
@@ -3281,7 +3398,7 @@ fn minimise(
         let target = (STEP_RESIDUAL * tolerance * scale).max(STEP_FORCING * r.amax());
         // Each point's stiffness (penalty where it presses, friction's where it carries a
         // cap), for the system `G^-1 + W^T Phi'' W`: symmetric positive definite.
-        let mut stiff = Vec::with_capacity(w.len());
+        stiff.clear();
         for i in 0..w.len() {
             let mut h = Matrix3::zeros();
             if f[i].z > 0.0 {
@@ -3334,11 +3451,13 @@ fn minimise(
         for _ in 0..MAX_HALVINGS {
             let trial = &*l + &step * alpha;
             let vt = &v + &sinking * alpha;
-            let (st, ft, et) = evaluate(&trial, &vt);
+            let et = evaluate(&trial, &vt, &mut st, &mut ft);
             if takes(e, et, alpha, slope, || {
                 (&trial - loads(&ft)).amax() < r.amax()
             }) {
-                (*l, v, s, f, e) = (trial, vt, st, ft, et);
+                (*l, v, e) = (trial, vt, et);
+                std::mem::swap(&mut s, &mut st);
+                std::mem::swap(&mut f, &mut ft);
                 accepted = true;
                 break;
             }
@@ -3402,16 +3521,22 @@ fn chord_gap(p: &Point3<f64>, indenters: &[StepIndenter]) -> Option<Option<f64>>
 
 /// The points' displacements `W v` from the columns' (three per column, rows `w`).
 fn at_points(w: &[Columns], v: &DVector<f64>) -> Vec<Vector3<f64>> {
-    w.iter()
-        .map(|row| {
-            let mut s = Vector3::zeros();
-            for &(c, wt) in row {
-                let c = 3 * c as usize;
-                s += Vector3::new(v[c], v[c + 1], v[c + 2]) * wt;
-            }
-            s
-        })
-        .collect()
+    let mut at = Vec::with_capacity(w.len());
+    at_points_into(w, v, &mut at);
+    at
+}
+
+/// [`at_points`] into `at` (cleared first).
+fn at_points_into(w: &[Columns], v: &DVector<f64>, at: &mut Vec<Vector3<f64>>) {
+    at.clear();
+    at.extend(w.iter().map(|row| {
+        let mut s = Vector3::zeros();
+        for &(c, wt) in row {
+            let c = 3 * c as usize;
+            s += Vector3::new(v[c], v[c + 1], v[c + 2]) * wt;
+        }
+        s
+    }));
 }
 
 /// A point's force on the gel (+x, +y, downward) at displacement `s` (+x, +y, sinking)
@@ -3729,20 +3854,18 @@ impl Equilibrium for LinearSolver {
         // The gel's force on the indenters: the reverse of theirs on it (+x, +y, downward).
         let on_indenters = |f: &Vector3<f64>| Vector3::new(-f.x, -f.y, f.z) * scale;
         gel.force = contact.forces.iter().map(on_indenters).sum();
-        gel.loads = contact
-            .points
-            .iter()
-            .zip(&contact.forces)
-            .map(|(x, f)| {
+        gel.loads.clear();
+        gel.loads
+            .extend(contact.points.iter().zip(&contact.forces).map(|(x, f)| {
                 let x = gel.layout.origin + x * dx;
                 ContactLoad {
                     at: [x.x, x.y],
                     z: x.z,
                     force: on_indenters(f),
                 }
-            })
-            .collect();
+            }));
         gel.set_surface(|slot| contact.surface[slot] * dx);
+        linear.recycle(contact);
     }
 
     fn reset(&mut self) {

@@ -386,6 +386,8 @@ pub struct Gel {
     surface_u: Vec<Vector3<f64>>,
     /// Lattice index range `[ix0, ix1) x [iy0, iy1)` where the surface moved.
     surface_box: Option<[usize; 4]>,
+    /// The depth and shear images' buffers, kept between images.
+    pixels: crate::scratch::Kept<surface::Pixels>,
     /// Whether the gel is undeformed and no indenter held a contact point of it in the
     /// last solve.
     resting: bool,
@@ -470,6 +472,7 @@ impl Gel {
             force: Vector3::zeros(),
             surface_u: vec![Vector3::zeros(); top_len],
             surface_box: None,
+            pixels: Default::default(),
             resting: true,
             last_reaction: 0.0,
             reaction: 0.0,

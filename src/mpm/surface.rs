@@ -22,6 +22,7 @@ use rayon::prelude::*;
 
 use super::Gel;
 use crate::geometry::PixelGrid;
+use crate::scratch::refill;
 
 /// A lattice box `[ix0, ix1, iy0, iy1)` that holds nothing yet.
 pub(super) const EMPTY_BOX: [usize; 4] = [usize::MAX, 0, usize::MAX, 0];
@@ -219,14 +220,23 @@ fn seen_with(
     if cols.is_empty() {
         return;
     }
-    let columns: Vec<Taps> = cols
-        .clone()
-        .map(|col| Taps::at((grid.x(col) - x0) / sx, nx))
-        .collect();
-    let curvature = one_step.then(|| Curvature::of(u, nx, ny));
+    // The buffers of the gel's last image, refilled.
+    let mut kept = gel.pixels.take();
+    let Pixels {
+        seen,
+        columns,
+        cells,
+        along,
+    } = &mut kept;
+    columns.clear();
+    columns.extend(
+        cols.clone()
+            .map(|col| Taps::at((grid.x(col) - x0) / sx, nx)),
+    );
+    let curvature = one_step.then(|| Curvature::of(u, nx, ny, std::mem::take(cells), along));
     // Rows in parallel in the gel's pool (each row starts afresh, so the threads do not
     // change a bit), then visited in order.
-    let mut seen = vec![Vector3::zeros(); rows.len() * cols.len()];
+    refill(seen, rows.len() * cols.len(), Vector3::zeros());
     gel.pool.install(|| {
         seen.par_chunks_mut(cols.len())
             .zip(rows.clone().into_par_iter())
@@ -238,7 +248,7 @@ fn seen_with(
                     if curvature.is_some() {
                         vertical.mix_rows(u, nx, mixed);
                     }
-                    for (k, (col, horizontal)) in cols.clone().zip(&columns).enumerate() {
+                    for (k, (col, horizontal)) in cols.clone().zip(columns.iter()).enumerate() {
                         let pa = || (grid.x(col) - x0) / sx;
                         let first = curvature
                             .as_ref()
@@ -269,6 +279,20 @@ fn seen_with(
             visit(row * grid.width + col, *d);
         }
     }
+    if let Some(c) = curvature {
+        *cells = c.cells;
+    }
+    gel.pixels.put(kept);
+}
+
+/// The buffers of [`seen_with`], kept with the gel between images ([`crate::scratch::Kept`]): the pixels'
+/// displacements, the image columns' taps and [`Curvature`]'s two fields.
+#[derive(Default)]
+pub(super) struct Pixels {
+    seen: Vec<Vector3<f64>>,
+    columns: Vec<Taps>,
+    cells: Vec<f64>,
+    along: Vec<f64>,
 }
 
 /// The Catmull-Rom taps of one lattice coordinate: the four samples (clamped at the
@@ -324,14 +348,22 @@ struct Curvature {
 }
 
 impl Curvature {
-    fn of(u: &[Vector3<f64>], nx: usize, ny: usize) -> Curvature {
+    /// The bound of field `u`, in `cells` (its allocation reused) with `along` for the
+    /// rows' maxima.
+    fn of(
+        u: &[Vector3<f64>],
+        nx: usize,
+        ny: usize,
+        mut cells: Vec<f64>,
+        along: &mut Vec<f64>,
+    ) -> Curvature {
         let at = |x: isize, y: isize| {
             u[(y.clamp(0, ny as isize - 1) as usize) * nx + x.clamp(0, nx as isize - 1) as usize]
         };
-        // Per node: its largest second difference.
-        // (Filled in place: collected from the nested iterators, whose length it could
-        // not know, the buffer grew by reallocations.)
-        let mut node = Vec::with_capacity(nx * ny);
+        // Per node: its largest second difference (in `cells`, which the cells' maxima
+        // overwrite once the rows' maxima no longer need it).
+        let node = &mut cells;
+        node.clear();
         for y in 0..ny as isize {
             node.extend((0..nx as isize).map(|x| {
                 let c = at(x, y);
@@ -349,15 +381,13 @@ impl Curvature {
         let stencil_max = |at: &dyn Fn(usize) -> f64, k: usize, n: usize| {
             (-1..=2).fold(0.0f64, |m, o| m.max(at(clamp(k as isize + o, n))))
         };
-        let mut along = vec![0.0; nx * ny];
+        refill(along, nx * ny, 0.0);
         for y in 0..ny {
             let line = &node[y * nx..(y + 1) * nx];
             for x in 0..nx {
                 along[y * nx + x] = stencil_max(&|i| line[i], x, nx);
             }
         }
-        // (Into the nodes' buffer, which the rows' maxima no longer need.)
-        let mut cells = std::mem::take(&mut node);
         for y in 0..ny {
             for x in 0..nx {
                 cells[y * nx + x] = stencil_max(&|j| along[j * nx + x], y, ny);

@@ -411,18 +411,26 @@ pub fn load_window(load: &[f64], spec: &LatticeSpec, row: usize, col: usize, out
 /// where the coarse depth exceeds `eps` (model units) or the indenters pierce the gel,
 /// grown `grow` times by the four lattice neighbours: the points within `grow` lattice
 /// steps (city-block) of one of those, found by one pass forward and one back over the
-/// lattice.
-pub fn region(obs: &Observation, spec: &LatticeSpec, eps: f64, grow: usize, out: &mut Vec<bool>) {
+/// lattice (`steps`: their buffer, its allocation reused).
+pub fn region(
+    obs: &Observation,
+    spec: &LatticeSpec,
+    eps: f64,
+    grow: usize,
+    steps: &mut Vec<usize>,
+    out: &mut Vec<bool>,
+) {
     let eps_m = eps / spec.depth_scale;
     let (nx, ny) = (spec.nx, spec.ny);
     // City-block steps to the nearest seed, capped past `grow`.
     let far = grow.saturating_add(1);
-    let mut steps: Vec<usize> = obs
-        .coarse
-        .iter()
-        .zip(&obs.pen)
-        .map(|(&c, &p)| if c > eps_m || p > 0.0 { 0 } else { far })
-        .collect();
+    steps.clear();
+    steps.extend(
+        obs.coarse
+            .iter()
+            .zip(&obs.pen)
+            .map(|(&c, &p)| if c > eps_m || p > 0.0 { 0 } else { far }),
+    );
     for r in 0..ny {
         for c in 0..nx {
             let i = r * nx + c;
@@ -537,7 +545,7 @@ mod tests {
                     .collect();
                 for grow in 0..=6 {
                     let mut out = Vec::new();
-                    region(&obs, &spec, 0.01, grow, &mut out);
+                    region(&obs, &spec, 0.01, grow, &mut Vec::new(), &mut out);
                     assert_eq!(
                         out,
                         grown_by_definition(&seeds, nx, ny, grow),

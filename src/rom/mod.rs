@@ -920,6 +920,8 @@ pub struct Rom {
     enc_in: Vec<f32>,
     query: Vec<f32>,
     region: Vec<bool>,
+    /// [`features::region`]'s buffer.
+    region_steps: Vec<usize>,
     lattice_depth: Vec<f64>,
     z: Vec<f32>,
     /// The image's interpolation buffers, kept between frames.
@@ -986,6 +988,7 @@ impl Rom {
             enc_in: Vec::new(),
             query: Vec::new(),
             region: Vec::new(),
+            region_steps: Vec::new(),
             lattice_depth: Vec::new(),
             scratch: RenderScratch::default(),
         })
@@ -1156,7 +1159,8 @@ impl Rom {
     /// The deformable region of an observation (see the module docs).
     fn compute_region(&mut self, obs: &Observation) {
         let (eps, grow) = self.manifest.region;
-        features::region(obs, &self.manifest.lattice, eps, grow, &mut self.region);
+        let (spec, steps) = (&self.manifest.lattice, &mut self.region_steps);
+        features::region(obs, spec, eps, grow, steps, &mut self.region);
     }
 
     fn energy_set(&self, obs: &Observation) -> EnergySet {

@@ -268,7 +268,7 @@ pub fn write(config: &FeaturesConfig) -> Result<String, String> {
                 load_window(&obs.pressure, &spec, row, col, &mut load);
             }
         }
-        region(&obs, &spec, eps, grow, &mut mask);
+        region(&obs, &spec, eps, grow, &mut Vec::new(), &mut mask);
         let stem = |what: &str| config.out.join(format!("{what}-{index:06}.npy"));
         write_array(
             &stem("sample"),

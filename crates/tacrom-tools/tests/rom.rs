@@ -252,7 +252,7 @@ fn the_pressure_head_runs_only_when_wanted_and_leaves_the_depth_alone() {
         with.set_material(&mut obs, 0.43, 0.5);
         let mut region = Vec::new();
         let (eps, grow) = with.manifest().region;
-        tacrom::rom::features::region(&obs, &spec, eps, grow, &mut region);
+        tacrom::rom::features::region(&obs, &spec, eps, grow, &mut Vec::new(), &mut region);
         for (i, (&v, &inside)) in field.iter().zip(&region).enumerate() {
             assert!(v.is_finite() && v >= 0.0, "point {i}: {v}");
             assert!(inside || v == 0.0, "load outside the region at {i}");

@@ -54,9 +54,9 @@ pub fn run(_args: Vec<String>) {
             let obs = Observation::from_gel(&gel, &placed, &spec);
             rom.infer(&obs).expect("infer");
             let mut seed = Vec::new();
-            region(&obs, &spec, eps, 0, &mut seed);
+            region(&obs, &spec, eps, 0, &mut Vec::new(), &mut seed);
             let mut grown = Vec::new();
-            region(&obs, &spec, eps, grow, &mut grown);
+            region(&obs, &spec, eps, grow, &mut Vec::new(), &mut grown);
             let decoded = rom.lattice_depth();
             let bands = [
                 (0.0, 1.0),

@@ -3021,7 +3021,10 @@ fn vertical_start(
     // The anchored points, and their columns' sinking one after another (`cols` each).
     let lifted_points: Vec<usize> = (0..n).filter(|&i| caps[i] > 0.0).collect();
     let mut sinks = vec![0.0; lifted_points.len() * cols];
-    for (&i, sink) in lifted_points.iter().zip(sinks.chunks_exact_mut(cols.max(1))) {
+    for (&i, sink) in lifted_points
+        .iter()
+        .zip(sinks.chunks_exact_mut(cols.max(1)))
+    {
         let (f, _, _) = point_force(&at[i], delta[i], eps[i], mu, &anchors[i], STICK);
         unit[i] = f.xy();
         for &(c, wt) in &w[i] {
@@ -3051,6 +3054,7 @@ fn vertical_start(
     let mut normal = vec![0.0; n];
     let mut system = vec![0.0; cols * cols];
     let mut factored: Option<Vec<usize>> = None;
+    let mut next = Vec::with_capacity(n);
     let mut lifted = vec![0.0; cols];
     let mut need = vec![0.0; n];
     let mut y = vec![0.0; cols];
@@ -3105,7 +3109,10 @@ fn vertical_start(
                 }
                 small_cholesky(&mut system, cols)?;
             }
-            factored = Some(set.clone());
+            match factored.as_mut() {
+                Some(last) => last.clone_from(&set),
+                None => factored = Some(set.clone()),
+            }
         }
         y.fill(0.0);
         for &i in &set {
@@ -3115,7 +3122,7 @@ fn vertical_start(
             }
         }
         small_solve(&system, cols, &mut y);
-        let mut next = Vec::with_capacity(set.len());
+        next.clear();
         for i in 0..n {
             normal[i] = ((need[i] - sink_at(&y, i)) / eps[i]).max(0.0);
             if normal[i] > 0.0 {
@@ -3137,7 +3144,7 @@ fn vertical_start(
             follow.copy_from_slice(&normal);
             followed = false;
         }
-        set = next;
+        std::mem::swap(&mut set, &mut next);
     }
     None
 }
@@ -3380,12 +3387,14 @@ fn minimise(
     let mut v = product(g, l);
     let (mut s, mut f) = (Vec::with_capacity(w.len()), Vec::with_capacity(w.len()));
     let mut e = evaluate(l, &v, &mut s, &mut f);
-    // A trial's, and the points' stiffnesses: allocated once for the solve.
+    // A trial's, the residual's and the points' stiffnesses: allocated once for the solve.
     let (mut st, mut ft) = (Vec::with_capacity(w.len()), Vec::with_capacity(w.len()));
     let mut stiff = Vec::with_capacity(w.len());
+    let (mut wf, mut r) = (DVector::zeros(k), DVector::zeros(k));
+    let (mut trial, mut vt, mut wt) = (DVector::zeros(k), DVector::zeros(k), DVector::zeros(k));
     for it in 0..budget {
-        let wf = loads(&f);
-        let r = &*l - &wf;
+        on_columns_into(w, &f, &mut wf);
+        r.zip_zip_apply(l, &wf, |r, l, wf| *r = l - wf);
         let scale = l.amax().max(wf.amax());
         if r.amax() <= tolerance * scale || scale == 0.0 {
             return Some((f, it));
@@ -3449,13 +3458,17 @@ fn minimise(
         let mut alpha = 1.0;
         let mut accepted = false;
         for _ in 0..MAX_HALVINGS {
-            let trial = &*l + &step * alpha;
-            let vt = &v + &sinking * alpha;
+            trial.zip_zip_apply(l, &step, |t, l, d| *t = l + d * alpha);
+            vt.zip_zip_apply(&v, &sinking, |t, v, d| *t = v + d * alpha);
             let et = evaluate(&trial, &vt, &mut st, &mut ft);
             if takes(e, et, alpha, slope, || {
-                (&trial - loads(&ft)).amax() < r.amax()
+                on_columns_into(w, &ft, &mut wt);
+                wt.zip_apply(&trial, |w, t| *w = t - *w);
+                wt.amax() < r.amax()
             }) {
-                (*l, v, e) = (trial, vt, et);
+                e = et;
+                std::mem::swap(l, &mut trial);
+                std::mem::swap(&mut v, &mut vt);
                 std::mem::swap(&mut s, &mut st);
                 std::mem::swap(&mut f, &mut ft);
                 accepted = true;
@@ -3565,6 +3578,13 @@ fn point_force(
 /// The columns' loads `W^T f` (`k` unknowns) from the points' forces.
 fn on_columns(w: &[Columns], f: &[Vector3<f64>], k: usize) -> DVector<f64> {
     let mut out = DVector::zeros(k);
+    on_columns_into(w, f, &mut out);
+    out
+}
+
+/// [`on_columns`] into `out` (its length the unknowns; zeroed first).
+fn on_columns_into(w: &[Columns], f: &[Vector3<f64>], out: &mut DVector<f64>) {
+    out.fill(0.0);
     for (row, f) in w.iter().zip(f) {
         for &(c, wt) in row {
             let c = 3 * c as usize;
@@ -3573,7 +3593,6 @@ fn on_columns(w: &[Columns], f: &[Vector3<f64>], k: usize) -> DVector<f64> {
             }
         }
     }
-    out
 }
 
 /// Unknowns (three per node column) from which a warm frictional solve that Newton's

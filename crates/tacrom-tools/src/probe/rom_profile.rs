@@ -72,9 +72,9 @@ pub fn run(args: Vec<String>) {
             rom.decoded,
             rom.bound_excess * 1e6
         );
-        checksum = out
-            .iter()
-            .fold(checksum, |h, v| (h ^ v.to_bits()).wrapping_mul(0x100_0000_01b3));
+        checksum = out.iter().fold(checksum, |h, v| {
+            (h ^ v.to_bits()).wrapping_mul(0x100_0000_01b3)
+        });
     }
     // Every frame's sensor data, bit for bit (a change meant to give the same answers
     // keeps it).

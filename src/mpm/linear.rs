@@ -1115,10 +1115,11 @@ impl Compliance {
     ) -> Vec<u32> {
         let count = (self.lattice[0] * self.lattice[1]) as u32;
         let lattice = near.partition_point(|&k| k < count);
-        let inside: HashMap<u32, usize> = (0..lattice)
-            .filter(|&i| clear[i] < 0.0)
-            .map(|i| (near[i], i))
-            .collect();
+        // (Sized first: collected from the filter, whose length it could not know, the
+        // map grew by rehashing.)
+        let mut inside: HashMap<u32, usize> =
+            HashMap::with_capacity((0..lattice).filter(|&i| clear[i] < 0.0).count());
+        inside.extend((0..lattice).filter(|&i| clear[i] < 0.0).map(|i| (near[i], i)));
         if inside.is_empty() {
             return Vec::new();
         }

@@ -1363,7 +1363,7 @@ impl Rom {
         let t2 = Instant::now();
         let spec = self.manifest.lattice;
         self.query.clear();
-        let mut points = Vec::new();
+        let mut points = Vec::with_capacity(self.region.iter().filter(|&&inside| inside).count());
         for (i, &inside) in self.region.iter().enumerate() {
             if inside {
                 query_features(obs, &spec, i / spec.nx, i % spec.nx, &mut self.query);

@@ -1119,7 +1119,11 @@ impl Compliance {
         // map grew by rehashing.)
         let mut inside: HashMap<u32, usize> =
             HashMap::with_capacity((0..lattice).filter(|&i| clear[i] < 0.0).count());
-        inside.extend((0..lattice).filter(|&i| clear[i] < 0.0).map(|i| (near[i], i)));
+        inside.extend(
+            (0..lattice)
+                .filter(|&i| clear[i] < 0.0)
+                .map(|i| (near[i], i)),
+        );
         if inside.is_empty() {
             return Vec::new();
         }
@@ -2163,20 +2167,41 @@ fn cholesky<T: faer::traits::RealField + nalgebra::Scalar>(a: &mut DMatrix<T>) -
     } else {
         par()
     };
-    let mut mem = MemBuffer::new(llt::factor::cholesky_in_place_scratch::<T>(
-        n,
-        par,
-        Default::default(),
-    ));
-    llt::factor::cholesky_in_place(
-        MatMut::from_column_major_slice_mut(a.as_mut_slice(), n, n),
-        Default::default(),
-        par,
-        MemStack::new(&mut mem),
-        Default::default(),
-    )
-    .ok()
-    .map(|_| ())
+    let req = llt::factor::cholesky_in_place_scratch::<T>(n, par, Default::default());
+    let mut factor = |stack: &mut MemStack| {
+        llt::factor::cholesky_in_place(
+            MatMut::from_column_major_slice_mut(a.as_mut_slice(), n, n),
+            Default::default(),
+            par,
+            stack,
+            Default::default(),
+        )
+        .ok()
+        .map(|_| ())
+    };
+    FACTOR_STACK.with(|kept| match kept.try_borrow_mut() {
+        Ok(mut kept) => {
+            let (made_for, mem) = &mut *kept;
+            // A buffer made for a request serves any it covers (`or`: the larger size and
+            // alignment of the two); else one is made for both.
+            if made_for.or(req) != *made_for {
+                *made_for = made_for.or(req);
+                *mem = MemBuffer::new(*made_for);
+            }
+            factor(MemStack::new(mem))
+        }
+        // This thread is inside a factorisation already (a parallel one that took up
+        // other work while it waited): a buffer of its own.
+        Err(_) => factor(MemStack::new(&mut MemBuffer::new(req))),
+    })
+}
+
+thread_local! {
+    /// faer's scratch for this thread's dense factorisations ([`cholesky`]), kept at the
+    /// largest request so far and the request it was made for: a Newton step does not
+    /// allocate it anew. Its contents are never read before faer writes them.
+    static FACTOR_STACK: std::cell::RefCell<(StackReq, MemBuffer)> =
+        std::cell::RefCell::new((StackReq::EMPTY, MemBuffer::new(StackReq::EMPTY)));
 }
 
 /// `a x` (faer's product, in the calling thread): the contact solves' matrix-vector

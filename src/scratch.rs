@@ -36,12 +36,6 @@ impl<T: Default> Clone for Kept<T> {
     }
 }
 
-impl<T> std::fmt::Debug for Kept<T> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("Kept")
-    }
-}
-
 /// `v` cleared and filled with `n` copies of `value`, its allocation reused.
 pub fn refill<T: Clone>(v: &mut Vec<T>, n: usize, value: T) {
     v.clear();

@@ -285,8 +285,9 @@ fn seen_with(
     gel.pixels.put(kept);
 }
 
-/// The buffers of [`seen_with`], kept with the gel between images ([`crate::scratch::Kept`]): the pixels'
-/// displacements, the image columns' taps and [`Curvature`]'s two fields.
+/// The buffers of [`seen_with`], kept with the gel between images
+/// ([`crate::scratch::Kept`]): the pixels' displacements, the image columns' taps and
+/// [`Curvature`]'s two fields.
 #[derive(Default)]
 pub(super) struct Pixels {
     seen: Vec<Vector3<f64>>,

@@ -22,7 +22,6 @@ use rayon::prelude::*;
 
 use super::Gel;
 use crate::geometry::PixelGrid;
-use crate::scratch::refill;
 
 /// A lattice box `[ix0, ix1, iy0, iy1)` that holds nothing yet.
 pub(super) const EMPTY_BOX: [usize; 4] = [usize::MAX, 0, usize::MAX, 0];
@@ -236,7 +235,9 @@ fn seen_with(
     let curvature = one_step.then(|| Curvature::of(u, nx, ny, std::mem::take(cells), along));
     // Rows in parallel in the gel's pool (each row starts afresh, so the threads do not
     // change a bit), then visited in order.
-    refill(seen, rows.len() * cols.len(), Vector3::zeros());
+    // Every pixel is written before it is read (a row's guesses read its pixels before
+    // them, written this image): the last image's values stay where the length does.
+    seen.resize(rows.len() * cols.len(), Vector3::zeros());
     gel.pool.install(|| {
         seen.par_chunks_mut(cols.len())
             .zip(rows.clone().into_par_iter())
@@ -382,7 +383,8 @@ impl Curvature {
         let stencil_max = |at: &dyn Fn(usize) -> f64, k: usize, n: usize| {
             (-1..=2).fold(0.0f64, |m, o| m.max(at(clamp(k as isize + o, n))))
         };
-        refill(along, nx * ny, 0.0);
+        // (Every entry written below before it is read.)
+        along.resize(nx * ny, 0.0);
         for y in 0..ny {
             let line = &node[y * nx..(y + 1) * nx];
             for x in 0..nx {

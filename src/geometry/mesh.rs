@@ -88,7 +88,9 @@ const BAND_CELLS: f64 = 2.0;
 /// A triangle mesh in its local frame (metres), with a signed-distance grid.
 ///
 /// The grid is built on the first distance query, not at construction: a sensor in rigid
-/// mode only rasterises the triangles ([`Sdf::lower_surface`]) and never pays for it.
+/// mode only rasterises the triangles ([`Sdf::lower_surface`]) and never pays for it. With
+/// a [`GridStore`] ([`TriMesh::with_store`]) a grid built once is kept there and read back
+/// by the next process, at [`Sdf::prepare`] or at its first query.
 #[derive(Clone)]
 pub struct TriMesh {
     vertices: Vec<Point3<f64>>,
@@ -98,6 +100,21 @@ pub struct TriMesh {
     topo: Arc<Topology>,
     options: MeshSdfOptions,
     grid: Arc<OnceLock<Grid>>,
+    /// Where the grid is kept between processes, if anywhere ([`TriMesh::with_store`]).
+    store: Option<Arc<dyn GridStore>>,
+}
+
+/// A place that keeps meshes' distance grids between processes (the plugin's: the gel
+/// cache's folder, `mpm::gel_cache`): a grid is read back there instead of
+/// built, and written there once built. A key names the grid to the bit (the mesh's
+/// vertices and faces, the grid's layout and the code that builds it); what comes back
+/// is used only where it has the grid's length and every value is finite.
+pub trait GridStore: Send + Sync {
+    /// The grid stored under `key`, if any.
+    fn read(&self, key: &str) -> Option<Vec<f32>>;
+    /// Keeps `values` under `key` (a store that cannot write costs the next process the
+    /// build, no more).
+    fn write(&self, key: &str, values: &[f32]);
 }
 
 impl fmt::Debug for TriMesh {
@@ -113,10 +130,20 @@ impl fmt::Debug for TriMesh {
 }
 
 impl TriMesh {
-    /// The distance grid, built on first use.
+    /// The distance grid, built (or read from the store) on first use.
     fn grid(&self) -> &Grid {
-        self.grid
-            .get_or_init(|| Grid::build(&self.vertices, &self.topo, &self.aabb, &self.options))
+        self.grid.get_or_init(|| {
+            let layout = Layout::of(&self.aabb, &self.options);
+            let Some(store) = &self.store else {
+                return layout.build(&self.vertices, &self.topo);
+            };
+            let key = self.grid_key(&layout);
+            layout.read(store.as_ref(), &key).unwrap_or_else(|| {
+                let grid = layout.build(&self.vertices, &self.topo);
+                store.write(&key, &grid.values);
+                grid
+            })
+        })
     }
 
     /// A mesh from vertices and triangles (indices into `vertices`), with the default
@@ -225,7 +252,54 @@ impl TriMesh {
             topo: Arc::new(topo),
             options: *options,
             grid: Arc::new(OnceLock::new()),
+            store: None,
         })
+    }
+
+    /// The same mesh, its distance grid read from `store` where it is kept there, and
+    /// written there once built ([`GridStore`]).
+    pub fn with_store(mut self, store: Arc<dyn GridStore>) -> Self {
+        self.store = Some(store);
+        self
+    }
+
+    /// What names this mesh's grid in a [`GridStore`]: the code that builds it (the
+    /// physics source's fingerprint), the grid's layout, and the vertices and faces to
+    /// the bit (two independent 64-bit hashes and the counts).
+    fn grid_key(&self, layout: &Layout) -> String {
+        use std::hash::{Hash, Hasher};
+        let mut sip = std::collections::hash_map::DefaultHasher::new();
+        let mut fnv: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            bytes.hash(&mut sip);
+            for &b in bytes {
+                fnv = (fnv ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        for v in &self.vertices {
+            for c in v.iter() {
+                eat(&c.to_bits().to_le_bytes());
+            }
+        }
+        for f in &self.faces {
+            for i in f {
+                eat(&i.to_le_bytes());
+            }
+        }
+        format!(
+            "mesh grid\nphysics {}\nvertices {} faces {} hashes {:016x} {:016x}\n\
+             dims {:?} cell {:016x} origin {:016x} {:016x} {:016x}",
+            crate::PHYSICS_FINGERPRINT,
+            self.vertices.len(),
+            self.faces.len(),
+            sip.finish(),
+            fnv,
+            layout.dims,
+            layout.cell.to_bits(),
+            layout.origin.x.to_bits(),
+            layout.origin.y.to_bits(),
+            layout.origin.z.to_bits(),
+        )
     }
 
     /// The vertices (m, local frame).
@@ -462,13 +536,16 @@ struct Grid {
     values: Vec<f32>,
 }
 
-impl Grid {
-    fn build(
-        vertices: &[Point3<f64>],
-        topo: &Topology,
-        aabb: &Aabb,
-        options: &MeshSdfOptions,
-    ) -> Self {
+/// Where a grid's nodes lie: its origin, cell and node counts, from the mesh's bounds and
+/// the options alone.
+struct Layout {
+    origin: Point3<f64>,
+    cell: f64,
+    dims: [usize; 3],
+}
+
+impl Layout {
+    fn of(aabb: &Aabb, options: &MeshSdfOptions) -> Self {
         let extent = aabb.max - aabb.min;
         let margin = options.margin_cells.max(3) as f64;
         // Validated in `TriMesh::with_options`.
@@ -489,21 +566,42 @@ impl Grid {
             cell *= (nodes / cap).cbrt() * 1.0001;
         }
         let d = dims_for(cell);
-        let dims = [d.x as usize, d.y as usize, d.z as usize];
-        let origin = aabb.min - Vector3::repeat(margin * cell);
-        let mut b = Builder::new(origin, cell, dims);
-        b.narrow_band(vertices, topo);
-        b.propagate();
-        b.fill_signs();
-        Grid {
-            origin,
+        Layout {
+            origin: aabb.min - Vector3::repeat(margin * cell),
             cell,
-            inv_cell: 1.0 / cell,
-            dims,
-            values: b.finish(),
+            dims: [d.x as usize, d.y as usize, d.z as usize],
         }
     }
 
+    /// The grid of these values.
+    fn grid(&self, values: Vec<f32>) -> Grid {
+        Grid {
+            origin: self.origin,
+            cell: self.cell,
+            inv_cell: 1.0 / self.cell,
+            dims: self.dims,
+            values,
+        }
+    }
+
+    fn build(&self, vertices: &[Point3<f64>], topo: &Topology) -> Grid {
+        let mut b = Builder::new(self.origin, self.cell, self.dims);
+        b.narrow_band(vertices, topo);
+        b.propagate();
+        b.fill_signs();
+        self.grid(b.finish())
+    }
+
+    /// The grid kept under `key`, where it has this layout's length and is finite.
+    fn read(&self, store: &dyn GridStore, key: &str) -> Option<Grid> {
+        let values = store.read(key)?;
+        let whole = values.len() == self.dims.iter().product::<usize>()
+            && values.iter().all(|v| v.is_finite());
+        whole.then(|| self.grid(values))
+    }
+}
+
+impl Grid {
     #[inline]
     fn index(&self, i: usize, j: usize, k: usize) -> usize {
         i + self.dims[0] * (j + self.dims[1] * k)
@@ -754,6 +852,25 @@ impl Builder {
 }
 
 impl Sdf for TriMesh {
+    /// Takes the distance grid from the store now, where it is kept there ([`GridStore`]);
+    /// builds nothing (a mesh that never comes near the gel never pays for its grid).
+    fn prepare(&self) -> bool {
+        if self.grid.get().is_some() {
+            return true;
+        }
+        let Some(store) = &self.store else {
+            return false;
+        };
+        let layout = Layout::of(&self.aabb, &self.options);
+        match layout.read(store.as_ref(), &self.grid_key(&layout)) {
+            Some(grid) => {
+                let _ = self.grid.set(grid);
+                true
+            }
+            None => false,
+        }
+    }
+
     fn distance(&self, p: &Point3<f64>) -> f64 {
         self.grid().query(p).0
     }
@@ -928,6 +1045,101 @@ mod tests {
             "flank slope {}",
             length(&flank)
         );
+    }
+
+    /// A [`GridStore`] in memory that counts its reads and writes.
+    #[derive(Default)]
+    struct Shelf {
+        kept: std::sync::Mutex<HashMap<String, Vec<f32>>>,
+        writes: std::sync::atomic::AtomicUsize,
+    }
+
+    impl GridStore for Shelf {
+        fn read(&self, key: &str) -> Option<Vec<f32>> {
+            self.kept.lock().unwrap().get(key).cloned()
+        }
+
+        fn write(&self, key: &str, values: &[f32]) {
+            self.writes
+                .fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            self.kept
+                .lock()
+                .unwrap()
+                .insert(key.to_owned(), values.to_vec());
+        }
+    }
+
+    /// Distances and slopes at points inside, on and around the hexagon (m).
+    fn probe_points() -> Vec<Point3<f64>> {
+        (0..500)
+            .map(|i| {
+                let t = i as f64;
+                Point3::new(
+                    0.012 * (0.37 * t).sin(),
+                    0.012 * (0.61 * t).cos(),
+                    0.004 * (0.23 * t).sin() + 0.002,
+                )
+            })
+            .collect()
+    }
+
+    fn hexagon() -> TriMesh {
+        TriMesh::from_file(pattern("hexagon.stl"), 1e-3).expect("hexagon loads")
+    }
+
+    /// A grid kept in a store is the grid built, to the bit: a second mesh of the same
+    /// data reads it at `prepare` (no build, no write) and answers every query as a mesh
+    /// without a store does; a mesh whose data differs by one unit in the last place of one
+    /// vertex has another key; an entry of the wrong length or with a value that is not
+    /// finite is not used: the grid is built again (the same) and written over it.
+    #[test]
+    fn a_kept_grid_is_the_built_one_and_a_bad_one_is_rebuilt() {
+        use std::sync::atomic::Ordering::SeqCst;
+        let shelf = Arc::new(Shelf::default());
+        let plain = hexagon();
+        let first = hexagon().with_store(shelf.clone());
+        assert!(
+            !first.prepare(),
+            "nothing kept yet: nothing to read, nothing built"
+        );
+        assert!(first.grid.get().is_none(), "prepare built the grid");
+        let points = probe_points();
+        let answers = |m: &TriMesh| -> Vec<(f64, Vector3<f64>)> {
+            points.iter().map(|p| m.distance_and_slope(p)).collect()
+        };
+        let expected = answers(&plain);
+        assert_eq!(answers(&first), expected);
+        assert_eq!(shelf.writes.load(SeqCst), 1);
+        let second = hexagon().with_store(shelf.clone());
+        assert!(second.prepare(), "the kept grid was not read");
+        assert_eq!(answers(&second), expected);
+        assert_eq!(shelf.writes.load(SeqCst), 1, "a kept grid was built again");
+
+        let mut vertices = plain.vertices().to_vec();
+        vertices[0].x = f64::from_bits(vertices[0].x.to_bits() + 1);
+        let moved = TriMesh::new(vertices, plain.faces().to_vec()).unwrap();
+        let layout = Layout::of(&plain.aabb, &plain.options);
+        assert_ne!(moved.grid_key(&layout), plain.grid_key(&layout));
+
+        let key = plain.grid_key(&layout);
+        let whole = shelf.read(&key).unwrap();
+        let mut short = whole.clone();
+        short.pop();
+        let mut nan = whole.clone();
+        nan[whole.len() / 2] = f32::NAN;
+        for bad in [short, nan, Vec::new()] {
+            shelf.kept.lock().unwrap().insert(key.clone(), bad);
+            let writes = shelf.writes.load(SeqCst);
+            let again = hexagon().with_store(shelf.clone());
+            assert!(!again.prepare(), "a bad entry was read");
+            assert_eq!(answers(&again), expected);
+            assert_eq!(
+                shelf.writes.load(SeqCst),
+                writes + 1,
+                "the bad entry was not rewritten"
+            );
+            assert_eq!(shelf.read(&key).unwrap(), whole);
+        }
     }
 
     /// Rigid rendering rasterises the triangles: it must not build the distance grid.

@@ -155,6 +155,14 @@ impl Chord {
 
 /// A rigid shape described by its signed distance, in its local frame.
 pub trait Sdf: Send + Sync + Debug {
+    /// Makes ready now, where that is cheap, what the first distance query would
+    /// otherwise compute (a mesh's distance grid kept by an earlier process), so that a
+    /// first contact is an ordinary frame; whether the queries are now ready. The exact
+    /// shapes need nothing.
+    fn prepare(&self) -> bool {
+        true
+    }
+
     /// Signed distance from `p` to the surface (m); negative inside.
     fn distance(&self, p: &Point3<f64>) -> f64;
 
@@ -441,7 +449,7 @@ pub use capsule::Capsule;
 pub use cylinder::Cylinder;
 pub use ellipsoid::Ellipsoid;
 pub use io::{load_mesh, load_obj, load_stl, parse_obj, parse_stl, MeshData};
-pub use mesh::{MeshSdfOptions, TriMesh};
+pub use mesh::{GridStore, MeshSdfOptions, TriMesh};
 pub use sphere::Sphere;
 
 #[cfg(test)]

@@ -79,7 +79,7 @@
 
 pub mod choice;
 mod contact;
-mod gel_cache;
+pub(crate) mod gel_cache;
 pub mod hertz;
 mod indenters;
 mod linear;

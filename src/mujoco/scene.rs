@@ -6,7 +6,7 @@ use nalgebra::{Point3, Vector3};
 
 use super::sys;
 use super::view::{pose, Data, Model};
-use crate::config::Config;
+use crate::config::{Config, Physics};
 use crate::geometry::{self, Placed, Sdf};
 
 /// A geom that may press the gel.
@@ -134,6 +134,13 @@ impl SceneSpec {
                         m.geom_name(g)
                     ))
                 }
+            }
+        }
+        if config.physics != Physics::Rigid {
+            // A mesh's distance grid that an earlier process kept, read now: its first
+            // contact is then an ordinary frame (rigid reads no distances).
+            for c in &candidates {
+                c.shape.prepare();
             }
         }
         let [lx, ly, t] = config.size;

@@ -64,24 +64,19 @@ mod tests {
     use super::*;
     use nalgebra::Point3;
 
-    /// A closed box (MuJoCo's flat vertex and face arrays), 20 x 16 x 8 mm.
-    fn box_flat() -> (Vec<f32>, Vec<i32>) {
-        let h = [0.010f32, 0.008, 0.004];
-        let verts = (0..8)
-            .flat_map(|i| (0..3).map(move |k| if i & (1 << k) == 0 { -h[k] } else { h[k] }))
-            .collect();
-        let quads = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        let faces = quads
+    /// The hexagon pattern as MuJoCo holds a mesh: flat vertex (m) and face arrays.
+    fn hexagon_flat() -> (Vec<f32>, Vec<i32>) {
+        let data = crate::geometry::load_mesh(
+            &crate::geometry::test_support::pattern("hexagon.stl"),
+            1e-3,
+        )
+        .expect("hexagon loads");
+        let verts = data
+            .vertices
             .iter()
-            .flat_map(|q| [q[0], q[1], q[2], q[0], q[2], q[3]])
+            .flat_map(|v| v.iter().map(|&c| c as f32).collect::<Vec<_>>())
             .collect();
+        let faces = data.faces.iter().flatten().map(|&i| i as i32).collect();
         (verts, faces)
     }
 
@@ -93,7 +88,7 @@ mod tests {
     fn the_gel_caches_folder_keeps_a_meshs_grid_and_rejects_a_corrupt_one() {
         let dir = std::env::temp_dir().join(format!("tacrom-mesh-cache-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let (verts, faces) = box_flat();
+        let (verts, faces) = hexagon_flat();
         let mesh = || {
             TriMesh::from_flat(&verts, &faces, 1.0, &MeshSdfOptions::default())
                 .unwrap()

@@ -1047,7 +1047,7 @@ mod tests {
         );
     }
 
-    /// A [`GridStore`] in memory that counts its reads and writes.
+    /// A [`GridStore`] in memory that counts its writes.
     #[derive(Default)]
     struct Shelf {
         kept: std::sync::Mutex<HashMap<String, Vec<f32>>>,

@@ -95,6 +95,70 @@ def test_a_cache_folder_that_cannot_be_written_or_holds_nothing_costs_no_sensor(
     assert force(TACROM_CACHE=str(tmp_path / "full"), TACROM_CACHE_MB="0") == fresh
 
 
+# A mesh pressed 0.3 mm into the linear gel in a fresh process, the cache folder set by
+# the environment; prints a digest of the sensor data and the force.
+MESH_PROBE = """
+import hashlib, sys
+sys.path.insert(0, {tests!r})
+import mujoco, numpy as np
+import tacrom
+from conftest import with_config
+xml = with_config(open({press!r}).read(), physics="coarse", solver="linear",
+                  outputs="depth force", resolution="32 24")
+xml = xml.replace('type="sphere" size="0.005"', 'type="mesh" mesh="hexagon"')
+xml = xml.replace("<worldbody>", '<asset><mesh name="hexagon" file="{mesh}" '
+                  'scale="0.001 0.001 0.001"/></asset><worldbody>', 1)
+m = mujoco.MjModel.from_xml_string(xml)
+d = mujoco.MjData(m)
+mujoco.mj_forward(m, d)
+g = m.geom("ball").id
+mesh = m.geom_dataid[g]
+v = m.mesh_vert[m.mesh_vertadr[mesh] : m.mesh_vertadr[mesh] + m.mesh_vertnum[mesh]]
+lowest = (d.geom_xpos[g] + v @ d.geom_xmat[g].reshape(3, 3).T)[:, 2].min()
+d.qpos[0] = lowest + 0.3e-3
+mujoco.mj_forward(m, d)
+out = tacrom.outputs(m, d, "touch")
+data = np.concatenate([out["depth"].ravel(), out["force"]])
+print(hashlib.sha256(data.tobytes()).hexdigest(), repr(float(out["force"][2])))
+"""
+
+
+def test_a_meshs_distance_grid_is_kept_for_the_next_process_and_a_cut_one_rebuilt(tmp_path):
+    """Catches: a mesh's distance grid that the gel cache's folder does not keep, one read
+    back that is not the built one, one written again by every process, or a cut file
+    used. The hexagon mesh pressed into the linear gel in fresh processes: the first
+    builds the grid and leaves one ``mesh-*.bin`` file; the next reads it (the file is not
+    written again) and gives the same sensor data to the last bit; a file cut in half is
+    rebuilt and rewritten whole, the same data again; with the cache off, the same data."""
+    import os
+    import subprocess
+    import sys
+
+    script = MESH_PROBE.format(tests=str(ROOT / "tests" / "python"),
+                               press=str(ROOT / "examples" / "press.xml"),
+                               mesh=str(ROOT / "examples" / "meshes" / "hexagon.stl"))
+    cache = tmp_path / "cache"
+
+    def press(**env):
+        run = subprocess.run([sys.executable, "-c", script], env={**os.environ, **env},
+                             capture_output=True, text=True, timeout=600)
+        assert run.returncode == 0, run.stderr
+        digest, force = run.stdout.strip().splitlines()[-1].split()
+        assert float(force) > 0.05, force
+        return digest
+
+    first = press(TACROM_CACHE=str(cache))
+    grids = sorted(cache.glob("mesh-*.bin"))
+    assert len(grids) == 1, sorted(p.name for p in cache.iterdir())
+    kept, stamp = grids[0].read_bytes(), grids[0].stat().st_mtime_ns
+    assert press(TACROM_CACHE=str(cache)) == first
+    assert grids[0].stat().st_mtime_ns == stamp, "a kept grid was written again"
+    grids[0].write_bytes(kept[: len(kept) // 2])
+    assert press(TACROM_CACHE=str(cache)) == first
+    assert grids[0].read_bytes() == kept, "the cut file was not rebuilt whole"
+    assert press(TACROM_CACHE="off") == first
+
+
 def _varint(v: int) -> bytes:
     out = bytearray()
     while True:

@@ -269,12 +269,10 @@ impl TriMesh {
     fn grid_key(&self, layout: &Layout) -> String {
         use std::hash::{Hash, Hasher};
         let mut sip = std::collections::hash_map::DefaultHasher::new();
-        let mut fnv: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut fnv = crate::mpm::gel_cache::FNV_START;
         let mut eat = |bytes: &[u8]| {
             bytes.hash(&mut sip);
-            for &b in bytes {
-                fnv = (fnv ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
-            }
+            fnv = crate::mpm::gel_cache::fnv(fnv, bytes);
         };
         for v in &self.vertices {
             for c in v.iter() {

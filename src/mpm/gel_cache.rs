@@ -27,8 +27,8 @@ const MAGIC: &[u8; 8] = b"TACROMC2";
 /// The folder's size cap (MiB) when `$TACROM_CACHE_MB` is not set.
 pub(crate) const DEFAULT_CAP_MB: u64 = 512;
 
-/// FNV-1a (64 bit) of `bytes`, continuing from `h`.
-fn fnv(mut h: u64, bytes: &[u8]) -> u64 {
+/// FNV-1a (64 bit) of `bytes`, continuing from `h` ([`FNV_START`] to begin).
+pub(crate) fn fnv(mut h: u64, bytes: &[u8]) -> u64 {
     for &b in bytes {
         h ^= u64::from(b);
         h = h.wrapping_mul(0x0000_0100_0000_01b3);
@@ -55,7 +55,8 @@ fn checksum(bytes: &[u8]) -> u64 {
     h
 }
 
-const FNV_START: u64 = 0xcbf2_9ce4_8422_2325;
+/// FNV-1a's offset basis: where [`fnv`] starts.
+pub(crate) const FNV_START: u64 = 0xcbf2_9ce4_8422_2325;
 
 /// A cache folder.
 #[derive(Clone, Debug)]

@@ -288,6 +288,14 @@ struct ContactBuffers {
     eps: Vec<f64>,
     present: Vec<(u32, Vector3<f64>)>,
     surface: Vec<Vector3<f64>>,
+    /// A frictional solve's forces at the candidates.
+    answer: Vec<Vector3<f64>>,
+    /// The columns' loads a pass solves for.
+    l: DVector<f64>,
+    /// The vectors of the passes' Newton steps.
+    steps: Mutex<Steps>,
+    /// The normal forces [`vertical_start`] found.
+    normal: Vec<f64>,
 }
 
 /// The dense systems of one set of node columns under a contact.
@@ -1497,6 +1505,10 @@ impl Compliance {
             mut eps,
             mut present,
             mut surface,
+            mut answer,
+            l: mut loads,
+            steps,
+            mut normal,
         } = std::mem::take(self.buffers.get_mut());
         self.near_into(indenters, &mut near);
         rest.clear();
@@ -1614,6 +1626,7 @@ impl Compliance {
                         inverse: &vertical.inverse,
                         inverse32: None,
                         scratch: &vertical.scratch,
+                        steps: &steps,
                         precondition: false,
                         w: &rows,
                         delta: &d,
@@ -1642,6 +1655,7 @@ impl Compliance {
                 inverse: &system.inverse,
                 inverse32: system.inverse32.as_ref(),
                 scratch: &system.scratch,
+                steps: &steps,
                 precondition: self.precondition,
                 w: &rows,
                 delta: &d,
@@ -1658,10 +1672,13 @@ impl Compliance {
                 // The first lagged normal forces failed: the frame ends unconverged (the
                 // frictionless solve below is on the vertical block alone).
             } else if friction {
-                let mut l = DVector::from_iterator(
-                    3 * local.len(),
-                    local.iter().flat_map(|c| load(c).data.0[0]),
-                );
+                let l = sized(&mut loads, 3 * local.len());
+                for (l, x) in l
+                    .iter_mut()
+                    .zip(local.iter().flat_map(|c| load(c).data.0[0]))
+                {
+                    *l = x;
+                }
                 let mut settled = false;
                 // The lagged forces settle relative to the larger of the frame's load at
                 // its start and now: a grasp let go within a frame (a coupled finger
@@ -1693,7 +1710,7 @@ impl Compliance {
                         );
                         if pass == 0
                             && may_slide
-                            && StartDemand::at(&problem, &caps, &anchors, &l).asks_vertical()
+                            && StartDemand::at(&problem, &caps, &anchors, l).asks_vertical()
                         {
                             vertical = vertical_inverse(&system.g);
                         }
@@ -1701,17 +1718,20 @@ impl Compliance {
                         else {
                             break (caps, anchors);
                         };
-                        let Some(normal) = vertical_start(
+                        if vertical_start(
                             &problem,
                             inverse_zz,
                             self.friction,
                             &caps,
                             &anchors,
                             tolerance,
-                            &mut l,
-                        ) else {
+                            l,
+                            &mut normal,
+                        )
+                        .is_none()
+                        {
                             break (caps, anchors);
-                        };
+                        }
                         for (&i, &fi) in cand.iter().zip(&normal) {
                             lag[i] = fi;
                         }
@@ -1725,8 +1745,8 @@ impl Compliance {
                         predict_stick: PREDICT_STICK && lags == 0 && from_last,
                         split: self.split_unknowns,
                     };
-                    let Some((f, steps)) =
-                        frictional_contact(&problem, &friction, &mut kept, &mut l)
+                    let Some(steps) =
+                        frictional_contact(&problem, &friction, &mut kept, l, &mut answer)
                     else {
                         solved = false;
                         break;
@@ -1734,7 +1754,7 @@ impl Compliance {
                     iterations += steps;
                     forces.fill(Vector3::zeros());
                     let (mut change, mut total) = (0.0, 0.0);
-                    for (&i, &fi) in cand.iter().zip(&f) {
+                    for (&i, &fi) in cand.iter().zip(&answer) {
                         forces[i] = fi;
                         change += (fi.z - lag[i]).abs();
                         total += fi.z;
@@ -1834,6 +1854,10 @@ impl Compliance {
             eps,
             present,
             surface: Vec::new(),
+            answer,
+            l: loads,
+            steps,
+            normal,
         };
         contact
     }
@@ -2211,17 +2235,31 @@ fn product<T: faer::traits::RealField + nalgebra::Scalar>(
     a: &DMatrix<T>,
     x: &DVector<T>,
 ) -> DVector<T> {
+    let mut out = DVector::from_element(a.nrows(), T::zero());
+    product_in(a, x, out.as_mut_slice());
+    out
+}
+
+/// [`product`] into `out` (sized to `a`'s rows, its allocation kept).
+fn product_into(a: &DMatrix<f64>, x: &DVector<f64>, out: &mut DVector<f64>) {
+    product_in(a, x, sized(out, a.nrows()).as_mut_slice());
+}
+
+/// `out = a x` (`out` of `a`'s rows).
+fn product_in<T: faer::traits::RealField + nalgebra::Scalar>(
+    a: &DMatrix<T>,
+    x: &DVector<T>,
+    out: &mut [T],
+) {
     let (n, k) = a.shape();
-    let mut out = DVector::from_element(n, T::zero());
     faer::linalg::matmul::matmul(
-        MatMut::from_column_major_slice_mut(out.as_mut_slice(), n, 1),
+        MatMut::from_column_major_slice_mut(out, n, 1),
         faer::Accum::Replace,
         MatRef::from_column_major_slice(a.as_slice(), n, k),
         MatRef::from_column_major_slice(x.as_slice(), k, 1),
         T::one(),
         Par::Seq,
     );
-    out
 }
 
 /// `c += alpha a b` with `a` and `b` each transposed where asked (faer, in the calling
@@ -2287,6 +2325,8 @@ struct Problem<'a> {
     inverse32: Option<&'a DMatrix<f32>>,
     /// The matrices Newton's steps assemble their systems in ([`Problem::system_in`]).
     scratch: &'a Workspace,
+    /// The vectors of [`minimise`]'s steps.
+    steps: &'a Mutex<Steps>,
     /// Whether the frictional solve's Newton steps from [`MIXED_UNKNOWNS`] on keep their
     /// factor within the pass and solve the next steps' systems by conjugate gradients
     /// preconditioned with it ([`Problem::conjugate_gradients`]), factoring anew only
@@ -2304,11 +2344,18 @@ impl Problem<'_> {
     /// sinking along it, `G d = z`; and the energy's slope along it, `(G r) . d = r . z`
     /// (`G` symmetric). Where round-off spoils the Newton direction, the gradient's own
     /// (`-r`, `-G r`).
-    fn descent(&self, system: &mut DMatrix<f64>, r: &DVector<f64>) -> Option<Descent> {
-        let mut z = -r;
+    fn descent(
+        &self,
+        system: &mut DMatrix<f64>,
+        r: &DVector<f64>,
+        out: &mut Descent,
+    ) -> Option<()> {
+        let z = sized(&mut out.sinking, r.len());
+        z.zip_apply(r, |z, r| *z = -r);
         cholesky(system)?;
-        cholesky_solve(system, &mut z);
-        Some(self.along(r, z))
+        cholesky_solve(system, z);
+        self.along(r, out);
+        Some(())
     }
 
     /// The kept matrix of `scratch`'s precision, set to `G^-1` (`inverse` in single
@@ -2345,19 +2392,21 @@ impl Problem<'_> {
         stiff: &[(usize, Matrix3<f64>)],
         r: &DVector<f64>,
         target: f64,
-    ) -> Option<Descent> {
+        out: &mut Descent,
+    ) -> Option<()> {
         let k = self.inverse.nrows();
         let mut scratch = self.scratch.lock();
         if k < MIXED_UNKNOWNS {
             let system = Self::system_in(&mut scratch.double, self.inverse);
             add_stiffness(system, self.w, stiff, |x| x);
-            return self.descent(system, r);
+            return self.descent(system, r, out);
         }
         if self.precondition {
             if scratch.factored {
                 if let Some(d) = self.conjugate_gradients(scratch.kept(), stiff, r, target) {
                     scratch.preconditioned += 1;
-                    return Some(d);
+                    *out = d;
+                    return Some(());
                 }
             }
             // The kept factor no longer serves: this step's blocks, a third of a whole
@@ -2365,11 +2414,13 @@ impl Problem<'_> {
             if self.block_factor(&mut scratch, stiff).is_some() {
                 if let Some(d) = self.conjugate_gradients(scratch.kept(), stiff, r, target) {
                     scratch.preconditioned += 1;
-                    return Some(d);
+                    *out = d;
+                    return Some(());
                 }
             }
         }
-        self.factored_descent(&mut scratch, stiff, r)
+        *out = self.factored_descent(&mut scratch, stiff, r)?;
+        Some(())
     }
 
     /// [`Problem::stiff_descent`] from a factor of this step's own system, made in single
@@ -2393,8 +2444,12 @@ impl Problem<'_> {
         let mut applied = product(self.inverse, &first);
         self.add_points(stiff, &first, &mut applied);
         let residual = &z - applied;
-        let z = first + solve(&residual);
-        Some(self.along(r, z))
+        let mut d = Descent {
+            sinking: first + solve(&residual),
+            ..Descent::default()
+        };
+        self.along(r, &mut d);
+        Some(d)
     }
 
     /// The Newton system `(G^-1 + W^T Phi'' W) z = -r` of [`Problem::stiff_descent`] solved
@@ -2548,29 +2603,23 @@ impl Problem<'_> {
     }
 
     /// The descent `d = G^-1 z` for the solution `z` of the Newton system with right-hand
-    /// side `-r`, or the gradient's where round-off spoils it.
-    fn along(&self, r: &DVector<f64>, z: DVector<f64>) -> Descent {
-        let slope = r.dot(&z);
+    /// side `-r` (in `out.sinking`), or the gradient's where round-off spoils it.
+    fn along(&self, r: &DVector<f64>, out: &mut Descent) {
+        let slope = r.dot(&out.sinking);
         if slope < 0.0 {
-            let step = product(self.inverse, &z);
-            Descent {
-                step,
-                sinking: z,
-                slope,
-            }
+            product_into(self.inverse, &out.sinking, &mut out.step);
+            out.slope = slope;
         } else {
-            self.gradient(r)
+            self.gradient(r, out)
         }
     }
 
-    /// The descent along `-r` (the energy's gradient in the metric of `G^-1`).
-    fn gradient(&self, r: &DVector<f64>) -> Descent {
-        let gr = product(self.g, r);
-        Descent {
-            slope: -gr.dot(r),
-            step: -r,
-            sinking: -gr,
-        }
+    /// The descent along `-r` (the energy's gradient in the metric of `G^-1`), into `out`.
+    fn gradient(&self, r: &DVector<f64>, out: &mut Descent) {
+        product_into(self.g, r, &mut out.sinking);
+        out.slope = -out.sinking.dot(r);
+        out.sinking.neg_mut();
+        sized(&mut out.step, r.len()).zip_apply(r, |s, r| *s = -r);
     }
 }
 
@@ -2689,6 +2738,44 @@ pub(super) struct Scratch {
 #[derive(Default)]
 pub(super) struct Workspace(Mutex<Scratch>);
 
+/// The vectors of [`minimise`]: its loads' state and trials, the points' displacements,
+/// forces and stiffnesses, and the direction of its step ([`Problem::stiff_descent`]),
+/// kept with the contact's buffers (not a set of columns': a press moving on makes new
+/// ones) so that a frame's Newton steps allocate none of them (each is sized and
+/// overwritten before it is read: [`sized`]).
+#[derive(Default)]
+struct Steps {
+    v: DVector<f64>,
+    wf: DVector<f64>,
+    r: DVector<f64>,
+    trial: DVector<f64>,
+    vt: DVector<f64>,
+    wt: DVector<f64>,
+    rhs: DVector<f64>,
+    s: Vec<Vector3<f64>>,
+    f: Vec<Vector3<f64>>,
+    st: Vec<Vector3<f64>>,
+    ft: Vec<Vector3<f64>>,
+    stuck: Vec<Vector3<f64>>,
+    stiff: Vec<(usize, Matrix3<f64>)>,
+    direction: Descent,
+    /// [`vertical_start`]'s.
+    vertical: Vertical,
+}
+
+/// `v` with `n` entries, its allocation kept (nalgebra's own resizing shrinks it to fit):
+/// unchanged where it has `n` already, else zeros. Its entries are the caller's to
+/// overwrite.
+fn sized(v: &mut DVector<f64>, n: usize) -> &mut DVector<f64> {
+    if v.len() != n {
+        let mut data: Vec<f64> = std::mem::replace(v, DVector::zeros(0)).data.into();
+        data.clear();
+        data.resize(n, 0.0);
+        *v = DVector::from_vec(data);
+    }
+    v
+}
+
 impl Scratch {
     /// The pass's kept factor ([`Scratch::factored`]): the blocks' or the whole
     /// system's.
@@ -2724,6 +2811,16 @@ struct Descent {
     step: DVector<f64>,
     sinking: DVector<f64>,
     slope: f64,
+}
+
+impl Default for Descent {
+    fn default() -> Self {
+        Self {
+            step: DVector::zeros(0),
+            sinking: DVector::zeros(0),
+            slope: 0.0,
+        }
+    }
 }
 
 /// Newton iterations at most per contact solve.
@@ -2865,7 +2962,9 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
                 }
             }
         }
-        let Descent { step, slope, .. } = p.descent(system, &r)?;
+        let mut direction = Descent::default();
+        p.descent(system, &r, &mut direction)?;
+        let Descent { step, slope, .. } = direction;
         drop(scratch);
         let before: Vec<bool> = f.iter().map(|&f| f > 0.0).collect();
         let mut alpha = 1.0;
@@ -2938,7 +3037,8 @@ fn frictional_contact(
     friction: &Friction,
     kept: &mut Option<SplitFactor>,
     l: &mut DVector<f64>,
-) -> Option<(Vec<Vector3<f64>>, usize)> {
+    forces: &mut Vec<Vector3<f64>>,
+) -> Option<usize> {
     let mut total = 0;
     if friction.warm {
         let start = l.clone();
@@ -2947,7 +3047,7 @@ fn frictional_contact(
         // it is still changing which points stick, split, and finish with it.
         let split = l.len() >= friction.split;
         let first = if split { SPLIT_AFTER } else { budget };
-        if let Some(answer) = minimise(p, friction, STICK, friction.residual, first, l) {
+        if let Some(answer) = minimise(p, friction, STICK, friction.residual, first, l, forces) {
             return Some(answer);
         }
         if split {
@@ -2958,10 +3058,16 @@ fn frictional_contact(
                 predict_stick: friction.predict_stick && !moved,
                 ..*friction
             };
-            if let Some((f, steps)) =
-                minimise(p, friction, STICK, friction.residual, budget - first, l)
-            {
-                return Some((f, steps + first));
+            if let Some(steps) = minimise(
+                p,
+                friction,
+                STICK,
+                friction.residual,
+                budget - first,
+                l,
+                forces,
+            ) {
+                return Some(steps + first);
             }
         }
         (*l, total) = (start, budget);
@@ -2974,10 +3080,9 @@ fn frictional_contact(
         } else {
             STAGE_RESIDUAL.max(friction.residual)
         };
-        let (f, its) = minimise(p, friction, radius, tolerance, MAX_NEWTON, l)?;
-        total += its;
+        total += minimise(p, friction, radius, tolerance, MAX_NEWTON, l, forces)?;
         if last {
-            return Some((f, total));
+            return Some(total);
         }
     }
     None
@@ -3030,23 +3135,46 @@ fn vertical_start(
     anchors: &[Vector2<f64>],
     settled: f64,
     l: &mut DVector<f64>,
-) -> Option<Vec<f64>> {
+    normal: &mut Vec<f64>,
+) -> Option<()> {
     let Problem {
         g, w, delta, eps, ..
     } = *p;
     let k = g.nrows();
     let cols = k / 3;
     let n = w.len();
-    let v = product(g, l);
-    let at = at_points(w, &v);
+    // (A poisoned lock's vectors are overwritten before use anyway.)
+    let mut kept = p.steps.lock().unwrap_or_else(|e| e.into_inner());
+    let Vertical {
+        v,
+        at,
+        unit,
+        lifted_points,
+        sinks,
+        set,
+        follow,
+        system,
+        factored,
+        next,
+        lifted,
+        need,
+        y,
+        column,
+        added,
+        removed,
+        forces,
+    } = &mut kept.vertical;
+    product_into(g, l, v);
+    at_points_into(w, v, at);
     let sink_at =
         |y: &[f64], i: usize| -> f64 { w[i].iter().map(|&(c, wt)| wt * y[c as usize]).sum() };
     // Each anchored point's friction per unit normal force, as it is at `l`, and the
     // columns' sinking under it.
-    let mut unit = vec![Vector2::zeros(); n];
+    refill(unit, n, Vector2::zeros());
     // The anchored points, and their columns' sinking one after another (`cols` each).
-    let lifted_points: Vec<usize> = (0..n).filter(|&i| caps[i] > 0.0).collect();
-    let mut sinks = vec![0.0; lifted_points.len() * cols];
+    lifted_points.clear();
+    lifted_points.extend((0..n).filter(|&i| caps[i] > 0.0));
+    refill(sinks, lifted_points.len() * cols, 0.0);
     for (&i, sink) in lifted_points
         .iter()
         .zip(sinks.chunks_exact_mut(cols.max(1)))
@@ -3067,25 +3195,27 @@ fn vertical_start(
     // else from those the start's loads leave inside: a set that slid on with its
     // indenter, which the active set method reaches from in fewer changes (a sliding
     // sphere: 9.1 iterations a start against 11.2, 6.0 factorisations against 8.1).
-    let mut set: Vec<usize> = if caps.iter().any(|&c| c > 0.0) {
-        (0..n).filter(|&i| caps[i] > 0.0).collect()
+    set.clear();
+    if caps.iter().any(|&c| c > 0.0) {
+        set.extend((0..n).filter(|&i| caps[i] > 0.0));
     } else {
-        (0..n).filter(|&i| delta[i] - at[i].z > 0.0).collect()
-    };
+        set.extend((0..n).filter(|&i| delta[i] - at[i].z > 0.0));
+    }
     // The normal forces the friction follows (at first the lagged ones), changed only
     // once the pressed set repeats.
-    let mut follow: Vec<f64> = (0..n)
-        .map(|i| if mu > 0.0 { caps[i] / mu } else { 0.0 })
-        .collect();
-    let mut normal = vec![0.0; n];
-    let mut system = vec![0.0; cols * cols];
-    let mut factored: Option<Vec<usize>> = None;
-    let mut next = Vec::with_capacity(n);
-    let mut lifted = vec![0.0; cols];
-    let mut need = vec![0.0; n];
-    let mut y = vec![0.0; cols];
+    follow.clear();
+    follow.extend((0..n).map(|i| if mu > 0.0 { caps[i] / mu } else { 0.0 }));
+    refill(normal, n, 0.0);
+    refill(system, cols * cols, 0.0);
+    // The pressed set `system` holds the factor of, once it holds one.
+    let mut has_factor = false;
+    factored.clear();
+    next.clear();
+    refill(lifted, cols, 0.0);
+    refill(need, n, 0.0);
+    refill(y, cols, 0.0);
     let mut followed = false;
-    let mut column = vec![0.0; cols];
+    refill(column, cols, 0.0);
     for _ in 0..VERTICAL_ITERATIONS {
         if !followed {
             // The columns' sinking under the friction forces, and what is left to sink.
@@ -3096,16 +3226,16 @@ fn vertical_start(
                 }
             }
             for i in 0..n {
-                need[i] = delta[i] - sink_at(&lifted, i);
+                need[i] = delta[i] - sink_at(lifted, i);
             }
             followed = true;
         }
-        if factored.as_ref() != Some(&set) {
+        if !has_factor || factored != set {
             // A few points in or out: the last factor updated by their rank-one terms
             // (`cols^2` each, against the factorisation's `cols^3 / 3`); else, or where a
             // removal leaves it indefinite in round-off, factored afresh.
-            let updated = factored.as_ref().is_some_and(|last| {
-                let (added, removed) = set_changes(last, &set);
+            let updated = has_factor && {
+                set_changes(factored, set, added, removed);
                 (added.len() + removed.len()) * RANK_ONE_COST <= cols
                     && added
                         .iter()
@@ -3117,12 +3247,12 @@ fn vertical_start(
                             for &(a, wa) in &w[i] {
                                 column[a as usize] += wa * e;
                             }
-                            small_rank_one(&mut system, cols, &mut column, remove).is_some()
+                            small_rank_one(system, cols, column, remove).is_some()
                         })
-            });
+            };
             if !updated {
                 system.copy_from_slice(inverse_zz.as_slice());
-                for &i in &set {
+                for &i in set.iter() {
                     let e = 1.0 / eps[i];
                     for &(a, wa) in &w[i] {
                         let a = a as usize;
@@ -3133,24 +3263,22 @@ fn vertical_start(
                         }
                     }
                 }
-                small_cholesky(&mut system, cols)?;
+                small_cholesky(system, cols)?;
             }
-            match factored.as_mut() {
-                Some(last) => last.clone_from(&set),
-                None => factored = Some(set.clone()),
-            }
+            factored.clone_from(set);
+            has_factor = true;
         }
         y.fill(0.0);
-        for &i in &set {
+        for &i in set.iter() {
             let e = need[i] / eps[i];
             for &(a, wa) in &w[i] {
                 y[a as usize] += wa * e;
             }
         }
-        small_solve(&system, cols, &mut y);
+        small_solve(system, cols, y);
         next.clear();
         for i in 0..n {
-            normal[i] = ((need[i] - sink_at(&y, i)) / eps[i]).max(0.0);
+            normal[i] = ((need[i] - sink_at(y, i)) / eps[i]).max(0.0);
             if normal[i] > 0.0 {
                 next.push(i);
             }
@@ -3158,21 +3286,45 @@ fn vertical_start(
         if next == set {
             let (change, total) = normal
                 .iter()
-                .zip(&follow)
+                .zip(follow.iter())
                 .fold((0.0, 0.0), |(c, t), (a, b)| (c + (a - b).abs(), t + a));
             if change <= settled * total || lifted_points.is_empty() {
-                let forces: Vec<Vector3<f64>> = (0..n)
-                    .map(|i| Vector3::new(unit[i].x * normal[i], unit[i].y * normal[i], normal[i]))
-                    .collect();
-                *l = on_columns(w, &forces, k);
-                return Some(normal);
+                forces.clear();
+                forces.extend((0..n).map(|i| {
+                    Vector3::new(unit[i].x * normal[i], unit[i].y * normal[i], normal[i])
+                }));
+                on_columns_into(w, forces, sized(l, k));
+                return Some(());
             }
-            follow.copy_from_slice(&normal);
+            follow.copy_from_slice(normal);
             followed = false;
         }
-        std::mem::swap(&mut set, &mut next);
+        std::mem::swap(set, next);
     }
     None
+}
+
+/// The vectors of [`vertical_start`], kept with [`Steps`] (each sized and overwritten
+/// before it is read).
+#[derive(Default)]
+struct Vertical {
+    v: DVector<f64>,
+    at: Vec<Vector3<f64>>,
+    unit: Vec<Vector2<f64>>,
+    lifted_points: Vec<usize>,
+    sinks: Vec<f64>,
+    set: Vec<usize>,
+    follow: Vec<f64>,
+    system: Vec<f64>,
+    factored: Vec<usize>,
+    next: Vec<usize>,
+    lifted: Vec<f64>,
+    need: Vec<f64>,
+    y: Vec<f64>,
+    column: Vec<f64>,
+    added: Vec<usize>,
+    removed: Vec<usize>,
+    forces: Vec<Vector3<f64>>,
 }
 
 /// `a . b`, summed in four lanes (a reduction the compiler vectorises).
@@ -3234,8 +3386,9 @@ const RANK_ONE_COST: usize = 3;
 
 /// The points of the sorted set `now` that the sorted set `last` lacks, and those it has
 /// that `now` lacks.
-fn set_changes(last: &[usize], now: &[usize]) -> (Vec<usize>, Vec<usize>) {
-    let (mut added, mut removed) = (Vec::new(), Vec::new());
+fn set_changes(last: &[usize], now: &[usize], added: &mut Vec<usize>, removed: &mut Vec<usize>) {
+    added.clear();
+    removed.clear();
     let (mut a, mut b) = (0, 0);
     while a < last.len() && b < now.len() {
         if last[a] == now[b] {
@@ -3250,7 +3403,6 @@ fn set_changes(last: &[usize], now: &[usize]) -> (Vec<usize>, Vec<usize>) {
     }
     removed.extend_from_slice(&last[a..]);
     added.extend_from_slice(&now[b..]);
-    (added, removed)
 }
 
 /// [`small_cholesky`]'s factor `L` of `A` (row major, lower triangle) made the factor of
@@ -3383,12 +3535,32 @@ fn minimise(
     tolerance: f64,
     budget: usize,
     l: &mut DVector<f64>,
-) -> Option<(Vec<Vector3<f64>>, usize)> {
+    forces: &mut Vec<Vector3<f64>>,
+) -> Option<usize> {
     let Problem {
         g, w, delta, eps, ..
     } = *p;
     let Friction { caps, anchors, .. } = *friction;
     let k = g.nrows();
+    // (A poisoned lock's vectors are overwritten before use anyway.)
+    let mut kept = p.steps.lock().unwrap_or_else(|e| e.into_inner());
+    let Steps {
+        v,
+        wf,
+        r,
+        trial,
+        vt,
+        wt,
+        rhs,
+        s,
+        f,
+        st,
+        ft,
+        stuck,
+        stiff,
+        direction,
+        ..
+    } = &mut *kept;
     // The points' displacements (into `at`) and forces (into `out`) at loads `l` whose
     // columns sink `v = G l`, and the energy there.
     let evaluate = |l: &DVector<f64>,
@@ -3407,23 +3579,25 @@ fn minimise(
         }
         e
     };
-    let loads = |f: &[Vector3<f64>]| on_columns(w, f, k);
     // The columns' sinking, carried along each step's own (`G d`, from the descent): one
     // product with `G` a solve, not one a trial.
-    let mut v = product(g, l);
-    let (mut s, mut f) = (Vec::with_capacity(w.len()), Vec::with_capacity(w.len()));
-    let mut e = evaluate(l, &v, &mut s, &mut f);
-    // A trial's, the residual's and the points' stiffnesses: allocated once for the solve.
-    let (mut st, mut ft) = (Vec::with_capacity(w.len()), Vec::with_capacity(w.len()));
-    let mut stiff = Vec::with_capacity(w.len());
-    let (mut wf, mut r) = (DVector::zeros(k), DVector::zeros(k));
-    let (mut trial, mut vt, mut wt) = (DVector::zeros(k), DVector::zeros(k), DVector::zeros(k));
+    product_into(g, l, v);
+    let mut e = evaluate(l, v, s, f);
+    for b in [&mut *wf, &mut *r, &mut *trial, &mut *vt, &mut *wt] {
+        sized(b, k);
+    }
+    // The answer's forces, and how many Newton steps found it.
+    let done = |f: &[Vector3<f64>], forces: &mut Vec<Vector3<f64>>, steps: usize| {
+        forces.clear();
+        forces.extend_from_slice(f);
+        Some(steps)
+    };
     for it in 0..budget {
-        on_columns_into(w, &f, &mut wf);
-        r.zip_zip_apply(l, &wf, |r, l, wf| *r = l - wf);
+        on_columns_into(w, f, wf);
+        r.zip_zip_apply(l, wf, |r, l, wf| *r = l - wf);
         let scale = l.amax().max(wf.amax());
         if r.amax() <= tolerance * scale || scale == 0.0 {
-            return Some((f, it));
+            return done(f, forces, it);
         }
         // The frame's first step assumes every point with a cap stuck (see
         // [`Friction::predict_stick`]).
@@ -3454,49 +3628,50 @@ fn minimise(
                 stiff.push((i, h));
             }
         }
-        let step = if predict {
+        if predict {
             // Each capped point's friction a spring of the stick stiffness to its anchor,
             // uncapped: the step to where they all stick, taken where it descends the
             // energy (else the gradient's own).
-            let stuck: Vec<Vector3<f64>> = (0..w.len())
-                .map(|i| match caps[i] > 0.0 {
-                    true => {
-                        let t = -(s[i].xy() - anchors[i]) * (caps[i] / radius);
-                        Vector3::new(t.x, t.y, f[i].z)
-                    }
-                    false => f[i],
-                })
-                .collect();
+            stuck.clear();
+            stuck.extend((0..w.len()).map(|i| match caps[i] > 0.0 {
+                true => {
+                    let t = -(s[i].xy() - anchors[i]) * (caps[i] / radius);
+                    Vector3::new(t.x, t.y, f[i].z)
+                }
+                false => f[i],
+            }));
+            on_columns_into(w, stuck, sized(rhs, k));
+            rhs.zip_apply(&*l, |x, l| *x = l - *x);
             // Its slope on this frame's energy: `(G r) . d = r . G d`.
-            let d = p.stiff_descent(&stiff, &(&*l - loads(&stuck)), target)?;
-            match r.dot(&d.sinking) {
-                slope if slope < 0.0 => Descent { slope, ..d },
-                _ => p.gradient(&r),
+            p.stiff_descent(stiff, rhs, target, direction)?;
+            match r.dot(&direction.sinking) {
+                slope if slope < 0.0 => direction.slope = slope,
+                _ => p.gradient(r, direction),
             }
         } else {
-            p.stiff_descent(&stiff, &r, target)?
+            p.stiff_descent(stiff, r, target, direction)?
         };
         let Descent {
             step,
             sinking,
             slope,
-        } = step;
+        } = &*direction;
         let mut alpha = 1.0;
         let mut accepted = false;
         for _ in 0..MAX_HALVINGS {
-            trial.zip_zip_apply(l, &step, |t, l, d| *t = l + d * alpha);
-            vt.zip_zip_apply(&v, &sinking, |t, v, d| *t = v + d * alpha);
-            let et = evaluate(&trial, &vt, &mut st, &mut ft);
-            if takes(e, et, alpha, slope, || {
-                on_columns_into(w, &ft, &mut wt);
-                wt.zip_apply(&trial, |w, t| *w = t - *w);
+            trial.zip_zip_apply(l, step, |t, l, d| *t = l + d * alpha);
+            vt.zip_zip_apply(v, sinking, |t, v, d| *t = v + d * alpha);
+            let et = evaluate(trial, vt, st, ft);
+            if takes(e, et, alpha, *slope, || {
+                on_columns_into(w, ft, wt);
+                wt.zip_apply(trial, |w, t| *w = t - *w);
                 wt.amax() < r.amax()
             }) {
                 e = et;
-                std::mem::swap(l, &mut trial);
-                std::mem::swap(&mut v, &mut vt);
-                std::mem::swap(&mut s, &mut st);
-                std::mem::swap(&mut f, &mut ft);
+                std::mem::swap(l, trial);
+                std::mem::swap(v, vt);
+                std::mem::swap(s, st);
+                std::mem::swap(f, ft);
                 accepted = true;
                 break;
             }
@@ -3504,7 +3679,7 @@ fn minimise(
         }
         if !accepted {
             // No decrease left to find: the energy is at its minimum to round-off.
-            return Some((f, it + 1));
+            return done(f, forces, it + 1);
         }
     }
     None

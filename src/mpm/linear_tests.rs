@@ -86,6 +86,7 @@ impl Noise {
             eps,
             caps,
             anchors,
+            steps: Default::default(),
         }
     }
 }
@@ -99,6 +100,8 @@ struct FrictionProblem {
     eps: Vec<f64>,
     caps: Vec<f64>,
     anchors: Vec<Vector2<f64>>,
+    /// The vectors of its Newton steps.
+    steps: std::sync::Mutex<Steps>,
 }
 
 impl FrictionProblem {
@@ -110,6 +113,7 @@ impl FrictionProblem {
             inverse: &self.inverse,
             inverse32: None,
             scratch,
+            steps: &self.steps,
             precondition: true,
             w: &self.rows,
             delta: &self.delta,
@@ -145,6 +149,7 @@ fn the_penalty_contact_solves_the_complementarity_problem() {
             inverse: &inverse,
             inverse32: None,
             scratch: &Workspace::default(),
+            steps: &Default::default(),
             precondition: false,
             w: &rows,
             delta: &delta,
@@ -557,7 +562,8 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
             split: usize::MAX,
         };
         let mut l = DVector::zeros(3 * k);
-        let (f, _) = frictional_contact(&problem, &friction, &mut None, &mut l).expect("solved");
+        let mut f = Vec::new();
+        frictional_contact(&problem, &friction, &mut None, &mut l, &mut f).expect("solved");
         let mut balance = l.clone();
         for (row, f) in rows.iter().zip(&f) {
             for &(c, w) in row {
@@ -593,7 +599,8 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
             ..friction
         };
         let mut l = DVector::zeros(3 * k);
-        let (f, _) = frictional_contact(&problem, &friction, &mut None, &mut l).expect("solved");
+        let mut f = Vec::new();
+        frictional_contact(&problem, &friction, &mut None, &mut l, &mut f).expect("solved");
         let vertical = DMatrix::from_fn(k, k, |a, b| g[(3 * a + 2, 3 * b + 2)]);
         let mut lz = DVector::zeros(k);
         let inverse = spd_inverse(&vertical).expect("positive definite");
@@ -602,6 +609,7 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
             inverse: &inverse,
             inverse32: None,
             scratch: &Workspace::default(),
+            steps: &Default::default(),
             ..problem
         };
         let (fz, _) = penalty_contact(&problem, &mut lz).expect("solved");
@@ -640,7 +648,8 @@ fn splitting_first_finds_newtons_minimum() {
             split: usize::MAX,
         };
         let mut newton = DVector::zeros(3 * k);
-        frictional_contact(&problem, &friction, &mut None, &mut newton).expect("solved");
+        frictional_contact(&problem, &friction, &mut None, &mut newton, &mut Vec::new())
+            .expect("solved");
         let mut kept = None;
         let mut split = DVector::zeros(3 * k);
         split_start(&problem, &friction, STICK, &mut kept, &mut split);
@@ -653,6 +662,7 @@ fn splitting_first_finds_newtons_minimum() {
             FRICTION_RESIDUAL,
             MAX_NEWTON,
             &mut split,
+            &mut Vec::new(),
         )
         .expect("Newton's method finishes from the split");
         let scale = newton.amax().max(1e-300);
@@ -698,7 +708,8 @@ fn preconditioned_steps_find_the_factored_minimum() {
                 split: usize::MAX,
             };
             let mut l = DVector::zeros(3 * k);
-            frictional_contact(&problem, &friction, &mut None, &mut l).expect("solved");
+            frictional_contact(&problem, &friction, &mut None, &mut l, &mut Vec::new())
+                .expect("solved");
             let (used, blocks) = {
                 let s = scratch.lock();
                 (s.preconditioned, s.block_factors)
@@ -1091,6 +1102,7 @@ fn a_whole_pad_pressed_by_a_box_face_converges() {
         inverse: &inverse,
         inverse32: None,
         scratch: &Workspace::default(),
+        steps: &Default::default(),
         precondition: false,
         w: &rows,
         delta: &delta,
@@ -1605,11 +1617,17 @@ fn a_rank_one_change_updates_the_small_factor() {
 /// [`set_changes`] finds the points gone in and out between two sorted sets.
 #[test]
 fn the_set_changes_are_the_points_in_and_out() {
+    // Into buffers that held other points: cleared first.
+    let (mut added, mut removed) = (vec![7], vec![7, 7]);
+    let mut changes = |last: &[usize], now: &[usize]| {
+        set_changes(last, now, &mut added, &mut removed);
+        (added.clone(), removed.clone())
+    };
     assert_eq!(
-        set_changes(&[1, 3, 5, 8], &[0, 3, 5, 9, 10]),
+        changes(&[1, 3, 5, 8], &[0, 3, 5, 9, 10]),
         (vec![0, 9, 10], vec![1, 8])
     );
-    assert_eq!(set_changes(&[], &[2, 4]), (vec![2, 4], vec![]));
-    assert_eq!(set_changes(&[2, 4], &[]), (vec![], vec![2, 4]));
-    assert_eq!(set_changes(&[2, 4], &[2, 4]), (vec![], vec![]));
+    assert_eq!(changes(&[], &[2, 4]), (vec![2, 4], vec![]));
+    assert_eq!(changes(&[2, 4], &[]), (vec![], vec![2, 4]));
+    assert_eq!(changes(&[2, 4], &[2, 4]), (vec![], vec![]));
 }

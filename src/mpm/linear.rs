@@ -296,6 +296,11 @@ struct ContactBuffers {
     steps: Mutex<Steps>,
     /// The normal forces [`vertical_start`] found.
     normal: Vec<f64>,
+    /// The candidates' friction caps and anchors ([`Compliance::frictions`]).
+    caps: Vec<f64>,
+    anchors: Vec<Vector2<f64>>,
+    /// Points left out that the surface rose above.
+    risen: Vec<usize>,
 }
 
 /// The dense systems of one set of node columns under a contact.
@@ -318,6 +323,9 @@ struct LocalSystem {
     scratch: Workspace,
     /// The factor [`split_start`] made for these columns, kept for the next solve.
     split: Option<SplitFactor>,
+    /// The inverse of `g`'s vertical block ([`vertical_inverse`]), made where a frame's
+    /// start first asks for it ([`vertical_start`]) and kept with these columns.
+    vertical: std::sync::OnceLock<Option<DMatrix<f64>>>,
 }
 
 /// A set of node columns whose dense systems were made afresh, from which those of the
@@ -1356,6 +1364,7 @@ impl Compliance {
             base,
             scratch: Workspace::default(),
             split: None,
+            vertical: Default::default(),
         }
     }
 
@@ -1509,6 +1518,9 @@ impl Compliance {
             l: mut loads,
             steps,
             mut normal,
+            mut caps,
+            mut anchors,
+            mut risen,
         } = std::mem::take(self.buffers.get_mut());
         self.near_into(indenters, &mut near);
         rest.clear();
@@ -1695,10 +1707,10 @@ impl Compliance {
                         && from_last
                         && self.vertical
                         && 3 * local.len() < self.split_unknowns;
-                    let mut vertical = None;
+                    let mut vertical: Option<&DMatrix<f64>> = None;
                     let mut pass = 0;
-                    let (caps, anchors) = loop {
-                        let (caps, anchors) = self.frictions(
+                    loop {
+                        self.frictions(
                             &cand,
                             &lag,
                             &near,
@@ -1707,16 +1719,20 @@ impl Compliance {
                             starts,
                             indenters,
                             &mut offsets,
+                            &mut caps,
+                            &mut anchors,
                         );
                         if pass == 0
                             && may_slide
                             && StartDemand::at(&problem, &caps, &anchors, l).asks_vertical()
                         {
-                            vertical = vertical_inverse(&system.g);
+                            vertical = system
+                                .vertical
+                                .get_or_init(|| vertical_inverse(&system.g))
+                                .as_ref();
                         }
-                        let Some(inverse_zz) = vertical.as_ref().filter(|_| pass < VERTICAL_PASSES)
-                        else {
-                            break (caps, anchors);
+                        let Some(inverse_zz) = vertical.filter(|_| pass < VERTICAL_PASSES) else {
+                            break;
                         };
                         if vertical_start(
                             &problem,
@@ -1730,13 +1746,13 @@ impl Compliance {
                         )
                         .is_none()
                         {
-                            break (caps, anchors);
+                            break;
                         }
                         for (&i, &fi) in cand.iter().zip(&normal) {
                             lag[i] = fi;
                         }
                         pass += 1;
-                    };
+                    }
                     let friction = Friction {
                         caps: &caps,
                         anchors: &anchors,
@@ -1796,9 +1812,8 @@ impl Compliance {
                 .map(|i| delta[i] + u[i].z - soft[i] * forces[i].z)
                 .fold(0.0, f64::max);
             // Points left out that the surface rose above their clearance: in, and again.
-            let risen: Vec<usize> = (0..near.len())
-                .filter(|&i| !known[i] && u[i].z > clear[i])
-                .collect();
+            risen.clear();
+            risen.extend((0..near.len()).filter(|&i| !known[i] && u[i].z > clear[i]));
             for &i in &risen {
                 (delta[i], known[i]) = (depth(self, &rest[i]), true);
                 if delta[i] > f64::NEG_INFINITY {
@@ -1858,6 +1873,9 @@ impl Compliance {
             l: loads,
             steps,
             normal,
+            caps,
+            anchors,
+            risen,
         };
         contact
     }
@@ -1884,7 +1902,9 @@ impl Compliance {
         starts: &[Isometry3<f64>],
         indenters: &[StepIndenter],
         offsets: &mut [Vector2<f64>],
-    ) -> (Vec<f64>, Vec<Vector2<f64>>) {
+        caps: &mut Vec<f64>,
+        anchors: &mut Vec<Vector2<f64>>,
+    ) {
         let count = (self.lattice[0] * self.lattice[1]) as u32;
         for &i in cand {
             // (Tip points, which stand for a patch, carry no friction.)
@@ -1902,13 +1922,14 @@ impl Compliance {
                 }
             }
         }
-        let caps = cand
-            .iter()
-            .map(|&i| match self.anchors.contains_key(&near[i]) {
-                true => self.friction * lag[i],
-                false => 0.0,
-            })
-            .collect();
+        caps.clear();
+        caps.extend(
+            cand.iter()
+                .map(|&i| match self.anchors.contains_key(&near[i]) {
+                    true => self.friction * lag[i],
+                    false => 0.0,
+                }),
+        );
         for &i in cand {
             offsets[i] = self
                 .anchors
@@ -1916,7 +1937,8 @@ impl Compliance {
                 .and_then(|a| self.anchor_at(a, indenters))
                 .map_or(Vector2::zeros(), |a| (a - rest[i]).xy());
         }
-        (caps, cand.iter().map(|&i| offsets[i]).collect())
+        anchors.clear();
+        anchors.extend(cand.iter().map(|&i| offsets[i]));
     }
 
     /// After a frame with friction (points `near`, their forces on the gel, displacements,
@@ -2761,6 +2783,8 @@ struct Steps {
     direction: Descent,
     /// [`vertical_start`]'s.
     vertical: Vertical,
+    /// [`frictional_contact`]'s loads at its start.
+    start: DVector<f64>,
 }
 
 /// `v` with `n` entries, its allocation kept (nalgebra's own resizing shrinks it to fit):
@@ -3019,6 +3043,44 @@ struct Friction<'a> {
     split: usize,
 }
 
+/// [`frictional_contact`]'s warm start: Newton's method from `l` (a held grasp, a press
+/// moving on: one to three steps); if it is still changing which points stick, split,
+/// and finished with it. `None` (`l` spoilt) where that does not converge within
+/// [`WARM_NEWTON`] steps.
+fn warm_contact(
+    p: &Problem,
+    friction: &Friction,
+    kept: &mut Option<SplitFactor>,
+    l: &mut DVector<f64>,
+    forces: &mut Vec<Vector3<f64>>,
+) -> Option<usize> {
+    let budget = WARM_NEWTON;
+    let split = l.len() >= friction.split;
+    let first = if split { SPLIT_AFTER } else { budget };
+    if let Some(answer) = minimise(p, friction, STICK, friction.residual, first, l, forces) {
+        return Some(answer);
+    }
+    if !split {
+        return None;
+    }
+    // (Where the start is already the answer, it is left to Newton's method as it came.)
+    let moved = split_start(p, friction, STICK, kept, l) > 0;
+    let friction = &Friction {
+        predict_stick: friction.predict_stick && !moved,
+        ..*friction
+    };
+    minimise(
+        p,
+        friction,
+        STICK,
+        friction.residual,
+        budget - first,
+        l,
+        forces,
+    )
+    .map(|steps| steps + first)
+}
+
 /// The penalty contact with friction, in the node columns' loads `l` (+x, +y and
 /// downward per column): the columns move `v = G l` (+x, +y and sinking; `G` symmetric,
 /// positive definite), the points `s = W v`; each presses with `f = max(0, delta - s_z) /
@@ -3041,36 +3103,19 @@ fn frictional_contact(
 ) -> Option<usize> {
     let mut total = 0;
     if friction.warm {
-        let start = l.clone();
-        let budget = WARM_NEWTON;
-        // Newton's method first (a held grasp, a press moving on: one to three steps); if
-        // it is still changing which points stick, split, and finish with it.
-        let split = l.len() >= friction.split;
-        let first = if split { SPLIT_AFTER } else { budget };
-        if let Some(answer) = minimise(p, friction, STICK, friction.residual, first, l, forces) {
-            return Some(answer);
+        // The start kept in the steps' vectors (a poisoned lock's are overwritten anyway).
+        let steps = || p.steps.lock().unwrap_or_else(|e| e.into_inner());
+        let mut start = std::mem::take(&mut steps().start);
+        sized(&mut start, l.len()).copy_from(l);
+        let answer = warm_contact(p, friction, kept, l, forces);
+        if answer.is_none() {
+            l.copy_from(&start);
+            total = WARM_NEWTON;
         }
-        if split {
-            // (Where the start is already the answer, it is left to Newton's method as
-            // it came.)
-            let moved = split_start(p, friction, STICK, kept, l) > 0;
-            let friction = &Friction {
-                predict_stick: friction.predict_stick && !moved,
-                ..*friction
-            };
-            if let Some(steps) = minimise(
-                p,
-                friction,
-                STICK,
-                friction.residual,
-                budget - first,
-                l,
-                forces,
-            ) {
-                return Some(steps + first);
-            }
+        steps().start = start;
+        if answer.is_some() {
+            return answer;
         }
-        (*l, total) = (start, budget);
     }
     let stages = [STICK * 100.0, STICK * 10.0, STICK];
     for (n, &radius) in stages.iter().enumerate() {
@@ -3471,25 +3516,54 @@ impl StartDemand {
             g, w, delta, eps, ..
         } = *p;
         let k = g.nrows();
-        let at = at_points(w, &product(g, l));
-        let forces: Vec<Vector3<f64>> = (0..w.len())
-            .map(|i| point_force(&at[i], delta[i], eps[i], caps[i], &anchors[i], STICK).0)
-            .collect();
-        let wf = on_columns(w, &forces, k);
+        // (A poisoned lock's vectors are overwritten before use anyway.)
+        let mut kept = p.steps.lock().unwrap_or_else(|e| e.into_inner());
+        let Steps {
+            v,
+            wf,
+            s: at,
+            f: forces,
+            ..
+        } = &mut *kept;
+        product_into(g, l, v);
+        at_points_into(w, v, at);
+        forces.clear();
+        forces.extend(
+            (0..w.len())
+                .map(|i| point_force(&at[i], delta[i], eps[i], caps[i], &anchors[i], STICK).0),
+        );
+        on_columns_into(w, forces, sized(wf, k));
         let (mut residual, mut scale) = (0.0f64, 0.0f64);
         for c in (2..k).step_by(3) {
             residual = residual.max((l[c] - wf[c]).abs());
             scale = scale.max(l[c].abs()).max(wf[c].abs());
         }
         let imbalance = if scale > 0.0 { residual / scale } else { 0.0 };
+        let Steps {
+            v,
+            wf,
+            s: at,
+            f: pulls,
+            st: moved,
+            ..
+        } = &mut *kept;
         StartDemand {
-            slip: Self::slip(p, caps, anchors, &at),
+            slip: Self::slip(p, caps, anchors, at, [v, wf], pulls, moved),
             imbalance,
         }
     }
 
-    /// [`StartDemand::slip`] from the points' displacements `at` at the start.
-    fn slip(p: &Problem, caps: &[f64], anchors: &[Vector2<f64>], at: &[Vector3<f64>]) -> f64 {
+    /// [`StartDemand::slip`] from the points' displacements `at` at the start (`columns`,
+    /// `pulls` and `moved` its vectors, overwritten).
+    fn slip(
+        p: &Problem,
+        caps: &[f64],
+        anchors: &[Vector2<f64>],
+        at: &[Vector3<f64>],
+        columns: [&mut DVector<f64>; 2],
+        pulls: &mut Vec<Vector3<f64>>,
+        moved: &mut Vec<Vector3<f64>>,
+    ) -> f64 {
         let Problem { g, w, .. } = *p;
         let k = g.nrows();
         let (mut demand, mut weight) = (Vector2::zeros(), 0.0);
@@ -3504,10 +3578,12 @@ impl StartDemand {
         let Some(towards) = (-demand).try_normalize(0.0) else {
             return 0.0;
         };
-        let pulls: Vec<Vector3<f64>> = (0..w.len())
-            .map(|i| Vector3::new(towards.x, towards.y, 0.0) * caps[i])
-            .collect();
-        let moved = at_points(w, &product(g, &on_columns(w, &pulls, k)));
+        pulls.clear();
+        pulls.extend((0..w.len()).map(|i| Vector3::new(towards.x, towards.y, 0.0) * caps[i]));
+        let [loads, sinking] = columns;
+        on_columns_into(w, pulls, sized(loads, k));
+        product_into(g, loads, sinking);
+        at_points_into(w, sinking, moved);
         let follow: f64 = (0..w.len())
             .filter(|&i| caps[i] > 0.0)
             .map(|i| moved[i].xy().dot(&towards) * caps[i])

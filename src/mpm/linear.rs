@@ -301,6 +301,24 @@ struct ContactBuffers {
     anchors: Vec<Vector2<f64>>,
     /// Points left out that the surface rose above.
     risen: Vec<usize>,
+    /// The last [`Contact`]'s points and forces, taken back ([`Compliance::recycle`]).
+    points: Vec<Vector3<f64>>,
+    loaded: Vec<Vector3<f64>>,
+    /// [`Compliance::small_contacts`]'.
+    small: SmallScratch,
+}
+
+/// The buffers of [`Compliance::small_contacts`]: the lattice points inside the
+/// indenters (by index), which of them a patch has taken, the patches' points one after
+/// another, each patch kept as a point (its range there, position, clearance and
+/// compliance), and the lattice points they stand for.
+#[derive(Default)]
+struct SmallScratch {
+    inside: HashMap<u32, usize>,
+    seen: Vec<bool>,
+    flat: Vec<usize>,
+    patches: Vec<((usize, usize), Vector3<f64>, f64, f64)>,
+    replaced: Vec<u32>,
 }
 
 /// The dense systems of one set of node columns under a contact.
@@ -1119,7 +1137,8 @@ impl Compliance {
     /// with their share of the face and the patch's compliance less the grid's in series
     /// with its penalty, and its lattice points leave the contact. Larger patches keep
     /// their lattice points. The new points are appended to `near`, `rest`, `clear` and
-    /// `soft` (indices from `first`); returns the lattice points they stand for.
+    /// `soft` (indices from `first`); the lattice points they stand for are left in
+    /// `scratch.replaced`.
     fn small_contacts(
         &mut self,
         first: u32,
@@ -1128,31 +1147,42 @@ impl Compliance {
         rest: &mut Vec<Vector3<f64>>,
         clear: &mut Vec<f64>,
         soft: &mut Vec<f64>,
-    ) -> Vec<u32> {
+        scratch: &mut SmallScratch,
+    ) {
+        let SmallScratch {
+            inside,
+            seen,
+            flat,
+            patches,
+            replaced,
+        } = scratch;
+        replaced.clear();
         let count = (self.lattice[0] * self.lattice[1]) as u32;
         let lattice = near.partition_point(|&k| k < count);
-        // (Sized first: collected from the filter, whose length it could not know, the
-        // map grew by rehashing.)
-        let mut inside: HashMap<u32, usize> =
-            HashMap::with_capacity((0..lattice).filter(|&i| clear[i] < 0.0).count());
+        // (Kept between frames: the map grew by rehashing where it was made anew.)
+        inside.clear();
         inside.extend(
             (0..lattice)
                 .filter(|&i| clear[i] < 0.0)
                 .map(|i| (near[i], i)),
         );
         if inside.is_empty() {
-            return Vec::new();
+            return;
         }
         let [nx, ny] = self.lattice.map(|n| n as i64);
-        let mut seen = vec![false; lattice];
-        let mut points = Vec::new();
+        refill(seen, lattice, false);
+        flat.clear();
+        patches.clear();
         for start in 0..lattice {
             if !(clear[start] < 0.0) || seen[start] {
                 continue;
             }
             seen[start] = true;
-            let mut list = vec![start];
-            let mut next = 0;
+            // This patch's points: `flat[from..]`.
+            let from = flat.len();
+            flat.push(start);
+            let list = &mut *flat;
+            let mut next = from;
             while next < list.len() {
                 let k = near[list[next]] as i64;
                 next += 1;
@@ -1172,8 +1202,10 @@ impl Compliance {
             // size, and a footprint two thirds its radius, are stiffer than the grid's
             // point load (the lattice points' count measures a large footprint well).
             let grid = self.point_compliance(&rest[start]);
+            let list = &flat[from..];
             let n = list.len() as f64;
             if self.patch_compliance(n / (1.5f64).powi(2), CONE_FULLNESS, 1.0) < grid {
+                flat.truncate(from);
                 continue;
             }
             let lo = list
@@ -1189,17 +1221,20 @@ impl Compliance {
             };
             let face = self.spacing[0] * self.spacing[1];
             let Some(f) = footprint(self.footprint_samples(lo, hi), face, distance, depth) else {
+                flat.truncate(from);
                 continue;
             };
             let missing =
                 self.patch_compliance(f.share, f.fullness, f.aspect) - self.point_compliance(&f.at);
             if missing > 0.0 {
-                points.push((list, f.at, f.distance, self.softness / f.share + missing));
+                let patch = (from, flat.len());
+                patches.push((patch, f.at, f.distance, self.softness / f.share + missing));
+            } else {
+                flat.truncate(from);
             }
         }
-        let mut replaced = Vec::new();
-        for (k, (list, at, d, compliance)) in points.into_iter().enumerate() {
-            for i in list {
+        for (k, &((from, to), at, d, compliance)) in patches.iter().enumerate() {
+            for &i in &flat[from..to] {
                 clear[i] = f64::INFINITY;
                 replaced.push(near[i]);
             }
@@ -1208,7 +1243,6 @@ impl Compliance {
             clear.push(d);
             soft.push(compliance);
         }
-        replaced
     }
 
     /// Where the anchor `a` is now (cells).
@@ -1521,6 +1555,9 @@ impl Compliance {
             mut caps,
             mut anchors,
             mut risen,
+            mut points,
+            loaded: mut loaded_forces,
+            mut small,
         } = std::mem::take(self.buffers.get_mut());
         self.near_into(indenters, &mut near);
         rest.clear();
@@ -1544,9 +1581,11 @@ impl Compliance {
             }
         }
         let first = count + indenters.len() as u32;
-        let _replaced = self.small_contacts(
-            first, indenters, &mut near, &mut rest, &mut clear, &mut soft,
+        self.small_contacts(
+            first, indenters, &mut near, &mut rest, &mut clear, &mut soft, &mut small,
         );
+        #[cfg(test)]
+        let _replaced = small.replaced.clone();
         stencils.clear();
         stencils.extend(rest.iter().map(|x| self.columns_at(x)));
         refill(&mut forces, near.len(), Vector3::zeros());
@@ -1832,14 +1871,18 @@ impl Compliance {
         surface.extend(self.slots.iter().map(|s| Self::displacement(s, &columns)));
         // The frame's columns kept as the last; the last's allocation kept for the next.
         std::mem::swap(&mut self.last, &mut columns);
-        let loaded: Vec<usize> = (0..near.len()).filter(|&i| forces[i].z > 0.0).collect();
+        let loaded = || (0..near.len()).filter(|&i| forces[i].z > 0.0);
+        points.clear();
+        points.extend(loaded().map(|i| rest[i] + u[i]));
+        loaded_forces.clear();
+        loaded_forces.extend(loaded().map(|i| forces[i]));
         let contact = Contact {
             #[cfg(test)]
-            loaded: loaded.iter().map(|&i| near[i]).collect(),
+            loaded: loaded().map(|i| near[i]).collect(),
             #[cfg(test)]
             replaced: _replaced,
-            points: loaded.iter().map(|&i| rest[i] + u[i]).collect(),
-            forces: loaded.iter().map(|&i| forces[i]).collect(),
+            points,
+            forces: loaded_forces,
             #[cfg(test)]
             columns: self.last.clone(),
             surface,
@@ -1876,14 +1919,20 @@ impl Compliance {
             caps,
             anchors,
             risen,
+            points: Vec::new(),
+            loaded: Vec::new(),
+            small,
         };
         contact
     }
 
-    /// Takes back the surface of a frame's [`Contact`] once it is read, for the next
-    /// frame's (its allocation reused).
+    /// Takes back the surface, points and forces of a frame's [`Contact`] once they are
+    /// read, for the next frame's (their allocations reused).
     pub fn recycle(&mut self, contact: Contact) {
-        self.buffers.get_mut().surface = contact.surface;
+        let buffers = self.buffers.get_mut();
+        buffers.surface = contact.surface;
+        buffers.points = contact.points;
+        buffers.loaded = contact.forces;
     }
 
     /// Friction's data for a refresh of the lagged normal forces `lag` on the candidate
@@ -1954,30 +2003,37 @@ impl Compliance {
         rest: &[Vector3<f64>],
         indenters: &[StepIndenter],
     ) {
-        let mut kept = BTreeMap::new();
         self.lagged.clear();
         for (i, &k) in near.iter().enumerate() {
-            if forces[i].z <= 0.0 {
-                continue;
+            if forces[i].z > 0.0 {
+                self.lagged.insert(k, forces[i]);
             }
-            self.lagged.insert(k, forces[i]);
-            let Some(mut a) = self.anchors.get(&k).copied() else {
-                continue;
+        }
+        // The anchors of the points pressed now (`near` is in index order), each dragged
+        // where it slid; the others go. In place: the map's nodes are not made anew.
+        let origin = self.origin;
+        let dx = self.dx;
+        self.anchors.retain(|k, a| {
+            let Ok(i) = near.binary_search(k) else {
+                return false;
             };
-            let Some(at) = self.anchor_at(&a, indenters) else {
-                continue;
+            let Some(ind) = indenters.get(a.indenter) else {
+                return false;
             };
+            if forces[i].z <= 0.0 {
+                return false;
+            }
+            let at = ((ind.now * a.local).coords - origin) / dx;
             let t = u[i].xy() - offsets[i];
             let y = t.norm();
             if y > STICK {
                 let moved = Vector3::new(rest[i].x + offsets[i].x, rest[i].y + offsets[i].y, at.z)
                     + Vector3::new(t.x, t.y, 0.0) * (1.0 - STICK / y);
-                let p = Point3::from(self.origin + moved * self.dx);
-                a.local = indenters[a.indenter].now.inverse_transform_point(&p);
+                let p = Point3::from(origin + moved * dx);
+                a.local = ind.now.inverse_transform_point(&p);
             }
-            kept.insert(k, a);
-        }
-        self.anchors = kept;
+            true
+        });
     }
 
     /// Renumbers the anchors' indenters (`matched[i]`: previous index of indenter `i`);

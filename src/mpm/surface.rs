@@ -22,6 +22,7 @@ use rayon::prelude::*;
 
 use super::Gel;
 use crate::geometry::PixelGrid;
+use crate::scratch::refill;
 
 /// A lattice box `[ix0, ix1, iy0, iy1)` that holds nothing yet.
 pub(super) const EMPTY_BOX: [usize; 4] = [usize::MAX, 0, usize::MAX, 0];
@@ -241,9 +242,12 @@ fn seen_with(
     gel.pool.install(|| {
         seen.par_chunks_mut(cols.len())
             .zip(rows.clone().into_par_iter())
-            .for_each_init(
-                || vec![[Vector3::zeros(); 2]; nx],
-                |mixed, (line, row)| {
+            .for_each(|(line, row)| {
+                // The row's field mixed by its vertical taps, in this thread's buffer.
+                MIXED.with_borrow_mut(|mixed| {
+                    if mixed.len() != nx {
+                        refill(mixed, nx, [Vector3::zeros(); 2]);
+                    }
                     let pb = (grid.y(row) - y0) / sy;
                     let vertical = Taps::at(pb, ny);
                     if curvature.is_some() {
@@ -272,8 +276,8 @@ fn seen_with(
                             }
                         };
                     }
-                },
-            )
+                })
+            })
     });
     for (line, row) in seen.chunks_exact(cols.len()).zip(rows) {
         for (d, col) in line.iter().zip(cols.clone()) {
@@ -284,6 +288,12 @@ fn seen_with(
         *cells = c.cells;
     }
     gel.pixels.put(kept);
+}
+
+thread_local! {
+    /// A row's field mixed by its vertical taps ([`Taps::mix_rows`]), one per thread of
+    /// [`seen_with`]'s pool, kept between images.
+    static MIXED: std::cell::RefCell<Vec<[Vector3<f64>; 2]>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// The buffers of [`seen_with`], kept with the gel between images

@@ -919,6 +919,10 @@ pub struct Rom {
     zmin: Vec<f64>,
     enc_in: Vec<f32>,
     query: Vec<f32>,
+    /// The decoded lattice points, in the order of the query rows, and their depths
+    /// (model units), kept between frames.
+    points: Vec<usize>,
+    decoded: Vec<f32>,
     region: Vec<bool>,
     /// [`features::region`]'s buffer.
     region_steps: Vec<usize>,
@@ -987,6 +991,8 @@ impl Rom {
             zmin: Vec::new(),
             enc_in: Vec::new(),
             query: Vec::new(),
+            points: Vec::new(),
+            decoded: Vec::new(),
             region: Vec::new(),
             region_steps: Vec::new(),
             lattice_depth: Vec::new(),
@@ -1101,6 +1107,13 @@ impl Rom {
 
     /// Runs the encoder on an observation: `z` (`latent` values).
     pub fn encode(&mut self, obs: &Observation) -> Result<Vec<f32>, RomError> {
+        let mut z = Vec::new();
+        self.encode_into(obs, &mut z)?;
+        Ok(z)
+    }
+
+    /// [`Rom::encode`] into `z` (its allocation kept).
+    fn encode_into(&mut self, obs: &Observation, z_out: &mut Vec<f32>) -> Result<(), RomError> {
         let spec = self.manifest.lattice;
         obs.encoder_input(&spec, &mut self.enc_in);
         let e = self.enc_in.len();
@@ -1114,7 +1127,9 @@ impl Rom {
         let (_, z) = out["z"]
             .try_extract_tensor::<f32>()
             .map_err(|e| run_err("encoder", e))?;
-        Ok(z.to_vec())
+        z_out.clear();
+        z_out.extend_from_slice(z);
+        Ok(())
     }
 
     /// Runs the decoder at `points` query rows of `query`: depth (model units).
@@ -1285,16 +1300,22 @@ impl Rom {
     pub fn infer(&mut self, obs: &Observation) -> Result<RomReport, RomError> {
         let mut report = RomReport::default();
         let t0 = Instant::now();
-        self.z = self.encode(obs)?;
+        let mut z = std::mem::take(&mut self.z);
+        let encoded = self.encode_into(obs, &mut z);
+        self.z = z;
+        encoded?;
         self.compute_region(obs);
         report.encode_s = t0.elapsed().as_secs_f64();
         if self.refine_enabled() {
             self.refine(obs, &mut report)?;
         }
-        let points = self.decode_region(obs, &mut report)?;
+        self.decode_region(obs, &mut report)?;
         if self.pressure.is_some() {
             let t = Instant::now();
-            self.infer_pressure(obs, &points)?;
+            let points = std::mem::take(&mut self.points);
+            let pressure = self.infer_pressure(obs, &points);
+            self.points = points;
+            pressure?;
             report.decode_s += t.elapsed().as_secs_f64();
         }
         Ok(report)
@@ -1354,30 +1375,39 @@ impl Rom {
 
     /// Dense decoding of the deformable region at the current `z` into the lattice depth,
     /// bounded by the depth rule (the report's excesses and decoded points are this
-    /// decoding's); returns the decoded lattice points in the order of the query rows.
-    fn decode_region(
-        &mut self,
-        obs: &Observation,
-        report: &mut RomReport,
-    ) -> Result<Vec<usize>, RomError> {
+    /// decoding's); leaves the decoded lattice points in `self.points`, in the order of
+    /// the query rows.
+    fn decode_region(&mut self, obs: &Observation, report: &mut RomReport) -> Result<(), RomError> {
         let t2 = Instant::now();
         let spec = self.manifest.lattice;
         self.query.clear();
-        let mut points = Vec::with_capacity(self.region.iter().filter(|&&inside| inside).count());
+        self.points.clear();
         for (i, &inside) in self.region.iter().enumerate() {
             if inside {
                 query_features(obs, &spec, i / spec.nx, i % spec.nx, &mut self.query);
-                points.push(i);
+                self.points.push(i);
             }
         }
         self.lattice_depth.clear();
         self.lattice_depth.extend_from_slice(&obs.coarse);
-        let query = std::mem::take(&mut self.query);
-        let z = self.z.clone();
-        let d = self.decode(&z, &query);
-        self.query = query;
-        let d = d?;
-        for (&i, &v) in points.iter().zip(&d) {
+        let f = spec.query_len();
+        let n = self.query.len() / f;
+        if n > 0 {
+            run_field_into(
+                &mut self.decoder,
+                "decoder",
+                "depth",
+                &self.z,
+                &self.query,
+                n,
+                f,
+                &mut self.decoded,
+            )?;
+        } else {
+            self.decoded.clear();
+        }
+        let (points, d) = (&self.points, &self.decoded);
+        for (&i, &v) in points.iter().zip(d) {
             let v = v as f64 / spec.depth_scale;
             self.lattice_depth[i] = if v.is_finite() { v } else { obs.coarse[i] };
         }
@@ -1387,9 +1417,9 @@ impl Rom {
             .zip(&obs.pen)
             .fold(0.0, |m, (&d, &p)| m.max(p - d));
         report.bound_excess = obs.rule.apply(&mut self.lattice_depth, &obs.pen);
-        report.decoded = points.len();
+        report.decoded = self.points.len();
         report.decode_s += t2.elapsed().as_secs_f64();
-        Ok(points)
+        Ok(())
     }
 
     /// Runs the pressure head at the lattice points `points` (the region's, in the order of
@@ -1693,6 +1723,23 @@ pub(crate) fn run_field(
     f: usize,
 ) -> Result<Vec<f32>, RomError> {
     let mut values = Vec::with_capacity(n);
+    run_field_into(graph, name, output, z, query, n, f, &mut values)?;
+    Ok(values)
+}
+
+/// [`run_field`] into `values` (cleared first, its allocation kept).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn run_field_into(
+    graph: &mut Graph,
+    name: &'static str,
+    output: &str,
+    z: &[f32],
+    query: &[f32],
+    n: usize,
+    f: usize,
+    values: &mut Vec<f32>,
+) -> Result<(), RomError> {
+    values.clear();
     for start in (0..n).step_by(FIELD_ROWS) {
         let rows = FIELD_ROWS.min(n - start);
         let zt =
@@ -1708,7 +1755,7 @@ pub(crate) fn run_field(
             .map_err(|e| run_err(name, e))?;
         values.extend_from_slice(v);
     }
-    Ok(values)
+    Ok(())
 }
 
 /// Rows of one run of a field graph ([`run_field`]): more are run in parts. ONNX

@@ -123,6 +123,9 @@ pub struct TactileSensor {
     /// the state): a frame whose indenters are these, moved less than `hold`, is that
     /// solve's frame again.
     solved: Vec<Placed>,
+    /// The list a frame gathers its touching indenters in (the last but one frame's,
+    /// kept for its allocation).
+    spare: Vec<Placed>,
     /// The configuration's `hold` where the model has a state, else 0 (never held).
     hold: f64,
     /// How deep the last solve's indenters reached below the gel's face (m; part of the
@@ -251,6 +254,7 @@ impl TactileSensor {
             refraction,
             scratch: vec![0.0; scratch_len],
             solved: Vec::new(),
+            spare: Vec::new(),
             solved_depth: 0.0,
             hold: Self::hold_of(&config, models::state_len(&config, 1)),
             fresh: false,
@@ -273,6 +277,7 @@ impl TactileSensor {
             refraction: self.refraction.clone(),
             scratch: self.scratch.clone(),
             solved: self.solved.clone(),
+            spare: Vec::new(),
             solved_depth: self.solved_depth,
             hold: self.hold,
             fresh: self.fresh,
@@ -447,7 +452,9 @@ impl TactileSensor {
     pub fn evaluate(&mut self, indenters: &[Placed], out: &mut [f64]) -> Evaluation {
         let mut eval = Evaluation::default();
         let t0 = Instant::now();
-        let mut touching: Vec<Placed> = self.touching(indenters).cloned().collect();
+        let mut touching = std::mem::take(&mut self.spare);
+        touching.clear();
+        touching.extend(self.touching(indenters).cloned());
         eval.contact = !touching.is_empty();
         eval.held = self.holds(&touching);
         if eval.held {
@@ -460,6 +467,7 @@ impl TactileSensor {
                 let t1 = Instant::now();
                 self.write_outputs(out);
                 eval.times.render = t1.elapsed().as_secs_f64();
+                self.spare = touching;
                 return eval;
             }
             touching.clone_from(&self.solved);
@@ -476,6 +484,7 @@ impl TactileSensor {
             let t1 = Instant::now();
             self.write_outputs(out);
             eval.times.render = t1.elapsed().as_secs_f64();
+            self.spare = touching;
             return eval;
         }
         let t = self.config.size[2];
@@ -560,9 +569,14 @@ impl TactileSensor {
             // A solve that stopped short of equilibrium is not held: the next frame carries
             // it on.
             let settled = eval.solve.as_ref().map_or(true, |r| r.converged);
-            self.solved = if settled { touching } else { Vec::new() };
+            if settled {
+                std::mem::swap(&mut self.solved, &mut touching);
+            } else {
+                self.solved.clear();
+            }
             self.solved_depth = -self.zmin.iter().copied().fold(0.0, f64::min);
         }
+        self.spare = touching;
         self.fresh = true;
         eval
     }

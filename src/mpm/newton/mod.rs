@@ -418,18 +418,17 @@ pub(super) struct Anchor {
 /// Renumbers the indenters of `anchors` (`matched[i]`: previous index of indenter `i`);
 /// anchors of indenters that are gone are dropped.
 pub(super) fn remap_anchors(anchors: &mut BTreeMap<u32, Anchor>, matched: &[Option<usize>]) {
-    let new_index: BTreeMap<usize, usize> = matched
-        .iter()
-        .enumerate()
-        .filter_map(|(i, m)| m.map(|j| (j, i)))
-        .collect();
-    anchors.retain(|_, a| match new_index.get(&a.indenter) {
-        Some(&i) => {
-            a.indenter = i;
-            true
-        }
-        None => false,
-    });
+    // Each previous indenter has one successor at most (a search over the few
+    // indenters, where a map of them was made every frame).
+    anchors.retain(
+        |_, a| match matched.iter().position(|&m| m == Some(a.indenter)) {
+            Some(i) => {
+                a.indenter = i;
+                true
+            }
+            None => false,
+        },
+    );
 }
 
 /// The state of one contact point at a displacement field.

@@ -624,6 +624,58 @@ fn the_frictional_contact_is_the_minimum_of_its_energy() {
     }
 }
 
+/// A frame's Newton steps allocate nothing once their vectors are sized: on random
+/// problems (up to 24 columns and 60 points: below [`MIXED_UNKNOWNS`], the steps a
+/// sliding press takes), the same frictional solve again from the same start, cold (the
+/// stick radii in stages) and warm (straight at the stick radius, the step that predicts
+/// every point stuck), and the same vertical start again, make no allocation on this
+/// thread and give the same loads and forces to the bit.
+#[test]
+fn newton_steps_allocate_nothing_once_their_vectors_are_sized() {
+    use crate::scratch::counting::allocations;
+    let mut noise = Noise(0x6a09_e667_f3bc_c909);
+    for trial in 0..12 {
+        let k = 4 + 2 * trial;
+        let m = 10 + 5 * trial;
+        let random = noise.friction_problem(k, m);
+        let scratch = Workspace::default();
+        let problem = random.problem(&scratch);
+        let friction = Friction {
+            caps: &random.caps,
+            anchors: &random.anchors,
+            warm: trial % 2 == 0,
+            residual: FRICTION_RESIDUAL,
+            predict_stick: trial % 2 == 0,
+            split: usize::MAX,
+        };
+        let (mut l, mut f) = (DVector::zeros(3 * k), Vec::new());
+        frictional_contact(&problem, &friction, &mut None, &mut l, &mut f).expect("solved");
+        let (mut again, mut f_again) = (DVector::zeros(3 * k), Vec::with_capacity(m));
+        let (solved, calls) = allocations(|| {
+            frictional_contact(&problem, &friction, &mut None, &mut again, &mut f_again)
+        });
+        assert!(solved.is_some(), "trial {trial}");
+        assert_eq!(calls, 0, "trial {trial}: the frictional solve allocated");
+        assert_eq!(again, l, "trial {trial}");
+        assert_eq!(f_again, f, "trial {trial}");
+        let inverse_zz = vertical_inverse(&random.g).expect("positive definite");
+        let start = |l: &mut DVector<f64>, normal: &mut Vec<f64>| {
+            l.fill(0.0);
+            let (caps, anchors) = (&random.caps, &random.anchors);
+            vertical_start(&problem, &inverse_zz, 0.5, caps, anchors, 1e-6, l, normal)
+        };
+        let mut normal = Vec::new();
+        let found = start(&mut l, &mut normal).is_some();
+        let (mut normal_again, loads) = (Vec::with_capacity(m), l.clone());
+        let (again_found, calls) = allocations(|| start(&mut l, &mut normal_again).is_some());
+        assert_eq!(found, again_found, "trial {trial}");
+        assert_eq!(calls, 0, "trial {trial}: the vertical start allocated");
+        if found {
+            assert_eq!((&l, &normal_again), (&loads, &normal), "trial {trial}");
+        }
+    }
+}
+
 /// On random problems (up to 8 columns and 30 points), splitting first ([`split_start`],
 /// from no load) and then Newton's method finds the minimum that Newton's method alone
 /// finds: the energy is strictly convex (`G` positive definite), so its minimum is

@@ -2480,21 +2480,17 @@ impl Problem<'_> {
             return self.descent(system, r, out);
         }
         if self.precondition {
-            if scratch.factored {
-                if let Some(d) = self.conjugate_gradients(scratch.kept(), stiff, r, target) {
-                    scratch.preconditioned += 1;
-                    *out = d;
-                    return Some(());
-                }
+            if scratch.factored && self.preconditioned(&mut scratch, stiff, r, target, out) {
+                scratch.preconditioned += 1;
+                return Some(());
             }
             // The kept factor no longer serves: this step's blocks, a third of a whole
             // factorisation's work, and the whole system's only where they do not.
-            if self.block_factor(&mut scratch, stiff).is_some() {
-                if let Some(d) = self.conjugate_gradients(scratch.kept(), stiff, r, target) {
-                    scratch.preconditioned += 1;
-                    *out = d;
-                    return Some(());
-                }
+            if self.block_factor(&mut scratch, stiff).is_some()
+                && self.preconditioned(&mut scratch, stiff, r, target, out)
+            {
+                scratch.preconditioned += 1;
+                return Some(());
             }
         }
         *out = self.factored_descent(&mut scratch, stiff, r)?;
@@ -2543,42 +2539,65 @@ impl Problem<'_> {
     fn conjugate_gradients(
         &self,
         factor: Preconditioner,
+        cg: &mut Cg,
         stiff: &[(usize, Matrix3<f64>)],
         r: &DVector<f64>,
         target: f64,
-    ) -> Option<Descent> {
+        out: &mut Descent,
+    ) -> bool {
         let k = r.len();
-        let precondition = |b: &DVector<f64>| factor.solve(b);
-        // The system's products in single precision where `G^-1` is kept so (their error,
-        // about 1e-7 of the product, lies far below the iterations' target, at least a
-        // thousandth of `r`); the step `G^-1 z` once, in double, at the end.
-        let inverse = |p: &DVector<f64>| match self.inverse32 {
-            Some(low) => product(low, &p.map(|x| x as f32)).map(f64::from),
-            None => product(self.inverse, p),
-        };
-        let mut z = DVector::zeros(k);
-        let mut res = -r;
-        let mut y = precondition(&res);
-        let mut p = y.clone();
-        let mut ry = res.dot(&y);
+        let Cg {
+            res,
+            y,
+            p,
+            q,
+            p32,
+            q32,
+            at,
+            lateral,
+            vertical,
+        } = cg;
+        let z = sized(&mut out.sinking, k);
+        z.fill(0.0);
+        for b in [&mut *res, &mut *y, &mut *p, &mut *q] {
+            sized(b, k);
+        }
+        res.zip_apply(r, |x, r| *x = -r);
+        factor.solve_into(res, y, lateral, vertical);
+        p.copy_from(y);
+        let mut ry = res.dot(y);
         let start = res.amax();
         for it in 0..PRECONDITIONED_ITERATIONS {
-            let mut q = inverse(&p);
-            self.add_points(stiff, &p, &mut q);
-            let pq = p.dot(&q);
+            // The system's products in single precision where `G^-1` is kept so (their
+            // error, about 1e-7 of the product, lies far below the iterations' target, at
+            // least a thousandth of `r`); the step `G^-1 z` once, in double, at the end.
+            match self.inverse32 {
+                Some(inverse) => {
+                    sized(p32, k).zip_apply(p, |a, x| *a = x as f32);
+                    q32.resize(inverse.nrows(), 0.0);
+                    product_in(inverse, p32, q32);
+                    q.iter_mut()
+                        .zip(q32.iter())
+                        .for_each(|(q, &x)| *q = f64::from(x));
+                }
+                None => product_into(self.inverse, p, q),
+            }
+            self.add_points_with(stiff, p, q, at);
+            let pq = p.dot(q);
             if !(pq > 0.0 && ry.is_finite()) {
-                return None;
+                return false;
             }
             let alpha = ry / pq;
-            z.axpy(alpha, &p, 1.0);
-            res.axpy(-alpha, &q, 1.0);
+            z.axpy(alpha, p, 1.0);
+            res.axpy(-alpha, q, 1.0);
             if res.amax() <= target {
-                let slope = r.dot(&z);
-                return (slope < 0.0).then(|| Descent {
-                    step: product(self.inverse, &z),
-                    sinking: z,
-                    slope,
-                });
+                let slope = r.dot(z);
+                if slope < 0.0 {
+                    product_into(self.inverse, z, &mut out.step);
+                    out.slope = slope;
+                    return true;
+                }
+                return false;
             }
             if it >= 1 {
                 // Where the residual's rate so far would not reach the target within the
@@ -2587,15 +2606,41 @@ impl Problem<'_> {
                 let rate = (res.amax() / start).ln() / done;
                 let left = (target / res.amax()).ln() / rate;
                 if !(rate < 0.0 && done + left <= PRECONDITIONED_ITERATIONS as f64) {
-                    return None;
+                    return false;
                 }
             }
-            y = precondition(&res);
-            let next = res.dot(&y);
-            p = &y + &p * (next / ry);
+            factor.solve_into(res, y, lateral, vertical);
+            let next = res.dot(y);
+            let beta = next / ry;
+            p.zip_apply(y, |p, y| *p = y + *p * beta);
             ry = next;
         }
-        None
+        false
+    }
+
+    /// [`Problem::conjugate_gradients`] with the pass's kept factor of `scratch` (the
+    /// blocks' or the whole system's: [`Scratch::factored`]) and its vectors.
+    fn preconditioned(
+        &self,
+        scratch: &mut Scratch,
+        stiff: &[(usize, Matrix3<f64>)],
+        r: &DVector<f64>,
+        target: f64,
+        out: &mut Descent,
+    ) -> bool {
+        let Scratch {
+            single,
+            xy,
+            z,
+            blocks,
+            cg,
+            ..
+        } = scratch;
+        let factor = match blocks {
+            true => Preconditioner::Blocks(xy, z),
+            false => Preconditioner::Whole(single),
+        };
+        self.conjugate_gradients(factor, cg, stiff, r, target, out)
     }
 
     /// Factors the lateral and vertical blocks of this step's system `G^-1 + W^T Phi''
@@ -2668,7 +2713,18 @@ impl Problem<'_> {
         x: &DVector<f64>,
         out: &mut DVector<f64>,
     ) {
-        let at = at_points(self.w, x);
+        self.add_points_with(stiff, x, out, &mut Vec::new());
+    }
+
+    /// [`Problem::add_points`] with the points' displacements in `at` (overwritten).
+    fn add_points_with(
+        &self,
+        stiff: &[(usize, Matrix3<f64>)],
+        x: &DVector<f64>,
+        out: &mut DVector<f64>,
+        at: &mut Vec<Vector3<f64>>,
+    ) {
+        at_points_into(self.w, x, at);
         for &(i, h) in stiff {
             let t = h * at[i];
             for &(c, wt) in &self.w[i] {
@@ -2712,20 +2768,40 @@ enum Preconditioner<'a> {
 
 impl Preconditioner<'_> {
     /// The approximation's solution for `b` (three unknowns per column), in double
-    /// precision.
-    fn solve(&self, b: &DVector<f64>) -> DVector<f64> {
+    /// precision, into `out`, with `lateral` and `vertical` for the single-precision
+    /// right-hand sides (each overwritten).
+    fn solve_into(
+        &self,
+        b: &DVector<f64>,
+        out: &mut DVector<f64>,
+        lateral: &mut DVector<f32>,
+        vertical: &mut DVector<f32>,
+    ) {
         match *self {
-            Preconditioner::Whole(factor) => solve_single(factor, b),
+            Preconditioner::Whole(factor) => {
+                let x = sized(lateral, b.len());
+                x.zip_apply(b, |x, b| *x = b as f32);
+                cholesky_solve(factor, x);
+                sized(out, b.len()).zip_apply(x, |o, x| *o = f64::from(x));
+            }
             Preconditioner::Blocks(xy, z) => {
                 let n = z.nrows();
-                let mut lateral = DVector::from_fn(2 * n, |i, _| b[3 * (i / 2) + i % 2] as f32);
-                let mut vertical = DVector::from_fn(n, |i, _| b[3 * i + 2] as f32);
-                cholesky_solve(xy, &mut lateral);
-                cholesky_solve(z, &mut vertical);
-                DVector::from_fn(3 * n, |i, _| match i % 3 {
-                    2 => f64::from(vertical[i / 3]),
-                    j => f64::from(lateral[2 * (i / 3) + j]),
-                })
+                let lateral = sized(lateral, 2 * n);
+                for (i, x) in lateral.iter_mut().enumerate() {
+                    *x = b[3 * (i / 2) + i % 2] as f32;
+                }
+                let vertical = sized(vertical, n);
+                for (i, x) in vertical.iter_mut().enumerate() {
+                    *x = b[3 * i + 2] as f32;
+                }
+                cholesky_solve(xy, lateral);
+                cholesky_solve(z, vertical);
+                for (i, o) in sized(out, 3 * n).iter_mut().enumerate() {
+                    *o = match i % 3 {
+                        2 => f64::from(vertical[i / 3]),
+                        j => f64::from(lateral[2 * (i / 3) + j]),
+                    };
+                }
             }
         }
     }
@@ -2809,6 +2885,25 @@ pub(super) struct Scratch {
     /// Newton steps solved by [`Problem::conjugate_gradients`] so far (tests check
     /// that the path they compare ran).
     preconditioned: usize,
+    /// The vectors of [`Problem::conjugate_gradients`].
+    cg: Cg,
+}
+
+/// The vectors of [`Problem::conjugate_gradients`] (each sized and overwritten before it
+/// is read): the residual, the preconditioned residual, the direction and the system's
+/// product with it, the direction and product in single precision, the points'
+/// displacements, and the preconditioner's single-precision right-hand sides.
+#[derive(Default)]
+struct Cg {
+    res: DVector<f64>,
+    y: DVector<f64>,
+    p: DVector<f64>,
+    q: DVector<f64>,
+    p32: DVector<f32>,
+    q32: Vec<f32>,
+    at: Vec<Vector3<f64>>,
+    lateral: DVector<f32>,
+    vertical: DVector<f32>,
 }
 
 /// A [`Scratch`] kept with a set of columns' systems. Its contents are overwritten before
@@ -2846,25 +2941,15 @@ struct Steps {
 /// `v` with `n` entries, its allocation kept (nalgebra's own resizing shrinks it to fit):
 /// unchanged where it has `n` already, else zeros. Its entries are the caller's to
 /// overwrite.
-fn sized(v: &mut DVector<f64>, n: usize) -> &mut DVector<f64> {
+fn sized<T: nalgebra::Scalar + Default>(v: &mut DVector<T>, n: usize) -> &mut DVector<T> {
     if v.len() != n {
-        let mut data: Vec<f64> = std::mem::replace(v, DVector::zeros(0)).data.into();
+        let empty = DVector::from_vec(Vec::new());
+        let mut data: Vec<T> = std::mem::replace(v, empty).data.into();
         data.clear();
-        data.resize(n, 0.0);
+        data.resize(n, T::default());
         *v = DVector::from_vec(data);
     }
     v
-}
-
-impl Scratch {
-    /// The pass's kept factor ([`Scratch::factored`]): the blocks' or the whole
-    /// system's.
-    fn kept(&self) -> Preconditioner<'_> {
-        match self.blocks {
-            true => Preconditioner::Blocks(&self.xy, &self.z),
-            false => Preconditioner::Whole(&self.single),
-        }
-    }
 }
 
 impl Workspace {

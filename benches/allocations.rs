@@ -1,7 +1,8 @@
 //! Heap allocations per sensor evaluation in steady state: a sphere (R 5 mm) slid along x
 //! while pressed 0.5 mm, at 64 x 48 (`tacrom/Press-v1`'s images) and 320 x 240, per
-//! physics mode; the first 20 frames warm up (the gel, its caches, ONNX Runtime's buffers),
-//! the next 40 are counted. Counts every call of the global allocator (`alloc`, `realloc`)
+//! physics mode, and a 24 mm box face pressed 0.3 mm and shaken by a few microns (a held
+//! grasp's contact over most of the gel) at 64 x 48; the first 20 frames warm up (the gel,
+//! its caches, ONNX Runtime's buffers), the next 40 are counted. Counts every call of the global allocator (`alloc`, `realloc`)
 //! in this process, ONNX Runtime's own allocations through the C library excluded.
 //!
 //! `cargo bench --bench allocations`; `TACROM_ALLOCATION_SITES=MODE cargo bench --bench
@@ -17,8 +18,9 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use nalgebra::Isometry3;
+use nalgebra::Vector3;
 use tacrom::config::{Config, RawConfig};
-use tacrom::geometry::{Placed, Sdf, Sphere};
+use tacrom::geometry::{Cuboid, Placed, Sdf, Sphere};
 use tacrom::sensor::TactileSensor;
 
 /// The system allocator, counting calls and bytes.
@@ -131,10 +133,14 @@ fn main() {
         "mode", "image", "allocations/frame", "KiB/frame"
     );
     let ball: Arc<dyn Sdf> = Arc::new(Sphere::new(0.005));
+    let face: Arc<dyn Sdf> = Arc::new(Cuboid::new(Vector3::new(0.012, 0.012, 0.005)));
     let traced = std::env::var("TACROM_ALLOCATION_SITES").ok();
     for (label, attributes) in modes {
         let trace = traced.as_deref() == Some(label.split(' ').next().unwrap_or(label));
-        for resolution in ["64 48", "320 240"] {
+        for (resolution, grasp) in [("64 48", false), ("320 240", false), ("64 48", true)] {
+            if grasp && !matches!(attributes.first(), Some(&(_, "coarse")) | Some(&(_, "rom"))) {
+                continue;
+            }
             let mut raw = RawConfig::default()
                 .with("resolution", resolution)
                 .with("outputs", "depth");
@@ -146,10 +152,21 @@ fn main() {
             let mut out = vec![0.0; config.sensordata_len()];
             let mut counted = (0, 0);
             for frame in 0..WARM + COUNTED {
-                let x = -2e-3 + 4e-3 * frame as f64 / (WARM + COUNTED) as f64;
-                let placed = [Placed {
-                    shape: ball.clone(),
-                    pose: Isometry3::translation(x, 0.0, 0.005 - 0.5e-3),
+                let placed = [if grasp {
+                    // Shaken as a simulated grasp holds it: microns along the face and
+                    // into it.
+                    let f = frame as f64;
+                    let (x, z) = (2e-6 * (0.7 * f).sin(), 0.5e-6 * (1.3 * f).cos());
+                    Placed {
+                        shape: face.clone(),
+                        pose: Isometry3::translation(x, 0.0, 0.005 - 0.3e-3 + z),
+                    }
+                } else {
+                    let x = -2e-3 + 4e-3 * frame as f64 / (WARM + COUNTED) as f64;
+                    Placed {
+                        shape: ball.clone(),
+                        pose: Isometry3::translation(x, 0.0, 0.005 - 0.5e-3),
+                    }
                 }];
                 let (calls, bytes) = (CALLS.load(Ordering::Relaxed), BYTES.load(Ordering::Relaxed));
                 TRACING.store(trace && frame >= WARM, Ordering::Relaxed);
@@ -160,9 +177,13 @@ fn main() {
                     counted.1 += BYTES.load(Ordering::Relaxed) - bytes;
                 }
             }
+            let case = match grasp {
+                true => "box 64x48".to_owned(),
+                false => resolution.replace(' ', "x"),
+            };
             println!(
                 "{label:<14} {:>9} {:>16.0} {:>16.1}",
-                resolution.replace(' ', "x"),
+                case,
                 counted.0 as f64 / COUNTED as f64,
                 counted.1 as f64 / COUNTED as f64 / 1024.0
             );

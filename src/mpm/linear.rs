@@ -306,6 +306,8 @@ struct ContactBuffers {
     loaded: Vec<Vector3<f64>>,
     /// [`Compliance::small_contacts`]'.
     small: SmallScratch,
+    /// [`Compliance::column_loads`]' shares and their order.
+    order: (Vec<(u32, Vector3<f64>)>, Vec<(u32, u32)>),
 }
 
 /// The buffers of [`Compliance::small_contacts`]: the lattice points inside the
@@ -819,29 +821,36 @@ impl Compliance {
     }
 
     /// The column loads (+x, +y, downward) of forces `forces` on the gel (the same) at
-    /// points with columns `stencils`.
+    /// points with columns `stencils`, by column, each the sum of its points' shares in
+    /// the points' order. `order` holds the shares and their order (kept: a stable sort
+    /// of a grasp's 30,000 shares allocated its scratch at every call; the unstable sort
+    /// by column and position gives the same order in place).
     fn column_loads(
         stencils: &[Columns],
         forces: &[Vector3<f64>],
         loads: &mut Vec<(u32, Vector3<f64>)>,
+        order: &mut (Vec<(u32, Vector3<f64>)>, Vec<(u32, u32)>),
     ) {
-        loads.clear();
-        loads.extend(
+        let (shares, by_column) = order;
+        shares.clear();
+        shares.extend(
             stencils
                 .iter()
                 .zip(forces)
                 .filter(|(_, f)| *f != &Vector3::zeros())
                 .flat_map(|(s, &f)| s.map(|(c, w)| (c, f * w))),
         );
-        loads.sort_by_key(|&(c, _)| c);
-        loads.dedup_by(|b, a| {
-            if a.0 == b.0 {
-                a.1 += b.1;
-                true
-            } else {
-                false
+        by_column.clear();
+        by_column.extend(shares.iter().enumerate().map(|(i, &(c, _))| (c, i as u32)));
+        by_column.sort_unstable();
+        loads.clear();
+        for &(c, i) in by_column.iter() {
+            let share = shares[i as usize].1;
+            match loads.last_mut() {
+                Some((last, sum)) if *last == c => *sum += share,
+                _ => loads.push((c, share)),
             }
-        });
+        }
     }
 
     /// The mean displacement (cells) of every node column under column loads `loads`
@@ -1558,6 +1567,7 @@ impl Compliance {
             mut points,
             loaded: mut loaded_forces,
             mut small,
+            mut order,
         } = std::mem::take(self.buffers.get_mut());
         self.near_into(indenters, &mut near);
         rest.clear();
@@ -1713,7 +1723,7 @@ impl Compliance {
                 eps: &eps,
             };
             // Start from the columns' present loads.
-            Self::column_loads(&stencils, &forces, &mut present);
+            Self::column_loads(&stencils, &forces, &mut present, &mut order);
             let load = |c: &u32| {
                 present
                     .binary_search_by_key(c, |&(col, _)| col)
@@ -1839,7 +1849,7 @@ impl Compliance {
             if !solved {
                 break;
             }
-            Self::column_loads(&stencils, &forces, &mut present);
+            Self::column_loads(&stencils, &forces, &mut present, &mut order);
             self.column_displacements(&present, &mut columns);
             for (u, s) in u.iter_mut().zip(&stencils) {
                 *u = Self::displacement(s, &columns);
@@ -1922,6 +1932,7 @@ impl Compliance {
             points: Vec::new(),
             loaded: Vec::new(),
             small,
+            order,
         };
         contact
     }
@@ -2936,6 +2947,8 @@ struct Steps {
     vertical: Vertical,
     /// [`frictional_contact`]'s loads at its start.
     start: DVector<f64>,
+    /// [`split_start`]'s.
+    split: Split,
 }
 
 /// `v` with `n` entries, its allocation kept (nalgebra's own resizing shrinks it to fit):
@@ -3960,14 +3973,8 @@ fn chord_gap(p: &Point3<f64>, indenters: &[StepIndenter]) -> Option<Option<f64>>
     Some(Some(down))
 }
 
-/// The points' displacements `W v` from the columns' (three per column, rows `w`).
-fn at_points(w: &[Columns], v: &DVector<f64>) -> Vec<Vector3<f64>> {
-    let mut at = Vec::with_capacity(w.len());
-    at_points_into(w, v, &mut at);
-    at
-}
-
-/// [`at_points`] into `at` (cleared first).
+/// The points' displacements `W v` from the columns' (three per column, rows `w`), into
+/// `at` (cleared first).
 fn at_points_into(w: &[Columns], v: &DVector<f64>, at: &mut Vec<Vector3<f64>>) {
     at.clear();
     at.extend(w.iter().map(|row| {
@@ -4003,14 +4010,8 @@ fn point_force(
     (Vector3::new(t.x, t.y, f), 0.5 * eps * f * f, slipped)
 }
 
-/// The columns' loads `W^T f` (`k` unknowns) from the points' forces.
-fn on_columns(w: &[Columns], f: &[Vector3<f64>], k: usize) -> DVector<f64> {
-    let mut out = DVector::zeros(k);
-    on_columns_into(w, f, &mut out);
-    out
-}
-
-/// [`on_columns`] into `out` (its length the unknowns; zeroed first).
+/// The columns' loads `W^T f` from the points' forces, into `out` (its length the
+/// unknowns; zeroed first).
 fn on_columns_into(w: &[Columns], f: &[Vector3<f64>], out: &mut DVector<f64>) {
     out.fill(0.0);
     for (row, f) in w.iter().zip(f) {
@@ -4086,11 +4087,25 @@ fn split_start(
     let Friction { caps, anchors, .. } = *friction;
     let k = g.nrows();
     let n = w.len();
-    let project = |v: &DVector<f64>| at_points(w, v);
-    let spread = |z: &[Vector3<f64>]| on_columns(w, z, k);
+    // (A poisoned lock's vectors are overwritten before use anyway.)
+    let mut vectors = p.steps.lock().unwrap_or_else(|e| e.into_inner());
+    let Split {
+        weight,
+        states,
+        start,
+        v,
+        base,
+        rhs,
+        solved,
+        x,
+        z,
+        u,
+        target,
+        s,
+    } = &mut vectors.split;
     // The springs' stiffness: about the gel's own at a point (its columns' stiffness
     // shared among the points on them).
-    let mut weight = vec![0.0; k / 3];
+    refill(weight, k / 3, 0.0);
     for row in w {
         for &(c, wt) in row {
             weight[c as usize] += wt * wt;
@@ -4132,19 +4147,18 @@ fn split_start(
     let factors = &kept.as_ref().expect("made above").factors;
     // `b` solved with each direction's factor: the system less `G^-1`'s coupling of one
     // direction's loads with another's.
-    let solve = |b: &DVector<f64>| {
-        let mut out = DVector::zeros(k);
-        let mut x = DVector::<f32>::zeros(cols);
+    let solve = |b: &DVector<f64>, out: &mut DVector<f64>, x: &mut DVector<f32>| {
+        let out = sized(out, k);
+        let x = sized(x, cols);
         for (j, factor) in factors.iter().enumerate() {
             for i in 0..cols {
                 x[i] = b[3 * i + j] as f32;
             }
-            cholesky_solve(factor, &mut x);
+            cholesky_solve(factor, x);
             for i in 0..cols {
                 out[3 * i + j] = f64::from(x[i]);
             }
         }
-        out
     };
     // Each point's part: its displacement `z` nearest `q` against its penalty and friction.
     // Also its state: pressed (1), sticking (2).
@@ -4169,27 +4183,33 @@ fn split_start(
         }
         (z, state)
     };
-    let mut states = vec![0u8; n];
+    refill(states, n, 0u8);
     let mut settled = 0;
     // Warm: the copies at the start's displacements, the multipliers its forces on the
     // gel (scaled by `-1 / rho`), a fixed point where the start is the answer.
-    let start = product(g, l);
-    let mut v = start.clone();
-    let mut z = project(&v);
-    let mut u: Vec<Vector3<f64>> = (0..n)
-        .map(|i| -point_force(&z[i], delta[i], eps[i], caps[i], &anchors[i], radius).0 / rho)
-        .collect();
+    product_into(g, l, start);
+    sized(v, k).copy_from(start);
+    at_points_into(w, v, z);
+    u.clear();
+    u.extend(
+        (0..n).map(|i| -point_force(&z[i], delta[i], eps[i], caps[i], &anchors[i], radius).0 / rho),
+    );
     // `(G^-1 + rho W^T W) v0`.
-    let base = &*l + spread(&z) * rho;
+    on_columns_into(w, z, sized(base, k));
+    base.zip_apply(&*l, |b, l| *b = l + *b * rho);
     let mut iterations = 0;
     for it in 0..SPLIT_ITERATIONS {
         iterations = it + 1;
-        let target: Vec<Vector3<f64>> = z.iter().zip(&u).map(|(z, u)| z - u).collect();
+        target.clear();
+        target.extend(z.iter().zip(u.iter()).map(|(z, u)| z - u));
         // In single precision, the change from the start only (`G^-1 v0 = l`): its
         // error is a fraction of the change, not of the displacements (a start at the
         // answer stays there).
-        v = &start + solve(&(spread(&target) * rho - &base));
-        let s = project(&v);
+        on_columns_into(w, target, sized(rhs, k));
+        rhs.zip_apply(base, |r, b| *r = *r * rho - b);
+        solve(rhs, solved, x);
+        v.zip_zip_apply(start, solved, |v, a, b| *v = a + b);
+        at_points_into(w, v, s);
         let mut primal: f64 = 0.0;
         let mut dual: f64 = 0.0;
         let mut scale: f64 = 0.0;
@@ -4221,8 +4241,30 @@ fn split_start(
             break;
         }
     }
-    *l += product(inverse, &(v - start));
+    v.zip_apply(start, |v, a| *v -= a);
+    product_into(inverse, v, solved);
+    *l += &*solved;
     iterations
+}
+
+/// The vectors of [`split_start`] (each sized and overwritten before it is read): the
+/// columns' weights, the points' states, the start's and the iterate's displacements of
+/// the columns, the system's fixed part and right-hand side, its solution (and in
+/// single precision), and the points' copies, multipliers, targets and displacements.
+#[derive(Default)]
+struct Split {
+    weight: Vec<f64>,
+    states: Vec<u8>,
+    start: DVector<f64>,
+    v: DVector<f64>,
+    base: DVector<f64>,
+    rhs: DVector<f64>,
+    solved: DVector<f64>,
+    x: DVector<f32>,
+    z: Vec<Vector3<f64>>,
+    u: Vec<Vector3<f64>>,
+    target: Vec<Vector3<f64>>,
+    s: Vec<Vector3<f64>>,
 }
 
 /// The linear solver ([`Solver::Linear`]): the surface compliance of the small-strain gel

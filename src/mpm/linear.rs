@@ -307,8 +307,16 @@ struct ContactBuffers {
     /// [`Compliance::small_contacts`]'.
     small: SmallScratch,
     /// [`Compliance::column_loads`]' shares and their order.
-    order: (Vec<(u32, Vector3<f64>)>, Vec<(u32, u32)>),
+    order: LoadOrder,
 }
+
+/// [`Compliance::column_loads`]' buffers: each point's share of its load per column, and
+/// the shares' (column, position) pairs in column order.
+type LoadOrder = (Vec<(u32, Vector3<f64>)>, Vec<(u32, u32)>);
+
+/// A small patch kept as one point ([`Compliance::small_contacts`]): its lattice points'
+/// range in [`SmallScratch::flat`], the point's position, clearance and compliance.
+type Patch = ((usize, usize), Vector3<f64>, f64, f64);
 
 /// The buffers of [`Compliance::small_contacts`]: the lattice points inside the
 /// indenters (by index), which of them a patch has taken, the patches' points one after
@@ -319,7 +327,7 @@ struct SmallScratch {
     inside: HashMap<u32, usize>,
     seen: Vec<bool>,
     flat: Vec<usize>,
-    patches: Vec<((usize, usize), Vector3<f64>, f64, f64)>,
+    patches: Vec<Patch>,
     replaced: Vec<u32>,
 }
 
@@ -829,7 +837,7 @@ impl Compliance {
         stencils: &[Columns],
         forces: &[Vector3<f64>],
         loads: &mut Vec<(u32, Vector3<f64>)>,
-        order: &mut (Vec<(u32, Vector3<f64>)>, Vec<(u32, u32)>),
+        order: &mut LoadOrder,
     ) {
         let (shares, by_column) = order;
         shares.clear();
@@ -1148,6 +1156,7 @@ impl Compliance {
     /// their lattice points. The new points are appended to `near`, `rest`, `clear` and
     /// `soft` (indices from `first`); the lattice points they stand for are left in
     /// `scratch.replaced`.
+    #[allow(clippy::too_many_arguments)]
     fn small_contacts(
         &mut self,
         first: u32,
@@ -3326,6 +3335,7 @@ fn vertical_inverse(g: &DMatrix<f64>) -> Option<DMatrix<f64>> {
 /// (the frame's tolerance, as the lagged forces' refresh), `l` becomes the loads of those
 /// forces and the normal forces are returned; `None` (and `l` unchanged) where that does
 /// not happen within [`VERTICAL_ITERATIONS`] or a solve fails.
+#[allow(clippy::too_many_arguments)]
 fn vertical_start(
     p: &Problem,
     inverse_zz: &DMatrix<f64>,

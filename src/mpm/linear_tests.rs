@@ -120,6 +120,19 @@ impl FrictionProblem {
             eps: &self.eps,
         }
     }
+
+    /// Its friction, tight (the residual of [`FRICTION_RESIDUAL`], never split), warm or
+    /// cold: warm, the first step predicts every point stuck.
+    fn friction(&self, warm: bool) -> Friction<'_> {
+        Friction {
+            caps: &self.caps,
+            anchors: &self.anchors,
+            warm,
+            residual: FRICTION_RESIDUAL,
+            predict_stick: warm,
+            split: usize::MAX,
+        }
+    }
 }
 
 /// On random problems with up to 40 points on up to 12 columns (more points than columns,
@@ -640,14 +653,7 @@ fn newton_steps_allocate_nothing_once_their_vectors_are_sized() {
         let random = noise.friction_problem(k, m);
         let scratch = Workspace::default();
         let problem = random.problem(&scratch);
-        let friction = Friction {
-            caps: &random.caps,
-            anchors: &random.anchors,
-            warm: trial % 2 == 0,
-            residual: FRICTION_RESIDUAL,
-            predict_stick: trial % 2 == 0,
-            split: usize::MAX,
-        };
+        let friction = random.friction(trial % 2 == 0);
         let (mut l, mut f) = (DVector::zeros(3 * k), Vec::new());
         frictional_contact(&problem, &friction, &mut None, &mut l, &mut f).expect("solved");
         let (mut again, mut f_again) = (DVector::zeros(3 * k), Vec::with_capacity(m));

@@ -310,9 +310,9 @@ struct ContactBuffers {
     order: LoadOrder,
 }
 
-/// [`Compliance::column_loads`]' buffers: each point's share of its load per column, and
-/// the shares' (column, position) pairs in column order.
-type LoadOrder = (Vec<(u32, Vector3<f64>)>, Vec<(u32, u32)>);
+/// [`Compliance::column_loads`]' buffers: each node column's sum of its points' shares,
+/// and whether it has one.
+type LoadOrder = (Vec<Vector3<f64>>, Vec<bool>);
 
 /// A small patch kept as one point ([`Compliance::small_contacts`]): its lattice points'
 /// range in [`SmallScratch::flat`], the point's position, clearance and compliance.
@@ -829,36 +829,43 @@ impl Compliance {
     }
 
     /// The column loads (+x, +y, downward) of forces `forces` on the gel (the same) at
-    /// points with columns `stencils`, by column, each the sum of its points' shares in
-    /// the points' order. `order` holds the shares and their order (kept: a stable sort
-    /// of a grasp's 30,000 shares allocated its scratch at every call; the unstable sort
-    /// by column and position gives the same order in place).
+    /// points with columns `stencils`, in column order, each the sum of its points'
+    /// shares in the points' order (of `columns` node columns). `order` holds each
+    /// column's sum and whether it has one yet (kept: summed in place, where a sort of a
+    /// grasp's 30,000 shares by column allocated its scratch at every call and cost more
+    /// than the sums).
     fn column_loads(
         stencils: &[Columns],
         forces: &[Vector3<f64>],
+        columns: usize,
         loads: &mut Vec<(u32, Vector3<f64>)>,
         order: &mut LoadOrder,
     ) {
-        let (shares, by_column) = order;
-        shares.clear();
-        shares.extend(
-            stencils
-                .iter()
-                .zip(forces)
-                .filter(|(_, f)| *f != &Vector3::zeros())
-                .flat_map(|(s, &f)| s.map(|(c, w)| (c, f * w))),
-        );
-        by_column.clear();
-        by_column.extend(shares.iter().enumerate().map(|(i, &(c, _))| (c, i as u32)));
-        by_column.sort_unstable();
-        loads.clear();
-        for &(c, i) in by_column.iter() {
-            let share = shares[i as usize].1;
-            match loads.last_mut() {
-                Some((last, sum)) if *last == c => *sum += share,
-                _ => loads.push((c, share)),
+        let (sums, touched) = order;
+        refill(touched, columns, false);
+        if sums.len() != columns {
+            refill(sums, columns, Vector3::zeros());
+        }
+        for (s, &f) in stencils.iter().zip(forces) {
+            if f == Vector3::zeros() {
+                continue;
+            }
+            for &(c, w) in s {
+                let c = c as usize;
+                let share = f * w;
+                if std::mem::replace(&mut touched[c], true) {
+                    sums[c] += share;
+                } else {
+                    sums[c] = share;
+                }
             }
         }
+        loads.clear();
+        loads.extend(
+            (0..columns)
+                .filter(|&c| touched[c])
+                .map(|c| (c as u32, sums[c])),
+        );
     }
 
     /// The mean displacement (cells) of every node column under column loads `loads`
@@ -1732,7 +1739,13 @@ impl Compliance {
                 eps: &eps,
             };
             // Start from the columns' present loads.
-            Self::column_loads(&stencils, &forces, &mut present, &mut order);
+            Self::column_loads(
+                &stencils,
+                &forces,
+                self.levels.len(),
+                &mut present,
+                &mut order,
+            );
             let load = |c: &u32| {
                 present
                     .binary_search_by_key(c, |&(col, _)| col)
@@ -1858,7 +1871,13 @@ impl Compliance {
             if !solved {
                 break;
             }
-            Self::column_loads(&stencils, &forces, &mut present, &mut order);
+            Self::column_loads(
+                &stencils,
+                &forces,
+                self.levels.len(),
+                &mut present,
+                &mut order,
+            );
             self.column_displacements(&present, &mut columns);
             for (u, s) in u.iter_mut().zip(&stencils) {
                 *u = Self::displacement(s, &columns);

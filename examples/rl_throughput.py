@@ -47,14 +47,22 @@ def action(env_id: str, step: int, rng: np.random.Generator, policy: str) -> np.
     return np.array([rng.uniform(-1, 1), rng.uniform(0, 1)], np.float32)
 
 
-def make(env_id: str, physics: str, resolution, threads: int = 1, coupling: bool = False):
+def make(
+    env_id: str,
+    physics: str,
+    resolution,
+    threads: int = 1,
+    coupling: bool = False,
+    servo_time: float | None = None,
+):
     """A picklable maker of the environment: ``tacrom.envs:`` in the id makes Gymnasium
     import (and so register) tacrom in a fresh worker process. After a dash, a solver's
     name names the gel's solver (``coarse-linear``: the coarse gel with
     ``solver="linear"``), anything else rom's shipped model (``rom-default``:
     ``model="rom-default"``, rom on the relaxation as it was before the linear gel);
     ``threads`` the sensors' own threads; ``coupling`` GripperLift-v1's gels pushing back
-    (its ``coupling=True``; other environments and ``rigid`` ignore it)."""
+    (its ``coupling=True``; other environments and ``rigid`` ignore it); ``servo_time``
+    GripperLift-v1's ``servo_time`` (None: its default)."""
     config = {"threads": threads} if threads != 1 else {}
     config.update(mode_config(physics))
     physics = config.pop("physics")
@@ -63,6 +71,8 @@ def make(env_id: str, physics: str, resolution, threads: int = 1, coupling: bool
         kwargs["resolution"] = tuple(resolution)
     if coupling and env_id.startswith("tacrom/GripperLift") and physics != "rigid":
         kwargs["coupling"] = True
+    if servo_time is not None and env_id.startswith("tacrom/GripperLift"):
+        kwargs["servo_time"] = servo_time
     return functools.partial(gym.make, f"tacrom.envs:{env_id}", **kwargs)
 
 
@@ -75,13 +85,14 @@ def measure(
     policy: str,
     threads: int = 1,
     coupling: bool = False,
+    servo_time: float | None = None,
 ) -> tuple[float, float | None]:
     """Environment steps per second of wall time over ``steps`` steps of each process, and
     (one process only) CPU milliseconds per step, which other jobs on the machine do not
     inflate."""
     rng = np.random.default_rng(0)
     if procs == 1:
-        env = make(env_id, physics, resolution, threads, coupling)()
+        env = make(env_id, physics, resolution, threads, coupling, servo_time)()
         env.reset(seed=0)
         t0, c0 = time.perf_counter(), time.process_time()
         for i in range(steps):
@@ -94,7 +105,7 @@ def measure(
     # Workers start from a fresh forkserver, not by forking this process: a process forked
     # after a gel sensor (coarse, rom) ran here would hang in the plugin's thread pool.
     envs = gym.vector.AsyncVectorEnv(
-        [make(env_id, physics, resolution, threads, coupling)] * procs, context="forkserver"
+        [make(env_id, physics, resolution, threads, coupling, servo_time)] * procs, context="forkserver"
     )
     try:
         envs.reset(seed=0)
@@ -138,6 +149,11 @@ def main() -> None:
         action="store_true",
         help="GripperLift-v1 with both gels pushing back (coupling=True): the gels carry the grasp",
     )
+    parser.add_argument(
+        "--servo-time",
+        type=float,
+        help="GripperLift-v1's servo_time (s; 0: the arm's servos unfiltered; default: its own)",
+    )
     args = parser.parse_args()
     print("| environment | policy | physics | processes | steps/s | ms/step | CPU ms/step |")
     print("|---|---|---|---:|---:|---:|---:|")
@@ -154,6 +170,7 @@ def main() -> None:
                     args.policy,
                     args.threads,
                     args.coupling,
+                    args.servo_time,
                 )
                 policy = "grasp cycle" if env_id.startswith("tacrom/GripperLift") else args.policy
                 if args.coupling and policy == "grasp cycle" and physics != "rigid":

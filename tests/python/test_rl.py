@@ -131,6 +131,53 @@ def test_gripper_lifts_and_holds_the_object(obj):
     assert not obs["tactile_depth"].any()
 
 
+def lift_trace(servo_time):
+    """The lift joint's height and velocity at every physics step of GripperLift-v1 (rigid,
+    one physics step an environment step): 25 steps holding the reset's target (the lift
+    action that is ``START_LIFT``), then 300 lifting from the table's height to 60 mm (the
+    grasp cycle's lift) after the gripper was brought down there."""
+    from tacrom.envs import gripper
+
+    env = gripper.GripperLiftEnv(physics="rigid", object="box", servo_time=servo_time, frame_skip=1)
+    env.reset(seed=0)
+    m, d = env.model, env.data
+    q, dof = m.joint("lift").qposadr[0], m.joint("lift").dofadr[0]
+    hold = 2.0 * gripper.START_LIFT / gripper.LIFT_RANGE - 1.0
+    held = []
+    for _ in range(25):
+        env.step(np.array([0.0, hold, -1.0], np.float32))
+        held.append(d.qpos[q])
+    for _ in range(1000):  # down to the table's height
+        env.step(np.array([0.0, -1.0, -1.0], np.float32))
+    lifted = []
+    for _ in range(300):
+        env.step(np.array([0.0, 0.5, -1.0], np.float32))
+        lifted.append((d.qpos[q], d.qvel[dof]))
+    return np.array(held), np.array(lifted), m.opt.timestep
+
+
+def test_the_arms_servos_follow_a_filtered_target():
+    """GripperLift-v1's carry and lift servos follow their targets through a 0.1 s filter
+    (``servo_time``): held at the reset's target, the gripper stays where the reset put it
+    (the filter starts there); lifted from the table to 60 mm, it accelerates at under 1.5 g
+    (the unfiltered servo: over 5 g, a jolt the grasp's friction has to pass on to the
+    object) and is within 0.5 mm of the height after 0.6 s (15 environment steps), as the
+    grasp tests ask."""
+    from tacrom.envs import gripper
+
+    for servo_time in (gripper.SERVO_TIME, 0.0):
+        held, lifted, h = lift_trace(servo_time)
+        assert np.abs(held - gripper.START_LIFT).max() < 1e-6, (servo_time, held)
+        peak = np.abs(np.diff(lifted[:, 1])).max() / h / 9.81
+        if servo_time > 0:
+            assert peak < 1.5, peak
+        else:
+            assert peak > 5.0, peak
+        assert abs(lifted[299, 0] - 0.06) < 5e-4, lifted[299, 0]
+    with pytest.raises(ValueError, match="servo_time"):
+        gripper.GripperLiftEnv(servo_time=-0.1)
+
+
 def test_physics_modes_agree_on_where_the_press_is():
     rigid = gym.make("tacrom/Press-v1", physics="rigid", resolution=(32, 24))
     coarse = gym.make("tacrom/Press-v1", physics="coarse", resolution=(32, 24))

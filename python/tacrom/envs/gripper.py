@@ -30,6 +30,15 @@ OPEN_GAP = 0.07
 #: The gripper's height at reset (lift joint, m): the fingertips 50 mm higher than at the
 #: bottom of the lift range, above every object.
 START_LIFT = 0.05
+#: The arm's servos (carry and lift) follow their targets through a first-order filter of
+#: this time constant (s; MuJoCo's ``filterexact`` actuator dynamics), as an arm's
+#: trajectory generator does: a jump of the lift's target from the table to 60 mm up no
+#: longer takes the gripper from rest to 1 m/s within 20 ms (about 5 g through the
+#: grasp's friction alone), but to 0.6 m/s over about 0.1 s. The fingers' own force limit
+#: already bounds their speed. ``servo_time=0`` drives the targets unfiltered.
+SERVO_TIME = 0.1
+#: The filtered actuators.
+FILTERED = ("carry", "lift")
 
 
 #: Each fingertip's pad geom, the finger body it hangs on and the side its gel faces.
@@ -83,6 +92,21 @@ def couple_pads(spec: mujoco.MjSpec, sensors: Sequence[str] = SENSORS) -> None:
         plugin.config = config
 
 
+def filter_servos(spec: mujoco.MjSpec, seconds: float, names: Sequence[str] = FILTERED) -> None:
+    """Makes the position servos ``names`` follow their targets through a first-order
+    filter of time constant ``seconds`` (s; MuJoCo's ``filterexact`` dynamics, each with one
+    activation, the filtered target); ``seconds=0`` leaves them unfiltered."""
+    if not (seconds >= 0.0 and np.isfinite(seconds)):
+        raise ValueError(f"servo_time must be a finite time of at least 0 s, not {seconds!r}")
+    if seconds == 0.0:
+        return
+    for name in names:
+        actuator = spec.actuator(name)
+        actuator.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+        actuator.dynprm[0] = seconds
+        actuator.actdim = 1
+
+
 class GripperLiftEnv(TactileEnv):
     """Grasp an object on the table and lift it, with a tactile sensor in each fingertip.
 
@@ -129,7 +153,9 @@ class GripperLiftEnv(TactileEnv):
     ``coupling``: the gels push back and hold the object (:func:`couple_pads`; needs
     ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad;
     ``info["gel_force"]`` ``(2, 3)``: each gel's force on the object (N, in its sensor's
-    frame: ``[..., 2]`` the squeeze).
+    frame: ``[..., 2]`` the squeeze). ``servo_time``: the time constant (s) of the filter
+    through which the carry and lift servos follow their targets (:data:`SERVO_TIME`; 0:
+    none, the targets taken at once).
     """
 
     def __init__(
@@ -145,6 +171,7 @@ class GripperLiftEnv(TactileEnv):
         sensor_config: Optional[dict] = None,
         sensor: Optional[str] = None,
         coupling: bool = False,
+        servo_time: float = SERVO_TIME,
     ) -> None:
         if object != "random" and object not in OBJECTS:
             raise ValueError(f"object must be 'random' or one of {OBJECTS}, not {object!r}")
@@ -175,6 +202,7 @@ class GripperLiftEnv(TactileEnv):
         fit_pads(spec)
         if coupling:
             couple_pads(spec)
+        filter_servos(spec, servo_time)
         super().__init__(
             spec.compile(),
             SENSORS,
@@ -258,6 +286,10 @@ class GripperLiftEnv(TactileEnv):
             d.qpos[adr + 3 : adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
         d.qpos[self._qpos] = [0.0, START_LIFT, 0.0, 0.0]
         d.ctrl[:] = [0.0, START_LIFT, 0.0, 0.0]
+        # The filtered targets start where the servos hold the gripper.
+        for i in range(m.nu):
+            if m.actuator_actadr[i] >= 0:
+                d.act[m.actuator_actadr[i]] = d.ctrl[i]
         mujoco.mj_forward(m, d)
         obs = self._observe()
         return obs, self._info(obs)

@@ -90,6 +90,9 @@ def couple_pads(spec: mujoco.MjSpec, sensors: Sequence[str] = SENSORS) -> None:
         backing.rgba = [0.35, 0.37, 0.4, 1.0]
         config.update(coupling="on", gel_geom=pad)
         plugin.config = config
+    # The gels carry the pads' friction now: MuJoCo's no-slip pass, which would make the
+    # pads' contacts stick rigidly, is the scene's for its rigid pads only.
+    spec.option.noslip_iterations = 0
 
 
 def filter_servos(spec: mujoco.MjSpec, seconds: float, names: Sequence[str] = FILTERED) -> None:

@@ -60,13 +60,18 @@ def test_seeded_resets_give_identical_first_observations(env_id):
             assert np.array_equal(steps[0][0][key], steps[1][0][key]), key
 
 
-def test_press_defaults_to_the_sensors_default_physics():
-    """Press-v1 runs the sensor's default physics (rom, on the linear gel); GripperLift-v1
-    stays rigid by default (a grasp costs a gel far more per step: docs/rl.md)."""
+def test_both_environments_default_to_the_sensors_default_physics():
+    """Press-v1 and GripperLift-v1 run the sensor's default physics (rom, on the linear
+    gel); a sensor file given without ``physics`` keeps its own."""
     press = gym.make("tacrom/Press-v1").unwrapped
     assert press.physics == "rom" == tacrom.attribute_default("physics")
     assert tacrom.layout(press.model, "touch")["solver"]["name"] == "linear"
-    assert gym.make("tacrom/GripperLift-v1").unwrapped.physics == "rigid"
+    grip = gym.make("tacrom/GripperLift-v1").unwrapped
+    assert grip.physics == "rom"
+    for sensor in ("left_touch", "right_touch"):
+        assert tacrom.layout(grip.model, sensor)["solver"]["name"] == "linear"
+    mini = gym.make("tacrom/GripperLift-v1", sensor="gelsight-mini").unwrapped
+    assert mini.physics == tacrom.attribute({"sensor": "gelsight-mini"}, "physics")
 
 
 def test_seeds_choose_the_episode():

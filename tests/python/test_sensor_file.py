@@ -65,7 +65,8 @@ def test_press_env_takes_the_preset_with_its_physics():
 def test_gripper_env_takes_the_preset():
     env = gym.make("tacrom/GripperLift-v1", sensor="gelsight-mini", tactile_rgb=True, object="box")
     obs, _ = env.reset(seed=0)
-    assert env.unwrapped.physics == "rigid"
+    # Without ``physics``, the preset's own (as Press-v1 takes it).
+    assert env.unwrapped.physics == tacrom.attribute({"sensor": "gelsight-mini"}, "physics")
     # Both fingertips are Minis: the calibrated background of the real gel, not a colour.
     assert np.array_equal(obs["tactile_rgb"][0], obs["tactile_rgb"][1])
     assert obs["tactile_rgb"][0].std() > 1.0

@@ -146,10 +146,11 @@ class GripperLiftEnv(TactileEnv):
     contact) and ``is_success`` (both in contact and the object at least ``lift_target``
     up). Episodes end by the time limit (100 steps, 4 s, when made with ``gymnasium.make``).
 
-    ``physics``: ``"rigid"`` by default (no gel: a grasp's fingertip gels cost the sensor's
-    default ``"rom"`` about 120 ms a step, docs/rl.md), ``"coarse"`` or ``"rom"``.
-    ``sensor``: a sensor file or a shipped sensor's name for both fingertips
-    (``"gelsight-mini"``: its gel, window and optics, as the scene's own fingertips);
+    ``physics``: the sensor's default, ``"rom"`` (on the linear gel, about 18 ms a step over
+    the grasp cycle, docs/rl.md), or ``"rigid"`` (no gel, under a millisecond) or
+    ``"coarse"``. ``sensor``: a sensor file or a shipped sensor's name for both fingertips
+    (``"gelsight-mini"``: its gel, window and optics, as the scene's own fingertips, and its
+    physics unless ``physics`` is given);
     without one, the default 30 x 30 x 4 mm gel, on which the grasp was designed. Each pad
     is fitted to its gel (:func:`fit_pads`). ``sensor_config``: further attributes of both sensors
     (``{"tolerance": "1e-2"}``, ``{"threads": 2}``; docs/configuration.md).
@@ -163,7 +164,7 @@ class GripperLiftEnv(TactileEnv):
 
     def __init__(
         self,
-        physics: str = "rigid",
+        physics: Optional[str] = None,
         resolution: tuple[int, int] = (32, 24),
         tactile_rgb: bool = False,
         render_mode: Optional[str] = None,
@@ -178,6 +179,8 @@ class GripperLiftEnv(TactileEnv):
     ) -> None:
         if object != "random" and object not in OBJECTS:
             raise ValueError(f"object must be 'random' or one of {OBJECTS}, not {object!r}")
+        if physics is None and sensor is None and "sensor" not in (sensor_config or {}):
+            physics = "rom"
         if coupling and physics == "rigid":
             raise ValueError("coupling needs a gel physics ('coarse' or 'rom'), not 'rigid'")
         spec = mujoco.MjSpec.from_file(str(asset_path("gripper.xml")))
@@ -217,7 +220,8 @@ class GripperLiftEnv(TactileEnv):
             camera="overview",
         )
         m = self.model
-        self.physics = physics
+        left = next(s for s in spec.sensors if s.name == SENSORS[0])
+        self.physics = physics or tacrom.attribute(dict(left.plugin.config), "physics")
         self.coupling = bool(coupling)
         self.object_choice = object
         self.lift_target = float(lift_target)

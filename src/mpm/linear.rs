@@ -1824,10 +1824,17 @@ impl Compliance {
                         }
                         pass += 1;
                     }
+                    // A wide contact's first frame (no last answer to start from) starts as a
+                    // warm one too, from the loads of its frictionless solve: split, its
+                    // points find their stick set in tens of iterations of two triangular
+                    // solves each, where Newton's method through the larger stick radii
+                    // took 50 to 60 steps of a factorisation each (the gripper's first touch
+                    // of the box: [`WIDE_FIRST_FRAME`]).
+                    let wide_first = WIDE_FIRST_FRAME && 3 * local.len() >= self.split_unknowns;
                     let friction = Friction {
                         caps: &caps,
                         anchors: &anchors,
-                        warm: lags > 0 || from_last,
+                        warm: lags > 0 || from_last || wide_first,
                         residual: (INNER_RESIDUAL * tolerance).max(FRICTION_RESIDUAL),
                         predict_stick: PREDICT_STICK && lags == 0 && from_last,
                         split: self.split_unknowns,
@@ -3073,6 +3080,15 @@ const PREDICT_STICK: bool = true;
 /// Refreshes of friction's lagged normal forces at most per solve.
 const MAX_LAGS: usize = 12;
 
+/// Whether the first frame of a contact of at least [`SPLIT_UNKNOWNS`] (no last frame's
+/// answer to start from) solves its friction as a warm frame does (one Newton step, then
+/// [`split_start`], then Newton's method; the stages through the larger stick radii only
+/// where that fails), from its frictionless solve's loads. Measured on
+/// `tacrom/GripperLift-v1`'s first touch of the box (the pads' wide faces, about 320 node
+/// columns each): 210 and 208 ms -> 123 and 118 ms a gel, 59 and 52 Newton steps -> 28
+/// and 21 (`docs/solvers.md`, "A wide contact's first frame split too").
+const WIDE_FIRST_FRAME: bool = true;
+
 /// Residual (relative to the loads) at which a frictional contact solve stops at the
 /// tightest.
 const FRICTION_RESIDUAL: f64 = 1e-10;
@@ -3205,9 +3221,10 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
 struct Friction<'a> {
     caps: &'a [f64],
     anchors: &'a [Vector2<f64>],
-    /// Whether the start is the answer to a nearby problem (the last lagged forces'):
-    /// then Newton's method goes straight at the stick radius, and only if that takes
-    /// more than [`WARM_NEWTON`] steps through the larger radii.
+    /// Whether the start is the answer to a nearby problem (the last lagged forces', or a
+    /// wide contact's frictionless solve: [`WIDE_FIRST_FRAME`]): then Newton's method goes
+    /// straight at the stick radius, and only if that takes more than [`WARM_NEWTON`]
+    /// steps through the larger radii.
     warm: bool,
     /// The residual (relative to the loads) at which the solve stops: within a frame,
     /// [`INNER_RESIDUAL`] of the frame's tolerance ([`FRICTION_RESIDUAL`] at the least).

@@ -1824,12 +1824,7 @@ impl Compliance {
                         }
                         pass += 1;
                     }
-                    // A wide contact's first frame (no last answer to start from) starts as a
-                    // warm one too, from the loads of its frictionless solve: split, its
-                    // points find their stick set in tens of iterations of two triangular
-                    // solves each, where Newton's method through the larger stick radii
-                    // took 50 to 60 steps of a factorisation each (the gripper's first touch
-                    // of the box: [`WIDE_FIRST_FRAME`]).
+                    // A wide contact's first frame starts as a warm one ([`WIDE_FIRST_FRAME`]).
                     let wide_first = WIDE_FIRST_FRAME && 3 * local.len() >= self.split_unknowns;
                     let friction = Friction {
                         caps: &caps,
@@ -3083,7 +3078,9 @@ const MAX_LAGS: usize = 12;
 /// Whether the first frame of a contact of at least [`SPLIT_UNKNOWNS`] (no last frame's
 /// answer to start from) solves its friction as a warm frame does (one Newton step, then
 /// [`split_start`], then Newton's method; the stages through the larger stick radii only
-/// where that fails), from its frictionless solve's loads. Measured on
+/// where that fails), from its frictionless solve's loads: split, its points find their
+/// stick set in tens of iterations of a few triangular solves each, where Newton's method
+/// through the larger stick radii took 50 to 60 steps of a factorisation each. Measured on
 /// `tacrom/GripperLift-v1`'s first touch of the box (the pads' wide faces, about 320 node
 /// columns each): 210 and 208 ms -> 123 and 118 ms a gel, 59 and 52 Newton steps -> 28
 /// and 21 (`docs/solvers.md`, "A wide contact's first frame split too").

@@ -33,9 +33,9 @@ START_LIFT = 0.05
 #: The arm's servos (carry and lift) follow their targets through a first-order filter of
 #: this time constant (s; MuJoCo's ``filterexact`` actuator dynamics), as an arm's
 #: trajectory generator does: a jump of the lift's target from the table to 60 mm up no
-#: longer takes the gripper from rest to 1 m/s within 20 ms (about 5 g through the
-#: grasp's friction alone), but to 0.6 m/s over about 0.1 s. The fingers' own force limit
-#: already bounds their speed. ``servo_time=0`` drives the targets unfiltered.
+#: longer takes the gripper to 1.1 m/s at up to 12.5 g (passed on to the object through
+#: the grasp's friction alone), but to 0.35 m/s at up to 1.0 g. The fingers' own force
+#: limit already bounds their speed. ``servo_time=0`` drives the targets unfiltered.
 SERVO_TIME = 0.1
 #: The filtered actuators.
 FILTERED = ("carry", "lift")

@@ -136,6 +136,9 @@ impl SceneSpec {
                 }
             }
         }
+        if let Some(gel) = gel_geom {
+            warnings.extend(torsion_warning(m, &config.name, gel, &candidates));
+        }
         if config.physics != Physics::Rigid {
             // A mesh's distance grid that an earlier process kept, read now: its first
             // contact is then an ordinary frame (rigid reads no distances).
@@ -236,6 +239,58 @@ impl SceneSpec {
         }
         issues
     }
+}
+
+/// The contact dimension MuJoCo gives a pair of geoms `a` and `b` (`condim`): the geom of
+/// higher `priority`'s, else the larger.
+fn pair_condim(m: Model<'_>, a: usize, b: usize) -> i32 {
+    let (condim, priority) = (m.geom_condim(), m.geom_priority());
+    match priority[a].cmp(&priority[b]) {
+        std::cmp::Ordering::Greater => condim[a],
+        std::cmp::Ordering::Less => condim[b],
+        std::cmp::Ordering::Equal => condim[a].max(condim[b]),
+    }
+}
+
+/// The warning for a gel's geom `gel` (`gel_geom`) whose contacts with some `candidates`
+/// have torsional (and rolling) friction rows (`condim` above 3), naming sensor `name`:
+/// those rows stay MuJoCo's, soft, beside the gel's own resistance to a turn about its
+/// normal (its contact points' tangential rows), and a held object turns on through them
+/// (the gripper's hexagon: by a tenth of what was left at each step, for 2 s).
+fn torsion_warning(
+    m: Model<'_>,
+    name: &str,
+    gel: usize,
+    candidates: &[Candidate],
+) -> Option<String> {
+    let torsional: Vec<String> = candidates
+        .iter()
+        .filter(|c| pair_condim(m, gel, c.geom) > 3)
+        .map(|c| {
+            format!(
+                "'{}' ({})",
+                m.geom_name(c.geom),
+                pair_condim(m, gel, c.geom)
+            )
+        })
+        .collect();
+    let shown = 3;
+    (!torsional.is_empty()).then(|| {
+        let more = torsional.len().saturating_sub(shown);
+        format!(
+            "tacrom.tactile sensor '{name}': gel_geom '{}' meets geoms with condim above 3: \
+             {}{}; MuJoCo's torsional friction acts there beside the gel's own resistance \
+             to a turn, and lets a held object turn slowly. Give the gel's geom condim=\"3\" \
+             and a priority above theirs",
+            m.geom_name(gel),
+            torsional[..torsional.len().min(shown)].join(", "),
+            if more > 0 {
+                format!(" and {more} more")
+            } else {
+                String::new()
+            }
+        )
+    })
 }
 
 /// The SDF of geom `g`, `Ok(None)` for types the sensor cannot simulate.

@@ -67,6 +67,10 @@ model_array! {
     geom_size: f64, geom_size, ngeom * 3;
     /// `geom_rbound` (ngeom).
     geom_rbound: f64, geom_rbound, ngeom * 1;
+    /// `geom_condim` (ngeom).
+    geom_condim: i32, geom_condim, ngeom * 1;
+    /// `geom_priority` (ngeom).
+    geom_priority: i32, geom_priority, ngeom * 1;
     /// `name_geomadr` (ngeom).
     name_geomadr: i32, name_geomadr, ngeom * 1;
     /// `site_bodyid` (nsite).

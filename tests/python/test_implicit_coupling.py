@@ -179,6 +179,32 @@ def test_a_bad_gel_geom_fails_at_load_naming_it(change, value, reason):
     assert "'touch'" in message and "gel_geom" in message and value in message and reason in message, message
 
 
+@pytest.mark.parametrize(
+    "pad, ball, warns",
+    [
+        ("", "", False),
+        ('condim="4" ', "", True),
+        ("", 'condim="6" ', True),
+        ('condim="3" priority="1" ', 'condim="4" ', False),
+    ],
+)
+def test_torsional_friction_on_the_gels_contacts_is_named_at_load(pad, ball, warns, capfd):
+    """A gel's geom whose contacts with an indenter get torsional friction rows (the
+    pair's condim above 3: the higher priority's, else the larger) is named at load, with
+    the sensor, the geom, the pair's condim and the remedy: MuJoCo's soft torsional row,
+    beside the gel's own resistance to a turn, let the gripper's held hexagon turn on for
+    2 s. condim 3 (the default), or a priority above the indenter's, is quiet."""
+    xml = implicit_xml().replace('<geom name="pad" ', f'<geom name="pad" {pad}')
+    xml = xml.replace('<geom name="ball" ', f'<geom name="ball" {ball}')
+    mujoco.MjModel.from_xml_string(xml)
+    err = capfd.readouterr().err
+    if warns:
+        assert "'touch'" in err and "gel_geom 'pad'" in err and "'ball'" in err, err
+        assert "condim" in err and "priority" in err, err
+    else:
+        assert "tacrom" not in err, err
+
+
 def test_a_whole_grasp_cycle_puts_down_and_lets_go_without_a_warning(capfd):
     """Catches: a gel let go within a frame whose lagged forces never settle. The whole
     grasp cycle of ``examples/rl_throughput.py`` (descend, close, lift, hold, put down,
@@ -207,11 +233,12 @@ def test_a_whole_grasp_cycle_puts_down_and_lets_go_without_a_warning(capfd):
 def test_a_held_hexagon_comes_to_rest_on_its_gels():
     """The lifted hexagon of ``examples/rl_throughput.py``'s episode (seed 0), whose
     contacts with the pads MuJoCo makes at a changing few of its face's corners, comes to
-    rest while held: over the last ten of 90 held steps it moves less than 0.1 um a step
-    and the gels' forces do not change (no solve). (Carried up by the filtered lift servo,
-    it creeps in the grasp by a fraction of a micron a step for about 3 s before it rests,
-    from about step 98; lifted by the unfiltered servo's jolt it had come to rest after 11
-    held steps.) The gel's force lands at its centre of
+    rest while held: over the last ten of 50 held steps it moves less than 0.1 um a step
+    and the gels' forces do not change (no solve). It rests from about step 57 of the
+    cycle. Catches MuJoCo's torsional friction on the gel's contacts (the pads' condim
+    4, which `couple_pads` now makes 3): its soft row let the hexagon turn on in the grasp
+    by a tenth of what was left at each step, until about step 77 (the gels solved again
+    until step 92). The gel's force lands at its centre of
     pressure wherever MuJoCo's contacts lie (`gel_contacts::carry`); where the contacts'
     own centre stood in, each change of MuJoCo's contacts turned the hexagon, and the
     grasp stick-slipped by 5 to 9 um every few steps for as long as it was held."""
@@ -219,7 +246,7 @@ def test_a_held_hexagon_comes_to_rest_on_its_gels():
     _, info = env.reset(seed=0)
     assert info["object"] == "hexagon", info
     body = env.model.body("hexagon").id
-    cycle = [(0.0, -1.0, -1.0)] * 15 + [(0.0, -1.0, 1.0)] * 10 + [(0.0, 0.5, 1.0)] * 90
+    cycle = [(0.0, -1.0, -1.0)] * 15 + [(0.0, -1.0, 1.0)] * 10 + [(0.0, 0.5, 1.0)] * 50
     moved, forces = [], []
     before = env.data.xpos[body].copy()
     for a in cycle:

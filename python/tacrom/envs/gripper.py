@@ -68,14 +68,22 @@ def couple_pads(spec: mujoco.MjSpec, sensors: Sequence[str] = SENSORS) -> None:
     """Makes both fingertip gels push back (``coupling="on"``) through MuJoCo's contact:
     each pad's face moves onto its gel's surface and becomes the gel's geom (``gel_geom``),
     whose contacts with the objects carry the gel's force, taken implicitly in MuJoCo's
-    constraint solve; a thin backing at the gel's base (4 mm deeper) stops an object that
-    crushes the whole gel. Call after :func:`configure_sensors` has chosen a gel physics."""
+    constraint solve, without MuJoCo's torsional friction (the pad's ``condim`` 3, its
+    priority above the objects'); a thin backing at the gel's base (4 mm deeper) stops an
+    object that crushes the whole gel. Call after :func:`configure_sensors` has chosen a
+    gel physics."""
     found = {s.name: s for s in spec.sensors}
     for sensor, (pad, finger, side) in zip(sensors, PADS):
         geom = spec.geom(pad)
         half = float(geom.size[0])
         # The pad's face onto the gel's surface (the site's origin, x = 0 in the finger).
         geom.pos = [-side * half, geom.pos[1], geom.pos[2]]
+        # Its contacts without MuJoCo's torsional friction (condim 3, and a priority above
+        # the objects' so that its condim is the pair's): the gel resists a turn about its
+        # normal through its contact points' tangential rows, and the soft torsional row
+        # beside them let a held object creep round for seconds.
+        geom.condim = 3
+        geom.priority = 1
         plugin = found[sensor].plugin
         config = dict(plugin.config)
         thickness = float(tacrom.attribute(config, "size").split()[2])

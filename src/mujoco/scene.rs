@@ -241,15 +241,20 @@ impl SceneSpec {
     }
 }
 
-/// The contact dimension MuJoCo gives a pair of geoms `a` and `b` (`condim`): the geom of
-/// higher `priority`'s, else the larger.
-fn pair_condim(m: Model<'_>, a: usize, b: usize) -> i32 {
+/// The contact dimension MuJoCo gives a pair of geoms `a` and `b` (`condim`: the geom of
+/// higher `priority`'s, else the larger), where their collision masks let them collide
+/// (`contype` of one against `conaffinity` of the other).
+fn pair_condim(m: Model<'_>, a: usize, b: usize) -> Option<i32> {
+    let (contype, conaffinity) = (m.geom_contype(), m.geom_conaffinity());
+    if contype[a] & conaffinity[b] == 0 && contype[b] & conaffinity[a] == 0 {
+        return None;
+    }
     let (condim, priority) = (m.geom_condim(), m.geom_priority());
-    match priority[a].cmp(&priority[b]) {
+    Some(match priority[a].cmp(&priority[b]) {
         std::cmp::Ordering::Greater => condim[a],
         std::cmp::Ordering::Less => condim[b],
         std::cmp::Ordering::Equal => condim[a].max(condim[b]),
-    }
+    })
 }
 
 /// The warning for a gel's geom `gel` (`gel_geom`) whose contacts with some `candidates`
@@ -265,13 +270,9 @@ fn torsion_warning(
 ) -> Option<String> {
     let torsional: Vec<String> = candidates
         .iter()
-        .filter(|c| pair_condim(m, gel, c.geom) > 3)
-        .map(|c| {
-            format!(
-                "'{}' ({})",
-                m.geom_name(c.geom),
-                pair_condim(m, gel, c.geom)
-            )
+        .filter_map(|c| {
+            let condim = pair_condim(m, gel, c.geom).filter(|&d| d > 3)?;
+            Some(format!("'{}' ({condim})", m.geom_name(c.geom)))
         })
         .collect();
     let shown = 3;

@@ -71,6 +71,10 @@ model_array! {
     geom_condim: i32, geom_condim, ngeom * 1;
     /// `geom_priority` (ngeom).
     geom_priority: i32, geom_priority, ngeom * 1;
+    /// `geom_contype` (ngeom).
+    geom_contype: i32, geom_contype, ngeom * 1;
+    /// `geom_conaffinity` (ngeom).
+    geom_conaffinity: i32, geom_conaffinity, ngeom * 1;
     /// `name_geomadr` (ngeom).
     name_geomadr: i32, name_geomadr, ngeom * 1;
     /// `site_bodyid` (nsite).

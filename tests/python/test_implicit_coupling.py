@@ -186,6 +186,7 @@ def test_a_bad_gel_geom_fails_at_load_naming_it(change, value, reason):
         ('condim="4" ', "", True),
         ("", 'condim="6" ', True),
         ('condim="3" priority="1" ', 'condim="4" ', False),
+        ("", 'condim="4" contype="2" conaffinity="2" ', False),
     ],
 )
 def test_torsional_friction_on_the_gels_contacts_is_named_at_load(pad, ball, warns, capfd):
@@ -193,7 +194,8 @@ def test_torsional_friction_on_the_gels_contacts_is_named_at_load(pad, ball, war
     pair's condim above 3: the higher priority's, else the larger) is named at load, with
     the sensor, the geom, the pair's condim and the remedy: MuJoCo's soft torsional row,
     beside the gel's own resistance to a turn, let the gripper's held hexagon turn on for
-    2 s. condim 3 (the default), or a priority above the indenter's, is quiet."""
+    2 s. condim 3 (the default), a priority above the indenter's, or collision masks that
+    keep the two apart, is quiet."""
     xml = implicit_xml().replace('<geom name="pad" ', f'<geom name="pad" {pad}')
     xml = xml.replace('<geom name="ball" ', f'<geom name="ball" {ball}')
     mujoco.MjModel.from_xml_string(xml)

@@ -36,6 +36,79 @@ impl<T: Default> Clone for Kept<T> {
     }
 }
 
+/// `v` emptied and given another element type of the same size and alignment (a borrow
+/// of another lifetime, mostly), its allocation kept: the standard library collects a
+/// vector's `into_iter`, adapted, in place (a unit test below checks it).
+pub fn recycled<T, U>(mut v: Vec<T>) -> Vec<U> {
+    v.clear();
+    v.into_iter().filter_map(|_| None).collect()
+}
+
+/// A map from `u32` keys, kept as a vector sorted by key: as entries come and go, its
+/// allocation stays (a `BTreeMap` allocates and frees nodes as it grows and shrinks).
+/// Its entries iterate in key order, as a `BTreeMap`'s.
+#[derive(Clone, Debug)]
+pub struct SortedMap<V>(Vec<(u32, V)>);
+
+impl<V> Default for SortedMap<V> {
+    fn default() -> Self {
+        Self(Vec::new())
+    }
+}
+
+impl<V> SortedMap<V> {
+    /// The value under `key`, if any.
+    pub fn get(&self, key: &u32) -> Option<&V> {
+        let i = self.0.binary_search_by_key(key, |e| e.0).ok()?;
+        Some(&self.0[i].1)
+    }
+
+    /// Whether `key` has a value.
+    pub fn contains_key(&self, key: &u32) -> bool {
+        self.get(key).is_some()
+    }
+
+    /// Puts `value` under `key`; the value it replaces, if any.
+    pub fn insert(&mut self, key: u32, value: V) -> Option<V> {
+        match self.0.binary_search_by_key(&key, |e| e.0) {
+            Ok(i) => Some(std::mem::replace(&mut self.0[i].1, value)),
+            Err(i) => {
+                self.0.insert(i, (key, value));
+                None
+            }
+        }
+    }
+
+    /// Keeps the entries for which `keep` is true (it may change their values).
+    pub fn retain(&mut self, mut keep: impl FnMut(&u32, &mut V) -> bool) {
+        self.0.retain_mut(|(k, v)| keep(k, v));
+    }
+
+    /// Removes every entry, keeping the allocation.
+    pub fn clear(&mut self) {
+        self.0.clear();
+    }
+
+    /// The entries, in key order.
+    pub fn entries(&self) -> &[(u32, V)] {
+        &self.0
+    }
+
+    /// The entries as a vector, the map left empty (its allocation goes with them).
+    pub fn take_entries(&mut self) -> Vec<(u32, V)> {
+        std::mem::take(&mut self.0)
+    }
+
+    /// The map of `entries`: sorted by key, and of several under one key the last.
+    pub fn from_entries(mut entries: Vec<(u32, V)>) -> Self {
+        entries.sort_by_key(|e| e.0);
+        entries.reverse();
+        entries.dedup_by_key(|e| e.0);
+        entries.reverse();
+        Self(entries)
+    }
+}
+
 /// `v` cleared and filled with `n` copies of `value`, its allocation reused.
 pub fn refill<T: Clone>(v: &mut Vec<T>, n: usize, value: T) {
     v.clear();
@@ -129,5 +202,72 @@ mod tests {
         assert_eq!(again.as_ptr(), at, "refilled in place");
         kept.put(again);
         assert!(kept.clone().take().is_empty(), "a copy starts empty");
+    }
+
+    /// A vector of borrows recycled for borrows of another lifetime keeps its allocation,
+    /// empty, and allocates nothing.
+    #[test]
+    fn a_recycled_vector_keeps_its_allocation() {
+        let (a, b) = (1.0f64, 2.0f64);
+        let mut v: Vec<&f64> = Vec::with_capacity(16);
+        v.push(&a);
+        let at = v.as_ptr() as usize;
+        let (w, calls) = counting::allocations(|| recycled::<&f64, &f64>(v));
+        assert_eq!(calls, 0);
+        assert!(w.is_empty() && w.capacity() == 16 && w.as_ptr() as usize == at);
+        let mut w = w;
+        w.push(&b);
+        assert_eq!(*w[0], 2.0);
+    }
+
+    /// The sorted map answers as a `BTreeMap` through inserts (new and replacing),
+    /// lookups and a `retain` that changes values, iterates in key order, and keeps the
+    /// last of duplicate keys read back; once grown, its inserts and removals allocate
+    /// nothing.
+    #[test]
+    fn the_sorted_map_answers_as_a_btree_map() {
+        use std::collections::BTreeMap;
+        let (mut map, mut tree) = (SortedMap::default(), BTreeMap::new());
+        let mut x: u64 = 0x2545_f491_4f6c_dd1d;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x % 64) as u32
+        };
+        for round in 0..200 {
+            let k = next();
+            assert_eq!(map.insert(k, round), tree.insert(k, round), "round {round}");
+            let q = next();
+            assert_eq!(map.get(&q), tree.get(&q));
+            assert_eq!(map.contains_key(&q), tree.contains_key(&q));
+            if round % 10 == 9 {
+                let cut = next();
+                map.retain(|k, v| {
+                    *v += 1;
+                    *k > cut
+                });
+                tree.retain(|k, v| {
+                    *v += 1;
+                    *k > cut
+                });
+            }
+            let entries: Vec<(u32, i32)> = tree.iter().map(|(k, v)| (*k, *v)).collect();
+            assert_eq!(map.entries(), &entries[..], "round {round}");
+        }
+        let mut grown = SortedMap::default();
+        (0..64).for_each(|k| {
+            grown.insert(k, 0);
+        });
+        grown.retain(|_, _| false);
+        let ((), calls) = counting::allocations(|| {
+            (0..64).rev().for_each(|k| {
+                grown.insert(k, 1);
+            });
+            grown.retain(|k, _| k % 2 == 0);
+        });
+        assert_eq!(calls, 0);
+        let read = SortedMap::from_entries(vec![(3, 'a'), (1, 'b'), (3, 'c')]);
+        assert_eq!(read.entries(), &[(1, 'b'), (3, 'c')]);
     }
 }

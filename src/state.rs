@@ -372,6 +372,19 @@ pub fn btree<V: Persist + Default>(
     *map = entries.into_iter().collect();
 }
 
+/// A [`SortedMap`](crate::scratch::SortedMap) of at most `cap` entries, in key order (as
+/// [`btree`] writes a map: the two read each other's).
+pub fn sorted<V: Persist + Default>(
+    io: &mut Io<'_>,
+    map: &mut crate::scratch::SortedMap<V>,
+    cap: usize,
+    what: &str,
+) {
+    let mut entries = map.take_entries();
+    list(io, &mut entries, cap, what);
+    *map = crate::scratch::SortedMap::from_entries(entries);
+}
+
 /// A hash map of at most `cap` entries, in key order (so that equal maps give equal
 /// states).
 pub fn hash<V: Persist + Default>(

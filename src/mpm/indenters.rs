@@ -29,20 +29,33 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use super::contact::{self, SlotContact, StepIndenter};
 use super::Gel;
 use crate::geometry::{Aabb, Placed, Sdf};
+use crate::scratch::refill;
 
 /// Height of the undeformed top face in the sensor frame (m).
 const TOP_Z: f64 = 0.0;
 
 /// The indenters with finite poses, in slice order; contact state refers to indenters by
 /// their index in this list.
-pub(super) fn usable(indenters: &[Placed]) -> Vec<&Placed> {
-    indenters
-        .iter()
-        .filter(|p| {
-            p.pose.translation.vector.iter().all(|v| v.is_finite())
-                && p.pose.rotation.coords.iter().all(|v| v.is_finite())
-        })
-        .collect()
+pub(super) fn usable(indenters: &[Placed]) -> impl Iterator<Item = &Placed> + Clone {
+    indenters.iter().filter(|p| {
+        p.pose.translation.vector.iter().all(|v| v.is_finite())
+            && p.pose.rotation.coords.iter().all(|v| v.is_finite())
+    })
+}
+
+/// The vectors of a solve's indenters, kept between solves so that a frame does not
+/// allocate them: the usable indenters (empty between solves), the matching's pairs,
+/// its result and what it took, the sweep's starts, and the indices' renumbering.
+#[derive(Default)]
+pub(super) struct Buffers {
+    pub used: Vec<&'static Placed>,
+    pub pairs: Vec<(f64, usize, usize)>,
+    pub matched: Vec<Option<usize>>,
+    pub taken: Vec<bool>,
+    pub starts: Vec<Isometry3<f64>>,
+    pub index: Vec<u32>,
+    pub current: Vec<(Arc<dyn Sdf>, Isometry3<f64>)>,
+    pub none: Vec<Option<usize>>,
 }
 
 /// Largest displacement (m) of a corner of `shape`'s bounding box between poses `a` and
@@ -73,8 +86,15 @@ fn corner_motion(shape: &dyn Sdf, a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64
 pub(super) fn match_indenters(
     prev: &[(Arc<dyn Sdf>, Isometry3<f64>)],
     now: &[&Placed],
-) -> Vec<Option<usize>> {
-    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    kept: &mut Buffers,
+) {
+    let Buffers {
+        pairs,
+        matched,
+        taken,
+        ..
+    } = kept;
+    pairs.clear();
     for (i, p) in now.iter().enumerate() {
         for (j, (shape, pose)) in prev.iter().enumerate() {
             if Arc::ptr_eq(shape, &p.shape) {
@@ -82,16 +102,15 @@ pub(super) fn match_indenters(
             }
         }
     }
-    pairs.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-    let mut matched = vec![None; now.len()];
-    let mut taken = vec![false; prev.len()];
-    for (_, i, j) in pairs {
+    pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    refill(matched, now.len(), None);
+    refill(taken, prev.len(), false);
+    for &(_, i, j) in pairs.iter() {
         if matched[i].is_none() && !taken[j] {
             matched[i] = Some(j);
             taken[j] = true;
         }
     }
-    matched
 }
 
 /// How the indenters move during a solve: each from its start pose to its current pose,
@@ -159,16 +178,14 @@ impl Gel {
         &self,
         indenters: Vec<&'a Placed>,
         matched: &[Option<usize>],
+        mut starts: Vec<Isometry3<f64>>,
     ) -> Sweep<'a> {
         let dx = self.layout.dx;
-        let starts: Vec<Isometry3<f64>> = indenters
-            .iter()
-            .zip(matched)
-            .map(|(p, m)| match *m {
-                Some(j) => self.prev[j].1,
-                None => self.lifted(p),
-            })
-            .collect();
+        starts.clear();
+        starts.extend(indenters.iter().zip(matched).map(|(p, m)| match *m {
+            Some(j) => self.prev[j].1,
+            None => self.lifted(p),
+        }));
         let disp = indenters
             .iter()
             .zip(&starts)
@@ -200,8 +217,8 @@ impl Gel {
     /// Renumbers the indenter indices of the contact state from the previous solve's list
     /// to this one's (`matched[i]`: the previous index of indenter `i`); the state held
     /// by a previous indenter that has no successor is released.
-    pub(super) fn remap_contacts(&mut self, matched: &[Option<usize>]) {
-        let mut new_index = vec![u32::MAX; self.prev.len()];
+    pub(super) fn remap_contacts(&mut self, matched: &[Option<usize>], new_index: &mut Vec<u32>) {
+        refill(new_index, self.prev.len(), u32::MAX);
         for (i, m) in matched.iter().enumerate() {
             if let Some(j) = *m {
                 new_index[j] = i as u32;

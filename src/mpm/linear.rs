@@ -118,7 +118,7 @@
 //!   contact's normal is vertical, as in the small-displacement setting of Hertz and
 //!   Cattaneo-Mindlin; a slope of the indenter does not turn its force.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 
 use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix2, Matrix3, Point3, SymmetricEigen, Vector2, Vector3,
@@ -126,10 +126,10 @@ use nalgebra::{
 use rayon::prelude::*;
 
 use super::contact::StepIndenter;
-use super::newton::subgrid::{tip_samples, TIP_SAMPLES};
+use super::newton::subgrid::{tip_samples, Samples, TIP_SAMPLES};
 use super::newton::system::{par, System};
 use super::newton::{
-    contact_lattice, contains, remap_anchors, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK,
+    contact_lattice, contains, remap_anchor, smooth_slip, Anchor, Newton, Stencil, PENALTY, STICK,
 };
 use super::solver::{Equilibrium, Frame};
 use super::{
@@ -137,7 +137,7 @@ use super::{
     LINEAR_UNKNOWNS,
 };
 use crate::geometry::{Chord, Sdf};
-use crate::scratch::refill;
+use crate::scratch::{refill, SortedMap};
 use crate::state::{self, Io, Persist};
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::cholesky::llt;
@@ -242,7 +242,7 @@ pub(crate) struct Compliance {
     /// Friction's history: the stick anchor of each lattice point in contact, its force on
     /// the gel (internal units) and the node columns' mean displacement (cells, 3 per
     /// column; empty: at rest) at the end of the last frame.
-    anchors: BTreeMap<u32, Anchor>,
+    anchors: SortedMap<Anchor>,
     lagged: HashMap<u32, Vector3<f64>>,
     last: Vec<f64>,
     /// The dense systems of the node columns under the last contact (at most
@@ -262,6 +262,8 @@ pub(crate) struct Compliance {
     vertical: bool,
     /// The contact solve's vectors, kept between frames.
     buffers: crate::scratch::Kept<ContactBuffers>,
+    /// What the dense systems' making reuses between frames ([`Reuse`]).
+    reuse: crate::scratch::Kept<Reuse>,
 }
 
 /// The vectors of [`Compliance::contact`], kept between frames for their allocations
@@ -336,8 +338,8 @@ struct SmallScratch {
 struct LocalSystem {
     /// The node columns (with their lateral loads, 3 per column, where `base.lateral`).
     local: Vec<u32>,
-    /// Their compliance ([`Compliance::local_compliance`]) and its inverse (shared with
-    /// `base` where these are its columns).
+    /// Their compliance ([`Compliance::local_compliance`]) and its inverse (held by these
+    /// systems alone).
     g: Arc<DMatrix<f64>>,
     inverse: Arc<DMatrix<f64>>,
     /// `inverse` in single precision, for a frictional solve of [`MIXED_UNKNOWNS`] or
@@ -354,13 +356,112 @@ struct LocalSystem {
     /// The inverse of `g`'s vertical block ([`vertical_inverse`]), made where a frame's
     /// start first asks for it ([`vertical_start`]) and kept with these columns.
     vertical: std::sync::OnceLock<Option<DMatrix<f64>>>,
+    /// The buffer the next [`vertical_inverse`] of these systems is made in (an earlier
+    /// one's, where they were let go and made again for other columns).
+    vertical_spare: crate::scratch::Kept<DMatrix<f64>>,
+}
+
+impl LocalSystem {
+    /// Systems of no columns: buffers for [`Compliance::system`] to fill.
+    fn empty() -> Box<LocalSystem> {
+        Box::new(LocalSystem {
+            local: Vec::new(),
+            g: Arc::new(DMatrix::zeros(0, 0)),
+            inverse: Arc::new(DMatrix::zeros(0, 0)),
+            inverse32: None,
+            base: Base::default(),
+            scratch: Workspace::default(),
+            split: None,
+            vertical: Default::default(),
+            vertical_spare: Default::default(),
+        })
+    }
+
+    /// The inverse of `g`'s vertical block, made where first asked for (in the kept
+    /// buffer) and kept.
+    fn vertical(&self) -> Option<&DMatrix<f64>> {
+        self.vertical
+            .get_or_init(|| {
+                let mut out = self.vertical_spare.take();
+                vertical_inverse(&self.g, &mut out).map(|()| out)
+            })
+            .as_ref()
+    }
+}
+
+/// What [`Compliance::take_local`] reuses from frame to frame: the last systems let go
+/// (their buffers, for the next ones made: a press moving on makes a set's systems at
+/// every frame) and [`Compliance::updated`]'s vectors and matrices.
+#[derive(Default)]
+struct Reuse {
+    husks: Vec<Box<LocalSystem>>,
+    /// Matrices of bases let go, each held here alone.
+    matrices: Vec<Arc<DMatrix<f64>>>,
+    update: Update,
+}
+
+impl Reuse {
+    /// Keeps the buffers of `system`, which is let go: the system itself (up to
+    /// [`LOCAL_SYSTEMS`] of them), or else its matrices that nothing else holds.
+    fn let_go(&mut self, mut system: Box<LocalSystem>) {
+        self.let_go_base(&mut system.base);
+        if self.husks.len() < LOCAL_SYSTEMS {
+            self.husks.push(system);
+            return;
+        }
+        for m in [system.g, system.inverse] {
+            if Arc::strong_count(&m) == 1 && self.matrices.len() < SPARE_MATRICES {
+                self.matrices.push(m);
+            }
+        }
+    }
+}
+
+impl Reuse {
+    /// Keeps the matrices of `base`, which is let go (its columns stay), where nothing
+    /// else holds them.
+    fn let_go_base(&mut self, base: &mut Base) {
+        for m in base
+            .made
+            .take()
+            .into_iter()
+            .flat_map(|(g, inverse)| [g, inverse])
+        {
+            if Arc::strong_count(&m) == 1 && self.matrices.len() < SPARE_MATRICES {
+                self.matrices.push(m);
+            }
+        }
+    }
+}
+
+/// The index lists and matrices of [`Compliance::updated`] (each sized and overwritten
+/// before it is read).
+#[derive(Default)]
+struct Update {
+    shared: Vec<usize>,
+    shared_old: Vec<usize>,
+    added: Vec<usize>,
+    removed: Vec<usize>,
+    s_new: Vec<usize>,
+    s_old: Vec<usize>,
+    a_new: Vec<usize>,
+    r_old: Vec<usize>,
+    p: DMatrix<f64>,
+    b_rr: DMatrix<f64>,
+    b_rs: DMatrix<f64>,
+    g_sn: DMatrix<f64>,
+    x: DMatrix<f64>,
+    schur: DMatrix<f64>,
+    xt: DMatrix<f64>,
+    s_inv: DMatrix<f64>,
+    column: Vec<f64>,
 }
 
 /// A set of node columns whose dense systems were made afresh, from which those of the
 /// sets that overlap it are updated ([`Compliance::updated`]): a set's systems are a
 /// function of its base and itself, so that the bases alone, in the gel's state, make a
 /// gel read back solve as the original bit for bit.
-#[derive(Clone)]
+#[derive(Clone, Default)]
 struct Base {
     local: Vec<u32>,
     lateral: bool,
@@ -368,8 +469,8 @@ struct Base {
     made: Option<Shared>,
 }
 
-/// A compliance and its inverse, shared by a base and the set made from it where they
-/// are the same columns.
+/// A base's compliance and inverse (a set made from it on the same columns holds copies
+/// of its own; [`Reuse`] keeps them once nothing else holds them).
 type Shared = (Arc<DMatrix<f64>>, Arc<DMatrix<f64>>);
 
 /// A kept set of node columns: its systems, or (read back from a state) its base alone.
@@ -392,8 +493,7 @@ impl Kept {
 /// the responses at them to their loads, three unknowns per column (`+x`, `+y`, down)
 /// with `lateral`, else the sinking alone.
 struct Entries<'a> {
-    down: Vec<&'a [f32]>,
-    shear: Vec<&'a [f32]>,
+    responses: &'a Responses,
     local: &'a [u32],
     /// Values per response.
     values: usize,
@@ -410,13 +510,11 @@ impl Entries<'_> {
     /// force unit; sinking counts positive).
     fn at(&self, p: usize, q: usize) -> f64 {
         if !self.lateral {
-            return -f64::from(self.down[q][3 * self.local[p] as usize + 2]);
+            let r = self.responses.down(self.local[q]);
+            return -f64::from(r[3 * self.local[p] as usize + 2]);
         }
         let (a, i, b, j) = (p / 3, p % 3, q / 3, q % 3);
-        let r = match j {
-            2 => self.down[b],
-            _ => &self.shear[b][j * self.values..(j + 1) * self.values],
-        };
+        let r = self.response(b, j);
         let u = f64::from(r[3 * self.local[a] as usize + i]);
         if i == 2 {
             -u
@@ -425,20 +523,26 @@ impl Entries<'_> {
         }
     }
 
+    /// The response of every node column to local column `b`'s load along `j` (`x`, `y`,
+    /// then downward).
+    fn response(&self, b: usize, j: usize) -> &[f32] {
+        let c = self.local[b];
+        match j {
+            2 => self.responses.down(c),
+            _ => &self.responses.lateral(c)[j * self.values..(j + 1) * self.values],
+        }
+    }
+
     /// Column `q` of the entries, `out[p] = self.at(p, q)` for every unknown `p`.
     fn column(&self, q: usize, out: &mut [f64]) {
         if !self.lateral {
-            let r = self.down[q];
+            let r = self.responses.down(self.local[q]);
             for (o, &c) in out.iter_mut().zip(self.local) {
                 *o = -f64::from(r[3 * c as usize + 2]);
             }
             return;
         }
-        let (b, j) = (q / 3, q % 3);
-        let r = match j {
-            2 => self.down[b],
-            _ => &self.shear[b][j * self.values..(j + 1) * self.values],
-        };
+        let r = self.response(q / 3, q % 3);
         for (o, &c) in out.chunks_exact_mut(3).zip(self.local) {
             let at = &r[3 * c as usize..3 * c as usize + 3];
             o[0] = f64::from(at[0]);
@@ -639,7 +743,7 @@ impl Compliance {
             }),
             computed: 0,
             friction: gel.params.friction,
-            anchors: BTreeMap::new(),
+            anchors: SortedMap::default(),
             lagged: HashMap::new(),
             last: Vec::new(),
             locals: Vec::new(),
@@ -648,6 +752,7 @@ impl Compliance {
             precondition: true,
             vertical: true,
             buffers: Default::default(),
+            reuse: Default::default(),
         };
         c.slots = rest.iter().map(|x| c.columns_at(x)).collect();
         Ok((c, newton))
@@ -1129,24 +1234,19 @@ impl Compliance {
     /// Surface samples over the box from `lo` to `hi` (cells) grown by a lattice spacing,
     /// at `lo`'s height, as [`tip_samples`] does but at most [`FOOTPRINT_SAMPLES`] per
     /// axis; and the face share (in lattice points) that each stands for.
-    fn footprint_samples(&self, lo: Vector3<f64>, hi: Vector3<f64>) -> (Vec<Vector3<f64>>, f64) {
+    fn footprint_samples(&self, lo: Vector3<f64>, hi: Vector3<f64>) -> (Samples, f64) {
         let extent = [0, 1].map(|a| hi[a] - lo[a] + 2.0 * self.spacing[a]);
         let steps = [0, 1].map(|a| extent[a] / FOOTPRINT_SAMPLES as f64);
         if (0..2).all(|a| steps[a] <= self.spacing[a] / TIP_SAMPLES as f64) {
             return tip_samples(lo, hi, self.spacing);
         }
-        let mut out = Vec::with_capacity((FOOTPRINT_SAMPLES + 1).pow(2));
-        for i in 0..=FOOTPRINT_SAMPLES {
-            for j in 0..=FOOTPRINT_SAMPLES {
-                out.push(Vector3::new(
-                    lo.x - self.spacing[0] + i as f64 * steps[0],
-                    lo.y - self.spacing[1] + j as f64 * steps[1],
-                    lo.z,
-                ));
-            }
-        }
+        let samples = Samples {
+            from: Vector3::new(lo.x - self.spacing[0], lo.y - self.spacing[1], lo.z),
+            step: steps,
+            counts: [FOOTPRINT_SAMPLES; 2],
+        };
         (
-            out,
+            samples,
             steps[0] * steps[1] / (self.spacing[0] * self.spacing[1]),
         )
     }
@@ -1315,11 +1415,18 @@ impl Compliance {
     /// else their sinking alone): the columns' responses at each other, made symmetric
     /// (the mean of the two ways, each pair read once for both).
     fn local_compliance(&self, local: &[u32], lateral: bool) -> DMatrix<f64> {
+        let mut g = DMatrix::zeros(0, 0);
+        self.local_compliance_into(local, lateral, &mut g);
+        g
+    }
+
+    /// [`Compliance::local_compliance`] into `g` (its allocation reused).
+    fn local_compliance_into(&self, local: &[u32], lateral: bool, g: &mut DMatrix<f64>) {
         let entries = self.entries(local, lateral);
         let n = entries.len();
         // Column by column (one response read along its rows), then made symmetric in
         // place: the same values as `symmetric(n, |p, q| entries.at(p, q))`.
-        let mut g = DMatrix::zeros(n, n);
+        let g = reshaped(g, n, n);
         for q in 0..n {
             entries.column(q, g.column_mut(q).as_mut_slice());
         }
@@ -1330,17 +1437,12 @@ impl Compliance {
                 g[(q, p)] = v;
             }
         }
-        g
     }
 
     /// The entries of [`Compliance::local_compliance`], read from the responses.
     fn entries<'a>(&'a self, local: &'a [u32], lateral: bool) -> Entries<'a> {
         Entries {
-            down: local.iter().map(|&c| self.responses.down(c)).collect(),
-            shear: match lateral {
-                true => local.iter().map(|&c| self.responses.lateral(c)).collect(),
-                false => Vec::new(),
-            },
+            responses: &self.responses,
             local,
             values: 3 * self.levels.len(),
             lateral,
@@ -1368,10 +1470,11 @@ impl Compliance {
             n > 0 && changed as f64 <= UPDATE_FRACTION * local.len() as f64
         });
         if let Some((_, i)) = near {
-            let mut base = match self.locals.remove(i) {
+            // The kept set's systems, let go here, lend their buffers to the new ones.
+            let (mut base, husk) = match self.locals.remove(i) {
                 Kept::Made(system) if system.local == local => return Some(system),
-                Kept::Made(system) => system.base,
-                Kept::Named(base) => base,
+                Kept::Made(mut system) => (std::mem::take(&mut system.base), Some(system)),
+                Kept::Named(base) => (base, self.reuse.get_mut().husks.pop()),
             };
             let (g, inverse) = match base.made.take() {
                 Some(made) => made,
@@ -1382,49 +1485,91 @@ impl Compliance {
                 }
             };
             base.made = Some((g.clone(), inverse.clone()));
-            let made = if base.local == local {
-                Some((g, inverse))
-            } else {
-                self.updated(&base, local)
-                    .map(|(g, inverse)| (Arc::new(g), Arc::new(inverse)))
-            };
-            if let Some((g, inverse)) = made {
-                return Some(Box::new(self.system(local, g, inverse, base)));
+            let mut husk = husk.unwrap_or_else(LocalSystem::empty);
+            if base.local == local {
+                let spare = &mut self.reuse.get_mut().matrices;
+                copy_into(&mut husk.g, &g, spare);
+                copy_into(&mut husk.inverse, &inverse, spare);
+                return Some(self.system(local, base, husk));
+            }
+            let reuse = self.reuse.get_mut();
+            let mut update = std::mem::take(&mut reuse.update);
+            let spare = &mut reuse.matrices;
+            let (g, inverse) = (unique(&mut husk.g, spare), unique(&mut husk.inverse, spare));
+            let made = self.updated(&base, local, g, inverse, &mut update);
+            self.reuse.get_mut().update = update;
+            if made.is_some() {
+                return Some(self.system(local, base, husk));
             }
         }
-        let g = Arc::new(self.local_compliance(local, lateral));
-        let inverse = Arc::new(spd_inverse(&g)?);
+        // Made afresh, in the buffers of the systems let go last, or else of the oldest
+        // kept, which these push out.
+        let mut husk = self.reuse.get_mut().husks.pop();
+        if husk.is_none() && self.locals.len() >= LOCAL_SYSTEMS {
+            if let Kept::Made(oldest) = self.locals.remove(0) {
+                husk = Some(oldest);
+            }
+        }
+        let mut husk = husk.unwrap_or_else(LocalSystem::empty);
+        let mut columns = std::mem::take(&mut husk.base.local);
+        let reuse = self.reuse.get_mut();
+        reuse.let_go_base(&mut husk.base);
+        let mut update = std::mem::take(&mut reuse.update);
+        let spare = &mut reuse.matrices;
+        let (g, inverse) = (unique(&mut husk.g, spare), unique(&mut husk.inverse, spare));
+        self.local_compliance_into(local, lateral, g);
+        let copy = reshaped(&mut update.p, g.nrows(), g.ncols());
+        copy.copy_from(g);
+        let inverted = spd_inverse_into(copy, inverse);
+        self.reuse.get_mut().update = update;
+        inverted?;
+        columns.clear();
+        columns.extend_from_slice(local);
+        // The base keeps copies of its own: each set's matrices are held by it alone, and
+        // go to the spares when it is let go.
+        let spare = &mut self.reuse.get_mut().matrices;
+        let (mut g, mut inverse) = (spare_matrix(spare), spare_matrix(spare));
+        copy_into(&mut g, &husk.g, spare);
+        copy_into(&mut inverse, &husk.inverse, spare);
         let base = Base {
-            local: local.to_vec(),
+            local: columns,
             lateral,
-            made: Some((g.clone(), inverse.clone())),
+            made: Some((g, inverse)),
         };
-        Some(Box::new(self.system(local, g, inverse, base)))
+        Some(self.system(local, base, husk))
     }
 
-    /// The dense systems of `local` from their compliance `g` and its inverse.
+    /// The dense systems of `local` from `base` and their compliance and its inverse,
+    /// which `system` holds (its own: a base keeps copies): the rest of its buffers (its
+    /// columns, single-precision inverse, workspace and vertical inverse) were a system's
+    /// that was let go, and are reused.
     fn system(
         &mut self,
         local: &[u32],
-        g: Arc<DMatrix<f64>>,
-        inverse: Arc<DMatrix<f64>>,
         base: Base,
-    ) -> LocalSystem {
-        self.built_large |= g.len() >= TRIM_ENTRIES;
+        mut system: Box<LocalSystem>,
+    ) -> Box<LocalSystem> {
+        self.built_large |= system.g.len() >= TRIM_ENTRIES;
+        system.local.clear();
+        system.local.extend_from_slice(local);
         // The frictional solve's Newton steps assemble their systems on it in single
         // precision from [`MIXED_UNKNOWNS`] on.
-        let inverse32 =
-            (base.lateral && inverse.nrows() >= MIXED_UNKNOWNS).then(|| inverse.map(|x| x as f32));
-        LocalSystem {
-            local: local.to_vec(),
-            g,
-            inverse,
-            inverse32,
-            base,
-            scratch: Workspace::default(),
-            split: None,
-            vertical: Default::default(),
+        let k = system.inverse.nrows();
+        let mut single = system
+            .inverse32
+            .take()
+            .unwrap_or_else(|| DMatrix::zeros(0, 0));
+        if base.lateral && k >= MIXED_UNKNOWNS {
+            let inverse = &*system.inverse;
+            reshaped(&mut single, k, k).zip_apply(inverse, |s, x| *s = x as f32);
+            system.inverse32 = Some(single);
         }
+        system.base = base;
+        system.split = None;
+        if let Some(Some(vertical)) = system.vertical.take() {
+            *system.vertical_spare.get_mut() = vertical;
+        }
+        system
     }
 
     /// The compliance of node columns `local` and its inverse from those of `base` (made),
@@ -1436,18 +1581,48 @@ impl Compliance {
     /// = P G_sn`). Work of `k^2 (r + n)` for `k` unknowns, `r` and `n` removed and new,
     /// against a factorisation and an inverse's `k^3`. `None` where a Schur complement is
     /// not positive definite.
-    fn updated(&self, base: &Base, local: &[u32]) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+    fn updated(
+        &self,
+        base: &Base,
+        local: &[u32],
+        g: &mut DMatrix<f64>,
+        inverse: &mut DMatrix<f64>,
+        scratch: &mut Update,
+    ) -> Option<()> {
         let (kept_g, kept_inverse) = base.made.as_ref()?;
         let per = if base.lateral { 3 } else { 1 };
-        let unknowns = |columns: &[usize]| -> Vec<usize> {
-            columns
-                .iter()
-                .flat_map(|&c| (0..per).map(move |i| per * c + i))
-                .collect()
+        let Update {
+            shared,
+            shared_old,
+            added,
+            removed,
+            s_new,
+            s_old,
+            a_new,
+            r_old,
+            p,
+            b_rr,
+            b_rs,
+            g_sn,
+            x,
+            schur,
+            xt,
+            s_inv,
+            column,
+        } = scratch;
+        let unknowns = |columns: &[usize], out: &mut Vec<usize>| {
+            out.clear();
+            out.extend(
+                columns
+                    .iter()
+                    .flat_map(|&c| (0..per).map(move |i| per * c + i)),
+            );
         };
         // Positions (in `local`, and in `kept.local`) of the shared columns, the new ones,
         // and the removed ones.
-        let (mut shared, mut shared_old, mut added) = (Vec::new(), Vec::new(), Vec::new());
+        shared.clear();
+        shared_old.clear();
+        added.clear();
         for (a, c) in local.iter().enumerate() {
             match base.local.binary_search(c) {
                 Ok(b) => {
@@ -1457,44 +1632,51 @@ impl Compliance {
                 Err(_) => added.push(a),
             }
         }
-        let removed: Vec<usize> = (0..base.local.len())
-            .filter(|b| local.binary_search(&base.local[*b]).is_err())
-            .collect();
-        let (s_new, s_old, a_new, r_old) = (
-            unknowns(&shared),
-            unknowns(&shared_old),
-            unknowns(&added),
-            unknowns(&removed),
+        removed.clear();
+        removed.extend(
+            (0..base.local.len()).filter(|b| local.binary_search(&base.local[*b]).is_err()),
         );
-        let (ns, na) = (s_new.len(), a_new.len());
+        unknowns(shared, s_new);
+        unknowns(shared_old, s_old);
+        unknowns(added, a_new);
+        unknowns(removed, r_old);
+        let (ns, na, nr) = (s_new.len(), a_new.len(), r_old.len());
         let b = &**kept_inverse;
         // The shared block's inverse.
-        let mut p = DMatrix::from_fn(ns, ns, |i, j| b[(s_old[i], s_old[j])]);
-        if !r_old.is_empty() {
-            let b_rr = DMatrix::from_fn(r_old.len(), r_old.len(), |i, j| b[(r_old[i], r_old[j])]);
-            let b_rs = DMatrix::from_fn(r_old.len(), ns, |i, j| b[(r_old[i], s_old[j])]);
-            let y = b_rr.cholesky()?.solve(&b_rs);
-            add_product(&mut p, -1.0, &b_rs, true, &y, false);
+        let p = reshaped(p, ns, ns);
+        fill(p, |i, j| b[(s_old[i], s_old[j])]);
+        if nr > 0 {
+            let b_rr = reshaped(b_rr, nr, nr);
+            fill(b_rr, |i, j| b[(r_old[i], r_old[j])]);
+            let b_rs = reshaped(b_rs, nr, ns);
+            fill(b_rs, |i, j| b[(r_old[i], s_old[j])]);
+            cholesky(b_rr)?;
+            // `B_rr^-1 B_rs`, solved in place of a copy of `B_rs`.
+            let y = reshaped(xt, nr, ns);
+            y.copy_from(b_rs);
+            cholesky_solve_in(b_rr, y.as_mut_slice(), ns);
+            add_product(p, -1.0, b_rs, true, y, false);
         }
         // The new compliance: the shared block kept, the new columns' rows read.
         let k = ns + na;
         let entries = self.entries(local, base.lateral);
-        let mut g = DMatrix::zeros(k, k);
+        let g = reshaped(g, k, k);
         for j in 0..ns {
             for i in 0..ns {
                 g[(s_new[i], s_new[j])] = kept_g[(s_old[i], s_old[j])];
             }
         }
-        let mut column = vec![0.0; k];
-        for &q in &a_new {
-            entries.column(q, &mut column);
+        column.clear();
+        column.resize(k, 0.0);
+        for &q in a_new.iter() {
+            entries.column(q, column);
             for r in 0..k {
                 let v = (column[r] + entries.at(q, r)) * 0.5;
                 g[(r, q)] = v;
                 g[(q, r)] = v;
             }
         }
-        let mut inverse = DMatrix::zeros(k, k);
+        let inverse = reshaped(inverse, k, k);
         if na == 0 {
             for j in 0..ns {
                 for i in 0..ns {
@@ -1502,16 +1684,21 @@ impl Compliance {
                 }
             }
         } else {
-            let g_sn = DMatrix::from_fn(ns, na, |i, j| g[(s_new[i], a_new[j])]);
-            let mut x = DMatrix::zeros(ns, na);
-            add_product(&mut x, 1.0, &p, false, &g_sn, false);
-            let mut schur = DMatrix::from_fn(na, na, |i, j| g[(a_new[i], a_new[j])]);
-            add_product(&mut schur, -1.0, &g_sn, true, &x, false);
-            let schur = schur.cholesky()?;
-            // `X S^-1`, and `S^-1`.
-            let xs = schur.solve(&x.transpose()).transpose();
-            let s_inv = schur.inverse();
-            add_product(&mut p, 1.0, &xs, false, &x, true);
+            let g_sn = reshaped(g_sn, ns, na);
+            fill(g_sn, |i, j| g[(s_new[i], a_new[j])]);
+            let x = reshaped(x, ns, na);
+            add_product(x, 1.0, p, false, g_sn, false);
+            let schur = reshaped(schur, na, na);
+            fill(schur, |i, j| g[(a_new[i], a_new[j])]);
+            add_product(schur, -1.0, g_sn, true, x, false);
+            cholesky(schur)?;
+            // `(X S^-1)^T = S^-1 X^T`, and `S^-1`.
+            let xt = reshaped(xt, na, ns);
+            fill(xt, |i, j| x[(j, i)]);
+            cholesky_solve_in(schur, xt.as_mut_slice(), ns);
+            let s_inv = reshaped(s_inv, na, na);
+            factor_inverse_into(schur, s_inv);
+            add_product(p, 1.0, xt, true, x, true);
             for j in 0..ns {
                 for i in 0..ns {
                     inverse[(s_new[i], s_new[j])] = p[(i, j)];
@@ -1519,8 +1706,8 @@ impl Compliance {
             }
             for j in 0..na {
                 for i in 0..ns {
-                    inverse[(s_new[i], a_new[j])] = -xs[(i, j)];
-                    inverse[(a_new[j], s_new[i])] = -xs[(i, j)];
+                    inverse[(s_new[i], a_new[j])] = -xt[(j, i)];
+                    inverse[(a_new[j], s_new[i])] = -xt[(j, i)];
                 }
                 for i in 0..na {
                     inverse[(a_new[i], a_new[j])] = s_inv[(i, j)];
@@ -1529,7 +1716,7 @@ impl Compliance {
         }
         // The two triangles agree to round-off: the lower one for both, as a fresh inverse.
         inverse.fill_upper_triangle_with_lower_triangle();
-        Some((g, inverse))
+        Some(())
     }
 
     /// Keeps `system` for the next contacts (the oldest kept goes beyond
@@ -1537,7 +1724,9 @@ impl Compliance {
     fn put_local(&mut self, system: Box<LocalSystem>) {
         self.locals.push(Kept::Made(system));
         if self.locals.len() > LOCAL_SYSTEMS {
-            self.locals.remove(0);
+            if let Kept::Made(oldest) = self.locals.remove(0) {
+                self.reuse.get_mut().let_go(oldest);
+            }
         }
     }
 
@@ -1797,10 +1986,7 @@ impl Compliance {
                             && may_slide
                             && StartDemand::at(&problem, &caps, &anchors, l).asks_vertical()
                         {
-                            vertical = system
-                                .vertical
-                                .get_or_init(|| vertical_inverse(&system.g))
-                                .as_ref();
+                            vertical = system.vertical();
                         }
                         let Some(inverse_zz) = vertical.filter(|_| pass < VERTICAL_PASSES) else {
                             break;
@@ -2080,7 +2266,7 @@ impl Compliance {
     /// Renumbers the anchors' indenters (`matched[i]`: previous index of indenter `i`);
     /// anchors of indenters that are gone are dropped.
     pub fn remap(&mut self, matched: &[Option<usize>]) {
-        remap_anchors(&mut self.anchors, matched);
+        self.anchors.retain(|_, a| remap_anchor(a, matched));
     }
 
     /// Writes or reads the kept sets' bases ([`Base`]: the sets' systems follow from
@@ -2142,9 +2328,19 @@ impl Compliance {
         self.anchors.clear();
         self.lagged.clear();
         self.last.clear();
-        self.locals.clear();
         if std::mem::take(&mut self.built_large) {
+            // A pad's systems: their memory goes back.
+            self.locals.clear();
+            *self.reuse.get_mut() = Reuse::default();
             crate::release_free_memory();
+        } else {
+            // The systems go, their buffers are kept for the next contact's.
+            let reuse = self.reuse.get_mut();
+            for kept in self.locals.drain(..) {
+                if let Kept::Made(system) = kept {
+                    reuse.let_go(system);
+                }
+            }
         }
     }
 }
@@ -2201,7 +2397,7 @@ unsafe fn add_responses_avx2(responses: &Responses, loads: &[(u32, Vector3<f64>)
 /// coarsely it is sampled, and a footprint one sample wide is as wide as a sample). `None`
 /// where no sample penetrates.
 fn footprint(
-    (samples, share): (Vec<Vector3<f64>>, f64),
+    (samples, share): (Samples, f64),
     face: f64,
     distance: impl Fn(&Vector3<f64>) -> f64,
     depth: impl Fn(&Vector3<f64>) -> f64,
@@ -2209,7 +2405,7 @@ fn footprint(
     let (mut inside, mut sum) = (0usize, 0.0);
     let (mut first, mut second) = (Vector2::zeros(), Matrix2::zeros());
     let mut deepest: Option<(f64, f64, Vector3<f64>)> = None;
-    for x in samples {
+    for x in samples.points() {
         let d = distance(&x);
         if d < 0.0 {
             let h = depth(&x).max(0.0);
@@ -2273,21 +2469,90 @@ fn elliptic_stiffness(rho: f64) -> f64 {
 /// The inverse of the symmetric positive definite `a` (faer's Cholesky, in the calling
 /// thread); `None` if it is not positive definite.
 fn spd_inverse(a: &DMatrix<f64>) -> Option<DMatrix<f64>> {
-    let n = a.nrows();
-    let mut l = a.clone();
-    cholesky(&mut l)?;
-    let mut out = DMatrix::zeros(n, n);
-    let mut mem = MemBuffer::new(llt::inverse::inverse_scratch::<f64>(n, Par::Seq));
-    llt::inverse::inverse(
-        MatMut::from_column_major_slice_mut(out.as_mut_slice(), n, n),
-        MatRef::from_column_major_slice(l.as_slice(), n, n),
-        Par::Seq,
-        MemStack::new(&mut mem),
-    );
-    // The inverse is written to one triangle: mirror it.
-    out.fill_upper_triangle_with_lower_triangle();
+    let (mut l, mut out) = (a.clone(), DMatrix::zeros(0, 0));
+    spd_inverse_into(&mut l, &mut out)?;
     Some(out)
 }
+
+/// [`spd_inverse`] of `a`, factored in place, into `out` (its allocation reused).
+fn spd_inverse_into(a: &mut DMatrix<f64>, out: &mut DMatrix<f64>) -> Option<()> {
+    cholesky(a)?;
+    factor_inverse_into(a, reshaped(out, a.nrows(), a.ncols()));
+    Some(())
+}
+
+/// The inverse of a symmetric positive definite matrix from its Cholesky factor (the
+/// lower triangle of `l`, as [`cholesky`] leaves it), into `out` (its shape): both
+/// triangles.
+fn factor_inverse_into(l: &DMatrix<f64>, out: &mut DMatrix<f64>) {
+    let n = l.nrows();
+    let req = llt::inverse::inverse_scratch::<f64>(n, Par::Seq);
+    with_stack(req, |stack| {
+        llt::inverse::inverse(
+            MatMut::from_column_major_slice_mut(out.as_mut_slice(), n, n),
+            MatRef::from_column_major_slice(l.as_slice(), n, n),
+            Par::Seq,
+            stack,
+        )
+    });
+    // The inverse is written to one triangle: mirror it.
+    out.fill_upper_triangle_with_lower_triangle();
+}
+
+/// `m` as an `r x c` matrix of zeros, its allocation reused.
+fn reshaped<T: nalgebra::Scalar + Default>(
+    m: &mut DMatrix<T>,
+    r: usize,
+    c: usize,
+) -> &mut DMatrix<T> {
+    if m.shape() == (r, c) {
+        m.fill(T::default());
+    } else {
+        let mut data: Vec<T> = std::mem::replace(m, DMatrix::from_vec(0, 0, Vec::new()))
+            .data
+            .into();
+        data.clear();
+        data.resize(r * c, T::default());
+        *m = DMatrix::from_vec(r, c, data);
+    }
+    m
+}
+
+/// Sets every entry of `m` to `f(row, column)`.
+fn fill(m: &mut DMatrix<f64>, f: impl Fn(usize, usize) -> f64) {
+    let n = m.nrows();
+    for (k, v) in m.as_mut_slice().iter_mut().enumerate() {
+        *v = f(k % n, k / n);
+    }
+}
+
+/// The matrix behind `m`, made its own (where it was shared, one of `spare`, or a fresh
+/// empty one) so that it can be written in place.
+fn unique<'m>(
+    m: &'m mut Arc<DMatrix<f64>>,
+    spare: &mut Vec<Arc<DMatrix<f64>>>,
+) -> &'m mut DMatrix<f64> {
+    if Arc::get_mut(m).is_none() {
+        *m = spare_matrix(spare);
+    }
+    Arc::make_mut(m)
+}
+
+/// One of `spare`, or a fresh empty matrix.
+fn spare_matrix(spare: &mut Vec<Arc<DMatrix<f64>>>) -> Arc<DMatrix<f64>> {
+    spare
+        .pop()
+        .unwrap_or_else(|| Arc::new(DMatrix::zeros(0, 0)))
+}
+
+/// `m` made its own ([`unique`]) and set to `from`.
+fn copy_into(m: &mut Arc<DMatrix<f64>>, from: &DMatrix<f64>, spare: &mut Vec<Arc<DMatrix<f64>>>) {
+    let m = unique(m, spare);
+    reshaped(m, from.nrows(), from.ncols()).copy_from(from);
+}
+
+/// The most matrices [`Reuse`] keeps from the bases let go.
+const SPARE_MATRICES: usize = 4;
 
 /// Rows of a dense factorisation below which it runs in the calling thread even in a
 /// pool of several: a contact system of tens of pressed points gains nothing from a
@@ -2311,7 +2576,7 @@ fn cholesky<T: faer::traits::RealField + nalgebra::Scalar>(a: &mut DMatrix<T>) -
         par()
     };
     let req = llt::factor::cholesky_in_place_scratch::<T>(n, par, Default::default());
-    let mut factor = |stack: &mut MemStack| {
+    let factor = |stack: &mut MemStack| {
         llt::factor::cholesky_in_place(
             MatMut::from_column_major_slice_mut(a.as_mut_slice(), n, n),
             Default::default(),
@@ -2322,20 +2587,34 @@ fn cholesky<T: faer::traits::RealField + nalgebra::Scalar>(a: &mut DMatrix<T>) -
         .ok()
         .map(|_| ())
     };
-    FACTOR_STACK.with(|kept| match kept.try_borrow_mut() {
-        Ok(mut kept) => {
-            let (made_for, mem) = &mut *kept;
-            // A buffer made for a request serves any it covers (`or`: the larger size and
-            // alignment of the two); else one is made for both.
-            if made_for.or(req) != *made_for {
-                *made_for = made_for.or(req);
-                *mem = MemBuffer::new(*made_for);
+    with_stack(req, factor)
+}
+
+/// Runs `f` on this thread's kept scratch for faer ([`FACTOR_STACK`]), grown to `req`
+/// where it is smaller.
+fn with_stack<R>(req: StackReq, f: impl FnOnce(&mut MemStack) -> R) -> R {
+    FACTOR_STACK.with(|kept| {
+        let (mut guard, mut own);
+        let mem = match kept.try_borrow_mut() {
+            Ok(kept) => {
+                guard = kept;
+                let (made_for, mem) = &mut *guard;
+                // A buffer made for a request serves any it covers (`or`: the larger size
+                // and alignment of the two); else one is made for both.
+                if made_for.or(req) != *made_for {
+                    *made_for = made_for.or(req);
+                    *mem = MemBuffer::new(*made_for);
+                }
+                mem
             }
-            factor(MemStack::new(mem))
-        }
-        // This thread is inside a factorisation already (a parallel one that took up
-        // other work while it waited): a buffer of its own.
-        Err(_) => factor(MemStack::new(&mut MemBuffer::new(req))),
+            // This thread is inside a factorisation already (a parallel one that took up
+            // other work while it waited): a buffer of its own.
+            Err(_) => {
+                own = MemBuffer::new(req);
+                &mut own
+            }
+        };
+        f(MemStack::new(mem))
     })
 }
 
@@ -2415,11 +2694,21 @@ fn cholesky_solve<T: faer::traits::RealField + nalgebra::Scalar>(
     a: &DMatrix<T>,
     b: &mut DVector<T>,
 ) {
+    cholesky_solve_in(a, b.as_mut_slice(), 1);
+}
+
+/// [`cholesky_solve`] for the `columns` right-hand sides of `b` (column-major, `a`'s
+/// rows each).
+fn cholesky_solve_in<T: faer::traits::RealField + nalgebra::Scalar>(
+    a: &DMatrix<T>,
+    b: &mut [T],
+    columns: usize,
+) {
     let n = a.nrows();
     llt::solve::solve_in_place_with_conj(
         MatRef::from_column_major_slice(a.as_slice(), n, n),
         Conj::No,
-        MatMut::from_column_major_slice_mut(b.as_mut_slice(), n, 1),
+        MatMut::from_column_major_slice_mut(b, n, columns),
         Par::Seq,
         MemStack::new(&mut MemBuffer::new(StackReq::EMPTY)),
     );
@@ -2480,15 +2769,14 @@ impl Problem<'_> {
     /// The kept matrix of `scratch`'s precision, set to `G^-1` (`inverse` in single
     /// precision where kept): the system a Newton step assembles and factors in place,
     /// without allocating it anew at every step.
-    fn system_in<'s, T: nalgebra::Scalar + Copy>(
+    fn system_in<'s, T: nalgebra::Scalar + Copy + Default>(
         scratch: &'s mut DMatrix<T>,
         from: &DMatrix<T>,
     ) -> &'s mut DMatrix<T> {
-        if scratch.shape() == from.shape() {
-            scratch.copy_from(from);
-        } else {
-            *scratch = from.clone();
+        if scratch.shape() != from.shape() {
+            reshaped(scratch, from.nrows(), from.ncols());
         }
+        scratch.copy_from(from);
         scratch
     }
 
@@ -3347,11 +3635,21 @@ const GROSS_SLIP: f64 = 0.15;
 
 /// The inverse of the vertical block `G_zz` of the columns' compliance `g` (three
 /// unknowns per column, the vertical last): [`vertical_start`]'s system.
-fn vertical_inverse(g: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+fn vertical_inverse(g: &DMatrix<f64>, out: &mut DMatrix<f64>) -> Option<()> {
     let cols = g.nrows() / 3;
-    spd_inverse(&DMatrix::from_fn(cols, cols, |a, b| {
-        g[(3 * a + 2, 3 * b + 2)]
-    }))
+    VERTICAL_BLOCK.with(|kept| {
+        let mut block = kept.borrow_mut();
+        fill(reshaped(&mut block, cols, cols), |a, b| {
+            g[(3 * a + 2, 3 * b + 2)]
+        });
+        spd_inverse_into(&mut block, out)
+    })
+}
+
+thread_local! {
+    /// [`vertical_inverse`]'s copy of the vertical block, factored in place.
+    static VERTICAL_BLOCK: std::cell::RefCell<DMatrix<f64>> =
+        std::cell::RefCell::new(DMatrix::zeros(0, 0));
 }
 
 /// A start for a frame's first frictional solve whose pressed set is already nearly the
@@ -4318,34 +4616,22 @@ pub(super) struct LinearSolver {
     /// that failed or the solver came later (a fallback), at the first frame that
     /// presses the undeformed gel.
     compliance: Option<Box<Compliance>>,
+    /// The indenters of the last frame's sweep end (empty between frames: the vector
+    /// kept).
+    placed: Vec<StepIndenter>,
 }
 
-#[cfg(test)]
-impl Gel {
-    /// The linear solver's compliance, where the gel runs it and has built it.
-    fn compliance(&self) -> Option<&Compliance> {
-        self.own_solver::<LinearSolver>()?.compliance.as_deref()
-    }
-}
-
-impl Equilibrium for LinearSolver {
-    fn kind(&self) -> Solver {
-        Solver::Linear
-    }
-
-    fn prepare(&mut self, gel: &Gel) {
-        if self.compliance.is_none() {
-            self.compliance = Compliance::new(gel).ok().map(Box::new);
-        }
-    }
-
-    /// The contact of the small-strain gel with the indenters at the end of the frame's
-    /// sweep.
-    fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport) {
+impl LinearSolver {
+    /// [`Equilibrium::solve`] for the indenters `placed` at the sweep's end.
+    fn solve_placed(
+        &mut self,
+        gel: &mut Gel,
+        frame: &Frame<'_>,
+        placed: &[StepIndenter],
+        report: &mut SolveReport,
+    ) {
         let sweep = frame.sweep;
         let dx = gel.layout.dx;
-        let mut placed = Vec::new();
-        sweep.place(sweep.steps.max(1) - 1, dx, &mut placed);
         if self.compliance.is_none() {
             if gel.reached_depth(sweep.indenters.iter().copied()) <= 0.0 {
                 // Nothing inside the undeformed top face yet: the undeformed gel is the
@@ -4370,7 +4656,7 @@ impl Equilibrium for LinearSolver {
         }
         let linear = self.compliance.as_mut().expect("built above");
         linear.remap(frame.matched);
-        let contact = linear.contact(&placed, &sweep.starts, gel.options.tolerance);
+        let contact = linear.contact(placed, &sweep.starts, gel.options.tolerance);
         report.iterations = contact.passes;
         report.cg_iterations = contact.iterations;
         report.sweep_steps = 1;
@@ -4398,6 +4684,38 @@ impl Equilibrium for LinearSolver {
             }));
         gel.set_surface(|slot| contact.surface[slot] * dx);
         linear.recycle(contact);
+    }
+}
+
+#[cfg(test)]
+impl Gel {
+    /// The linear solver's compliance, where the gel runs it and has built it.
+    fn compliance(&self) -> Option<&Compliance> {
+        self.own_solver::<LinearSolver>()?.compliance.as_deref()
+    }
+}
+
+impl Equilibrium for LinearSolver {
+    fn kind(&self) -> Solver {
+        Solver::Linear
+    }
+
+    fn prepare(&mut self, gel: &Gel) {
+        if self.compliance.is_none() {
+            self.compliance = Compliance::new(gel).ok().map(Box::new);
+        }
+    }
+
+    /// The contact of the small-strain gel with the indenters at the end of the frame's
+    /// sweep.
+    fn solve(&mut self, gel: &mut Gel, frame: &Frame<'_>, report: &mut SolveReport) {
+        // The indenters at the sweep's end, in the vector of the frame before.
+        let mut placed = std::mem::take(&mut self.placed);
+        let sweep = frame.sweep;
+        sweep.place(sweep.steps.max(1) - 1, gel.layout.dx, &mut placed);
+        self.solve_placed(gel, frame, &placed, report);
+        placed.clear();
+        self.placed = placed;
     }
 
     fn reset(&mut self) {
@@ -4431,7 +4749,7 @@ impl Equilibrium for LinearSolver {
             };
         }
         if let Some(c) = self.compliance.as_mut() {
-            state::btree(io, &mut c.anchors, bounds.points, "the friction anchors");
+            state::sorted(io, &mut c.anchors, bounds.points, "the friction anchors");
             state::hash(io, &mut c.lagged, bounds.points, "the lagged forces");
             let columns = 3 * c.levels.len();
             state::list(io, &mut c.last, columns, "the columns' displacement");

@@ -106,6 +106,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use std::sync::Arc;
 
 use crate::geometry::{PixelGrid, Placed, Sdf};
+use crate::scratch::{recycled, refill};
 
 pub use choice::{
     choose, Choice, Role, AUTO_NEWTON_POISSON, COARSE_START_UNKNOWNS, LINEAR_UNKNOWNS,
@@ -381,6 +382,8 @@ pub struct Gel {
     /// Shape and pose of each usable indenter of the previous solve, in the order that
     /// the contact state's indenter indices refer to.
     prev: Vec<(Arc<dyn Sdf>, Isometry3<f64>)>,
+    /// The vectors of a solve's indenters, kept between solves.
+    indenter_buffers: crate::scratch::Kept<indenters::Buffers>,
     force: Vector3<f64>,
     /// Displacement of the top surface per slot (m), after the last solve.
     surface_u: Vec<Vector3<f64>>,
@@ -469,6 +472,7 @@ impl Gel {
             chunk_stats: Vec::with_capacity(nxp),
             step_ind: Vec::new(),
             prev: Vec::new(),
+            indenter_buffers: Default::default(),
             force: Vector3::zeros(),
             surface_u: vec![Vector3::zeros(); top_len],
             surface_box: None,
@@ -523,7 +527,7 @@ impl Gel {
         if self.force != Vector3::zeros() {
             return 0.0;
         }
-        self.reached_depth(indenters::usable(indenters).into_iter())
+        self.reached_depth(indenters::usable(indenters))
     }
 
     /// How deep (m, a lower bound) `indenters` reach into the undeformed top face, sampled
@@ -783,19 +787,42 @@ impl Gel {
     }
 
     fn solve_in_pool(&mut self, indenters: &[Placed]) -> SolveReport {
-        let used = indenters::usable(indenters);
+        // The frame's vectors, their allocations kept from the frame before.
+        let mut kept = std::mem::take(self.indenter_buffers.get_mut());
+        let mut used: Vec<&Placed> = recycled(std::mem::take(&mut kept.used));
+        used.extend(indenters::usable(indenters));
+        let (report, used, starts) = self.solve_used(indenters, used, &mut kept);
+        kept.used = recycled(used);
+        kept.starts = starts;
+        kept.current.clear();
+        *self.indenter_buffers.get_mut() = kept;
+        report
+    }
+
+    /// [`Gel::solve_in_pool`] for the usable indenters `used`, which it gives back with the
+    /// sweep's starts (their allocations kept, as `kept`'s).
+    fn solve_used<'a>(
+        &mut self,
+        indenters: &[Placed],
+        used: Vec<&'a Placed>,
+        kept: &mut indenters::Buffers,
+    ) -> (SolveReport, Vec<&'a Placed>, Vec<Isometry3<f64>>) {
         let touching = used.iter().any(|p| self.reaches(p));
         let mut report = SolveReport::new(used.len());
         let repaired = self.restart_if_needed(&mut report);
         // Identity: which previous indenter each one is (same shape, nearest pose).
-        let matched = match_indenters(&self.prev, &used);
-        self.remap_contacts(&matched);
-        let current = used.iter().map(|p| (p.shape.clone(), p.pose)).collect();
+        match_indenters(&self.prev, &used, kept);
+        let matched = &kept.matched;
+        self.remap_contacts(matched, &mut kept.index);
+        kept.current.clear();
+        kept.current
+            .extend(used.iter().map(|p| (p.shape.clone(), p.pose)));
+        let starts = std::mem::take(&mut kept.starts);
         if !touching && self.resting {
-            self.prev = current;
+            std::mem::swap(&mut self.prev, &mut kept.current);
             self.force = Vector3::zeros();
             self.loads.clear();
-            return report;
+            return (report, used, starts);
         }
         let footprint = if touching {
             self.footprint_points(indenters, UNRESOLVED_POINTS)
@@ -804,7 +831,7 @@ impl Gel {
         };
         let fallback = if self.options.fallback {
             let spacing = self.contact_spacing(Solver::Relaxation);
-            let reached = || self.reached_depth(indenters::usable(indenters).into_iter());
+            let reached = || self.reached_depth(indenters::usable(indenters));
             choice::frame_fallback(&self.params, touching, footprint, reached, spacing)
         } else {
             None
@@ -841,32 +868,33 @@ impl Gel {
             if !self.resting {
                 self.reset();
             }
-            self.prev = current;
-            return report;
+            std::mem::swap(&mut self.prev, &mut kept.current);
+            return (report, used, starts);
         }
         let sweep = if !relaxes || self.relaxed {
-            self.plan_sweep(used, &matched)
+            self.plan_sweep(used, matched, starts)
         } else {
             // The relaxation's state is the gel at rest (a fresh gel, or one whose last
             // frames the fallback carried): its indenters come in from above the gel, as
             // into a fresh gel, not from poses it never saw. (Swept from the fallback's
             // last poses, a capsule 1.3 mm deep slid 0.65 mm started 1.3 mm inside the
             // undeformed gel and stopped at the iteration cap with no vertical force.)
-            self.plan_sweep(used, &vec![None; matched.len()])
+            refill(&mut kept.none, matched.len(), None);
+            self.plan_sweep(used, &kept.none, starts)
         };
         let frame = solver::Frame {
             indenters,
             sweep: &sweep,
-            matched: &matched,
+            matched,
         };
         solver.solve(self, &frame, &mut report);
         // A solve that ended with a non-finite value kept no poses; one that began with a
         // non-finite particle says so after the poses are kept.
-        self.prev = if report.nonfinite_recovered {
-            Vec::new()
+        if report.nonfinite_recovered {
+            self.prev.clear();
         } else {
-            current
-        };
+            std::mem::swap(&mut self.prev, &mut kept.current);
+        }
         report.nonfinite_recovered |= repaired;
         self.resting = !touching && self.surface_box.is_none();
         if report.fallback {
@@ -880,7 +908,7 @@ impl Gel {
                 }
             }
         }
-        report
+        (report, sweep.indenters, sweep.starts)
     }
 
     /// Starts from the undeformed gel ([`SolveReport::restarted`]) when the last solve

@@ -185,7 +185,12 @@ impl OutputSpec {
 
     /// Number of sensordata values for `layout`.
     pub fn len(&self, layout: &Layout) -> usize {
-        self.dims(layout).iter().product()
+        // As `dims`' product, without making the vector (read at every frame).
+        match self.shape {
+            Shape::Image { channels } => layout.height * layout.width * channels,
+            Shape::Vector(n) => n,
+            Shape::PerMarker(n) => layout.markers[0] * layout.markers[1] * n,
+        }
     }
 }
 

@@ -418,17 +418,20 @@ pub(super) struct Anchor {
 /// Renumbers the indenters of `anchors` (`matched[i]`: previous index of indenter `i`);
 /// anchors of indenters that are gone are dropped.
 pub(super) fn remap_anchors(anchors: &mut BTreeMap<u32, Anchor>, matched: &[Option<usize>]) {
+    anchors.retain(|_, a| remap_anchor(a, matched));
+}
+
+/// Renumbers the indenter of `anchor` ([`remap_anchors`]); false where it is gone.
+pub(super) fn remap_anchor(anchor: &mut Anchor, matched: &[Option<usize>]) -> bool {
     // Each previous indenter has one successor at most (a search over the few
     // indenters, where a map of them was made every frame).
-    anchors.retain(
-        |_, a| match matched.iter().position(|&m| m == Some(a.indenter)) {
-            Some(i) => {
-                a.indenter = i;
-                true
-            }
-            None => false,
-        },
-    );
+    match matched.iter().position(|&m| m == Some(anchor.indenter)) {
+        Some(i) => {
+            anchor.indenter = i;
+            true
+        }
+        None => false,
+    }
 }
 
 /// The state of one contact point at a displacement field.

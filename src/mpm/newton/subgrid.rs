@@ -61,20 +61,41 @@ pub(in crate::mpm) fn tip_samples(
     lo: Vector3<f64>,
     hi: Vector3<f64>,
     spacing: [f64; 2],
-) -> (Vec<Vector3<f64>>, f64) {
+) -> (Samples, f64) {
     let step = [0, 1].map(|a| spacing[a] / TIP_SAMPLES as f64);
     let counts = [0, 1].map(|a| ((hi[a] - lo[a]) / step[a]).round() as usize + 2 * TIP_SAMPLES);
-    let mut out = Vec::with_capacity((counts[0] + 1) * (counts[1] + 1));
-    for i in 0..=counts[0] {
-        for j in 0..=counts[1] {
-            out.push(Vector3::new(
-                lo.x - spacing[0] + i as f64 * step[0],
-                lo.y - spacing[1] + j as f64 * step[1],
-                lo.z,
-            ));
-        }
+    let samples = Samples {
+        from: Vector3::new(lo.x - spacing[0], lo.y - spacing[1], lo.z),
+        step,
+        counts,
+    };
+    (samples, 1.0 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
+}
+
+/// A grid of surface samples, generated where read (a frame's search allocates nothing):
+/// `from + (i step[0], j step[1], 0)` for `i` in `0..=counts[0]` and `j` in
+/// `0..=counts[1]`, `j` fastest.
+#[derive(Clone, Copy, Debug)]
+pub(in crate::mpm) struct Samples {
+    pub from: Vector3<f64>,
+    pub step: [f64; 2],
+    pub counts: [usize; 2],
+}
+
+impl Samples {
+    /// The samples, in order.
+    pub fn points(self) -> impl Iterator<Item = Vector3<f64>> {
+        let Samples { from, step, counts } = self;
+        (0..=counts[0]).flat_map(move |i| {
+            (0..=counts[1]).map(move |j| {
+                Vector3::new(
+                    from.x + i as f64 * step[0],
+                    from.y + j as f64 * step[1],
+                    from.z,
+                )
+            })
+        })
     }
-    (out, 1.0 / (TIP_SAMPLES * TIP_SAMPLES) as f64)
 }
 
 /// Distance, in resolved radii, within which touching points belong to one patch: the
@@ -366,7 +387,7 @@ impl Newton {
         let (samples, share) = tip_samples(*rest, *rest, self.spacing);
         let mut deepest: Option<(f64, Vector3<f64>)> = None;
         let mut inside = 0usize;
-        for at in samples {
+        for at in samples.points() {
             let x = at + self.displacement(&Stencil::at(&at), &self.u);
             let d = self.distance_to(&x, indenter);
             if d < 0.0 {
@@ -394,7 +415,7 @@ impl Newton {
         }
         let (samples, share) = tip_samples(lo, hi, self.spacing);
         let inside = samples
-            .iter()
+            .points()
             .filter(|x| self.clearance(x, indenters) < 0.0)
             .count();
         (inside as f64 * share).max(share)

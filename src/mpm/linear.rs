@@ -1885,7 +1885,9 @@ impl Compliance {
                 // last frame's lateral forces kept, to start the lateral loads from).
                 // Without friction no column carries a lateral load: the vertical block's
                 // problem.
-                let mut l = DVector::zeros(local.len());
+                let l = sized(&mut loads, local.len());
+                l.fill(0.0);
+                let f = &mut normal;
                 let mut solve = |vertical: &LocalSystem| {
                     let problem = Problem {
                         g: &vertical.g,
@@ -1898,7 +1900,7 @@ impl Compliance {
                         delta: &d,
                         eps: &eps,
                     };
-                    penalty_contact(&problem, &mut l)
+                    penalty_contact_into(&problem, l, f)
                 };
                 let answer = self.take_local(&local, false).and_then(|vertical| {
                     let answer = solve(&vertical);
@@ -1906,9 +1908,9 @@ impl Compliance {
                     answer
                 });
                 match answer {
-                    Some((f, steps)) => {
+                    Some(steps) => {
                         iterations += steps;
-                        for (&i, &fi) in cand.iter().zip(&f) {
+                        for (&i, &fi) in cand.iter().zip(&normal) {
                             (forces[i].z, lag[i]) = (fi, fi);
                         }
                     }
@@ -2042,12 +2044,13 @@ impl Compliance {
                 }
                 solved &= settled;
             } else {
-                let mut l = DVector::from_iterator(local.len(), local.iter().map(|c| load(c).z));
-                match penalty_contact(&problem, &mut l) {
-                    Some((f, steps)) => {
+                let l = sized(&mut loads, local.len());
+                l.iter_mut().zip(&local).for_each(|(l, c)| *l = load(c).z);
+                match penalty_contact_into(&problem, l, &mut normal) {
+                    Some(steps) => {
                         iterations += steps;
                         forces.fill(Vector3::zeros());
-                        for (&i, &fi) in cand.iter().zip(&f) {
+                        for (&i, &fi) in cand.iter().zip(&normal) {
                             forces[i] = Vector3::new(0.0, 0.0, fi);
                         }
                     }
@@ -3261,6 +3264,8 @@ struct Steps {
     stuck: Vec<Vector3<f64>>,
     stiff: Vec<(usize, Matrix3<f64>)>,
     direction: Descent,
+    /// [`penalty_contact_into`]'s.
+    penalty: Penalty,
     /// [`vertical_start`]'s.
     vertical: Vertical,
     /// [`frictional_contact`]'s loads at its start.
@@ -3401,6 +3406,14 @@ fn takes(e: f64, trial: f64, alpha: f64, slope: f64, lowers: impl FnOnce() -> bo
     trial <= e + 1e-4 * alpha * slope || (unresolved && lowers())
 }
 
+/// [`penalty_contact_into`], returning the forces.
+#[cfg(test)]
+fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize)> {
+    let mut f = Vec::new();
+    let iterations = penalty_contact_into(p, l, &mut f)?;
+    Some((f, iterations))
+}
+
 /// The penalty contact in the node columns' loads `l`: the columns sink `v = G l` (`G`
 /// their sinking under their loads: symmetric, positive definite), the points `s = W v`
 /// (`W` their column weights, rows of `(column, weight)`), and press with forces
@@ -3414,9 +3427,11 @@ fn takes(e: f64, trial: f64, alpha: f64, slope: f64, lowers: impl FnOnce() -> bo
 /// points degenerate). Armijo's backtracking on `E` keeps it descending (Newton's method
 /// on a convex piecewise quadratic: the primal-dual active set method with a line
 /// search, Hintermueller, Ito and Kunisch 2002); once the pressed set repeats after a full
-/// step, the answer is exact. Starts from `l` (updated); returns the forces and the
-/// iterations, or `None` if they run out or a solve fails.
-fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize)> {
+/// step, the answer is exact. Starts from `l` (updated); leaves the forces in `out` (its
+/// allocation kept; the vectors kept in the problem's [`Steps`]: a frame allocates nothing
+/// once they are sized); returns the iterations, or `None` if they run out or a solve
+/// fails.
+fn penalty_contact_into(p: &Problem, l: &mut DVector<f64>, out: &mut Vec<f64>) -> Option<usize> {
     let Problem {
         g,
         inverse,
@@ -3426,23 +3441,31 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
         ..
     } = *p;
     let k = g.nrows();
-    // The forces at `l` and the energy there, from one product `G l`.
-    let evaluate = |l: &DVector<f64>| -> (Vec<f64>, f64) {
-        let v = product(g, l);
-        let f: Vec<f64> = w
-            .iter()
-            .zip(delta)
-            .zip(eps)
-            .map(|((row, &d), &eps)| {
-                let s: f64 = row.iter().map(|&(c, wt)| wt * v[c as usize]).sum();
-                ((d - s) / eps).max(0.0)
-            })
-            .collect();
-        let e = 0.5 * l.dot(&v) + 0.5 * f.iter().zip(eps).map(|(f, eps)| eps * f * f).sum::<f64>();
-        (f, e)
+    let mut kept = p.steps.lock().unwrap_or_else(|e| e.into_inner());
+    let Penalty {
+        v,
+        ft,
+        wf,
+        wt,
+        r,
+        trial,
+        before,
+        direction,
+    } = &mut kept.penalty;
+    let f = out;
+    // The forces at `l` into `f` and the energy there, from one product `G l`.
+    let evaluate = |l: &DVector<f64>, v: &mut DVector<f64>, f: &mut Vec<f64>| -> f64 {
+        product_into(g, l, v);
+        f.clear();
+        f.extend(w.iter().zip(delta).zip(eps).map(|((row, &d), &eps)| {
+            let s: f64 = row.iter().map(|&(c, wt)| wt * v[c as usize]).sum();
+            ((d - s) / eps).max(0.0)
+        }));
+        0.5 * l.dot(v) + 0.5 * f.iter().zip(eps).map(|(f, eps)| eps * f * f).sum::<f64>()
     };
-    let loads = |f: &[f64]| -> DVector<f64> {
-        let mut out = DVector::zeros(k);
+    // `W^T f` into `out`.
+    let loads = |f: &[f64], out: &mut DVector<f64>| {
+        sized(out, k).fill(0.0);
         for (row, &f) in w.iter().zip(f) {
             if f > 0.0 {
                 for &(c, wt) in row {
@@ -3450,39 +3473,51 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
                 }
             }
         }
-        out
     };
-    let (mut f, mut e) = evaluate(l);
+    let mut e = evaluate(l, v, f);
     for it in 0..MAX_NEWTON {
-        let wf = loads(&f);
-        let r = &*l - &wf;
+        loads(f, wf);
+        sized(r, k).copy_from(l);
+        *r -= &*wf;
         let scale = l.amax().max(wf.amax());
         if r.amax() <= 1e-12 * scale || scale == 0.0 {
-            return Some((f, it));
+            return Some(it);
         }
         let mut scratch = p.scratch.lock();
         let system = Problem::system_in(&mut scratch.double, inverse);
-        for ((row, _), eps) in w.iter().zip(&f).zip(eps).filter(|((_, &f), _)| f > 0.0) {
+        for ((row, _), eps) in w
+            .iter()
+            .zip(f.iter())
+            .zip(eps)
+            .filter(|((_, &f), _)| f > 0.0)
+        {
             for &(a, wa) in row {
                 for &(b, wb) in row {
                     system[(a as usize, b as usize)] += wa * wb / eps;
                 }
             }
         }
-        let mut direction = Descent::default();
-        p.descent(system, &r, &mut direction)?;
-        let Descent { step, slope, .. } = direction;
+        p.descent(system, r, direction)?;
+        let (step, slope) = (&direction.step, direction.slope);
         drop(scratch);
-        let before: Vec<bool> = f.iter().map(|&f| f > 0.0).collect();
+        before.clear();
+        before.extend(f.iter().map(|&f| f > 0.0));
         let mut alpha = 1.0;
         let mut accepted = false;
         for _ in 0..MAX_HALVINGS {
-            let trial = &*l + &step * alpha;
-            let (ft, et) = evaluate(&trial);
+            sized(trial, k).zip_zip_apply(l, step, |t, l, s| *t = l + s * alpha);
+            let et = evaluate(trial, v, ft);
             if takes(e, et, alpha, slope, || {
-                (&trial - loads(&ft)).amax() < r.amax()
+                loads(ft, wt);
+                trial
+                    .iter()
+                    .zip(wt.iter())
+                    .fold(0.0, |m: f64, (t, w)| m.max((t - w).abs()))
+                    < r.amax()
             }) {
-                (*l, f, e) = (trial, ft, et);
+                l.copy_from(trial);
+                std::mem::swap(f, ft);
+                e = et;
                 accepted = true;
                 break;
             }
@@ -3490,14 +3525,29 @@ fn penalty_contact(p: &Problem, l: &mut DVector<f64>) -> Option<(Vec<f64>, usize
         }
         if !accepted {
             // No decrease left to find: the energy is at its minimum to round-off.
-            return Some((f, it + 1));
+            return Some(it + 1);
         }
         if alpha == 1.0 && f.iter().map(|&f| f > 0.0).eq(before.iter().copied()) {
             // A full step on a pressed set that it keeps: the exact answer on that set.
-            return Some((f, it + 1));
+            return Some(it + 1);
         }
     }
     None
+}
+
+/// The vectors of [`penalty_contact_into`] (each sized and overwritten before it is
+/// read): the columns' sinking, a trial's forces, the loads of the forces and of a
+/// trial's, the residual, the trial loads, the pressed set before a step, and the step.
+#[derive(Default)]
+struct Penalty {
+    v: DVector<f64>,
+    ft: Vec<f64>,
+    wf: DVector<f64>,
+    wt: DVector<f64>,
+    r: DVector<f64>,
+    trial: DVector<f64>,
+    before: Vec<bool>,
+    direction: Descent,
 }
 
 /// Friction's data per point of [`frictional_contact`]: the cap of its force (`mu` times

@@ -1,9 +1,10 @@
 //! Heap allocations per sensor evaluation in steady state: a sphere (R 5 mm) slid along x
 //! while pressed 0.5 mm, at 64 x 48 (`tacrom/Press-v1`'s images) and 320 x 240, per
 //! physics mode, and a 24 mm box face pressed 0.3 mm and shaken by a few microns (a held
-//! grasp's contact over most of the gel) at 64 x 48; the first 20 frames warm up (the gel,
-//! its caches, ONNX Runtime's buffers), the next 40 are counted. Counts every call of the global allocator (`alloc`, `realloc`)
-//! in this process, ONNX Runtime's own allocations through the C library excluded.
+//! grasp's contact over most of the gel) at 64 x 48; the path's 60 frames run once to warm
+//! up (the gel, its caches and buffers, ONNX Runtime's buffers), then again counted.
+//! Counts every call of the global allocator (`alloc`, `realloc`) in this process, ONNX
+//! Runtime's own allocations through the C library excluded.
 //!
 //! `cargo bench --bench allocations`; `TACROM_ALLOCATION_SITES=MODE cargo bench --bench
 //! allocations` also prints, for that mode's counted frames, the functions of the plugin
@@ -111,8 +112,10 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-const WARM: usize = 20;
-const COUNTED: usize = 40;
+/// Frames of the path; it is run once to warm up, then again counted.
+const PATH: usize = 60;
+const WARM: usize = PATH;
+const COUNTED: usize = PATH;
 
 fn main() {
     let modes: [(&str, &[(&str, &str)]); 5] = [
@@ -155,14 +158,14 @@ fn main() {
                 let placed = [if grasp {
                     // Shaken as a simulated grasp holds it: microns along the face and
                     // into it.
-                    let f = frame as f64;
+                    let f = (frame % PATH) as f64;
                     let (x, z) = (2e-6 * (0.7 * f).sin(), 0.5e-6 * (1.3 * f).cos());
                     Placed {
                         shape: face.clone(),
                         pose: Isometry3::translation(x, 0.0, 0.005 - 0.3e-3 + z),
                     }
                 } else {
-                    let x = -2e-3 + 4e-3 * frame as f64 / (WARM + COUNTED) as f64;
+                    let x = -2e-3 + 4e-3 * (frame % PATH) as f64 / PATH as f64;
                     Placed {
                         shape: ball.clone(),
                         pose: Isometry3::translation(x, 0.0, 0.005 - 0.5e-3),

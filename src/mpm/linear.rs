@@ -394,6 +394,9 @@ impl LocalSystem {
 /// every frame) and [`Compliance::updated`]'s vectors and matrices.
 #[derive(Default)]
 struct Reuse {
+    /// Systems let go, boxed as the kept sets hold them (a box moved back into a set
+    /// allocates nothing).
+    #[allow(clippy::vec_box)]
     husks: Vec<Box<LocalSystem>>,
     /// Matrices of bases let go, each held here alone.
     matrices: Vec<Arc<DMatrix<f64>>>,

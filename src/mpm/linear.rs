@@ -408,14 +408,25 @@ impl Reuse {
     /// [`LOCAL_SYSTEMS`] of them), or else its matrices that nothing else holds.
     fn let_go(&mut self, mut system: Box<LocalSystem>) {
         self.let_go_base(&mut system.base);
+        if system.g.len() >= TRIM_ENTRIES {
+            // A grasp's systems are megabytes each: their memory goes back.
+            return;
+        }
         if self.husks.len() < LOCAL_SYSTEMS {
             self.husks.push(system);
             return;
         }
         for m in [system.g, system.inverse] {
-            if Arc::strong_count(&m) == 1 && self.matrices.len() < SPARE_MATRICES {
-                self.matrices.push(m);
-            }
+            self.spare(m);
+        }
+    }
+
+    /// Keeps `m` for the next systems where nothing else holds it, there is room, and it
+    /// is smaller than a grasp's ([`TRIM_ENTRIES`]).
+    fn spare(&mut self, m: Arc<DMatrix<f64>>) {
+        let fits = m.len() < TRIM_ENTRIES && self.matrices.len() < SPARE_MATRICES;
+        if fits && Arc::strong_count(&m) == 1 {
+            self.matrices.push(m);
         }
     }
 }
@@ -424,16 +435,34 @@ impl Reuse {
     /// Keeps the matrices of `base`, which is let go (its columns stay), where nothing
     /// else holds them.
     fn let_go_base(&mut self, base: &mut Base) {
-        for m in base
-            .made
-            .take()
-            .into_iter()
-            .flat_map(|(g, inverse)| [g, inverse])
-        {
-            if Arc::strong_count(&m) == 1 && self.matrices.len() < SPARE_MATRICES {
-                self.matrices.push(m);
+        if let Some((g, inverse)) = base.made.take() {
+            self.spare(g);
+            self.spare(inverse);
+        }
+    }
+}
+
+impl Update {
+    /// Itself, less the matrices of a grasp's size ([`TRIM_ENTRIES`]): their memory goes
+    /// back, as a grasp's systems' do.
+    fn trimmed(mut self) -> Update {
+        let Update {
+            p,
+            b_rr,
+            b_rs,
+            g_sn,
+            x,
+            schur,
+            xt,
+            s_inv,
+            ..
+        } = &mut self;
+        for m in [p, b_rr, b_rs, g_sn, x, schur, xt, s_inv] {
+            if m.len() >= TRIM_ENTRIES {
+                *m = DMatrix::zeros(0, 0);
             }
         }
+        self
     }
 }
 
@@ -1500,7 +1529,7 @@ impl Compliance {
             let spare = &mut reuse.matrices;
             let (g, inverse) = (unique(&mut husk.g, spare), unique(&mut husk.inverse, spare));
             let made = self.updated(&base, local, g, inverse, &mut update);
-            self.reuse.get_mut().update = update;
+            self.reuse.get_mut().update = update.trimmed();
             if made.is_some() {
                 return Some(self.system(local, base, husk));
             }
@@ -1524,7 +1553,7 @@ impl Compliance {
         let copy = reshaped(&mut update.p, g.nrows(), g.ncols());
         copy.copy_from(g);
         let inverted = spd_inverse_into(copy, inverse);
-        self.reuse.get_mut().update = update;
+        self.reuse.get_mut().update = update.trimmed();
         inverted?;
         columns.clear();
         columns.extend_from_slice(local);
@@ -2557,7 +2586,8 @@ fn copy_into(m: &mut Arc<DMatrix<f64>>, from: &DMatrix<f64>, spare: &mut Vec<Arc
     reshaped(m, from.nrows(), from.ncols()).copy_from(from);
 }
 
-/// The most matrices [`Reuse`] keeps from the bases let go.
+/// The most matrices [`Reuse`] keeps from the bases let go (each under [`TRIM_ENTRIES`]:
+/// with the two kept systems let go, at most a few MiB).
 const SPARE_MATRICES: usize = 4;
 
 /// Rows of a dense factorisation below which it runs in the calling thread even in a

@@ -3720,12 +3720,17 @@ const GROSS_SLIP: f64 = 0.15;
 /// unknowns per column, the vertical last): [`vertical_start`]'s system.
 fn vertical_inverse(g: &DMatrix<f64>, out: &mut DMatrix<f64>) -> Option<()> {
     let cols = g.nrows() / 3;
-    VERTICAL_BLOCK.with(|kept| {
-        let mut block = kept.borrow_mut();
-        fill(reshaped(&mut block, cols, cols), |a, b| {
+    let mut invert = |block: &mut DMatrix<f64>| {
+        fill(reshaped(block, cols, cols), |a, b| {
             g[(3 * a + 2, 3 * b + 2)]
         });
-        spd_inverse_into(&mut block, out)
+        spd_inverse_into(block, out)
+    };
+    VERTICAL_BLOCK.with(|kept| match kept.try_borrow_mut() {
+        Ok(mut block) => invert(&mut block),
+        // This thread is inside another's factorisation (a parallel one that took up
+        // other work while it waited): a block of its own.
+        Err(_) => invert(&mut DMatrix::zeros(0, 0)),
     })
 }
 

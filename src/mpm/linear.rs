@@ -1675,24 +1675,24 @@ impl Compliance {
         let (ns, na, nr) = (s_new.len(), a_new.len(), r_old.len());
         let b = &**kept_inverse;
         // The shared block's inverse.
-        let p = reshaped(p, ns, ns);
+        let p = shaped(p, ns, ns);
         fill(p, |i, j| b[(s_old[i], s_old[j])]);
         if nr > 0 {
-            let b_rr = reshaped(b_rr, nr, nr);
+            let b_rr = shaped(b_rr, nr, nr);
             fill(b_rr, |i, j| b[(r_old[i], r_old[j])]);
-            let b_rs = reshaped(b_rs, nr, ns);
+            let b_rs = shaped(b_rs, nr, ns);
             fill(b_rs, |i, j| b[(r_old[i], s_old[j])]);
-            cholesky(b_rr)?;
             // `B_rr^-1 B_rs`, solved in place of a copy of `B_rs`.
-            let y = reshaped(xt, nr, ns);
+            let y = shaped(xt, nr, ns);
             y.copy_from(b_rs);
-            cholesky_solve_in(b_rr, y.as_mut_slice(), ns);
+            small_or_faer_solve(b_rr, y)?;
             add_product(p, -1.0, b_rs, true, y, false);
         }
         // The new compliance: the shared block kept, the new columns' rows read.
         let k = ns + na;
         let entries = self.entries(local, base.lateral);
-        let g = reshaped(g, k, k);
+        // (Every entry of `g` and of `inverse` is written below.)
+        let g = shaped(g, k, k);
         for j in 0..ns {
             for i in 0..ns {
                 g[(s_new[i], s_new[j])] = kept_g[(s_old[i], s_old[j])];
@@ -1708,7 +1708,7 @@ impl Compliance {
                 g[(q, r)] = v;
             }
         }
-        let inverse = reshaped(inverse, k, k);
+        let inverse = shaped(inverse, k, k);
         if na == 0 {
             for j in 0..ns {
                 for i in 0..ns {
@@ -1716,20 +1716,22 @@ impl Compliance {
                 }
             }
         } else {
-            let g_sn = reshaped(g_sn, ns, na);
+            let g_sn = shaped(g_sn, ns, na);
             fill(g_sn, |i, j| g[(s_new[i], a_new[j])]);
             let x = reshaped(x, ns, na);
             add_product(x, 1.0, p, false, g_sn, false);
-            let schur = reshaped(schur, na, na);
+            let schur = shaped(schur, na, na);
             fill(schur, |i, j| g[(a_new[i], a_new[j])]);
             add_product(schur, -1.0, g_sn, true, x, false);
-            cholesky(schur)?;
             // `(X S^-1)^T = S^-1 X^T`, and `S^-1`.
-            let xt = reshaped(xt, na, ns);
+            let xt = shaped(xt, na, ns);
             fill(xt, |i, j| x[(j, i)]);
-            cholesky_solve_in(schur, xt.as_mut_slice(), ns);
             let s_inv = reshaped(s_inv, na, na);
-            factor_inverse_into(schur, s_inv);
+            s_inv.fill_with_identity();
+            small_or_faer_solve(schur, xt)?;
+            // (The factor is kept in `schur`: the identity's solve is the inverse.)
+            solve_with_factor(schur, s_inv);
+            s_inv.fill_upper_triangle_with_lower_triangle();
             add_product(p, 1.0, xt, true, x, true);
             for j in 0..ns {
                 for i in 0..ns {
@@ -2553,11 +2555,68 @@ fn reshaped<T: nalgebra::Scalar + Default>(
     m
 }
 
+/// `m` as an `r x c` matrix whose entries the caller overwrites (those of another shape
+/// zeroed), its allocation reused.
+fn shaped<T: nalgebra::Scalar + Default>(
+    m: &mut DMatrix<T>,
+    r: usize,
+    c: usize,
+) -> &mut DMatrix<T> {
+    if m.shape() == (r, c) {
+        m
+    } else {
+        reshaped(m, r, c)
+    }
+}
+
+/// Factors the symmetric positive definite `a` in place and solves `a X = b` for the
+/// columns of `b` in place: for the few unknowns of a contact moving on by a column or
+/// two, by [`small_cholesky`] and [`small_solve`] (faer's dispatch costs more than their
+/// work there), else by faer. `None` where `a` is not positive definite.
+fn small_or_faer_solve(a: &mut DMatrix<f64>, b: &mut DMatrix<f64>) -> Option<()> {
+    let n = a.nrows();
+    if n <= SMALL_FACTOR {
+        // A symmetric matrix reads the same row and column major: the factor is `L` row
+        // major in the upper triangle.
+        small_cholesky(a.as_mut_slice(), n)?;
+    } else {
+        cholesky(a)?;
+    }
+    solve_with_factor(a, b);
+    Some(())
+}
+
+/// Solves `a X = b` in place for the columns of `b` with the factor
+/// [`small_or_faer_solve`] left in `a`.
+fn solve_with_factor(a: &DMatrix<f64>, b: &mut DMatrix<f64>) {
+    let n = a.nrows();
+    let columns = b.ncols();
+    if n == 0 {
+        return;
+    }
+    if n <= SMALL_FACTOR {
+        for column in b.as_mut_slice().chunks_exact_mut(n) {
+            small_solve(a.as_slice(), n, column);
+        }
+    } else {
+        cholesky_solve_in(a, b.as_mut_slice(), columns);
+    }
+}
+
+/// Unknowns up to which [`small_or_faer_solve`] factors by [`small_cholesky`].
+const SMALL_FACTOR: usize = 48;
+
 /// Sets every entry of `m` to `f(row, column)`.
 fn fill(m: &mut DMatrix<f64>, f: impl Fn(usize, usize) -> f64) {
     let n = m.nrows();
-    for (k, v) in m.as_mut_slice().iter_mut().enumerate() {
-        *v = f(k % n, k / n);
+    if n == 0 {
+        return;
+    }
+    // Column by column (column major), without a division per entry.
+    for (j, column) in m.as_mut_slice().chunks_exact_mut(n).enumerate() {
+        for (i, v) in column.iter_mut().enumerate() {
+            *v = f(i, j);
+        }
     }
 }
 

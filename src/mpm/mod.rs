@@ -94,6 +94,7 @@ mod rotation;
 mod solver;
 mod state;
 pub use state::StateBounds;
+pub use surface::Part;
 mod surface;
 mod total;
 mod transfer;
@@ -982,6 +983,15 @@ impl Gel {
     /// If `out` is shorter than `grid.width * grid.height`.
     pub fn surface_depth(&self, grid: &PixelGrid, out: &mut [f64]) {
         surface::surface_depth(self, grid, out);
+    }
+
+    /// [`Gel::surface_depth`] at the pixels of `parts` only (a pixel in two parts is
+    /// mapped twice, to the same value); the others are zero.
+    ///
+    /// # Panics
+    /// If `out` is shorter than `grid.width * grid.height`.
+    pub fn surface_depth_parts(&self, grid: &PixelGrid, parts: &[Part], out: &mut [f64]) {
+        surface::surface_depth_parts(self, grid, parts, out);
     }
 
     /// In-plane displacement of the surface point seen at each pixel of `grid` (m, sensor

@@ -172,7 +172,45 @@ fn sample_with_slope(
 /// `X + u_xy(X) = p`; the pixels not visited see the undeformed surface (`|u|` below
 /// [`DEPTH_EPS`]). The one inverse map behind the depth and the shear images.
 fn for_each_seen(gel: &Gel, grid: &PixelGrid, visit: impl FnMut(usize, Vector3<f64>)) {
-    seen_with(gel, grid, true, visit)
+    seen_with(gel, grid, true, &[Part::all(grid)], visit)
+}
+
+/// Pixels of a grid wanted from an image: the rows and columns in `rows` and `cols`, every
+/// `step` from each range's start.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Part {
+    /// Rows, from the first.
+    pub rows: std::ops::Range<usize>,
+    /// Columns, from the first.
+    pub cols: std::ops::Range<usize>,
+    /// Rows and columns between two taken (at least 1).
+    pub step: usize,
+}
+
+impl Part {
+    /// Every pixel of `grid`.
+    pub fn all(grid: &PixelGrid) -> Part {
+        Part {
+            rows: 0..grid.height,
+            cols: 0..grid.width,
+            step: 1,
+        }
+    }
+
+    /// This part's indices of `range` (of rows or columns, within `within`) into `out`.
+    fn taken(
+        within: &std::ops::Range<usize>,
+        range: std::ops::Range<usize>,
+        step: usize,
+        out: &mut Vec<usize>,
+    ) {
+        let step = step.max(1);
+        let lo = range.start.max(within.start);
+        // The first taken index at or after `lo`.
+        let first = within.start + (lo - within.start).div_ceil(step) * step;
+        out.clear();
+        out.extend((first..range.end.min(within.end)).step_by(step));
+    }
 }
 
 /// Where one Newton step of the inverse map, started at the pixel itself, is accurate to
@@ -197,6 +235,7 @@ fn seen_with(
     gel: &Gel,
     grid: &PixelGrid,
     one_step: bool,
+    parts: &[Part],
     mut visit: impl FnMut(usize, Vector3<f64>),
 ) {
     let Some([ix0, ix1, iy0, iy1]) = gel.surface_box else {
@@ -216,10 +255,6 @@ fn seen_with(
     let ya = y0 + (iy0 as f64 - 2.0) * sy - umax;
     let yb = y0 + (iy1 as f64 + 1.0) * sy + umax;
     let u = &gel.surface_u;
-    let (rows, cols) = (grid.rows_in(ya, yb), grid.cols_in(xa, xb));
-    if cols.is_empty() {
-        return;
-    }
     // The buffers of the gel's last image, refilled.
     let mut kept = gel.pixels.take();
     let Pixels {
@@ -227,61 +262,78 @@ fn seen_with(
         columns,
         cells,
         along,
+        rows,
+        cols,
     } = &mut kept;
-    columns.clear();
-    columns.extend(
-        cols.clone()
-            .map(|col| Taps::at((grid.x(col) - x0) / sx, nx)),
-    );
-    let curvature = one_step.then(|| Curvature::of(u, nx, ny, std::mem::take(cells), along));
-    // Rows in parallel in the gel's pool (each row starts afresh, so the threads do not
-    // change a bit), then visited in order.
-    // Every pixel is written before it is read (a row's guesses read its pixels before
-    // them, written this image): the last image's values stay where the length does.
-    seen.resize(rows.len() * cols.len(), Vector3::zeros());
-    gel.pool.install(|| {
-        seen.par_chunks_mut(cols.len())
-            .zip(rows.clone().into_par_iter())
-            .for_each(|(line, row)| {
-                // The row's field mixed by its vertical taps, in this thread's buffer.
-                MIXED.with_borrow_mut(|mixed| {
-                    if mixed.len() != nx {
-                        refill(mixed, nx, [Vector3::zeros(); 2]);
-                    }
-                    let pb = (grid.y(row) - y0) / sy;
-                    let vertical = Taps::at(pb, ny);
-                    if curvature.is_some() {
-                        vertical.mix_rows(u, nx, mixed);
-                    }
-                    for (k, (col, horizontal)) in cols.clone().zip(columns.iter()).enumerate() {
-                        let pa = || (grid.x(col) - x0) / sx;
-                        let first = curvature
-                            .as_ref()
-                            .and_then(|c| one_newton_step(mixed, horizontal, &vertical, sx, sy, c));
-                        line[k] = match first {
-                            Some((d, true)) => d,
-                            // Newton's method goes on from the first step's root.
-                            Some((d, false)) => solve_inverse_map(u, nx, ny, pa(), pb, sx, sy, &d),
-                            // From the last finite displacement of the row's pixels before
-                            // it: the next pixel's surface point is displaced nearly as
-                            // much, so Newton's method starts close to it.
-                            None => {
-                                let guess = line[..k]
-                                    .iter()
-                                    .rev()
-                                    .find(|d| d.iter().all(|v| v.is_finite()))
-                                    .copied()
-                                    .unwrap_or_else(Vector3::zeros);
-                                solve_inverse_map(u, nx, ny, pa(), pb, sx, sy, &guess)
-                            }
-                        };
-                    }
+    let mut curvature = None;
+    for part in parts {
+        Part::taken(&part.rows, grid.rows_in(ya, yb), part.step, rows);
+        Part::taken(&part.cols, grid.cols_in(xa, xb), part.step, cols);
+        if cols.is_empty() || rows.is_empty() {
+            continue;
+        }
+        columns.clear();
+        columns.extend(
+            cols.iter()
+                .map(|&col| Taps::at((grid.x(col) - x0) / sx, nx)),
+        );
+        // (Once for all the parts.)
+        if one_step && curvature.is_none() {
+            curvature = Some(Curvature::of(u, nx, ny, std::mem::take(cells), along));
+        }
+        let curvature = curvature.as_ref();
+        // Rows in parallel in the gel's pool (each row starts afresh, so the threads do not
+        // change a bit), then visited in order.
+        // Every pixel is written before it is read (a row's guesses read its pixels before
+        // them, written this image): the last image's values stay where the length does.
+        seen.resize(rows.len() * cols.len(), Vector3::zeros());
+        let (rows, cols, columns) = (&*rows, &*cols, &*columns);
+        gel.pool.install(|| {
+            seen.par_chunks_mut(cols.len())
+                .zip(rows.par_iter())
+                .for_each(|(line, &row)| {
+                    // The row's field mixed by its vertical taps, in this thread's buffer.
+                    MIXED.with_borrow_mut(|mixed| {
+                        if mixed.len() != nx {
+                            refill(mixed, nx, [Vector3::zeros(); 2]);
+                        }
+                        let pb = (grid.y(row) - y0) / sy;
+                        let vertical = Taps::at(pb, ny);
+                        if curvature.is_some() {
+                            vertical.mix_rows(u, nx, mixed);
+                        }
+                        for (k, (&col, horizontal)) in cols.iter().zip(columns).enumerate() {
+                            let pa = || (grid.x(col) - x0) / sx;
+                            let first = curvature.and_then(|c| {
+                                one_newton_step(mixed, horizontal, &vertical, sx, sy, c)
+                            });
+                            line[k] = match first {
+                                Some((d, true)) => d,
+                                // Newton's method goes on from the first step's root.
+                                Some((d, false)) => {
+                                    solve_inverse_map(u, nx, ny, pa(), pb, sx, sy, &d)
+                                }
+                                // From the last finite displacement of the row's pixels
+                                // before it: the next pixel's surface point is displaced
+                                // nearly as much, so Newton's method starts close to it.
+                                None => {
+                                    let guess = line[..k]
+                                        .iter()
+                                        .rev()
+                                        .find(|d| d.iter().all(|v| v.is_finite()))
+                                        .copied()
+                                        .unwrap_or_else(Vector3::zeros);
+                                    solve_inverse_map(u, nx, ny, pa(), pb, sx, sy, &guess)
+                                }
+                            };
+                        }
+                    })
                 })
-            })
-    });
-    for (line, row) in seen.chunks_exact(cols.len()).zip(rows) {
-        for (d, col) in line.iter().zip(cols.clone()) {
-            visit(row * grid.width + col, *d);
+        });
+        for (line, &row) in seen.chunks_exact(cols.len()).zip(rows) {
+            for (d, &col) in line.iter().zip(cols) {
+                visit(row * grid.width + col, *d);
+            }
         }
     }
     if let Some(c) = curvature {
@@ -298,13 +350,15 @@ thread_local! {
 
 /// The buffers of [`seen_with`], kept with the gel between images
 /// ([`crate::scratch::Kept`]): the pixels' displacements, the image columns' taps and
-/// [`Curvature`]'s two fields.
+/// [`Curvature`]'s two fields, and the image's rows and columns mapped.
 #[derive(Default)]
 pub(super) struct Pixels {
     seen: Vec<Vector3<f64>>,
     columns: Vec<Taps>,
     cells: Vec<f64>,
     along: Vec<f64>,
+    rows: Vec<usize>,
+    cols: Vec<usize>,
 }
 
 /// The Catmull-Rom taps of one lattice coordinate: the four samples (clamped at the
@@ -545,6 +599,15 @@ pub(super) fn surface_depth(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
     for_each_seen(gel, grid, |pixel, d| out[pixel] = depth_of(&d, t));
 }
 
+/// See [`Gel::surface_depth_parts`].
+pub(super) fn surface_depth_parts(gel: &Gel, grid: &PixelGrid, parts: &[Part], out: &mut [f64]) {
+    let out = image(out, grid, 1, "depth");
+    let t = gel.params.size[2];
+    seen_with(gel, grid, true, parts, |pixel, d| {
+        out[pixel] = depth_of(&d, t)
+    });
+}
+
 /// See [`Gel::surface_shear`].
 pub(super) fn surface_shear(gel: &Gel, grid: &PixelGrid, out: &mut [f64]) {
     let out = image(out, grid, 2, "shear");
@@ -631,7 +694,7 @@ mod tests {
     /// or with the one-step pixels of [`seen_with`].
     fn seen(gel: &Gel, grid: &PixelGrid, one_step: bool) -> Vec<Vector3<f64>> {
         let mut out = vec![Vector3::zeros(); grid.width * grid.height];
-        seen_with(gel, grid, one_step, |p, d| out[p] = d);
+        seen_with(gel, grid, one_step, &[Part::all(grid)], |p, d| out[p] = d);
         out
     }
 
@@ -685,6 +748,63 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// An image mapped at parts of its grid (overlapping, strided, empty, beyond the grid)
+    /// holds the whole image's depth at each pixel of a part, bit for bit, and zero at the
+    /// others; the parts' indices are those each range starts its steps from.
+    #[test]
+    fn an_image_in_parts_is_the_whole_one_where_mapped() {
+        let gel = slid(Solver::Linear, 0.8e-3);
+        let grid = PixelGrid {
+            width: 100,
+            height: 100,
+            fov_x: 0.03,
+            fov_y: 0.03,
+        };
+        let n = grid.width * grid.height;
+        let mut whole = vec![0.0; n];
+        gel.surface_depth(&grid, &mut whole);
+        let part = |rows: std::ops::Range<usize>, cols: std::ops::Range<usize>, step| Part {
+            rows,
+            cols,
+            step,
+        };
+        let sets = [
+            vec![part(20..70, 10..90, 1)],
+            vec![part(2..100, 2..100, 4)],
+            vec![
+                part(30..60, 30..60, 1),
+                part(2..100, 2..100, 4),
+                part(45..200, 0..7, 3),
+            ],
+            vec![part(50..50, 0..100, 1), part(0..100, 99..100, 1)],
+        ];
+        for parts in &sets {
+            let mut out = vec![f64::NAN; n];
+            gel.surface_depth_parts(&grid, parts, &mut out);
+            for row in 0..grid.height {
+                for col in 0..grid.width {
+                    let i = row * grid.width + col;
+                    let taken = parts.iter().any(|p| {
+                        let on = |r: &std::ops::Range<usize>, k: usize| {
+                            r.contains(&k) && (k - r.start) % p.step == 0
+                        };
+                        on(&p.rows, row) && on(&p.cols, col)
+                    });
+                    let want = if taken { whole[i] } else { 0.0 };
+                    assert_eq!(
+                        out[i].to_bits(),
+                        want.to_bits(),
+                        "{parts:?}: pixel ({row}, {col})"
+                    );
+                }
+            }
+            assert!(
+                out.iter().any(|&d| d > 0.0),
+                "{parts:?}: a part sees the press"
+            );
         }
     }
 }

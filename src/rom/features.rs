@@ -31,7 +31,7 @@
 //! `tacrom rom-features`.
 
 use crate::geometry::{PixelGrid, Placed};
-use crate::mpm::Gel;
+use crate::mpm::{Gel, Part};
 use crate::render::DepthRule;
 
 /// How the model samples the gel's surface: fixed by the model's manifest (serialised
@@ -179,6 +179,9 @@ pub struct Observation {
     /// fits in it, the lattice within the window where it does not; `[0, 0]` where the
     /// window is the whole lattice.
     pub origin: [isize; 2],
+    /// Where the coarse depth was mapped, where not everywhere
+    /// ([`Observation::update_read`]).
+    pub mapped: Option<Mapped>,
 }
 
 impl Default for Observation {
@@ -192,6 +195,7 @@ impl Default for Observation {
             pressure: Vec::new(),
             force: 0.0,
             origin: [0, 0],
+            mapped: None,
         }
     }
 }
@@ -239,6 +243,39 @@ impl Observation {
         gel.surface_depth(&grid, &mut self.coarse);
         let _ = self.rule.apply(&mut self.coarse, &self.pen);
         self.origin = self.window_origin(spec);
+        self.mapped = None;
+    }
+
+    /// As [`Observation::update`] for an image on `image` of the decoded surface only (no
+    /// force from its volume, no pressure head, no refinement; the networks' window the
+    /// whole lattice): the coarse depth is mapped where the encoder, the image and the
+    /// decoder's region for it read it ([`Mapped`]) and zero elsewhere; the rigid
+    /// penetration everywhere. `grow`: the region's growth.
+    pub fn update_read(
+        &mut self,
+        gel: &Gel,
+        indenters: &[Placed],
+        spec: &LatticeSpec,
+        zmin: &mut Vec<f64>,
+        image: &PixelGrid,
+        grow: usize,
+    ) {
+        debug_assert!(spec.whole());
+        let grid = spec.grid();
+        self.rule = DepthRule::new(spec.size[2], indenters);
+        penetration(indenters, &grid, &self.rule, zmin, &mut self.pen);
+        self.coarse.clear();
+        self.coarse.resize(spec.points(), 0.0);
+        let mapped = Mapped::new(spec, image, grow);
+        let [a, b, c, d] = encoder_around(spec, &mapped.mapped);
+        gel.surface_depth_parts(
+            &grid,
+            &[mapped.mapped.clone(), a, b, c, d],
+            &mut self.coarse,
+        );
+        let _ = self.rule.apply(&mut self.coarse, &self.pen);
+        self.origin = [0, 0];
+        self.mapped = Some(mapped);
     }
 
     /// Where the window goes ([`Observation::origin`]): centred on the rigid
@@ -316,6 +353,79 @@ impl Observation {
         out.extend(
             (0..spec.material_inputs).map(|k| self.material.get(k).copied().unwrap_or(0.0) as f32),
         );
+    }
+}
+
+/// The lattice points an image on `image` reads of a depth on the lattice of `spec`: each
+/// pixel's lattice cell and the points either side of it (`render_lattice`'s monotone
+/// slopes), as rows and columns.
+pub fn image_reach(spec: &LatticeSpec, image: &PixelGrid) -> Part {
+    let (nx, ny) = (spec.nx, spec.ny);
+    let [lx, ly, _] = spec.size;
+    // The lattice coordinate of `v` (m from the face's edge) and the points its cell and
+    // slopes read, over the first and the last pixel (the coordinate is monotone).
+    let span = |first: f64, last: f64, length: f64, n: usize| {
+        let at = |v: f64| (v / (length / n as f64) - 0.5).clamp(0.0, n.saturating_sub(1) as f64);
+        let (a, b) = (at(first).min(at(last)), at(first).max(at(last)));
+        let cell = |f: f64| (f.floor() as usize).min(n.saturating_sub(2));
+        cell(a).saturating_sub(1)..(cell(b) + 3).min(n)
+    };
+    let (w, h) = (image.width.max(1), image.height.max(1));
+    Part {
+        rows: span(0.5 * ly - image.y(0), 0.5 * ly - image.y(h - 1), ly, ny),
+        cols: span(image.x(0) + 0.5 * lx, image.x(w - 1) + 0.5 * lx, lx, nx),
+        step: 1,
+    }
+}
+
+/// The encoder's sub-lattice outside `rect` (a part of step 1): the bands above and
+/// below it, and either side of it.
+fn encoder_around(spec: &LatticeSpec, rect: &Part) -> [Part; 4] {
+    let s = spec.encoder_stride.max(1);
+    let o = s / 2;
+    // The first sub-lattice index at or after `i`.
+    let on = |i: usize| o + i.saturating_sub(o).div_ceil(s) * s;
+    let rows = on(rect.rows.start)..rect.rows.end;
+    let part = |rows: std::ops::Range<usize>, cols: std::ops::Range<usize>| Part {
+        rows,
+        cols,
+        step: s,
+    };
+    [
+        part(o..rect.rows.start, o..spec.nx),
+        part(on(rect.rows.end)..spec.ny, o..spec.nx),
+        part(rows.clone(), o..rect.cols.start),
+        part(rows, on(rect.cols.end)..spec.nx),
+    ]
+}
+
+/// Where an observation's coarse depth was mapped, where not on the whole lattice
+/// ([`Observation::update_read`]): an image's reach, and what the decoder needs for it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Mapped {
+    /// The points the image reads ([`image_reach`]): the decoder runs on the region's
+    /// points among them only.
+    pub read: Part,
+    /// `read` grown by the region's growth and the query windows' reach: every seed of a
+    /// region point in `read`, and every point of its window. (The encoder's sub-lattice
+    /// is mapped too.)
+    pub mapped: Part,
+}
+
+impl Mapped {
+    /// For an image on `image`, a region grown `grow` lattice steps.
+    pub fn new(spec: &LatticeSpec, image: &PixelGrid, grow: usize) -> Mapped {
+        let read = image_reach(spec, image);
+        let reach = grow + (spec.patch / 2) * spec.patch_step;
+        let grown = |r: &std::ops::Range<usize>, n: usize| {
+            r.start.saturating_sub(reach)..(r.end + reach).min(n)
+        };
+        let mapped = Part {
+            rows: grown(&read.rows, spec.ny),
+            cols: grown(&read.cols, spec.nx),
+            step: 1,
+        };
+        Mapped { read, mapped }
     }
 }
 

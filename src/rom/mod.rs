@@ -1062,8 +1062,13 @@ impl Rom {
     /// * else for a model with a pressure head that ran ([`Rom::lattice_pressure`]): the
     ///   head's force ([`Rom::pressure_force`]) over the coarse one ([`Rom::head_factor`]);
     /// * 1 for a model with neither, or where the ratio falls outside [`VOLUME_RATIO`]: the
-    ///   decoder corrects the coarse solution, it does not replace it.
+    ///   decoder corrects the coarse solution, it does not replace it;
+    /// * 1 for an observation mapped only where an image reads it
+    ///   ([`Observation::update_read`]: a rom that wants no force).
     pub fn force_factor_on(&self, obs: &Observation) -> f64 {
+        if obs.mapped.is_some() {
+            return 1.0;
+        }
         let Some(k) = &self.manifest.force_volume_factor else {
             return match self.lattice_pressure() {
                 Some(_) => self.head_factor(obs).unwrap_or(1.0),
@@ -1097,6 +1102,18 @@ impl Rom {
     /// [`Rom::head_factor`] on the last [`Rom::evaluate`]'s observation.
     pub fn last_head_factor(&self) -> Option<f64> {
         self.head_factor(&self.obs)
+    }
+
+    /// Whether an evaluation maps the coarse depth only where its image reads the decoded
+    /// surface ([`Observation::update_read`]): where no force is wanted (the decoded
+    /// volume's ratio sums the whole lattice), no pressure head runs, no refinement reads
+    /// the lattice's energy terms, and the networks' window is the whole lattice.
+    fn reads_part(&self) -> bool {
+        !self.options.force
+            && !self.options.pressure
+            && self.pressure.is_none()
+            && !self.refine_enabled()
+            && self.manifest.lattice.whole()
     }
 
     fn refine_enabled(&self) -> bool {
@@ -1176,6 +1193,14 @@ impl Rom {
         let (eps, grow) = self.manifest.region;
         let (spec, steps) = (&self.manifest.lattice, &mut self.region_steps);
         features::region(obs, spec, eps, grow, steps, &mut self.region);
+        // Where only part of the lattice was mapped, the decoder runs where it is read.
+        if let Some(m) = &obs.mapped {
+            for (row, line) in self.region.chunks_exact_mut(spec.nx).enumerate() {
+                for (col, inside) in line.iter_mut().enumerate() {
+                    *inside &= m.read.rows.contains(&row) && m.read.cols.contains(&col);
+                }
+            }
+        }
     }
 
     fn energy_set(&self, obs: &Observation) -> EnergySet {
@@ -1411,11 +1436,16 @@ impl Rom {
             let v = v as f64 / spec.depth_scale;
             self.lattice_depth[i] = if v.is_finite() { v } else { obs.coarse[i] };
         }
-        report.penetration_excess = self
-            .lattice_depth
-            .iter()
-            .zip(&obs.pen)
-            .fold(0.0, |m, (&d, &p)| m.max(p - d));
+        // (Where only part of the lattice was mapped, over the points read.)
+        let excess = |rows: std::ops::Range<usize>, cols: std::ops::Range<usize>| {
+            rows.flat_map(|r| cols.clone().map(move |c| r * spec.nx + c))
+                .fold(0.0f64, |m, i| m.max(obs.pen[i] - self.lattice_depth[i]))
+        };
+        report.penetration_excess = match &obs.mapped {
+            None => excess(0..spec.ny, 0..spec.nx),
+            Some(m) => excess(m.read.rows.clone(), m.read.cols.clone()),
+        };
+        // (Points not mapped hold no depth: none exceeds the bound.)
         report.bound_excess = obs.rule.apply(&mut self.lattice_depth, &obs.pen);
         report.decoded = self.points.len();
         report.decode_s += t2.elapsed().as_secs_f64();
@@ -1550,7 +1580,12 @@ impl Rom {
         let t0 = Instant::now();
         let mut obs = std::mem::take(&mut self.obs);
         let spec = self.manifest.lattice;
-        obs.update(gel, indenters, &spec, &mut self.zmin);
+        if self.reads_part() {
+            let grow = self.manifest.region.1;
+            obs.update_read(gel, indenters, &spec, &mut self.zmin, grid, grow);
+        } else {
+            obs.update(gel, indenters, &spec, &mut self.zmin);
+        }
         if self.pressure.is_some() {
             obs.update_load(gel, &spec);
         }

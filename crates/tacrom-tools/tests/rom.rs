@@ -198,11 +198,16 @@ fn shipped_model_loads_and_outputs_have_the_manifests_shapes() {
 /// and the force as they are (the shipped model's force comes from its volume factor), and
 /// gives a compressive field on the deformable region alone whose own force corrects the
 /// coarse gel's within the range the sensor accepts. A sphere and a cylinder pressed into
-/// the coarse gel.
+/// the coarse gel; the rom without the head wants the force (so that it maps the whole
+/// lattice, as the head's does).
 #[test]
 fn the_pressure_head_runs_only_when_wanted_and_leaves_the_depth_alone() {
     let dir = model_dir();
-    let mut plain = Rom::load(&dir, RomOptions::default()).unwrap();
+    let force = RomOptions {
+        force: true,
+        ..Default::default()
+    };
+    let mut plain = Rom::load(&dir, force).unwrap();
     let mut with = Rom::load(
         &dir,
         RomOptions {
@@ -719,6 +724,101 @@ fn held_out_gate(dir: &Path, reference_dx: f64) {
         total.rom / k,
         total.coarse / k
     );
+}
+
+/// A rom that wants no force (the default sensor's depth image alone: `tacrom/Press-v1`)
+/// maps the coarse depth only where its encoder, its image and the decoder's region for the
+/// image read it, and decodes only the region's points the image reads: its image is a
+/// rom's that maps the whole lattice (one that wants the force), to the decoder's
+/// single-precision round-off of a batch of another size (1 nm; bit for bit where the
+/// batches are the same). Presses centred, across the image's edge, beside it, and two at
+/// once; at Press-v1's 64 x 48 and at a small image that leaves most of the gel unseen.
+#[test]
+fn a_rom_without_force_maps_and_decodes_only_what_its_image_reads() {
+    let dir =
+        tacrom::rom::shipped_model_dir("rom-linear-narrow").expect("models/rom-linear-narrow");
+    let mut part = Rom::load(&dir, RomOptions::default()).unwrap();
+    let wants_force = RomOptions {
+        force: true,
+        ..Default::default()
+    };
+    let mut whole = Rom::load(&dir, wants_force).unwrap();
+    let params = GelParams {
+        dx: part.manifest().gel.coarse_dx,
+        ..GelParams::default()
+    };
+    let options = SolverOptions {
+        solver: tacrom::mpm::Solver::Linear,
+        ..Default::default()
+    };
+    let mut gel = Gel::new(params, options).unwrap();
+    let sphere: Arc<dyn tacrom::geometry::Sdf> = Arc::new(Sphere::new(0.005));
+    let cylinder: Arc<dyn tacrom::geometry::Sdf> =
+        Arc::new(tacrom::geometry::Cylinder::new(0.002, 0.004));
+    let at = |shape: &Arc<dyn tacrom::geometry::Sdf>, x: f64, y: f64, z: f64| Placed {
+        shape: shape.clone(),
+        pose: Isometry3::translation(x, y, z),
+    };
+    let presses = [
+        vec![at(&sphere, 0.0, 0.0, 0.005 - 0.8e-3)],
+        vec![at(&sphere, 0.011, 0.002, 0.005 - 0.6e-3)],
+        vec![at(&cylinder, -0.012, -0.008, 0.004 - 0.3e-3)],
+        vec![
+            at(&sphere, -0.004, 0.0, 0.005 - 0.5e-3),
+            at(&sphere, 0.005, 0.004, 0.005 - 0.7e-3),
+        ],
+    ];
+    let grids = [
+        PixelGrid {
+            width: 64,
+            height: 48,
+            fov_x: 0.024,
+            fov_y: 0.018,
+        },
+        PixelGrid {
+            width: 40,
+            height: 30,
+            fov_x: 0.008,
+            fov_y: 0.006,
+        },
+    ];
+    let mut fewer = 0;
+    for grid in &grids {
+        let n = grid.width * grid.height;
+        let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+        for (k, placed) in presses.iter().enumerate() {
+            gel.reset();
+            let _ = gel.solve(placed);
+            let read = part.evaluate(&gel, placed, grid, &mut a).unwrap();
+            let all = whole.evaluate(&gel, placed, grid, &mut b).unwrap();
+            let worst = a
+                .iter()
+                .zip(&b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max);
+            assert!(
+                worst <= 1e-9,
+                "press {k} at {}x{}: the images differ by {worst:e} m",
+                grid.width,
+                grid.height
+            );
+            if read.decoded == all.decoded {
+                assert_eq!(a, b, "press {k}: the same batch, other bits");
+            }
+            assert!(read.decoded <= all.decoded, "press {k}: {read:?} {all:?}");
+            fewer += usize::from(read.decoded < all.decoded);
+            // The part's observation holds the coarse depth where it was read only.
+            let mapped = part.lattice_depth().iter().filter(|&&d| d != 0.0).count();
+            let everywhere = whole.lattice_depth().iter().filter(|&&d| d != 0.0).count();
+            assert!(
+                mapped < everywhere,
+                "press {k}: {mapped} of {everywhere} mapped"
+            );
+            assert_eq!(part.force_factor(), 1.0);
+        }
+    }
+    // The presses across and beside the image's edge decode less than the whole region.
+    assert!(fewer >= 3, "{fewer} evaluations decoded fewer points");
 }
 
 #[test]

@@ -267,6 +267,7 @@ fn load_samples(
                     force: meta.coarse.force.map_or(0.0, |f| f[2]),
                     // The data set's lattice is the model's: the window is all of it.
                     origin: [0, 0],
+                    mapped: None,
                 }
             },
             material: [

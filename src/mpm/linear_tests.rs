@@ -1071,6 +1071,92 @@ fn small_contacts_carry_the_analytic_force() {
     }
 }
 
+/// A patch that its samples' distances alone settle as stiff keeps its lattice points as
+/// the marched footprint would: presses of spheres (0.5 to 8 mm), a cone tip, a flat
+/// cylinder and a capsule lying on the face, 0.05 to 1 mm deep, at the gel's centre and
+/// off the lattice, two at once, friction and none; every contact (forces, the points
+/// replaced by small contacts, the columns' loads) the same bits with the bound and
+/// without it, and the bound settles patches in these presses.
+#[test]
+fn the_distance_bound_settles_only_what_the_footprint_would() {
+    use super::DISTANCE_BOUND;
+    use crate::geometry::{Capsule, Cylinder, TriMesh};
+    let angle = std::f64::consts::FRAC_PI_4;
+    let cone: Arc<dyn Sdf> = Arc::new(TriMesh::cone_tip(3e-3, angle, 64).unwrap());
+    let mut shapes: Vec<(Arc<dyn Sdf>, f64)> = [0.5e-3, 1e-3, 2.5e-3, 5e-3, 8e-3]
+        .into_iter()
+        .map(|r| (ball(r), r))
+        .collect();
+    shapes.push((cone, 0.0));
+    shapes.push((Arc::new(Cylinder::new(1.5e-3, 2e-3)), 2e-3));
+    shapes.push((Arc::new(Capsule::new(0.5e-3, 3e-3)), 0.5e-3));
+    let mut settled = 0;
+    for friction in [0.0, 0.5] {
+        let p = GelParams {
+            friction,
+            ..GelParams::default()
+        };
+        let g = Gel::new(p, options(1)).unwrap();
+        let spacing = p.dx / SUBDIVISION as f64;
+        let contact = |placed: &[Placed], bound: bool| {
+            let mut c = Compliance::new(&g).unwrap();
+            let indenters = step(placed, g.layout.dx);
+            let poses: Vec<Isometry3<f64>> = placed.iter().map(|p| p.pose).collect();
+            DISTANCE_BOUND.with(|b| b.set((bound, 0)));
+            let out = c.contact(&indenters, &poses, 1e-3);
+            let n = DISTANCE_BOUND.with(|b| b.replace((true, 0)).1);
+            (out, n)
+        };
+        for (shape, lowest) in &shapes {
+            for depth in [0.05e-3, 0.2e-3, 0.5e-3, 1e-3] {
+                for offset in [0.0, spacing / 3.0] {
+                    let one = [Placed {
+                        shape: shape.clone(),
+                        pose: Isometry3::translation(offset, 0.5 * offset, lowest - depth),
+                    }];
+                    let two = [
+                        one[0].clone(),
+                        Placed {
+                            shape: ball(1e-3),
+                            pose: Isometry3::translation(8e-3, 0.0, 1e-3 - 0.5 * depth),
+                        },
+                    ];
+                    for placed in [&one[..], &two[..]] {
+                        let (with, n) = contact(placed, true);
+                        let (without, _) = contact(placed, false);
+                        settled += n;
+                        let what = format!(
+                            "{lowest} at {depth}, {} indenters, friction {friction}",
+                            placed.len()
+                        );
+                        assert_eq!(with.replaced, without.replaced, "{what}");
+                        assert_eq!(with.loaded, without.loaded, "{what}");
+                        let bits = |c: &Contact| {
+                            c.forces
+                                .iter()
+                                .chain(&c.points)
+                                .flat_map(|v| v.iter().map(|x| x.to_bits()))
+                                .collect::<Vec<_>>()
+                        };
+                        assert_eq!(bits(&with), bits(&without), "{what}");
+                        assert_eq!(
+                            with.columns.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                            without
+                                .columns
+                                .iter()
+                                .map(|x| x.to_bits())
+                                .collect::<Vec<_>>(),
+                            "{what}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("the bound settled {settled} patches");
+    assert!(settled > 10, "the bound settled {settled} patches");
+}
+
 /// A long narrow contact: a capsule of radius 0.5 mm and half-length 3 mm lying on the
 /// default gel, tilted 0.12 rad along its axis (as the benchmark's ridges are), pressed
 /// 0.2 and 0.3 mm. On the coarse grid the linear solver's force is within 10 % of Newton's

@@ -154,6 +154,12 @@ const MIN_MARCH: f64 = 0.02;
 const BISECTIONS: usize = 24;
 const GAP_EPS: f64 = 1e-6;
 
+/// The bisections from which the way out of an indenter is found by
+/// [`bracketed_root`] to the same width (the full gaps' [`BISECTIONS`]) rather than by
+/// bisecting ([`bisected_root`]: the small contacts' [`FOOTPRINT_BISECTIONS`], whose
+/// fullness rule was fitted on their midpoints).
+const BRACKETED_FROM: usize = 16;
+
 /// Bisections of the way out of an indenter for a small contact's footprint samples,
 /// whose depths make its fullness (a ratio wanted to a few per cent). These samples are
 /// marched even under a primitive ([`Compliance::marched_gap`]): the fullness rule
@@ -1155,7 +1161,11 @@ impl Compliance {
         }
     }
 
-    /// [`Self::vertical_gap_to`] by marching the signed distance.
+    /// [`Self::vertical_gap_to`] by marching the signed distance. A march up stops past
+    /// the layer's thickness with what it has gone (a gap at least that: the surface never
+    /// rises that far, and the point is no candidate). Beside a mesh's side face the march
+    /// creeps along it by the face's distance a step; such points past the thickness were
+    /// half a grasped hexagon's samples.
     fn marched_gap(
         &self,
         x: &Vector3<f64>,
@@ -1166,22 +1176,19 @@ impl Compliance {
         let mut phi = at(0.0);
         if phi < 0.0 {
             let (mut inside, mut t) = (0.0, 0.0);
+            let mut inside_phi = phi;
             for _ in 0..MARCH_STEPS {
                 t += (-phi).max(MIN_MARCH);
                 phi = at(-t);
                 if phi >= 0.0 {
-                    let mut outside = t;
-                    for _ in 0..bisections {
-                        let mid = 0.5 * (inside + outside);
-                        if at(-mid) < 0.0 {
-                            inside = mid;
-                        } else {
-                            outside = mid;
-                        }
-                    }
-                    return Some(-0.5 * (inside + outside));
+                    let out = |s: f64| at(-s);
+                    let way_out = match bisections >= BRACKETED_FROM {
+                        true => bracketed_root(out, (inside, inside_phi), (t, phi), bisections),
+                        false => bisected_root(out, inside, t, bisections),
+                    };
+                    return Some(-way_out);
                 }
-                inside = t;
+                (inside, inside_phi) = (t, phi);
             }
             return Some(-t);
         }
@@ -1190,7 +1197,7 @@ impl Compliance {
             if !phi.is_finite() {
                 return None;
             }
-            if phi <= GAP_EPS {
+            if phi <= GAP_EPS || t > self.layer[2] {
                 return Some(t);
             }
             t += phi;
@@ -4527,6 +4534,76 @@ fn minimise(
     }
     None
 }
+
+/// The root of `f` (negative at `inside`, not negative at `outside > inside`) that
+/// `bisections` halvings of the bracket find: the midpoint of a bracket `2^-bisections` of
+/// the first one wide.
+fn bisected_root(
+    f: impl Fn(f64) -> f64,
+    mut inside: f64,
+    mut outside: f64,
+    bisections: usize,
+) -> f64 {
+    for _ in 0..bisections {
+        let mid = 0.5 * (inside + outside);
+        if f(mid) < 0.0 {
+            inside = mid;
+        } else {
+            outside = mid;
+        }
+    }
+    0.5 * (inside + outside)
+}
+
+/// [`bisected_root`]'s answer to the same width (the midpoint of a bracket at most
+/// `2^-bisections` of the first one wide, or a point where `f` is zero) by the Illinois
+/// method: regula falsi, halving the value kept at an end that stays twice running. A
+/// signed distance along a line is nearly linear within a cell (a mesh's trilinear
+/// interpolant is piecewise cubic along an oblique line, linear along an axis), so where
+/// bisection evaluates `f` 24 times this takes two to nine. After [`SECANT_STEPS`] it
+/// bisects, so that it ends however `f` bends.
+fn bracketed_root(
+    f: impl Fn(f64) -> f64,
+    (mut a, mut fa): (f64, f64),
+    (mut b, mut fb): (f64, f64),
+    bisections: usize,
+) -> f64 {
+    let width = (b - a) * 0.5f64.powi(bisections as i32);
+    let mut kept = 0i8;
+    for step in 0..SECANT_STEPS + bisections {
+        if fb == 0.0 {
+            return b;
+        }
+        if b - a <= width {
+            break;
+        }
+        // The secant's point, at least half the width from either end: an end that has
+        // reached the root is then closed on from the other side by the next sample.
+        let secant = b - fb * (b - a) / (fb - fa);
+        let c = match step < SECANT_STEPS && secant.is_finite() {
+            true => secant.clamp(a + 0.5 * width, b - 0.5 * width),
+            false => 0.5 * (a + b),
+        };
+        let fc = f(c);
+        if fc < 0.0 {
+            (a, fa) = (c, fc);
+            if kept == 1 {
+                fb *= 0.5;
+            }
+            kept = 1;
+        } else {
+            (b, fb) = (c, fc);
+            if kept == -1 {
+                fa *= 0.5;
+            }
+            kept = -1;
+        }
+    }
+    0.5 * (a + b)
+}
+
+/// The steps of [`bracketed_root`] by regula falsi before it bisects.
+const SECANT_STEPS: usize = 8;
 
 /// The vertical gap (m) of [`Compliance::vertical_gap`] at the point `p` (sensor frame)
 /// from the indenters' chords along the vertical ([`Sdf::chord`]): outside them, how far up

@@ -1377,7 +1377,8 @@ fn a_reset_gel_keeps_no_systems_and_answers_as_a_fresh_one() {
 /// where the signed distance falls below 1e-6 cells, which along a line grazing a curved
 /// surface of radius `R` cells lies up to `sqrt(2 R 1e-6)` before the surface (R up to 4
 /// cells here, the ellipsoid's flattest: 3e-3): the two agree to 5e-3 cells (5 um on this
-/// gel; three in four points to 1e-6), and the march never passes the chord's end.
+/// gel; three in four points to 1e-6), and the march never passes the chord's end. A march
+/// up that passes the layer's thickness stops there, below the chord's end (or its miss).
 #[test]
 fn chord_gaps_agree_with_the_march() {
     use crate::geometry::{Capsule, Cuboid, Cylinder, Ellipsoid};
@@ -1404,7 +1405,7 @@ fn chord_gaps_agree_with_the_march() {
             UnitQuaternion::from_scaled_axis(axis * 1.5),
         )
     };
-    let (mut compared, mut inside, mut grazed, mut close) = (0, 0, 0, 0);
+    let (mut compared, mut inside, mut grazed, mut close, mut beyond) = (0, 0, 0, 0, 0);
     for (k, shape) in shapes.iter().enumerate() {
         for _ in 0..6 {
             let mut placed = vec![Placed {
@@ -1419,7 +1420,7 @@ fn chord_gaps_agree_with_the_march() {
                 });
             }
             let indenters = step(&placed, dx);
-            for _ in 0..200 {
+            for _ in 0..320 {
                 let p = Point3::new(
                     3e-3 * noise.next(),
                     3e-3 * noise.next(),
@@ -1428,6 +1429,15 @@ fn chord_gaps_agree_with_the_march() {
                 let x = (p.coords - c.origin) / dx;
                 let exact = c.vertical_gap_to(&x, &indenters, BISECTIONS);
                 let marched = c.marched_gap(&x, &indenters, 40);
+                if let Some(b) = marched.filter(|&b| b > c.layer[2]) {
+                    // A march up past the layer's thickness stops: a gap at least that.
+                    assert!(
+                        exact.map_or(true, |a| b <= a + 1e-9),
+                        "{shape:?} at {p}: {exact:?} against {b}"
+                    );
+                    beyond += 1;
+                    continue;
+                }
                 match (exact, marched) {
                     (Some(a), Some(b)) => {
                         assert!((a - b).abs() <= 5e-3, "{shape:?} at {p}: {a} against {b}");
@@ -1462,8 +1472,8 @@ fn chord_gaps_agree_with_the_march() {
         }
     }
     assert!(
-        compared > 2000 && inside > 300,
-        "{compared} gaps, {inside} inside"
+        compared > 2000 && inside > 300 && beyond > 0,
+        "{compared} gaps, {inside} inside, {beyond} past the layer"
     );
     assert!(grazed <= compared / 100, "{grazed} marches ran out");
     assert!(
@@ -1782,4 +1792,84 @@ fn the_set_changes_are_the_points_in_and_out() {
     assert_eq!(changes(&[], &[2, 4]), (vec![2, 4], vec![]));
     assert_eq!(changes(&[2, 4], &[]), (vec![], vec![2, 4]));
     assert_eq!(changes(&[2, 4], &[2, 4]), (vec![], vec![]));
+}
+
+/// The way out of an indenter by regula falsi ([`bracketed_root`]) lands where bisection's
+/// 24 halvings do, within the width they leave, in a fraction of the samples: on lines,
+/// curves, kinks and a steep wall, and along oblique lines through a mesh's trilinear
+/// distance grid (piecewise cubic there).
+#[test]
+fn the_bracketed_way_out_is_the_bisected_one_in_fewer_samples() {
+    use crate::geometry::TriMesh;
+    use std::cell::Cell;
+    let samples = Cell::new(0usize);
+    let mut check = |f: &dyn Fn(f64) -> f64, (a, b): (f64, f64)| -> usize {
+        let counted = |s: f64| {
+            samples.set(samples.get() + 1);
+            f(s)
+        };
+        let (fa, fb) = (f(a), f(b));
+        assert!(fa < 0.0 && fb >= 0.0, "not a bracket: {fa} {fb}");
+        let bisected = bisected_root(f, a, b, BISECTIONS);
+        samples.set(0);
+        let bracketed = bracketed_root(counted, (a, fa), (b, fb), BISECTIONS);
+        let width = (b - a) * 0.5f64.powi(BISECTIONS as i32);
+        assert!(
+            (bracketed - bisected).abs() <= width,
+            "{bracketed} against {bisected} (width {width:e})"
+        );
+        assert!(samples.get() <= SECANT_STEPS + BISECTIONS);
+        samples.get()
+    };
+    let mut smooth = Vec::new();
+    smooth.push(check(&|s| s - 0.3, (0.0, 1.0)));
+    smooth.push(check(&|s| 2.0 * s - 0.02, (0.0, 0.02)));
+    smooth.push(check(
+        &|s| (s - 0.4f64).powi(3) + 0.1 * (s - 0.4),
+        (0.0, 1.0),
+    ));
+    smooth.push(check(&|s| 0.9f64.sqrt() - (1.0 - s * s).sqrt(), (0.0, 0.5)));
+    // A kink, a steep wall and a root at the bracket's end: bisection's answer still.
+    check(
+        &|s| {
+            if s < 0.7 {
+                s - 0.75
+            } else {
+                10.0 * (s - 0.7) - 0.05
+            }
+        },
+        (0.0, 1.0),
+    );
+    check(&|s| (100.0 * (s - 0.37)).tanh(), (0.0, 1.0));
+    check(&|s| if s < 1.0 { -1.0 } else { 0.0 }, (0.0, 1.0));
+    check(&|s| (s - 0.5).signum() * (s - 0.5).abs().sqrt(), (0.0, 1.0));
+    // Oblique lines out of a mesh (its distance grid's trilinear interpolant).
+    let mesh = TriMesh::cone_tip(4e-3, 0.6, 7).unwrap();
+    let mut noise = Noise(11);
+    let mut lines = 0;
+    while lines < 40 {
+        let inside = Point3::new(
+            0.6e-3 * noise.next(),
+            0.6e-3 * noise.next(),
+            2.5e-3 + 1e-3 * noise.next(),
+        );
+        let d = Vector3::new(noise.next(), noise.next(), noise.next() - 1.5).normalize();
+        let f = |s: f64| mesh.distance(&(inside + d * s));
+        if f(0.0) >= 0.0 {
+            continue;
+        }
+        // The march's bracket: steps of the distance, at least 2 % of a millimetre.
+        let (mut a, mut b) = (0.0, 0.0);
+        while f(b) < 0.0 {
+            a = b;
+            b += (-f(b)).max(2e-5);
+        }
+        smooth.push(check(&f, (a, b)));
+        lines += 1;
+    }
+    let mean = smooth.iter().sum::<usize>() as f64 / smooth.len() as f64;
+    assert!(
+        mean <= 4.0,
+        "{mean} samples a root on smooth lines ({smooth:?})"
+    );
 }

@@ -5,7 +5,8 @@
 //! plugin writes it into MuJoCo's `plugin_state` after each such evaluation.
 //!
 //! `cargo bench --bench sensor` (add `-- --quick` for fewer frames, `-- --fine` to add the
-//! fine mode, a few frames only: it takes seconds to minutes per frame).
+//! fine mode, a few frames only: it takes seconds to minutes per frame). `TACROM_BENCH_ONLY`
+//! names the modes to run, comma-separated (`rom,rom-64x48`); unset, all of them.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -158,7 +159,11 @@ fn main() {
     if with_fine {
         modes.push(("fine", "fine", None, 3));
     }
+    let only = std::env::var("TACROM_BENCH_ONLY").ok();
     for (label, physics, extra, frames) in modes {
+        if only.as_deref().is_some_and(|o| !o.split(',').any(|m| m == label)) {
+            continue;
+        }
         for threads in [1usize, 2] {
             let mut raw = RawConfig::default()
                 .with("physics", physics)

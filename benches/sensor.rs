@@ -161,7 +161,10 @@ fn main() {
     }
     let only = std::env::var("TACROM_BENCH_ONLY").ok();
     for (label, physics, extra, frames) in modes {
-        if only.as_deref().is_some_and(|o| !o.split(',').any(|m| m == label)) {
+        if only
+            .as_deref()
+            .is_some_and(|o| !o.split(',').any(|m| m == label))
+        {
             continue;
         }
         for threads in [1usize, 2] {

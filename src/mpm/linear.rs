@@ -4656,12 +4656,13 @@ fn chord_gap(p: &Point3<f64>, indenters: &[StepIndenter]) -> Option<Option<f64>>
 /// The points' displacements `W v` from the columns' (three per column, rows `w`), into
 /// `at` (cleared first).
 fn at_points_into(w: &[Columns], v: &DVector<f64>, at: &mut Vec<Vector3<f64>>) {
+    // The columns' three unknowns as one array each: one bounds check a weight, not three.
+    let (v, _) = v.as_slice().as_chunks::<3>();
     at.clear();
     at.extend(w.iter().map(|row| {
         let mut s = Vector3::zeros();
         for &(c, wt) in row {
-            let c = 3 * c as usize;
-            s += Vector3::new(v[c], v[c + 1], v[c + 2]) * wt;
+            s += Vector3::from(v[c as usize]) * wt;
         }
         s
     }));
@@ -4694,11 +4695,12 @@ fn point_force(
 /// unknowns; zeroed first).
 fn on_columns_into(w: &[Columns], f: &[Vector3<f64>], out: &mut DVector<f64>) {
     out.fill(0.0);
+    let (out, _) = out.as_mut_slice().as_chunks_mut::<3>();
     for (row, f) in w.iter().zip(f) {
         for &(c, wt) in row {
-            let c = 3 * c as usize;
+            let o = &mut out[c as usize];
             for j in 0..3 {
-                out[c + j] += wt * f[j];
+                o[j] += wt * f[j];
             }
         }
     }

@@ -1803,7 +1803,7 @@ fn the_bracketed_way_out_is_the_bisected_one_in_fewer_samples() {
     use crate::geometry::TriMesh;
     use std::cell::Cell;
     let samples = Cell::new(0usize);
-    let mut check = |f: &dyn Fn(f64) -> f64, (a, b): (f64, f64)| -> usize {
+    let check = |f: &dyn Fn(f64) -> f64, (a, b): (f64, f64)| -> usize {
         let counted = |s: f64| {
             samples.set(samples.get() + 1);
             f(s)

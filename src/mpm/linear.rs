@@ -3972,6 +3972,7 @@ fn vertical_start(
         added,
         removed,
         forces,
+        lateral,
     } = &mut kept.vertical;
     product_into(g, l, v);
     at_points_into(w, v, at);
@@ -3984,6 +3985,15 @@ fn vertical_start(
     lifted_points.clear();
     lifted_points.extend((0..n).filter(|&i| caps[i] > 0.0));
     refill(sinks, lifted_points.len() * cols, 0.0);
+    // The columns' sinking under each lateral unknown's unit load (`G`'s vertical rows of
+    // its column), one after another: read contiguously below, once per point's weight.
+    lateral.clear();
+    if !lifted_points.is_empty() {
+        for k in (0..cols).flat_map(|c| [3 * c, 3 * c + 1]) {
+            let col = g.column(k);
+            lateral.extend((0..cols).map(|j| col[3 * j + 2]));
+        }
+    }
     for (&i, sink) in lifted_points
         .iter()
         .zip(sinks.chunks_exact_mut(cols.max(1)))
@@ -3992,10 +4002,10 @@ fn vertical_start(
         unit[i] = f.xy();
         for &(c, wt) in &w[i] {
             for (axis, t) in [(0, f.x), (1, f.y)] {
-                let col = g.column(3 * c as usize + axis);
+                let from = (2 * c as usize + axis) * cols;
                 let t = t * wt;
-                for (s, j) in sink.iter_mut().zip((0..cols).map(|j| 3 * j + 2)) {
-                    *s += t * col[j];
+                for (s, &g) in sink.iter_mut().zip(&lateral[from..from + cols]) {
+                    *s += t * g;
                 }
             }
         }
@@ -4144,6 +4154,7 @@ struct Vertical {
     added: Vec<usize>,
     removed: Vec<usize>,
     forces: Vec<Vector3<f64>>,
+    lateral: Vec<f64>,
 }
 
 /// `a . b`, summed in four lanes (a reduction the compiler vectorises).

@@ -598,10 +598,9 @@ fn a_model_serves_its_inputs_ranges_then_its_validated_ones() {
 /// model reads lengths in its own units, and the gel's equilibrium scaled with the gel is
 /// the press scaled (`a_scaled_press_is_the_press_scaled`). A sphere and its press scaled
 /// by a half or a quarter (15 x 15 x 2 and 7.5 x 7.5 x 1 mm) give the default gel's image
-/// scaled and its force times the scale squared, to the images' own absolute accuracy
-/// (their inverse map stops at 10 nm, `ONE_STEP_ERROR`) and the networks' rounding (the
-/// relaxation's model and the linear gel's narrow decoder, in float: to nanometres; the
-/// linear gel's wide decoder, in 8 bits: below). Each linear model is named: the default
+/// scaled and its force times the scale squared, to round-off (the images' inverse map
+/// stops within a fixed fraction of the gel's thickness, the same in each gel's units).
+/// Each linear model is named: the default
 /// on the linear gel is the narrow decoder from 3.5 mm and the wide one below
 /// ([`tacrom::rom::NARROW_FROM_THICKNESS`]), so the default itself changes model between
 /// these thicknesses. A gel
@@ -659,16 +658,13 @@ fn rom_serves_its_gel_at_any_thickness_scaled() {
             eprintln!(
                 "{model}, scale {s}: worst depth {worst:.2e} m of {peak:.2e}, force {df:.1e}"
             );
-            // The wide decoder runs in 8 bits, each activation quantised on a scale set
-            // per run: inputs that differ by rounding (nanometres) may round an
-            // activation to the next of its 255 levels. With its float decoder the same
-            // press differs by 2.2 and 2.8 nm (measured); in 8 bits by 0.3 um, 5e-4 of
-            // the press. The narrow decoder, in float: 2.2 and 2.8 nm, force 3e-7.
-            let (depth_bound, force_bound) = if model == tacrom::rom::LINEAR_MODEL {
-                (2e-3 * peak, 1e-4)
-            } else {
-                (1e-8 * (1.0 + 1.0 / s) + 1e-6 * peak, 1e-6)
-            };
+            // Scaled by a power of two, the gel, its image's inverse map (its one-step
+            // bound a fraction of the thickness) and the model's inputs are the same
+            // numbers scaled: the same bits come out (measured), even through the wide
+            // decoder's 8 bits, whose activations are quantised on a scale set per run
+            // (inputs that differed by nanometres there once moved an activation to the
+            // next of its 255 levels: 0.3 um of depth).
+            let (depth_bound, force_bound) = (1e-12 * peak, 1e-12);
             assert!(worst <= depth_bound, "{model}, scale {s}: {worst} m");
             assert!(
                 df <= force_bound,

@@ -218,15 +218,22 @@ impl Part {
 /// field's second derivatives around the pixel ([`Curvature`]). Far from a contact the
 /// surface moves sideways by microns and bends slowly, so one separable sample per pixel
 /// suffices there; nearer, Newton's method goes on from that step's root to
-/// [`INVERSE_MAP_STEP`]. A tenth of a micron: about a thirty-sixth of the most accurate
-/// mode's depth error against the reference (3.6 um on the full profile); the one-step
-/// pixels differ from the solved map by at most 41 nm in the test below. What it costs
-/// and saves: `docs/solvers.md`, "The depth image: one separable sample where it
-/// suffices".
-pub(super) const ONE_STEP_ERROR: f64 = 1e-7;
+/// [`INVERSE_MAP_STEP`]. A fraction of the gel's thickness ([`one_step_error`]), so that
+/// the map's choices scale with the gel as its solve does (a model reads a gel of its
+/// shape at any thickness in its own units): a tenth of a micron on the default 4 mm gel,
+/// about a thirty-sixth of the most accurate mode's depth error against the reference
+/// (3.6 um on the full profile); there the one-step pixels differ from the solved map by
+/// at most 41 nm in the test below. What it costs and saves: `docs/solvers.md`, "The
+/// depth image: one separable sample where it suffices".
+pub(super) const ONE_STEP_FRACTION: f64 = 2.5e-5;
+
+/// [`ONE_STEP_FRACTION`] of `gel`'s thickness (m).
+pub(super) fn one_step_error(gel: &Gel) -> f64 {
+    ONE_STEP_FRACTION * gel.params.size[2]
+}
 
 /// [`for_each_seen`], with `one_step` whether pixels whose first Newton step is accurate
-/// to [`ONE_STEP_ERROR`] stop there (see [`ONE_STEP_ERROR`]); `false` solves every pixel
+/// to [`one_step_error`] stop there (see [`ONE_STEP_FRACTION`]); `false` solves every pixel
 /// to [`INVERSE_MAP_STEP`].
 ///
 /// The first step starts at the pixel itself, so its samples are separable: per row of
@@ -256,6 +263,7 @@ fn seen_with(
     let ya = y0 + (iy0 as f64 - 2.0) * sy - umax;
     let yb = y0 + (iy1 as f64 + 1.0) * sy + umax;
     let u = &gel.surface_u;
+    let limit = one_step_error(gel);
     // The buffers of the gel's last image, refilled.
     let mut kept = gel.pixels.take();
     let Pixels {
@@ -306,7 +314,7 @@ fn seen_with(
                         for (k, (&col, horizontal)) in cols.iter().zip(columns).enumerate() {
                             let pa = || (grid.x(col) - x0) / sx;
                             let first = curvature.and_then(|c| {
-                                one_newton_step(mixed, horizontal, &vertical, sx, sy, c)
+                                one_newton_step(mixed, horizontal, &vertical, sx, sy, c, limit)
                             });
                             line[k] = match first {
                                 Some((d, true)) => d,
@@ -472,8 +480,9 @@ impl Curvature {
 /// The inverse map's first Newton step from the pixel itself, from the row's mixed field
 /// (`mixed`, [`Taps::mix_rows`]) and the pixel's column taps: the displacement at its
 /// root, the sample moved on by its derivatives, and whether that is accurate to
-/// [`ONE_STEP_ERROR`] (`None` where the step is not Newton's).
+/// `limit` (m, [`one_step_error`]; `None` where the step is not Newton's).
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn one_newton_step(
     mixed: &[[Vector3<f64>; 2]],
     a: &Taps,
@@ -481,6 +490,7 @@ fn one_newton_step(
     sx: f64,
     sy: f64,
     curvature: &Curvature,
+    limit: f64,
 ) -> Option<(Vector3<f64>, bool)> {
     let (mut d, mut da, mut db) = (Vector3::zeros(), Vector3::zeros(), Vector3::zeros());
     for k in 0..4 {
@@ -505,7 +515,7 @@ fn one_newton_step(
         return None;
     }
     let bound = 2.0 * step * step * curvature.around(a, b);
-    Some((d - da * step_a - db * step_b, bound <= ONE_STEP_ERROR))
+    Some((d - da * step_a - db * step_b, bound <= limit))
 }
 
 /// The lattice coordinates `X` of the surface point seen at lattice coordinates `(pa, pb)`:
@@ -720,7 +730,7 @@ mod tests {
     }
 
     /// The pixels that stop after one Newton step agree with the inverse map solved to its
-    /// step everywhere within their bound, [`ONE_STEP_ERROR`] (the solved map itself is
+    /// step everywhere within their bound, [`one_step_error`] (the solved map itself is
     /// exact to about 1e-13 m), on the linear and the relaxed
     /// gel, pressed 0.2 and 1 mm and slid 0.5 mm, at pixel sizes from 0.03 to 0.3 mm.
     #[test]
@@ -744,7 +754,7 @@ mod tests {
                     let peak = exact.iter().map(|d| d.amax()).fold(0.0f64, f64::max);
                     assert!(peak > 0.5 * depth, "{solver:?} {depth}: peak {peak}");
                     assert!(
-                        worst <= ONE_STEP_ERROR,
+                        worst <= one_step_error(&gel),
                         "{solver:?} {depth} {pixel}: worst {worst}"
                     );
                 }

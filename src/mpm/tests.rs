@@ -849,7 +849,7 @@ fn surface_displacement_at_a_lattice_point_is_its_particles() {
 
 // Each pixel's shear and depth are the displacement of the surface point X = p - shear
 // it sees: sampled there, u is (shear, -depth), to the inverse map's accuracy (its
-// one-step pixels' bound, `ONE_STEP_ERROR`); and the depth and shear computed together
+// one-step pixels' bound, `one_step_error`); and the depth and shear computed together
 // equal each computed alone.
 #[test]
 fn shear_and_depth_are_the_displacement_of_the_point_seen() {
@@ -882,7 +882,7 @@ fn shear_and_depth_are_the_displacement_of_the_point_seen() {
         }
     }
     assert!(
-        worst < super::surface::ONE_STEP_ERROR,
+        worst < super::surface::one_step_error(&g),
         "worst {worst} (peak shear {peak})"
     );
 }
@@ -1258,15 +1258,13 @@ fn a_scaled_press_is_the_press_scaled() {
             println!(
                 "{solver:?} s {s}: worst depth {worst:.2e} m of {peak:.2e}, force {force:.1e}"
             );
-            // The images, not the solves, set an absolute length: a pixel's inverse map
-            // stops once its error is below `ONE_STEP_ERROR` (m), in each image. A scale
-            // that rounds may stop the iterations a step apart: the two answers then
-            // agree to the solve's own tolerance.
+            // The image's inverse map too stops in the gel's units (its one-step bound a
+            // fraction of the thickness, `ONE_STEP_FRACTION`): a scale by a power of two
+            // gives the image scaled (the same bits, measured). A scale that rounds may
+            // stop the iterations a step apart: the two answers then agree to the
+            // solve's own tolerance.
             let (depth_bound, force_bound) = if s.log2().fract() == 0.0 {
-                (
-                    surface::ONE_STEP_ERROR * (1.0 + 1.0 / s) + 1e-12 * peak,
-                    1e-12,
-                )
+                (1e-12 * peak, 1e-12)
             } else {
                 let tolerance = SolverOptions::default().tolerance;
                 (tolerance * peak, tolerance)

@@ -94,7 +94,7 @@ mod rotation;
 mod solver;
 mod state;
 pub use state::StateBounds;
-pub use surface::Part;
+pub use surface::{Part, ONE_STEP_FRACTION};
 mod surface;
 mod total;
 mod transfer;

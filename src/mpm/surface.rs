@@ -225,7 +225,7 @@ impl Part {
 /// (3.6 um on the full profile); there the one-step pixels differ from the solved map by
 /// at most 41 nm in the test below. What it costs and saves: `docs/solvers.md`, "The
 /// depth image: one separable sample where it suffices".
-pub(super) const ONE_STEP_FRACTION: f64 = 2.5e-5;
+pub const ONE_STEP_FRACTION: f64 = 2.5e-5;
 
 /// [`ONE_STEP_FRACTION`] of `gel`'s thickness (m).
 pub(super) fn one_step_error(gel: &Gel) -> f64 {

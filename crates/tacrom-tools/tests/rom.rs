@@ -1097,6 +1097,14 @@ fn gen_data_draws_gels_from_the_family_in_the_models_units() {
                 "sample {i}: encoder input {k}: {a} against {b}"
             );
         }
+        // The query features read the coarse depth through the inverse map, whose pixels
+        // may stop after one step within its bound (a fraction of the thickness, mm
+        // here). The data set's observation and the sensor's are mapped apart and may
+        // stop a pixel a step apart; with every pixel solved they agree to the float's
+        // rounding (measured).
+        let map = tacrom::mpm::ONE_STEP_FRACTION * t_model * 1e3;
+        let close_mapped =
+            |a: f32, b: f32| (a - b).abs() as f64 <= 1e-6 * a.abs().max(1.0) as f64 + map;
         let reach = (model.patch / 2 * model.patch_step) as isize;
         let (mut q_sensor, mut q_sample) = (Vec::new(), Vec::new());
         let mut compared = 0;
@@ -1111,7 +1119,10 @@ fn gen_data_draws_gels_from_the_family_in_the_models_units() {
                 query_features(&sensor, &spec, r as usize, c as usize, &mut q_sensor);
                 query_features(&sample, &model, row as usize, col as usize, &mut q_sample);
                 for (a, b) in q_sensor.iter().zip(&q_sample) {
-                    assert!(close(*a, *b), "sample {i} at {row},{col}: {a} against {b}");
+                    assert!(
+                        close_mapped(*a, *b),
+                        "sample {i} at {row},{col}: {a} against {b}"
+                    );
                 }
                 compared += 1;
             }

@@ -4667,13 +4667,15 @@ fn chord_gap(p: &Point3<f64>, indenters: &[StepIndenter]) -> Option<Option<f64>>
 /// The points' displacements `W v` from the columns' (three per column, rows `w`), into
 /// `at` (cleared first).
 fn at_points_into(w: &[Columns], v: &DVector<f64>, at: &mut Vec<Vector3<f64>>) {
-    // The columns' three unknowns as one array each: one bounds check a weight, not three.
-    let (v, _) = v.as_slice().as_chunks::<3>();
+    // The column's three unknowns as one slice: one bounds check a weight, not three.
+    let v = v.as_slice();
     at.clear();
     at.extend(w.iter().map(|row| {
         let mut s = Vector3::zeros();
         for &(c, wt) in row {
-            s += Vector3::from(v[c as usize]) * wt;
+            let c = 3 * c as usize;
+            let x = &v[c..c + 3];
+            s += Vector3::new(x[0], x[1], x[2]) * wt;
         }
         s
     }));
@@ -4706,10 +4708,11 @@ fn point_force(
 /// unknowns; zeroed first).
 fn on_columns_into(w: &[Columns], f: &[Vector3<f64>], out: &mut DVector<f64>) {
     out.fill(0.0);
-    let (out, _) = out.as_mut_slice().as_chunks_mut::<3>();
+    let out = out.as_mut_slice();
     for (row, f) in w.iter().zip(f) {
         for &(c, wt) in row {
-            let o = &mut out[c as usize];
+            let c = 3 * c as usize;
+            let o = &mut out[c..c + 3];
             for j in 0..3 {
                 o[j] += wt * f[j];
             }

@@ -1821,14 +1821,12 @@ fn the_bracketed_way_out_is_the_bisected_one_in_fewer_samples() {
         assert!(samples.get() <= SECANT_STEPS + BISECTIONS);
         samples.get()
     };
-    let mut smooth = Vec::new();
-    smooth.push(check(&|s| s - 0.3, (0.0, 1.0)));
-    smooth.push(check(&|s| 2.0 * s - 0.02, (0.0, 0.02)));
-    smooth.push(check(
-        &|s| (s - 0.4f64).powi(3) + 0.1 * (s - 0.4),
-        (0.0, 1.0),
-    ));
-    smooth.push(check(&|s| 0.9f64.sqrt() - (1.0 - s * s).sqrt(), (0.0, 0.5)));
+    let mut smooth = vec![
+        check(&|s| s - 0.3, (0.0, 1.0)),
+        check(&|s| 2.0 * s - 0.02, (0.0, 0.02)),
+        check(&|s| (s - 0.4f64).powi(3) + 0.1 * (s - 0.4), (0.0, 1.0)),
+        check(&|s| 0.9f64.sqrt() - (1.0 - s * s).sqrt(), (0.0, 0.5)),
+    ];
     // A kink, a steep wall and a root at the bracket's end: bisection's answer still.
     check(
         &|s| {

@@ -4592,7 +4592,8 @@ fn bracketed_root(
         // reached the root is then closed on from the other side by the next sample.
         let secant = b - fb * (b - a) / (fb - fa);
         let c = match step < SECANT_STEPS && secant.is_finite() {
-            true => secant.clamp(a + 0.5 * width, b - 0.5 * width),
+            // (Not `clamp`, which panics where rounding crosses its ends.)
+            true => secant.max(a + 0.5 * width).min(b - 0.5 * width),
             false => 0.5 * (a + b),
         };
         let fc = f(c);

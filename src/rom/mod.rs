@@ -1109,9 +1109,9 @@ impl Rom {
     /// volume's ratio sums the whole lattice), no pressure head runs, no refinement reads
     /// the lattice's energy terms, and the networks' window is the whole lattice.
     fn reads_part(&self) -> bool {
+        // (The pressure head loads only where force or pressure is wanted.)
         !self.options.force
             && !self.options.pressure
-            && self.pressure.is_none()
             && !self.refine_enabled()
             && self.manifest.lattice.whole()
     }

@@ -405,9 +405,9 @@ pub const SHALLOWEST: f64 = 1e-6;
 /// The motion of an indenter (m, of its centre of pressure relative to the gel) since the
 /// last solve beyond which the implicit coupling solves the gel again, as a fraction of
 /// the contact's depth: the force between solves follows a power law of the depth through
-/// the last solve's force and stiffness ([`power_law`]), exact for a Hertzian contact;
-/// its tangent would leave that by `3/8 (motion / depth)^2` of itself, 1.5 % at this
-/// fraction (measured where the grasps' gels were solved again: [`power_law`]).
+/// the last solve's force and stiffness ([`power_law`]), exact for a Hertzian contact,
+/// whose tangent line would leave it by `3/8 (motion / depth)^2` of itself, 1.5 % at this
+/// fraction. (The errors measured where the grasps' gels were solved again: [`power_law`].)
 pub const RESOLVE_FRACTION: f64 = 0.2;
 
 /// The least motion (m) that makes the implicit coupling solve again.
@@ -573,13 +573,13 @@ pub fn power_law(force: f64, stiffness: f64, at_solve: f64, depth: f64) -> (f64,
 /// The gel's normal stiffness (N/m) between two solves of one indenter, `then` and `now`,
 /// between which its centre of pressure moved `dz` along the gel's normal (m, + out of the
 /// gel), `depth` deep now: the stiffness now of the power law of the depth through both
-/// solves' normal forces ([`power_law`]), where the motion is long enough for the solves' own differences (their tolerance, a few thousandths of
-/// the force) not to dominate ([`SECANT_FRACTION`] of the depth) and the force grew
-/// into the gel; bounded to [`SECANT_RANGE`] times the Hertz estimate
-/// [`DEPTH_EXPONENT`]` F / d`. A discretised gel's force is not Hertz's: it starts where
-/// a contact point is reached, so `F / d` can be several times too low, and a stiffness
-/// followed between solves at half the gel's or less makes each solve's error as large as
-/// the last's, of the other sign.
+/// solves' normal forces ([`power_law`]), where the motion is long enough for the solves'
+/// own differences (their tolerance, a few thousandths of the force) not to dominate
+/// ([`SECANT_FRACTION`] of the depth) and the force grew into the gel; bounded to
+/// [`SECANT_RANGE`] times the Hertz estimate [`DEPTH_EXPONENT`]` F / d`. A discretised
+/// gel's force is not Hertz's: it starts where a contact point is reached, so `F / d` can
+/// be several times too low, and a stiffness followed between solves at half the gel's or
+/// less makes each solve's error as large as the last's, of the other sign.
 pub fn secant(then: &Wrench, now: &Wrench, dz: f64, depth: f64) -> Option<f64> {
     let (f0, f1) = (then.force.z, now.force.z);
     let measurable = f0 > 0.0 && f1 > 0.0 && depth > 0.0 && dz.abs() > SECANT_FRACTION * depth;

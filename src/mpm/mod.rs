@@ -102,7 +102,7 @@ mod transfer;
 #[cfg(test)]
 mod tests;
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector2, Vector3};
 
 use std::sync::Arc;
 
@@ -728,27 +728,69 @@ impl Gel {
     /// the indenters that the last solve saw.
     pub fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
         let mut out = vec![Wrench::default(); indenters.len()];
-        if indenters.is_empty() {
-            return out;
-        }
-        for load in &self.loads {
-            let p = Point3::new(load.at[0], load.at[1], load.z);
-            let nearest = if indenters.len() == 1 {
-                0
-            } else {
-                let mut best = (f64::INFINITY, 0);
-                for (i, ind) in indenters.iter().enumerate() {
-                    let d = ind.shape.distance(&ind.pose.inverse_transform_point(&p));
-                    if d < best.0 {
-                        best = (d, i);
-                    }
-                }
-                best.1
-            };
-            out[nearest].force += load.force;
-            out[nearest].torque += p.coords.cross(&load.force);
+        for (k, load) in self.loads_by_indenter(indenters) {
+            let p = Vector3::new(load.at[0], load.at[1], load.z);
+            out[k].force += load.force;
+            out[k].torque += p.cross(&load.force);
         }
         out
+    }
+
+    /// How far each of `indenters`' contact spreads about its centre of pressure: the
+    /// in-plane second moment of the last solve's normal loads on it about their centre,
+    /// over their sum (m^2; zero without a normal force). A contact's stiffness against a
+    /// turn about the gel's normal is about its tangential stiffness times this (a flat
+    /// round punch's: 1.5 times it on a half-space and on a thin incompressible layer),
+    /// and against a tilt about an axis in the plane its normal stiffness times the part
+    /// of this across the axis (half of it for a round punch: its stiffness exactly on a
+    /// half-space, twice it on a thin incompressible layer).
+    pub fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
+        // Per indenter: the normal loads' sum, their first and second moments in the plane.
+        let mut sums = vec![(0.0, Vector2::zeros(), 0.0); indenters.len()];
+        for (k, load) in self.loads_by_indenter(indenters) {
+            let (f, at) = (load.force.z, Vector2::new(load.at[0], load.at[1]));
+            if f > 0.0 {
+                sums[k].0 += f;
+                sums[k].1 += f * at;
+                sums[k].2 += f * at.norm_squared();
+            }
+        }
+        sums.into_iter()
+            .map(|(f, first, second)| {
+                if f > 0.0 {
+                    (second / f - (first / f).norm_squared()).max(0.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    /// The last solve's contact loads, each with the index of the indenter among
+    /// `indenters` nearest to the point where it acts.
+    fn loads_by_indenter<'a>(
+        &'a self,
+        indenters: &'a [Placed],
+    ) -> impl Iterator<Item = (usize, &'a pressure::ContactLoad)> + 'a {
+        let loads = if indenters.is_empty() {
+            &[][..]
+        } else {
+            &self.loads[..]
+        };
+        loads.iter().map(move |load| {
+            if indenters.len() == 1 {
+                return (0, load);
+            }
+            let p = Point3::new(load.at[0], load.at[1], load.z);
+            let mut best = (f64::INFINITY, 0);
+            for (i, ind) in indenters.iter().enumerate() {
+                let d = ind.shape.distance(&ind.pose.inverse_transform_point(&p));
+                if d < best.0 {
+                    best = (d, i);
+                }
+            }
+            (best.1, load)
+        })
     }
 
     /// Bytes held per particle (state, snapshot of the elastic state, stencil, sort

@@ -397,6 +397,7 @@ mod tests {
             centre: Some(Vector3::new(1e-3, 2e-3, 0.0)),
             twist: 2e-3,
             turned: UnitQuaternion::identity(),
+            spread: 0.0,
         };
         let local = |xy: &[(f64, f64)]| -> Vec<Vector3<f64>> {
             xy.iter()

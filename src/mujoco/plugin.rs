@@ -773,8 +773,15 @@ unsafe fn implicit(
             warnings.extend(inst.evaluate_here(placed.clone(), geoms.clone()));
         }
         let wrenches = inst.sensor.wrenches(&inst.placed);
+        let spreads = inst.sensor.spreads(&inst.placed);
         let mut bases = Vec::with_capacity(inst.geoms.len());
-        for ((&geom, p), wrench) in inst.geoms.iter().zip(&inst.placed).zip(wrenches) {
+        for (((&geom, p), wrench), spread) in inst
+            .geoms
+            .iter()
+            .zip(&inst.placed)
+            .zip(wrenches)
+            .zip(spreads)
+        {
             let before = base_of(inst, geom);
             let moved = before.as_ref().and_then(&motion);
             let normal = before
@@ -788,6 +795,7 @@ unsafe fn implicit(
                 wrench,
                 normal,
                 tangential,
+                spread,
             });
         }
         inst.coupling.base = bases;
@@ -797,6 +805,7 @@ unsafe fn implicit(
         let moved = motion(&base)?;
         Some(Linearised {
             turned: now(geom)?.rotation * base.pose.rotation.inverse(),
+            spread: base.spread,
             ..linearise(
                 &base.wrench,
                 moved,

@@ -79,6 +79,9 @@ pub struct Base {
     /// Its tangential stiffness measured likewise ([`tangential_secant`], N/m), where one
     /// was.
     pub tangential: Option<f64>,
+    /// How far the contact spread about its centre of pressure then (m^2,
+    /// [`crate::mpm::Gel::spreads`]; zero where not known).
+    pub spread: f64,
 }
 
 impl Default for Base {
@@ -89,6 +92,7 @@ impl Default for Base {
             wrench: Wrench::default(),
             normal: None,
             tangential: None,
+            spread: 0.0,
         }
     }
 }
@@ -166,12 +170,13 @@ impl Coupling {
             b.wrench.persist(io);
             state::option(io, &mut b.normal, || 0.0);
             state::option(io, &mut b.tangential, || 0.0);
+            b.spread.persist(io);
         }
     }
 
     /// The length [`Coupling::persist`] writes at most for `geoms` geoms.
     pub fn state_len(geoms: usize) -> usize {
-        4 + 2 * (1 + 10 * geoms) + (1 + 7 * geoms) + (1 + 18 * geoms)
+        4 + 2 * (1 + 10 * geoms) + (1 + 7 * geoms) + (1 + 19 * geoms)
     }
 
     /// Records the samples `now` at `time` and their rates over the step since the last
@@ -433,6 +438,9 @@ pub struct Linearised {
     /// The indenter's rotation since the last solve (sensor frame), which moves each of
     /// its contact points by its own amount about the centre ([`Linearised::at_point`]).
     pub turned: UnitQuaternion<f64>,
+    /// How far the last solve's contact spread about its centre of pressure (m^2,
+    /// [`crate::mpm::Gel::spreads`]); zero where not known.
+    pub spread: f64,
 }
 
 impl Linearised {
@@ -442,10 +450,20 @@ impl Linearised {
     /// indenter's points: the stiffness against the point's own motion by the rotation
     /// since the solve (so that the contact points together resist a turn or a tilt as
     /// the gel does, not only a shift), and the point's part of [`Linearised::twist`].
-    /// Both add up to no force over the points whose shares' centre is the centre.
+    /// Both add up to no force over the points whose shares' centre is the centre. The
+    /// springs are scaled by the gel's spread over the points' ([`TURN_RANGE`]): MuJoCo's
+    /// contacts lie at the corners of a face, where a face's own pressure lies across
+    /// it, and the corners alone resist a turn three times as stiffly as a square face
+    /// does.
     pub fn at_point(&self, offset: Vector3<f64>, share: f64, spread: f64) -> Vector3<f64> {
         let moved = offset - self.turned.inverse() * offset;
+        let scale = if self.spread > 0.0 && spread > 0.0 {
+            (self.spread / spread).clamp(TURN_RANGE[0], TURN_RANGE[1])
+        } else {
+            1.0
+        };
         let spring = -share
+            * scale
             * Vector3::new(
                 self.tangential * moved.x,
                 self.tangential * moved.y,
@@ -506,6 +524,7 @@ pub fn linearise(
             centre: None,
             twist: 0.0,
             turned: UnitQuaternion::identity(),
+            spread: 0.0,
         };
     }
     // Deeper now by -moved.z: the depth at the solve.
@@ -536,6 +555,7 @@ pub fn linearise(
         centre: centre.map(|c| c + moved),
         twist,
         turned: UnitQuaternion::identity(),
+        spread: 0.0,
     }
 }
 
@@ -659,6 +679,13 @@ pub const TANGENTIAL_SECANT: f64 = 0.02;
 /// solve where the measurement is right, convergence where the gel is up to four times
 /// stiffer than measured.
 pub const TANGENTIAL_MARGIN: f64 = 2.0;
+
+/// The bounds of the factor on the contact points' resistance to a turn or a tilt since
+/// the last solve ([`Linearised::at_point`]): the gel's spread about the centre of
+/// pressure over theirs. Below 1: the points' springs never stiffer than the rows that
+/// carry them implicitly (a force steeper than its row's stiffness is an explicit one);
+/// above a tenth: a contact whose loads the solve lumped together still resists a turn.
+pub const TURN_RANGE: [f64; 2] = [0.1, 1.0];
 
 /// The bounds of a measured tangential stiffness, as multiples of Mindlin's estimate
 /// ([`tangential_ratio`] times the normal stiffness).
@@ -1187,7 +1214,7 @@ mod tests {
         let share = 0.25;
         let spread: f64 = offsets.iter().map(|r| share * r.xy().norm_squared()).sum();
         let (kt, kn, twist, angle) = (2e3, 5e3, 0.01, 1e-5);
-        let totals = |turned: UnitQuaternion<f64>| {
+        let totals_with = |turned: UnitQuaternion<f64>, gels: f64| {
             let l = Linearised {
                 force: Vector3::zeros(),
                 normal: kn,
@@ -1195,6 +1222,7 @@ mod tests {
                 centre: Some(Vector3::zeros()),
                 twist,
                 turned,
+                spread: gels,
             };
             offsets
                 .iter()
@@ -1203,6 +1231,7 @@ mod tests {
                     (f + p, t + r.cross(&p))
                 })
         };
+        let totals = |turned: UnitQuaternion<f64>| totals_with(turned, 0.0);
         // Unturned: the twist alone.
         let (f, t) = totals(UnitQuaternion::identity());
         assert!(f.norm() < 1e-15, "{f}");
@@ -1221,5 +1250,27 @@ mod tests {
             "{}",
             t.x
         );
+        // The gel's contact spread a third as far as the corners: a third of their springs'
+        // torque against the turn and the tilt; spread further, or lumped to next to
+        // nothing, within [`TURN_RANGE`]; the twist as it was.
+        for (gels, scale) in [
+            (spread / 3.0, 1.0 / 3.0),
+            (5.0 * spread, TURN_RANGE[1]),
+            (1e-3 * spread, TURN_RANGE[0]),
+        ] {
+            let z = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), angle);
+            let (f, t) = totals_with(z, gels);
+            assert!(f.norm() < 1e-12, "{f}");
+            let expected = twist - scale * kt * angle * spread;
+            assert!((t.z - expected).abs() < 1e-6 * twist, "{} {expected}", t.z);
+            let x = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), angle);
+            let (_, t) = totals_with(x, gels);
+            let expected = -scale * kn * angle * lever;
+            assert!(
+                (t.x - expected).abs() < 1e-4 * expected.abs(),
+                "{} {expected}",
+                t.x
+            );
+        }
     }
 }

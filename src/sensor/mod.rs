@@ -335,6 +335,13 @@ impl TactileSensor {
         self.model.wrenches(indenters)
     }
 
+    /// How far the gel's contact with each of `indenters` spreads about its centre of
+    /// pressure after the last evaluation ([`crate::mpm::Gel::spreads`], m^2). Zero for
+    /// rigid physics.
+    pub fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
+        self.model.spreads(indenters)
+    }
+
     /// Writes or reads the state the next evaluation depends on ([`crate::state`]): the
     /// indenters of the last solve and the gel's state, where there is one (the images
     /// are not part of it: a held frame after a read computes them again from it).

@@ -37,6 +37,13 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
         vec![Wrench::default(); indenters.len()]
     }
 
+    /// How far the gel's contact with each of `indenters` spreads about its centre of
+    /// pressure after the last solve ([`Gel::spreads`], m^2); zero for a model without a
+    /// gel.
+    fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
+        vec![0.0; indenters.len()]
+    }
+
     /// The physical image `field` on `grid` after the last solve ([`Field`]):
     /// [`Field::Pressure`], the normal contact pressure (Pa); [`Field::Shear`], the
     /// in-plane displacement of the gel surface seen at each pixel (`H x W x 2`, m, sensor
@@ -305,6 +312,13 @@ impl SurfaceModel for Mpm {
         }
     }
 
+    fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
+        match self.gel() {
+            Some(gel) if self.deformed => gel.spreads(indenters),
+            _ => vec![0.0; indenters.len()],
+        }
+    }
+
     fn field(&self, field: Field, grid: &PixelGrid, out: &mut [f64]) {
         match (field, self.gel()) {
             (Field::Pressure, Some(gel)) if self.deformed => gel.contact_pressure(grid, out),
@@ -443,6 +457,11 @@ impl SurfaceModel for Reduced {
     /// torque about the horizontal axes with it: the contact lies within a millimetre of
     /// the face, so the normal force makes those), so that the gel pushes back with the
     /// force the sensor reports.
+    /// The coarse gel's: the normal force's scale leaves its spread as it is.
+    fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
+        self.mpm.spreads(indenters)
+    }
+
     fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
         let mut w = self.mpm.wrenches(indenters);
         for w in &mut w {

@@ -12,9 +12,10 @@
 * **grasp**: GRASP steps of ``tacrom/GripperLift-v1`` with both gels coupled (rom, the
   grasp cycle of ``examples/rl_throughput.py``: 100-step episodes of descend, close, lift,
   hold, put down, open, the object drawn per episode): every observation, acceleration and
-  contact force checked finite; episodes lifted, the growth of the largest resident
+  contact force checked finite; episodes lifted, the growth of the median resident
   memory at an episode's start (after the reset, which drops the gels' kept contact
-  systems) from the first half to the second, and warnings printed are reported.
+  systems) from the second quarter of the episodes to the last, and warnings printed
+  are reported.
 
 Prints a Markdown table per part. Exits non-zero where an output is not finite or memory
 grows by more than the issue's bounds (1 KiB per cycle, 1 MiB over a walk's second half).
@@ -149,8 +150,9 @@ def walk(mode: str, n: int, seed: int = 0) -> tuple[float, float, bool]:
 
 
 def grasp(n: int) -> tuple[int, int, float, float, bool]:
-    """Episodes lifted, episodes, KiB of growth of the second half's largest resident
-    memory at an episode's start over the first half's, ms per step, all finite. (The
+    """Episodes lifted, episodes, KiB of growth of the median resident memory at an
+    episode's start from the second quarter of the episodes to the last, ms per step, all
+    finite. (The
     gel keeps each contact's dense systems, about 12 MB a gel under a box face, so the
     memory within an episode depends on the object held; a reset drops them, so at an
     episode's start what is left is the model's own memory and whatever leaked.)"""
@@ -193,9 +195,13 @@ def grasp(n: int) -> tuple[int, int, float, float, bool]:
             and np.isfinite(d.efc_force[: d.nefc]).all()
         )
     env.close()
-    half = len(starts) // 2
-    # (Fewer than two episodes: nothing to compare.)
-    grown = max(starts[half:]) - max(starts[:half]) if half else 0
+    # The median over the last quarter of the episodes over the second quarter's: the
+    # first quarter warms up (ONNX Runtime's arena grows to the largest decoding seen, each
+    # object's distance grid is built), and a median passes over the few starts that
+    # still hold the last contact's buffers for the next (7 to 10 MB at 5 of 250).
+    # (Fewer than four episodes: nothing to compare.)
+    q = len(starts) // 4
+    grown = int(np.median(starts[-q:]) - np.median(starts[q : 2 * q])) if q else 0
     return lifted, episodes, grown, 1e3 * (time.perf_counter() - start) / n, ok
 
 
@@ -240,7 +246,7 @@ def main() -> int:
         log.seek(0)
         warnings = sum(1 for line in log if "tacrom.tactile" in line)
         print()
-        print("| coupled GripperLift-v1 (rom) | steps | ms per step | episodes lifted | KiB grown (largest at an episode's start, second half over first) | warnings printed | finite |")
+        print("| coupled GripperLift-v1 (rom) | steps | ms per step | episodes lifted | KiB grown (median at an episode's start, last quarter over second) | warnings printed | finite |")
         print("|---|---:|---:|---:|---:|---:|---|")
         print(f"| grasp cycle, object drawn per episode | {args.grasp} | {ms:.1f} | {lifted} of {episodes} | {grown} | {warnings} | {ok} |")
         failed |= not ok or grown > 1024 or lifted < episodes

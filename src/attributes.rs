@@ -504,10 +504,11 @@ pub const GEL_GEOM: Attribute = Attribute {
 pub const HOLD: Attribute = Attribute {
     name: "hold",
     meaning: "the motion below which a frame is the last solved one again: where every \
-              indenter touching the gel moved less than this, and less than 0.2 % of the \
-              depth it reached (at any point of the gel it can reach), since the last \
-              solve, the outputs are that solve's, and nothing is solved; 0 solves every \
-              frame (as does the explicit coupling, without `gel_geom`)",
+              indenter touching the gel moved less than this (at any point of the gel it \
+              can reach; at a contact shallower than 0.5 mm, that fraction of it) since the \
+              last solve, the outputs are that solve's, and nothing is solved; 0 solves \
+              every frame (as does the explicit coupling, without `gel_geom`); larger \
+              values trade accuracy for speed (docs/rl.md, \"A looser hold\")",
     unit: "m",
     default: Default::Number(1e-6),
     valid: Valid::Range(Range::closed(0.0, 1e-4)),

@@ -1,11 +1,10 @@
 //! Held frames through the sensor (no MuJoCo): a frame whose indenters moved less than
-//! `hold` (and less than 0.2 % of the depth they reached) since the last solve is that
-//! solve's frame again, bit for bit and without a solve; a longer motion, a turn whose
-//! corners move further, a shallower contact or `hold="0"` solves.
+//! `hold` (that fraction of it where the depth they reached is a fraction of 0.5 mm) since
+//! the last solve is that solve's frame again, bit for bit and without a solve; a longer
+//! motion, a turn whose corners move further, a shallower contact or `hold="0"` solves.
 //!
 //! The scene: the default coarse gel on the linear solver (30 x 30 x 4 mm), 32 x 24 images,
-//! a 20 x 20 mm box face pressed 0.4 mm (so 0.2 % of the depth is 0.8 um, below the default
-//! `hold` of 1 um, and bounds the held motion).
+//! a 20 x 20 mm box face pressed 0.4 mm (so the default `hold` of 1 um holds 0.8 um).
 
 use std::sync::{Arc, OnceLock};
 
@@ -59,8 +58,9 @@ fn frame(s: &mut TactileSensor, p: Placed) -> (Vec<f64>, bool) {
 }
 
 /// Catches: a hold that solves anyway, gives other outputs than the last solve's, holds a
-/// motion past `hold` or past 0.2 % of the depth, or measures a turn at the indenter's
-/// centre (where it moves nothing) instead of the corners of the box it reaches.
+/// motion past `hold` or past its share at a shallower depth than 0.5 mm, does not scale
+/// with `hold`, or measures a turn at the indenter's centre (where it moves nothing)
+/// instead of the corners of the box it reaches.
 ///
 /// Tolerance: none for the held frames (they are the last solve's outputs, written
 /// again). The motions sit on both sides of the bound: 0.5 um held and 0.9 um not (the
@@ -100,6 +100,16 @@ fn a_frame_moved_less_than_hold_is_the_last_solve_again() {
     assert!(!frame(&mut shallow, face(1e-4, 0.0, 0.0)).1);
     assert!(frame(&mut shallow, face(1e-4, 0.0, 0.1e-6)).1);
     assert!(!frame(&mut shallow, face(1e-4, 0.0, 0.5e-6)).1);
+
+    // hold="5e-6" holds five times as far: 4 um at 0.4 mm deep, 1 um at 0.1 mm.
+    let mut loose = sensor(&[(ATTR_HOLD, "5e-6")]);
+    assert!(!frame(&mut loose, face(4e-4, 0.0, 0.0)).1);
+    assert!(frame(&mut loose, face(4e-4, 0.0, 3.5e-6)).1);
+    assert!(!frame(&mut loose, face(4e-4, 0.0, 4.5e-6)).1);
+    let mut loose = sensor(&[(ATTR_HOLD, "5e-6")]);
+    assert!(!frame(&mut loose, face(1e-4, 0.0, 0.0)).1);
+    assert!(frame(&mut loose, face(1e-4, 0.0, 0.9e-6)).1);
+    assert!(!frame(&mut loose, face(1e-4, 0.0, 1.1e-6)).1);
 
     // hold="0" solves every frame, the same pose too.
     let mut every = sensor(&[(ATTR_HOLD, "0")]);

@@ -92,11 +92,13 @@ pub struct Scene<'a> {
     pub rule: DepthRule,
 }
 
-/// The largest motion of a held frame as a fraction of the depth the indenters reached at
-/// the last solve ([`TactileSensor::evaluate`]): a Hertz contact's force moves by 1.5
-/// times the depth's fraction, so a held frame's force is within 0.3 % of a solve's,
-/// below what the gel's own solve leaves (its tolerance, 3e-3 of the load by default).
-pub const HOLD_FRACTION: f64 = 2e-3;
+/// The depth (m) from which a held frame may move by the whole of `hold`; a shallower
+/// contact holds that fraction of it ([`TactileSensor::evaluate`]). A Hertz contact's
+/// force moves by 1.5 times the depth's fraction moved, so with the default `hold` (1 um,
+/// 0.2 % of this depth) a held frame's force is within 0.3 % of a solve's, below what the
+/// gel's own solve leaves (its tolerance, 3e-3 of the load by default), and with a `hold`
+/// of 5 um within 1.5 %.
+pub const HOLD_DEPTH: f64 = 5e-4;
 
 /// One tactile sensor's state in one simulation.
 #[derive(Debug)]
@@ -129,7 +131,7 @@ pub struct TactileSensor {
     /// The configuration's `hold` where the model has a state, else 0 (never held).
     hold: f64,
     /// How deep the last solve's indenters reached below the gel's face (m; part of the
-    /// state): a frame is held only within [`HOLD_FRACTION`] of it.
+    /// state): a frame is held only within `hold` times its fraction of [`HOLD_DEPTH`].
     solved_depth: f64,
     /// Whether `fields` hold the outputs of `solved` (false once a state is read back:
     /// the fields are not part of it, and the next held frame computes them again).
@@ -415,12 +417,12 @@ impl TactileSensor {
         indenters.iter().filter(move |p| p.aabb().intersects(&gel))
     }
 
-    /// Whether `touching` are the last solve's indenters, each moved less than `hold`, and
-    /// less than [`HOLD_FRACTION`] of the depth they reached then, at every point of the
-    /// gel's box that its bounding box then reached. A rigid motion moves points by an
-    /// affine map, whose length is largest at a corner of that box.
+    /// Whether `touching` are the last solve's indenters, each moved less than `hold` (that
+    /// fraction of it where the depth they reached then is a fraction of [`HOLD_DEPTH`]),
+    /// at every point of the gel's box that its bounding box then reached. A rigid motion
+    /// moves points by an affine map, whose length is largest at a corner of that box.
     fn holds(&self, touching: &[Placed]) -> bool {
-        let hold = self.hold.min(HOLD_FRACTION * self.solved_depth);
+        let hold = self.hold * (self.solved_depth / HOLD_DEPTH).min(1.0);
         let gel = self.gel_box();
         hold > 0.0
             && !touching.is_empty()

@@ -453,8 +453,8 @@ impl Linearised {
     /// Both add up to no force over the points whose shares' centre is the centre. The
     /// springs are scaled by the gel's spread over the points' ([`TURN_RANGE`]): MuJoCo's
     /// contacts lie at the corners of a face, where a face's own pressure lies across
-    /// it, and the corners alone resist a turn three times as stiffly as a square face
-    /// does.
+    /// it, and the corners of a square alone resist a turn three times as stiffly as the
+    /// square under an even pressure.
     pub fn at_point(&self, offset: Vector3<f64>, share: f64, spread: f64) -> Vector3<f64> {
         let moved = offset - self.turned.inverse() * offset;
         let scale = if self.spread > 0.0 && spread > 0.0 {

@@ -1873,7 +1873,7 @@ fn the_bracketed_way_out_is_the_bisected_one_in_fewer_samples() {
 }
 
 /// A contact's stiffness against a turn about the gel's normal is its tangential
-/// stiffness times its spread ([`Gel::spreads`]), and against a tilt its normal
+/// stiffness times its spread ([`Gel::wrenches_and_spreads`]), and against a tilt its normal
 /// stiffness times half of it, as the implicit coupling follows them between solves
 /// (`Linearised::at_point`): on the default gel (friction 1, so that the small moves
 /// stick), faces 6 and 10 mm across, square and round, pressed 0.3 mm and moved by 2 um
@@ -1915,8 +1915,8 @@ fn a_contacts_turn_and_tilt_follow_its_spread() {
             g.solve(&[pose(0.0, -depth * (1.0 - k as f64 / 4.0), still)]);
         }
         let pressed = [pose(0.0, 0.0, still)];
-        let w0 = g.wrenches(&pressed)[0];
-        let spread = g.spreads(&pressed)[0];
+        let (w0, spread) = g.wrenches_and_spreads(&pressed);
+        let (w0, spread) = (w0[0], spread[0]);
         assert!(spread > 0.0, "{name}: spread {spread}");
         // The wrench (about the face's centre, the sensor origin) once moved to `p`.
         let moved = |p: Placed| {

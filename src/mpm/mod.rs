@@ -727,35 +727,35 @@ impl Gel {
     /// the indenter nearest to the point where it acts. Their sum is [`Gel::force`] for
     /// the indenters that the last solve saw.
     pub fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
-        let mut out = vec![Wrench::default(); indenters.len()];
-        for (k, load) in self.loads_by_indenter(indenters) {
-            let p = Vector3::new(load.at[0], load.at[1], load.z);
-            out[k].force += load.force;
-            out[k].torque += p.cross(&load.force);
-        }
-        out
+        self.wrenches_and_spreads(indenters).0
     }
 
-    /// How far each of `indenters`' contact spreads about its centre of pressure: the
-    /// in-plane second moment of the last solve's normal loads on it about their centre,
-    /// over their sum (m^2; zero without a normal force). A contact's stiffness against a
-    /// turn about the gel's normal is about its tangential stiffness times this (a flat
-    /// round punch's: 1.5 times it on a half-space and on a thin incompressible layer),
-    /// and against a tilt about an axis in the plane its normal stiffness times the part
-    /// of this across the axis (half of it for a round punch: its stiffness exactly on a
-    /// half-space, twice it on a thin incompressible layer).
-    pub fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
+    /// [`Gel::wrenches`], and how far each of `indenters`' contact spreads about its centre
+    /// of pressure: the in-plane second moment of the last solve's normal loads on it about
+    /// their centre, over their sum (m^2; zero without a normal force). A contact's
+    /// stiffness against a turn about the gel's normal is about its tangential stiffness
+    /// times its spread (a flat round punch's: 1.5 times it on a half-space and on a thin
+    /// incompressible layer), and against a tilt about an axis in the plane its normal
+    /// stiffness times the part of the spread across the axis (half of it for a round
+    /// punch: its stiffness exactly on a half-space, twice it on a thin incompressible
+    /// layer).
+    pub fn wrenches_and_spreads(&self, indenters: &[Placed]) -> (Vec<Wrench>, Vec<f64>) {
+        let mut wrenches = vec![Wrench::default(); indenters.len()];
         // Per indenter: the normal loads' sum, their first and second moments in the plane.
         let mut sums = vec![(0.0, Vector2::zeros(), 0.0); indenters.len()];
         for (k, load) in self.loads_by_indenter(indenters) {
-            let (f, at) = (load.force.z, Vector2::new(load.at[0], load.at[1]));
+            let p = Vector3::new(load.at[0], load.at[1], load.z);
+            wrenches[k].force += load.force;
+            wrenches[k].torque += p.cross(&load.force);
+            let (f, at) = (load.force.z, p.xy());
             if f > 0.0 {
                 sums[k].0 += f;
                 sums[k].1 += f * at;
                 sums[k].2 += f * at.norm_squared();
             }
         }
-        sums.into_iter()
+        let spreads = sums
+            .into_iter()
             .map(|(f, first, second)| {
                 if f > 0.0 {
                     (second / f - (first / f).norm_squared()).max(0.0)
@@ -763,7 +763,8 @@ impl Gel {
                     0.0
                 }
             })
-            .collect()
+            .collect();
+        (wrenches, spreads)
     }
 
     /// The last solve's contact loads, each with the index of the indenter among

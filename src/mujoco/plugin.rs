@@ -772,8 +772,7 @@ unsafe fn implicit(
         if !evaluated {
             warnings.extend(inst.evaluate_here(placed.clone(), geoms.clone()));
         }
-        let wrenches = inst.sensor.wrenches(&inst.placed);
-        let spreads = inst.sensor.spreads(&inst.placed);
+        let (wrenches, spreads) = inst.sensor.wrenches_and_spreads(&inst.placed);
         let mut bases = Vec::with_capacity(inst.geoms.len());
         for (((&geom, p), wrench), spread) in inst
             .geoms

@@ -80,7 +80,7 @@ pub struct Base {
     /// was.
     pub tangential: Option<f64>,
     /// How far the contact spread about its centre of pressure then (m^2,
-    /// [`crate::mpm::Gel::spreads`]; zero where not known).
+    /// [`crate::mpm::Gel::wrenches_and_spreads`]; zero where not known).
     pub spread: f64,
 }
 
@@ -439,7 +439,7 @@ pub struct Linearised {
     /// its contact points by its own amount about the centre ([`Linearised::at_point`]).
     pub turned: UnitQuaternion<f64>,
     /// How far the last solve's contact spread about its centre of pressure (m^2,
-    /// [`crate::mpm::Gel::spreads`]); zero where not known.
+    /// [`crate::mpm::Gel::wrenches_and_spreads`]); zero where not known.
     pub spread: f64,
 }
 

@@ -337,11 +337,11 @@ impl TactileSensor {
         self.model.wrenches(indenters)
     }
 
-    /// How far the gel's contact with each of `indenters` spreads about its centre of
-    /// pressure after the last evaluation ([`crate::mpm::Gel::spreads`], m^2). Zero for
-    /// rigid physics.
-    pub fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
-        self.model.spreads(indenters)
+    /// [`TactileSensor::wrenches`], and how far the gel's contact with each of `indenters`
+    /// spreads about its centre of pressure after the last evaluation (m^2,
+    /// [`crate::mpm::Gel::wrenches_and_spreads`]; zero for rigid physics), found together.
+    pub fn wrenches_and_spreads(&self, indenters: &[Placed]) -> (Vec<Wrench>, Vec<f64>) {
+        self.model.wrenches_and_spreads(indenters)
     }
 
     /// Writes or reads the state the next evaluation depends on ([`crate::state`]): the

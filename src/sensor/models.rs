@@ -37,11 +37,11 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
         vec![Wrench::default(); indenters.len()]
     }
 
-    /// How far the gel's contact with each of `indenters` spreads about its centre of
-    /// pressure after the last solve ([`Gel::spreads`], m^2); zero for a model without a
-    /// gel.
-    fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
-        vec![0.0; indenters.len()]
+    /// [`SurfaceModel::wrenches`], and how far the gel's contact with each of `indenters`
+    /// spreads about its centre of pressure after the last solve (m^2,
+    /// [`Gel::wrenches_and_spreads`]; zero for a model without a gel), found together.
+    fn wrenches_and_spreads(&self, indenters: &[Placed]) -> (Vec<Wrench>, Vec<f64>) {
+        (self.wrenches(indenters), vec![0.0; indenters.len()])
     }
 
     /// The physical image `field` on `grid` after the last solve ([`Field`]):
@@ -312,10 +312,13 @@ impl SurfaceModel for Mpm {
         }
     }
 
-    fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
+    fn wrenches_and_spreads(&self, indenters: &[Placed]) -> (Vec<Wrench>, Vec<f64>) {
         match self.gel() {
-            Some(gel) if self.deformed => gel.spreads(indenters),
-            _ => vec![0.0; indenters.len()],
+            Some(gel) if self.deformed => gel.wrenches_and_spreads(indenters),
+            _ => (
+                vec![Wrench::default(); indenters.len()],
+                vec![0.0; indenters.len()],
+            ),
         }
     }
 
@@ -402,6 +405,18 @@ struct Reduced {
     fell_back: bool,
 }
 
+impl Reduced {
+    /// The normal force and the torque about the horizontal axes of each of `wrenches`
+    /// times [`Rom::force_factor`] of the last evaluation.
+    fn scale_wrenches(&self, wrenches: &mut [Wrench]) {
+        for w in wrenches {
+            w.force.z *= self.force_factor;
+            w.torque.x *= self.force_factor;
+            w.torque.y *= self.force_factor;
+        }
+    }
+}
+
 impl SurfaceModel for Reduced {
     fn at_rest(&self) -> bool {
         self.mpm.at_rest()
@@ -457,19 +472,18 @@ impl SurfaceModel for Reduced {
     /// torque about the horizontal axes with it: the contact lies within a millimetre of
     /// the face, so the normal force makes those), so that the gel pushes back with the
     /// force the sensor reports.
-    /// The coarse gel's: the normal force's scale leaves its spread as it is.
-    fn spreads(&self, indenters: &[Placed]) -> Vec<f64> {
-        self.mpm.spreads(indenters)
-    }
-
     fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
         let mut w = self.mpm.wrenches(indenters);
-        for w in &mut w {
-            w.force.z *= self.force_factor;
-            w.torque.x *= self.force_factor;
-            w.torque.y *= self.force_factor;
-        }
+        self.scale_wrenches(&mut w);
         w
+    }
+
+    /// The coarse gel's, the wrenches scaled as [`Reduced::wrenches`]: the normal force's
+    /// scale leaves its spread as it is.
+    fn wrenches_and_spreads(&self, indenters: &[Placed]) -> (Vec<Wrench>, Vec<f64>) {
+        let (mut w, spreads) = self.mpm.wrenches_and_spreads(indenters);
+        self.scale_wrenches(&mut w);
+        (w, spreads)
     }
 
     /// The pressure: the pressure head's field carrying the reported normal force, where

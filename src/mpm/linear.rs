@@ -76,8 +76,9 @@
 //! `f0` quadratic up to [`STICK`] and linear beyond, with `f_lag` its normal force
 //! lagged. The responses to the columns' lateral loads are computed as the vertical ones,
 //! and the contact becomes one convex problem in the columns' three loads
-//! ([`frictional_contact`]), solved with the normal forces lagged until they change by
-//! less than the tolerance (two or three solves; the first lagged ones from a solve
+//! ([`frictional_contact`]), solved with the normal forces lagged until a refresh would
+//! change the friction they cap by less than the tolerance ([`refreshed_friction`]; one
+//! to three solves; the first lagged ones from a solve
 //! without friction, the first frictional one through stick radii 100 and 10 times
 //! larger, since a box face sliding over a whole pad did not converge at the final one
 //! in 60 Newton steps). After the frame, points that left contact drop their anchors and
@@ -1888,8 +1889,8 @@ impl Compliance {
 
     /// The contact of the gel's surface with `indenters` (which started the frame at
     /// `starts`), to a penetration of at most `tolerance` times the deepest sinking beyond
-    /// what the contact's compliance allows; with friction, until the lagged normal forces
-    /// change by at most `tolerance` of their sum.
+    /// what the contact's compliance allows; with friction, until a refresh of the lagged
+    /// normal forces would change the friction by at most `tolerance` of their sum.
     pub fn contact(
         &mut self,
         indenters: &[StepIndenter],
@@ -2110,11 +2111,12 @@ impl Compliance {
                     *l = x;
                 }
                 let mut settled = false;
-                // The lagged forces settle relative to the larger of the frame's load at
-                // its start and now: a grasp let go within a frame (a coupled finger
-                // opening, its gel solved again between the sensor's evaluations) went
-                // from newtons to a touch of a micron, and against that touch's own load
-                // its lags never settled.
+                // The lagged forces settle once a refresh would change the friction they
+                // cap by at most the tolerance ([`refreshed_friction`]), relative to the
+                // larger of the frame's load at its start and now: a grasp let go within a
+                // frame (a coupled finger opening, its gel solved again between the
+                // sensor's evaluations) went from newtons to a touch of a micron, and
+                // against that touch's own load its lags never settled.
                 let start_total: f64 = cand.iter().map(|&i| lag[i]).sum();
                 for lags in 0..MAX_LAGS {
                     // A frame that slides as a whole, from the last frame's answer, on a
@@ -2187,9 +2189,11 @@ impl Compliance {
                     iterations += steps;
                     forces.fill(Vector3::zeros());
                     let (mut change, mut total) = (0.0, 0.0);
-                    for (&i, &fi) in cand.iter().zip(&answer) {
+                    for ((&i, &fi), &cap) in cand.iter().zip(&answer).zip(&caps) {
                         forces[i] = fi;
-                        change += (fi.z - lag[i]).abs();
+                        // (Tip points carry no friction.)
+                        let mu = if near[i] < count { self.friction } else { 0.0 };
+                        change += refreshed_friction(&fi, lag[i], cap, mu);
                         total += fi.z;
                         lag[i] = fi.z;
                     }
@@ -3881,6 +3885,23 @@ fn frictional_contact(
     None
 }
 
+/// How much a refresh of a point's lagged normal force `lagged` would change its
+/// friction force at its present displacement: `force` its force on the gel now, `cap`
+/// the friction it was capped at (`mu` times `lagged`, 0 where it carried none). The
+/// smoothed Coulomb force is the cap times a function of the point's offset from its
+/// anchor, so a refresh scales a capped point's friction by the ratio of its normal
+/// forces, sticking or sliding; a point pressed now that had no normal force lagged takes
+/// a cap of `mu` times its normal force (`mu` 0 where it can carry no friction).
+fn refreshed_friction(force: &Vector3<f64>, lagged: f64, cap: f64, mu: f64) -> f64 {
+    if cap > 0.0 {
+        force.xy().norm() * (force.z - lagged).abs() / lagged
+    } else if lagged == 0.0 {
+        mu * force.z
+    } else {
+        0.0
+    }
+}
+
 /// Most iterations of [`vertical_start`]'s active-set search.
 const VERTICAL_ITERATIONS: usize = 50;
 
@@ -4736,13 +4757,16 @@ const SPLIT_AFTER: usize = 1;
 
 /// Iterations at most of [`split_start`]; the residual (relative to the points'
 /// displacements) at which it stops; the iterations in a row with at most
-/// [`SPLIT_CHANGES`] points changing between pressing or not, sticking or sliding, after
-/// which it hands over to Newton's method (fewer iterations leave Newton's method more
-/// steps; measured: `docs/solvers.md`, "A held grasp split first").
+/// [`SPLIT_CHANGES`] of the points (and at least [`MIN_SPLIT_CHANGES`] points) changing
+/// between pressing or not, sticking or sliding, after which it hands over to Newton's
+/// method (fewer iterations leave Newton's method more steps; measured:
+/// `docs/solvers.md`, "A held grasp split first" and "The split's hand-over and the
+/// lagged forces' refresh, in proportion").
 const SPLIT_ITERATIONS: usize = 100;
 const SPLIT_RESIDUAL: f64 = 1e-5;
 const SPLIT_SETTLED: usize = 10;
-const SPLIT_CHANGES: usize = 2;
+const SPLIT_CHANGES: f64 = 1.0 / 200.0;
+const MIN_SPLIT_CHANGES: usize = 2;
 
 /// The stiffness of the springs that hold each point's copy to the gel in [`split_start`],
 /// in units of the gel's own stiffness at a point (measured: `docs/solvers.md`, "A held
@@ -4882,6 +4906,7 @@ fn split_start(
     };
     refill(states, n, 0u8);
     let mut settled = 0;
+    let changes = ((n as f64 * SPLIT_CHANGES) as usize).max(MIN_SPLIT_CHANGES);
     // Warm: the copies at the start's displacements, the multipliers its forces on the
     // gel (scaled by `-1 / rho`), a fixed point where the start is the answer.
     product_into(g, l, start);
@@ -4929,11 +4954,7 @@ fn split_start(
             }
             break;
         }
-        settled = if changed <= SPLIT_CHANGES {
-            settled + 1
-        } else {
-            0
-        };
+        settled = if changed <= changes { settled + 1 } else { 0 };
         if settled >= SPLIT_SETTLED {
             break;
         }

@@ -1943,3 +1943,62 @@ fn a_contacts_turn_and_tilt_follow_its_spread() {
         );
     }
 }
+
+/// The lagged normal forces settle where a refresh would change the friction they cap by
+/// at most the tolerance ([`refreshed_friction`]), so a frame at the default tolerance is
+/// the tight fixed point to about that tolerance. A 10 mm square face on the default gel
+/// with friction 0.5 is pressed 0.1 to 0.4 mm, slid 0.3 mm along x and shaken by microns
+/// (as a coupled grasp trembles); each frame is solved from the same state (the tight
+/// path's) at the default tolerance and at 1e-7. The frame's force agrees within twice
+/// the tolerance of its normal force: the refreshes contracted the change by ten times or
+/// more each in the traced frames, so the fixed point lies within `1 / (1 - 0.1)` of the
+/// last refresh's change.
+#[test]
+fn a_frame_is_the_lagged_forces_fixed_point_to_its_tolerance() {
+    let params = GelParams {
+        friction: 0.5,
+        ..Default::default()
+    };
+    let gel = Gel::new(params, options(1)).unwrap();
+    let half = 5e-3;
+    let face: Arc<dyn Sdf> = Arc::new(crate::geometry::Cuboid::new(Vector3::new(5e-3, 5e-3, half)));
+    let placed = |f: usize| {
+        let shake = |k: f64| match f {
+            12.. => 2.0 * (f as f64 * k).fract() - 1.0,
+            _ => 0.0,
+        };
+        let depth = 0.1e-3 + 0.3e-3 * (f.min(4) as f64 / 4.0) + 1e-6 * shake(0.618_034);
+        let slide = 0.3e-3 * (f.clamp(4, 12) - 4) as f64 / 8.0;
+        Placed {
+            shape: face.clone(),
+            pose: Isometry3::translation(
+                slide + 3e-6 * shake(0.754_878),
+                3e-6 * shake(0.569_840),
+                half - depth,
+            ),
+        }
+    };
+    let tolerance = SolverOptions::default().tolerance;
+    let tight = 1e-7;
+    let mut c = Compliance::new(&gel).unwrap();
+    let mut last = None;
+    for f in 0..20 {
+        let placed = [placed(f)];
+        let start = last.unwrap_or(placed[0].pose);
+        let steps = step(&placed, gel.layout.dx);
+        let mut loose = c.clone();
+        let at_default = loose.contact(&steps, &[start], tolerance);
+        let at_tight = c.contact(&steps, &[start], tight);
+        last = Some(placed[0].pose);
+        assert!(at_default.converged && at_tight.converged, "frame {f}");
+        let sum = |c: &Contact| c.forces.iter().sum::<Vector3<f64>>();
+        let (a, b) = (sum(&at_default), sum(&at_tight));
+        // (When written, 1.3e-5 at the worst frame; 2.9e-7 with the rule that the normal
+        // forces themselves change by at most the tolerance.)
+        let error = (a - b).norm() / b.z;
+        assert!(
+            error <= 2.0 * tolerance,
+            "frame {f}: {a} against {b} ({error:.2e} of the normal force)"
+        );
+    }
+}

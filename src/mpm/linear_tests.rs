@@ -1555,6 +1555,37 @@ fn a_sliding_sphere_starts_from_its_normal_forces() {
     assert!(2 * new < old, "Newton steps: {new} against {old}");
 }
 
+/// The default gel with friction 0.5 and the pose at frame `f` of a 10 mm square face on
+/// it: pressed 0.1 to 0.4 mm over frames 0 to 4, slid `slide` along x from frame 4 to
+/// `shaken`, then shaken by up to a micron into the gel and three along it (fixed,
+/// irregular offsets in [-1, 1): golden-ratio steps), as a coupled grasp trembles.
+fn pressed_face(slide: f64, shaken: usize) -> (Gel, impl Fn(usize) -> Placed) {
+    let params = GelParams {
+        friction: 0.5,
+        ..Default::default()
+    };
+    let gel = Gel::new(params, options(1)).unwrap();
+    let half = 5e-3;
+    let face: Arc<dyn Sdf> = Arc::new(crate::geometry::Cuboid::new(Vector3::new(5e-3, 5e-3, half)));
+    let placed = move |f: usize| {
+        let shake = |k: f64| match f >= shaken {
+            true => 2.0 * (f as f64 * k).fract() - 1.0,
+            false => 0.0,
+        };
+        let depth = 0.1e-3 + 0.3e-3 * (f.min(4) as f64 / 4.0) + 1e-6 * shake(0.618_034);
+        let slid = slide * (f.clamp(4, shaken) - 4) as f64 / (shaken - 4) as f64;
+        Placed {
+            shape: face.clone(),
+            pose: Isometry3::translation(
+                slid + 3e-6 * shake(0.754_878),
+                3e-6 * shake(0.569_840),
+                half - depth,
+            ),
+        }
+    };
+    (gel, placed)
+}
+
 /// A 10 mm square face on the default gel with friction 0.5, pressed 0.1 to 0.4 mm over
 /// five frames, held for three, then shaken for ten by up to a micron into the gel and
 /// three along it (as a coupled grasp trembles): the frames whose face moved into the gel
@@ -1565,29 +1596,7 @@ fn a_sliding_sphere_starts_from_its_normal_forces() {
 /// frames, whose start is already the answer, take no Newton step either way.
 #[test]
 fn a_face_moved_into_the_gel_starts_from_its_normal_forces() {
-    let params = GelParams {
-        friction: 0.5,
-        ..Default::default()
-    };
-    let gel = Gel::new(params, options(1)).unwrap();
-    let half = 5e-3;
-    let face: Arc<dyn Sdf> = Arc::new(crate::geometry::Cuboid::new(Vector3::new(5e-3, 5e-3, half)));
-    let placed = |f: usize| {
-        // Fixed, irregular offsets in [-1, 1) while shaken (golden-ratio steps).
-        let shake = |k: f64| match f {
-            8.. => 2.0 * (f as f64 * k).fract() - 1.0,
-            _ => 0.0,
-        };
-        let depth = 0.1e-3 + 0.3e-3 * (f.min(4) as f64 / 4.0) + 1e-6 * shake(0.618_034);
-        Placed {
-            shape: face.clone(),
-            pose: Isometry3::translation(
-                3e-6 * shake(0.754_878),
-                3e-6 * shake(0.569_840),
-                half - depth,
-            ),
-        }
-    };
+    let (gel, placed) = pressed_face(0.0, 8);
     let run =
         |vertical: bool, tolerance: f64| vertical_frames(&gel, 18, &placed, vertical, tolerance);
     assert_same_answer(&run);
@@ -1955,29 +1964,7 @@ fn a_contacts_turn_and_tilt_follow_its_spread() {
 /// last refresh's change.
 #[test]
 fn a_frame_is_the_lagged_forces_fixed_point_to_its_tolerance() {
-    let params = GelParams {
-        friction: 0.5,
-        ..Default::default()
-    };
-    let gel = Gel::new(params, options(1)).unwrap();
-    let half = 5e-3;
-    let face: Arc<dyn Sdf> = Arc::new(crate::geometry::Cuboid::new(Vector3::new(5e-3, 5e-3, half)));
-    let placed = |f: usize| {
-        let shake = |k: f64| match f {
-            12.. => 2.0 * (f as f64 * k).fract() - 1.0,
-            _ => 0.0,
-        };
-        let depth = 0.1e-3 + 0.3e-3 * (f.min(4) as f64 / 4.0) + 1e-6 * shake(0.618_034);
-        let slide = 0.3e-3 * (f.clamp(4, 12) - 4) as f64 / 8.0;
-        Placed {
-            shape: face.clone(),
-            pose: Isometry3::translation(
-                slide + 3e-6 * shake(0.754_878),
-                3e-6 * shake(0.569_840),
-                half - depth,
-            ),
-        }
-    };
+    let (gel, placed) = pressed_face(0.3e-3, 12);
     let tolerance = SolverOptions::default().tolerance;
     let tight = 1e-7;
     let mut c = Compliance::new(&gel).unwrap();

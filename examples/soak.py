@@ -16,12 +16,22 @@
   memory at an episode's start (after the reset, which drops the gels' kept contact
   systems) from the second quarter of the episodes to the last, and warnings printed
   are reported.
+* **shake**: SHAKE steps of the same coupled gripper where an untrained policy's jumps
+  shake the held object: each episode descends and closes as the grasp cycle does, then
+  for 60 steps draws the arm's carry and lift targets and the fingers' squeeze (0.3 to 1
+  of their range) at random every step, then opens. Every observation, acceleration and
+  contact force checked finite, and MuJoCo's own count of unstable accelerations (its
+  `Nan, Inf or huge value in QACC`, after which it resets the data: finite again, so
+  counted apart) reported.
+
+In both coupled parts a step that MuJoCo found unstable fails the run.
 
 Prints a Markdown table per part. Exits non-zero where an output is not finite or memory
 grows by more than the issue's bounds (1 KiB per cycle, 1 MiB over a walk's second half).
 
     .venv/bin/python examples/soak.py --cycles 1000 --evaluations 100000
     .venv/bin/python examples/soak.py --modes --grasp 2000
+    .venv/bin/python examples/soak.py --modes --shake 3000
 """
 
 from __future__ import annotations
@@ -149,10 +159,29 @@ def walk(mode: str, n: int, seed: int = 0) -> tuple[float, float, bool]:
     return rss_kib() - half, 1e3 * (time.perf_counter() - start) / n, ok
 
 
-def grasp(n: int) -> tuple[int, int, float, float, bool]:
+def shaking(step: int, rng: np.random.Generator) -> np.ndarray:
+    """The shake policy's action at `step` of an episode (see the module docs)."""
+    if step < 15:
+        return np.array([0.0, -1.0, -1.0], np.float32)
+    if step < 25:
+        return np.array([0.0, -1.0, 1.0], np.float32)
+    if step < 85:
+        return np.array(
+            [rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0.3, 1)], np.float32
+        )
+    return np.array([0.0, -1.0, -1.0], np.float32)
+
+
+def unstable(d) -> int:
+    """MuJoCo's count of unstable accelerations in `d` since its last reset."""
+    return int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
+
+
+def grasp(n: int, shake: bool = False) -> tuple[int, int, float, float, bool, int]:
     """Episodes lifted, episodes, KiB of growth of the median resident memory at an
     episode's start from the second quarter of the episodes to the last, ms per step, all
-    finite. (The
+    finite, steps MuJoCo found unstable. With `shake`, the shake policy (its episodes
+    "lifted" where the object was lifted at any step). (The
     gel keeps each contact's dense systems, about 12 MB a gel under a box face, so the
     memory within an episode depends on the object held; a reset drops them, so at an
     episode's start what is left is the model's own memory and whatever leaked.)"""
@@ -162,17 +191,24 @@ def grasp(n: int) -> tuple[int, int, float, float, bool]:
     from tacrom.envs import gripper
 
     env = gripper.GripperLiftEnv(physics="rom", object="random", coupling=True)
-    ok, lifted, episodes, starts = True, 0, 0, []
+    ok, lifted, episodes, starts, bad = True, 0, 0, [], 0
     start = time.perf_counter()
     success = False
+    rng = np.random.default_rng(0)
     for k in range(n):
         step = k % len(GRIPPER_CYCLE)
         if step == 0:
             env.reset(seed=episodes)
+            rng = np.random.default_rng(episodes)
             episodes += 1
             success = False
             starts.append(rss_kib())
-        obs, _, _, _, info = env.step(np.array(GRIPPER_CYCLE[step], np.float32))
+        action = shaking(step, rng) if shake else np.array(GRIPPER_CYCLE[step], np.float32)
+        before = unstable(env.data)
+        obs, _, _, _, info = env.step(action)
+        if unstable(env.data) != before:
+            bad += 1
+            print(f"unstable: episode {episodes - 1}, step {step}", file=sys.stdout, flush=True)
         success |= info["is_success"]
         if step == len(GRIPPER_CYCLE) - 1:
             lifted += success
@@ -184,7 +220,7 @@ def grasp(n: int) -> tuple[int, int, float, float, bool]:
                     f"grasp: {k + 1} steps, {lifted} of {episodes} episodes lifted, "
                     f"{rss_kib()} KiB resident, "
                     f"{1e3 * (time.perf_counter() - start) / (k + 1):.1f} ms a step, "
-                    f"finite {ok}",
+                    f"finite {ok}, unstable steps {bad}",
                     file=sys.stdout,
                     flush=True,
                 )
@@ -202,7 +238,7 @@ def grasp(n: int) -> tuple[int, int, float, float, bool]:
     # (Fewer than four episodes: nothing to compare.)
     q = len(starts) // 4
     grown = int(np.median(starts[-q:]) - np.median(starts[q : 2 * q])) if q else 0
-    return lifted, episodes, grown, 1e3 * (time.perf_counter() - start) / n, ok
+    return lifted, episodes, grown, 1e3 * (time.perf_counter() - start) / n, ok, bad
 
 
 def main() -> int:
@@ -211,6 +247,9 @@ def main() -> int:
     parser.add_argument("--cycles", type=int, default=1000)
     parser.add_argument("--evaluations", type=int, default=100_000)
     parser.add_argument("--grasp", type=int, default=0, help="coupled GripperLift-v1 steps")
+    parser.add_argument(
+        "--shake", type=int, default=0, help="coupled GripperLift-v1 steps, shaken at random"
+    )
     args = parser.parse_args()
     # The sensor's warnings go to stderr: count them in a file.
     log = tempfile.TemporaryFile(mode="w+")
@@ -238,18 +277,30 @@ def main() -> int:
     print("| mode | evaluations | ms per evaluation | KiB grown (second half) | warnings printed | finite |")
     print("|---|---:|---:|---:|---:|---|")
     print("\n".join(rows_w))
-    if args.grasp:
+    rows_g = []
+    for name, steps, shake in [
+        ("grasp cycle, object drawn per episode", args.grasp, False),
+        ("shaken at random, object drawn per episode", args.shake, True),
+    ]:
+        if not steps:
+            continue
         os.dup2(log.fileno(), 2)
-        lifted, episodes, grown, ms, ok = grasp(args.grasp)
+        lifted, episodes, grown, ms, ok, bad = grasp(steps, shake)
         sys.stderr.flush()
         os.dup2(saved, 2)
         log.seek(0)
         warnings = sum(1 for line in log if "tacrom.tactile" in line)
+        log.seek(0)
+        log.truncate()
+        rows_g.append(
+            f"| {name} | {steps} | {ms:.1f} | {lifted} of {episodes} | {grown} | {warnings} | {ok} | {bad} |"
+        )
+        failed |= not ok or grown > 1024 or bad > 0 or (not shake and lifted < episodes)
+    if rows_g:
         print()
-        print("| coupled GripperLift-v1 (rom) | steps | ms per step | episodes lifted | KiB grown (median at an episode's start, last quarter over second) | warnings printed | finite |")
-        print("|---|---:|---:|---:|---:|---:|---|")
-        print(f"| grasp cycle, object drawn per episode | {args.grasp} | {ms:.1f} | {lifted} of {episodes} | {grown} | {warnings} | {ok} |")
-        failed |= not ok or grown > 1024 or lifted < episodes
+        print("| coupled GripperLift-v1 (rom) | steps | ms per step | episodes lifted | KiB grown (median at an episode's start, last quarter over second) | warnings printed | finite | unstable steps (MuJoCo) |")
+        print("|---|---:|---:|---:|---:|---:|---|---:|")
+        print("\n".join(rows_g))
     return 1 if failed else 0
 
 

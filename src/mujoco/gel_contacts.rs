@@ -89,7 +89,8 @@ pub unsafe fn gel_contacts(
 /// centre is the gel's centre of pressure `centre` where that lies within the points'
 /// reach (the least change from an even share that puts it there, along the line where the
 /// points lie in one), so that the contacts' torque is the gel's; none negative (clipped,
-/// and shared anew). Even without a centre or with one point.
+/// and shared anew), adding up to one. Even without a centre, with one point, or with
+/// points that lie within [`COINCIDENT`] of one place.
 pub fn shares(
     points: &[Vector3<f64>],
     centre: Option<Vector3<f64>>,
@@ -117,12 +118,16 @@ pub fn shares(
         .fold(nalgebra::Matrix2::zeros(), |m, v| m + v * v.transpose());
     let eigen = nalgebra::SymmetricEigen::new(aat);
     let largest = eigen.eigenvalues.amax();
-    if !(largest > 0.0) {
+    // A spread of a few units in the last place of the points' coordinates is no line to
+    // move the centre along: its inverse, times the centre's offset, gave one of two
+    // MuJoCo contacts at one place a share of 6e14 (and the object a couple of 5e10 N m).
+    let floor = n as f64 * COINCIDENT * COINCIDENT;
+    if !(largest > floor) {
         return even;
     }
     let mut y = nalgebra::Vector2::zeros();
     for (k, &lambda) in eigen.eigenvalues.iter().enumerate() {
-        if lambda > 1e-9 * largest {
+        if lambda > (1e-9 * largest).max(floor) {
             let e = eigen.eigenvectors.column(k);
             y += e * (e.dot(&target) / lambda);
         }
@@ -131,21 +136,24 @@ pub fn shares(
     if w.iter().any(|x| !x.is_finite()) {
         return even;
     }
-    if w.iter().any(|&x| x < 0.0) {
-        // Outside the points' hull: clipped to it, and shared anew.
-        for x in &mut w {
-            *x = x.max(0.0);
-        }
-        let total: f64 = w.iter().sum();
-        if !(total > 0.0) {
-            return even;
-        }
-        for x in &mut w {
-            *x /= total;
-        }
+    // Outside the points' hull: clipped to it, and shared anew (within it the shares add
+    // up to one but for round-off, taken out alike).
+    for x in &mut w {
+        *x = x.max(0.0);
+    }
+    let total: f64 = w.iter().sum();
+    if !(total > 0.0 && total.is_finite()) {
+        return even;
+    }
+    for x in &mut w {
+        *x /= total;
     }
     w
 }
+
+/// How close (m) contact points lie to count as one place for [`shares`]: far below any
+/// contact's size, far above the round-off of positions a metre from the origin.
+pub const COINCIDENT: f64 = 1e-9;
 
 /// Rewrites the constraint rows of `contacts` so that MuJoCo's solve gives each the gel's
 /// force implicitly: `push(geom)` is the push-back on a pressing geom (sensor frame,
@@ -339,11 +347,19 @@ pub fn carry(points: &[Vector3<f64>], p: Option<&Linearised>, site: &Isometry3<f
         .iter()
         .map(|q| site.rotation.inverse() * (q - centre))
         .collect();
+    // Points within [`COINCIDENT`] of one place have no spread to carry the twist by (its
+    // part at each point is the twist over the spread times the point's offset: with
+    // MuJoCo's two contacts at one place, 2e-38 m^2 and 1e-19 m, a row of 2.5e11 N).
     let spread = offsets
         .iter()
         .zip(&shares)
         .map(|(o, w)| w * o.xy().norm_squared())
         .sum::<f64>();
+    let spread = if spread > COINCIDENT * COINCIDENT {
+        spread
+    } else {
+        0.0
+    };
     let twist = if spread > 0.0 { 0.0 } else { p.twist };
     let couple =
         (gels - centre).cross(&(site.rotation * p.force)) + site.rotation * Vector3::z() * twist;
@@ -407,13 +423,27 @@ mod tests {
         let square = local(&[(-5.0, -5.0), (5.0, -5.0), (5.0, 5.0), (-5.0, 5.0)]);
         let edge = local(&[(-5.0, -15.0), (5.0, -15.0), (5.0, -15.0)]);
         let one = local(&[(4.0, -3.0)]);
+        // Two of MuJoCo's contacts at one place but for round-off.
+        let twice = local(&[(4.0, -3.0), (4.0, -3.0 + 2e-14)]);
         let gel_force = site.rotation * p.force;
         let gel_centre = (site * nalgebra::Point3::from(p.centre.unwrap())).coords;
         let gel_torque = gel_centre.cross(&gel_force) + site.rotation * Vector3::z() * p.twist;
-        for (name, points) in [("square", &square), ("edge", &edge), ("one", &one)] {
+        let cases = [
+            ("square", &square),
+            ("edge", &edge),
+            ("one", &one),
+            ("twice", &twice),
+        ];
+        for (name, points) in cases {
             let way = carry(points, Some(&p), &site);
             let forces: Vec<Vector3<f64>> =
                 (0..points.len()).map(|k| way.force(&p, k, &site)).collect();
+            // No contact takes more than the gel's force (a round-off spread once gave
+            // one 2.5e11 N).
+            assert!(
+                forces.iter().all(|f| f.norm() <= 1.01 * gel_force.norm()),
+                "{name}: {forces:?}"
+            );
             let force: Vector3<f64> = forces.iter().sum();
             let couple = way.couple.unwrap();
             let torque: Vector3<f64> = points
@@ -475,5 +505,58 @@ mod tests {
         let w = shares(&line, Some(Vector3::new(0.2e-3, 0.4e-3, 0.0)), axes);
         assert!((centre_of(&line, &w).y - 0.4e-3).abs() < 1e-15, "{w:?}");
         assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+
+    /// Points at one place, or a round-off apart (two of MuJoCo's contacts between a
+    /// cylinder and a pad, 1.7e-18 m apart in y, with the gel's centre 2 cm away: their
+    /// shares were 0.5 and 6e14), share evenly; points a micrometre apart still move the
+    /// centre along their line as far as their hull reaches. Whatever the points, no share
+    /// is negative and they add up to one: over random clouds, lines and pairs, some a
+    /// round-off apart, with centres near and far.
+    #[test]
+    fn the_shares_of_points_at_one_place_are_even_and_always_add_up_to_one() {
+        let axes = [Vector3::x(), Vector3::y()];
+        let p = Vector3::new(
+            -0.012000497528549346,
+            0.007383626903344661,
+            0.033113932789578845,
+        );
+        let q = Vector3::new(p.x, p.y, 0.03311393278957885);
+        let centre = Vector3::new(0.0079, -0.0107, 0.0331);
+        assert_eq!(shares(&[p, q], Some(centre), axes), vec![0.5, 0.5]);
+        let r = p + Vector3::new(0.0, 1e-17, 0.0);
+        assert_eq!(shares(&[p, r, p], Some(centre), axes), vec![1.0 / 3.0; 3]);
+        // A micrometre apart: the share goes to the point nearer the centre.
+        let s = p + Vector3::new(0.0, -1e-6, 0.0);
+        assert_eq!(shares(&[p, s], Some(centre), axes), vec![0.0, 1.0]);
+        let mut seed = 17u64;
+        let mut next = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for case in 0..2000 {
+            let n = 2 + case % 5;
+            let origin = Vector3::new(next(), next(), next()) * 0.2;
+            let size = [1e-2, 1e-6, 1e-12, 1e-17][case % 4];
+            let along = Vector3::new(next(), next(), 0.0);
+            let points: Vec<Vector3<f64>> = (0..n)
+                .map(|_| {
+                    let step = match case % 3 {
+                        0 => Vector3::new(next(), next(), next()),
+                        _ => along * next(),
+                    };
+                    origin + step * size
+                })
+                .collect();
+            let centre = origin + Vector3::new(next(), next(), 0.0) * [1e-3, 0.1][case % 2];
+            let w = shares(&points, Some(centre), axes);
+            assert!(
+                w.iter().all(|&x| (0.0..=1.0).contains(&x))
+                    && (w.iter().sum::<f64>() - 1.0).abs() < 1e-12,
+                "case {case}: {w:?} for {points:?}"
+            );
+        }
     }
 }

@@ -32,6 +32,12 @@ def implicit_xml(mass: float = MASS, **config: str) -> str:
     return xml.replace('mass="0.02"', f'mass="{mass}"')
 
 
+def unstable(data) -> int:
+    """MuJoCo's count of unstable accelerations since the data's last reset (after each it
+    resets the data, so the values it leaves are finite again)."""
+    return int(data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
+
+
 def contact_force(model, data, geom: str) -> np.ndarray:
     """The total force (world frame) of MuJoCo's contacts with ``geom`` on the other geom."""
     g = model.geom(geom).id
@@ -106,7 +112,8 @@ def test_the_coupled_gripper_lifts_each_object_on_its_gels(obj, capfd):
     pad is that fingertip's gel force along the squeeze (within 5 %: the rows add the
     gel's Kelvin-Voigt damping of what motion remains), the pads' contacts together carry
     the object's weight (within 5 %: the lift is still slowing), the backings behind the
-    gels touch nothing, and no warning is given."""
+    gels touch nothing, and no warning is given (nor did MuJoCo find an acceleration
+    unstable)."""
     env = gripper.GripperLiftEnv(physics="rom", object=obj, coupling=True)
     env.reset(seed=0)
     cycle = [(0.0, -1.0, -1.0)] * 15 + [(0.0, -1.0, 1.0)] * 10 + [(0.0, 0.5, 1.0)] * 12
@@ -125,6 +132,7 @@ def test_the_coupled_gripper_lifts_each_object_on_its_gels(obj, capfd):
         backing = m.geom(f"{pad}_backing").id
         touching = [i for i in range(d.ncon) if backing in (d.contact[i].geom[0], d.contact[i].geom[1])]
         assert not touching, (pad, "the object reached the backing")
+    assert unstable(d) == 0
     err = capfd.readouterr().err
     assert "tacrom" not in err, err
 
@@ -228,6 +236,7 @@ def test_a_whole_grasp_cycle_puts_down_and_lets_go_without_a_warning(capfd):
         lifted |= info["is_success"]
     assert lifted, info
     assert abs(info["object_height"]) < 1e-3 and (info["gel_force"][:, 2] == 0).all(), info
+    assert unstable(env.data) == 0
     err = capfd.readouterr().err
     assert "tacrom" not in err, err
 

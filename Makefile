@@ -103,12 +103,18 @@ fuzz:
 
 # Soak runs in real MuJoCo (not part of `make test`): SOAK_CYCLES load / evaluate / copy /
 # state / reset / free cycles and SOAK_EVALUATIONS random-walk evaluations per mode, with
-# the memory growth of each second half (examples/soak.py; docs/benchmarks.md).
+# the memory growth of each second half (examples/soak.py; docs/benchmarks.md); and
+# SOAK_GRASP steps of the coupled gripper's grasp cycle and SOAK_SHAKE steps of it shaken at
+# random (0: none; about 200 episodes, 20000 steps, measure the memory growth past the
+# warm-up).
 SOAK_CYCLES ?= 1000
 SOAK_EVALUATIONS ?= 100000
-SOAK_MODES ?= rigid coarse coarse-linear rom rom-linear
+SOAK_MODES ?= rigid coarse coarse-linear rom rom-default
+SOAK_GRASP ?= 0
+SOAK_SHAKE ?= 0
 soak: build
-	$(PY) examples/soak.py --modes $(SOAK_MODES) --cycles $(SOAK_CYCLES) --evaluations $(SOAK_EVALUATIONS)
+	$(PY) examples/soak.py --modes $(SOAK_MODES) --cycles $(SOAK_CYCLES) --evaluations $(SOAK_EVALUATIONS) \
+	  --grasp $(SOAK_GRASP) --shake $(SOAK_SHAKE)
 
 # The stability suite's table.
 stability: venv

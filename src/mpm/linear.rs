@@ -706,6 +706,9 @@ pub(crate) struct Contact {
     pub iterations: usize,
     /// Whether the penetration left is within the tolerance.
     pub converged: bool,
+    /// Where friction's lagged normal forces did not settle ([`MAX_LAGS`] refreshes): the
+    /// last refresh's change of the friction they cap, over the load it is tested against.
+    pub unsettled: Option<f64>,
 }
 
 /// Every node column's response (3 values per node column: its mean displacement, cells
@@ -1965,6 +1968,7 @@ impl Compliance {
         let (mut passes, mut iterations) = (0, 0);
         let mut penetration = 0.0;
         let mut converged = false;
+        let mut unsettled = None;
         refill(&mut columns, 3 * self.levels.len(), 0.0);
         let friction = self.friction > 0.0;
         // Each point's constraint in the linear model's small-displacement setting: it
@@ -2118,6 +2122,7 @@ impl Compliance {
                 // sensor's evaluations) went from newtons to a touch of a micron, and
                 // against that touch's own load its lags never settled.
                 let start_total: f64 = cand.iter().map(|&i| lag[i]).sum();
+                let mut last_change = f64::INFINITY;
                 for lags in 0..MAX_LAGS {
                     // A frame that slides as a whole, from the last frame's answer, on a
                     // contact too small to split: its normal forces first found for the
@@ -2197,10 +2202,14 @@ impl Compliance {
                         total += fi.z;
                         lag[i] = fi.z;
                     }
+                    last_change = change / total.max(start_total);
                     if change <= tolerance * total.max(start_total) {
                         settled = true;
                         break;
                     }
+                }
+                if solved && !settled {
+                    unsettled = Some(last_change);
                 }
                 solved &= settled;
             } else {
@@ -2279,6 +2288,7 @@ impl Compliance {
             passes,
             iterations,
             converged,
+            unsettled,
         };
         *self.buffers.get_mut() = ContactBuffers {
             near,
@@ -5039,6 +5049,7 @@ impl LinearSolver {
         report.sweep_steps = 1;
         report.active_particles = contact.points.len();
         report.converged = contact.converged;
+        report.unsettled_friction = contact.unsettled;
         let sinking = contact.surface.iter().map(|v| -v.z).fold(0.0, f64::max);
         report.residual = if sinking > 0.0 {
             contact.penetration / sinking

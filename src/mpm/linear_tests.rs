@@ -1989,3 +1989,34 @@ fn a_frame_is_the_lagged_forces_fixed_point_to_its_tolerance() {
         );
     }
 }
+
+/// A frame whose friction's lagged normal forces do not settle within its refreshes says
+/// by how much (the sensor's warning names it): a frictional press slid 0.3 mm with a
+/// tolerance that no refresh meets ends unconverged, with the last refresh's change of the
+/// friction over the load above that tolerance and below a percent (the refreshes still
+/// contract); the same slide at the default tolerance settles and reports nothing.
+#[test]
+fn a_frame_whose_lagged_forces_do_not_settle_reports_their_last_change() {
+    let g = Gel::new(rough_gel(0.5), options(1)).unwrap();
+    let s = ball(3e-3);
+    let press = |x: f64| {
+        let placed = [at(&s, 3e-3, x, 0.0, 0.25e-3)];
+        (step(&placed, g.layout.dx), placed[0].pose)
+    };
+    for (tolerance, settles) in [(1e-3, true), (1e-15, false)] {
+        let mut c = Compliance::new(&g).unwrap();
+        let (first, from) = press(0.0);
+        let pressed = c.contact(&first, &[from], 1e-3);
+        assert!(pressed.converged && pressed.unsettled.is_none());
+        let (slid, _) = press(0.3e-3);
+        let frame = c.contact(&slid, &[from], tolerance);
+        match settles {
+            true => assert!(frame.converged && frame.unsettled.is_none()),
+            false => {
+                let change = frame.unsettled.expect("the refreshes' last change");
+                assert!(!frame.converged);
+                assert!(change > tolerance && change < 1e-2, "{change:e}");
+            }
+        }
+    }
+}

@@ -296,6 +296,9 @@ pub struct SolveReport {
     /// Newton: the frame spent its bound on Newton steps and ended at the last
     /// equilibrium it found, short of the indenters' poses.
     pub work_bound: bool,
+    /// Linear solver: friction's lagged normal forces did not settle within the frame's
+    /// refreshes; the last refresh's change of the friction they cap, relative to the load.
+    pub unsettled_friction: Option<f64>,
 }
 impl SolveReport {
     /// The report of a solve with `indenters` usable indenters that has not stepped yet.
@@ -320,6 +323,7 @@ impl SolveReport {
             substep_splits: 0,
             coarse_iterations: 0,
             work_bound: false,
+            unsettled_friction: None,
         }
     }
 }

@@ -252,6 +252,15 @@ impl SurfaceModel for Mpm {
                  (a lower 'friction' or slower motion per frame converges sooner)",
                 report.iterations, report.residual
             ));
+        } else if let (false, Some(change)) = (report.converged, report.unsettled_friction) {
+            eval.warnings.push(format!(
+                "tacrom.tactile sensor '{name}': gel did not reach equilibrium: friction's \
+                 lagged normal forces still changed the friction by {change:.1e} of the load \
+                 at their last refresh (the tolerance is {:.1e}); the frame keeps that last \
+                 answer and the next frame carries on from it (seen where a contact is let go \
+                 within a frame; a larger 'tolerance' settles sooner)",
+                self.options.tolerance
+            ));
         } else if !report.converged {
             eval.warnings.push(format!(
                 "tacrom.tactile sensor '{name}': gel did not reach equilibrium in {} \

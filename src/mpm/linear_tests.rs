@@ -1344,15 +1344,21 @@ fn a_gel_of_any_thickness_resists_a_press() {
     }
 }
 
+/// A 3 mm ball pressed 0.25 mm into `g` at `x` along the gel's x axis: the step's
+/// indenters and its pose.
+fn ball_pressed(g: &Gel, x: f64) -> (Vec<StepIndenter>, Isometry3<f64>) {
+    let placed = [at(&ball(3e-3), 3e-3, x, 0.0, 0.25e-3)];
+    (step(&placed, g.layout.dx), placed[0].pose)
+}
+
 /// A reset gel keeps no dense systems (a fresh gel has none) and answers a frictional
 /// press as a fresh gel does, bit for bit: the kept systems are a cache of the gel alone.
 #[test]
 fn a_reset_gel_keeps_no_systems_and_answers_as_a_fresh_one() {
     let g = Gel::new(rough_gel(0.5), options(1)).unwrap();
-    let s = ball(3e-3);
     let press = |x: f64| {
-        let placed = [at(&s, 3e-3, x, 0.0, 0.25e-3)];
-        (step(&placed, g.layout.dx), [placed[0].pose])
+        let (indenters, pose) = ball_pressed(&g, x);
+        (indenters, [pose])
     };
     let mut used = Compliance::new(&g).unwrap();
     for x in [0.0, 0.2e-3, 0.4e-3] {
@@ -1998,11 +2004,7 @@ fn a_frame_is_the_lagged_forces_fixed_point_to_its_tolerance() {
 #[test]
 fn a_frame_whose_lagged_forces_do_not_settle_reports_their_last_change() {
     let g = Gel::new(rough_gel(0.5), options(1)).unwrap();
-    let s = ball(3e-3);
-    let press = |x: f64| {
-        let placed = [at(&s, 3e-3, x, 0.0, 0.25e-3)];
-        (step(&placed, g.layout.dx), placed[0].pose)
-    };
+    let press = |x: f64| ball_pressed(&g, x);
     for (tolerance, settles) in [(1e-3, true), (1e-15, false)] {
         let mut c = Compliance::new(&g).unwrap();
         let (first, from) = press(0.0);

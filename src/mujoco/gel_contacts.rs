@@ -9,7 +9,10 @@
 //! step, solved together with everything else that acts on the bodies (gravity, the
 //! actuators, the other gel, the table), and its elliptic cone keeps the friction within
 //! the gel's Coulomb cone. The rows' island copies (`iefc_D`, `iefc_R`), made in the
-//! position stage, are rewritten with them.
+//! position stage, are rewritten with them. Where MuJoCo's contact points do not surround
+//! the gel's centre of pressure, their rows' Jacobians are moved there ([`shift_rows`]),
+//! so that the solve takes the force's moment about the body implicitly, as it takes the
+//! force.
 
 use nalgebra::{Isometry3, Vector3};
 
@@ -227,6 +230,11 @@ pub unsafe fn write_rows(
         };
         let (p, way) = &ways[g];
         let (p, n) = (*p, way.shares[i]);
+        if way.shift != Vector3::zeros() {
+            // SAFETY: valid model and data per the caller; `con` is one of its contacts,
+            // its rows from `efc`.
+            unsafe { shift_rows(m, d, con, efc, elliptic, &way.shift) };
+        }
         // The force (world) and the stiffness along a world axis, this contact's share.
         let force = p.map_or_else(Vector3::zeros, |p| way.force(&p, i, site));
         let stiffness = |axis: &Vector3<f64>| {
@@ -297,6 +305,100 @@ pub unsafe fn write_rows(
     couples
 }
 
+/// Moves the constraint rows of contact `con` (from row `efc`) from its point `x` to `x +
+/// shift` (world, m), on both bodies: a row's Jacobian `a^T (J_p(b2, x) - J_p(b1, x))`
+/// (`a` the row's direction, `b1` and `b2` the bodies of the contact's first and second
+/// geom) becomes `a^T (J_p(b2, x + s) - J_p(b1, x + s))`, which adds `(s x a)^T (J_r(b2) -
+/// J_r(b1))` (a point `s` further on a body turning at `w` moves `w x s` faster). The
+/// rows' forces then act where the gel presses, and MuJoCo's solve takes the torque of
+/// their force about the body implicitly with the force itself (as a couple applied on
+/// the side, the lever's part of it was explicit, and a light body turned within one step
+/// by many times what the gel allowed). Torsional and rolling rows turn the bodies alike
+/// wherever the point: they stay. The rows' sparsity stays: the moved point is on the
+/// same bodies.
+///
+/// # Safety
+/// `m` and `d` must be a valid model and data after MuJoCo's position stage; `con` one of
+/// `d`'s contacts with its rows from `efc`, between two geoms.
+pub unsafe fn shift_rows(
+    m: &sys::mjModel,
+    d: &mut sys::mjData,
+    con: &sys::mjContact,
+    efc: usize,
+    elliptic: bool,
+    shift: &Vector3<f64>,
+) {
+    let nv = usize::try_from(m.nv).unwrap_or(0);
+    let nefc = usize::try_from(d.nefc).unwrap_or(0);
+    let dim = usize::try_from(con.dim).unwrap_or(0).max(1);
+    let (Ok(g1), Ok(g2)) = (usize::try_from(con.geom[0]), usize::try_from(con.geom[1])) else {
+        return;
+    };
+    if nv == 0 || !shift.iter().all(|v| v.is_finite()) {
+        return;
+    }
+    let axis =
+        |j: usize| Vector3::new(con.frame[3 * j], con.frame[3 * j + 1], con.frame[3 * j + 2]);
+    // Each row and its direction (the translational part of a pyramid's edge: the normal
+    // plus or minus the friction's tangent, or the normal alone for a torsional or
+    // rolling edge, as MuJoCo's position stage makes them).
+    let mut rows: Vec<(usize, Vector3<f64>)> = Vec::with_capacity(2 * dim);
+    if elliptic || dim == 1 {
+        rows.extend((0..dim.min(3)).map(|j| (efc + j, axis(j))));
+    } else {
+        for k in 1..dim {
+            let t = if k <= 2 {
+                axis(k) * con.friction[k - 1]
+            } else {
+                Vector3::zeros()
+            };
+            rows.push((efc + 2 * (k - 1), axis(0) + t));
+            rows.push((efc + 2 * (k - 1) + 1, axis(0) - t));
+        }
+    }
+    // SAFETY: valid model per the caller; both geoms are ids of it.
+    let bodies = unsafe { [*m.geom_bodyid.add(g1), *m.geom_bodyid.add(g2)] };
+    let mut turn = [vec![0.0; 3 * nv], vec![0.0; 3 * nv]];
+    for (jac, &body) in turn.iter_mut().zip(&bodies) {
+        // SAFETY: valid model and data; `jac` holds 3 x nv numbers.
+        unsafe { sys::mj_jacBody(m, d, std::ptr::null_mut(), jac.as_mut_ptr(), body) };
+    }
+    // SAFETY: valid model per the caller.
+    let sparse = unsafe { sys::mj_isSparse(m) } != 0;
+    let mut delta = vec![0.0; nv];
+    for (r, a) in rows {
+        if r >= nefc {
+            continue;
+        }
+        let c = shift.cross(&a);
+        for (col, x) in delta.iter_mut().enumerate() {
+            *x = (0..3)
+                .map(|i| c[i] * (turn[1][i * nv + col] - turn[0][i * nv + col]))
+                .sum();
+        }
+        // SAFETY: r < nefc; MuJoCo holds row r's entries at `rowadr[r]..+rownnz[r]` with
+        // their columns in `colind` (sparse), or at `r * nv..(r + 1) * nv` (dense).
+        unsafe {
+            if sparse {
+                let adr = usize::try_from(*d.efc_J_rowadr.add(r)).unwrap_or(0);
+                let nnz = usize::try_from(*d.efc_J_rownnz.add(r)).unwrap_or(0);
+                for k in adr..adr + nnz {
+                    if let Some(x) = usize::try_from(*d.efc_J_colind.add(k))
+                        .ok()
+                        .and_then(|col| delta.get(col))
+                    {
+                        *d.efc_J.add(k) += x;
+                    }
+                }
+            } else {
+                for (col, x) in delta.iter().enumerate() {
+                    *d.efc_J.add(r * nv + col) += x;
+                }
+            }
+        }
+    }
+}
+
 /// How a pressing geom's push-back is carried by its contacts ([`carry`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Carried {
@@ -307,8 +409,12 @@ pub struct Carried {
     /// The sum of the shares times the squared in-plane offsets
     /// ([`Linearised::at_point`]).
     pub spread: f64,
-    /// The couple (world, N m) that the contacts leave out ([`Couple`]), where the push
-    /// has a centre of pressure.
+    /// How far the rows' points are moved (world, m): from the shares' centre to the
+    /// gel's centre of pressure along the gel's face, where the push has one
+    /// ([`shift_rows`]).
+    pub shift: Vector3<f64>,
+    /// The couple (world, N m) that the contacts leave out ([`Couple`]): the twist where
+    /// the points have no spread to carry it.
     pub couple: Option<Vector3<f64>>,
 }
 
@@ -325,9 +431,11 @@ impl Carried {
 /// contacts at `points` (world), the sensor at `site`: shares that put their centre on the
 /// gel's centre of pressure where the points reach it ([`shares`]), the offsets from the
 /// shares' own centre (so that the turn's and the twist's parts add up to no force,
-/// whatever the points), and the couple that makes up what they leave out: the force at
-/// the shares' centre in place of the gel's centre of pressure, and the twist where the
-/// points have no spread to carry it. Together, the gel's wrench.
+/// whatever the points), the shift along the gel's face that moves the points, rows and
+/// all, so that their centre is the gel's centre of pressure where they do not reach it,
+/// and the couple that
+/// makes up the twist where the points have no spread to carry it. Together, the gel's
+/// wrench, all of it but that couple carried by the rows (implicitly, in MuJoCo's solve).
 pub fn carry(points: &[Vector3<f64>], p: Option<&Linearised>, site: &Isometry3<f64>) -> Carried {
     let axes = [site.rotation * Vector3::x(), site.rotation * Vector3::y()];
     let gels = p
@@ -339,6 +447,7 @@ pub fn carry(points: &[Vector3<f64>], p: Option<&Linearised>, site: &Isometry3<f
             offsets: vec![Vector3::zeros(); points.len()],
             shares,
             spread: 0.0,
+            shift: Vector3::zeros(),
             couple: None,
         };
     };
@@ -360,25 +469,34 @@ pub fn carry(points: &[Vector3<f64>], p: Option<&Linearised>, site: &Isometry3<f
     } else {
         0.0
     };
-    let twist = if spread > 0.0 { 0.0 } else { p.twist };
-    let couple =
-        (gels - centre).cross(&(site.rotation * p.force)) + site.rotation * Vector3::z() * twist;
+    // Along the gel's face only: MuJoCo's points lie halfway through the geoms' overlap and
+    // the gel's centre on its rest surface moved with the indenter, so that the normal part
+    // of their distance is no lever of the gel's (a tumbling box left the solve's centre
+    // 8 mm out along the normal, and its friction rows moved there tipped it further).
+    let normal = site.rotation * Vector3::z();
+    let shift = (gels - centre) - normal * normal.dot(&(gels - centre));
+    let couple = (spread == 0.0 && p.twist != 0.0).then(|| site.rotation * Vector3::z() * p.twist);
     Carried {
         shares,
         offsets,
         spread,
-        couple: Some(couple),
+        shift: if shift.iter().all(|v| v.is_finite()) {
+            shift
+        } else {
+            Vector3::zeros()
+        },
+        couple,
     }
 }
 
 /// The part of a pressing geom's push-back that its contact rows cannot carry: a couple
-/// (world, N m, on the pressing geom; the gel's body takes the opposite). The rows carry
-/// the gel's force at their points' weighted centre ([`shares`]); where MuJoCo's contacts
-/// do not surround the gel's centre of pressure (a mesh's contacts on a face come and go
-/// from step to step, and two of them on one edge form a line), that centre lies elsewhere,
-/// and a single point carries no twist. Without the couple each such change of MuJoCo's
-/// contacts turns the held object by the force times the centres' distance (a 6 N grasp
-/// whose contacts fell to one edge of its face: 0.09 N m).
+/// (world, N m, on the pressing geom; the gel's body takes the opposite), the gel's twist
+/// about its normal where the geom's contacts lie at one point and have no spread to
+/// carry it. The force's moment needs none: the rows act at their points moved so that
+/// their weighted centre is the gel's centre of pressure ([`carry`], [`shift_rows`]),
+/// wherever MuJoCo's contacts lie (a mesh's contacts on a face come and go from step to
+/// step, and two of them on one edge form a line: a 6 N grasp whose contacts fell to one
+/// edge of its face lost 0.09 N m).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Couple {
     /// The pressing geom.
@@ -395,9 +513,10 @@ mod tests {
         points.iter().zip(w).map(|(p, w)| p * *w).sum()
     }
 
-    /// The contacts' forces and the couple together are the gel's wrench (its force at its
-    /// centre of pressure and its twist about the normal) whatever MuJoCo's points: around
-    /// the centre (the contacts carry it all), on one edge of the face, at one point; and a
+    /// The contacts' forces at their shifted points and the couple together are the gel's
+    /// wrench (its force at its centre of pressure and its twist about the normal) whatever
+    /// MuJoCo's points: around the centre (the contacts carry it all, unmoved), on one edge
+    /// of the face, at one point (a couple for the twist alone), at one place twice; and a
     /// turn since the solve adds no force.
     #[test]
     fn the_contacts_and_their_couple_carry_the_gels_wrench() {
@@ -426,7 +545,11 @@ mod tests {
         // Two of MuJoCo's contacts at one place but for round-off.
         let twice = local(&[(4.0, -3.0), (4.0, -3.0 + 2e-14)]);
         let gel_force = site.rotation * p.force;
-        let gel_centre = (site * nalgebra::Point3::from(p.centre.unwrap())).coords;
+        // The gel's centre of pressure where the points lie along the normal (their
+        // distance along it, half the geoms' overlap against the gel's rest surface, is no
+        // lever of the gel's).
+        let c = p.centre.unwrap();
+        let gel_centre = (site * nalgebra::Point3::new(c.x, c.y, -2e-4)).coords;
         let gel_torque = gel_centre.cross(&gel_force) + site.rotation * Vector3::z() * p.twist;
         let cases = [
             ("square", &square),
@@ -445,11 +568,11 @@ mod tests {
                 "{name}: {forces:?}"
             );
             let force: Vector3<f64> = forces.iter().sum();
-            let couple = way.couple.unwrap();
+            let couple = way.couple.unwrap_or_default();
             let torque: Vector3<f64> = points
                 .iter()
                 .zip(&forces)
-                .map(|(q, f)| q.cross(f))
+                .map(|(q, f)| (q + way.shift).cross(f))
                 .sum::<Vector3<f64>>()
                 + couple;
             assert!(
@@ -460,14 +583,17 @@ mod tests {
                 (torque - gel_torque).norm() < 1e-13,
                 "{name}: {torque} {gel_torque}"
             );
+            // The shares' centre, shifted, is the gel's centre of pressure.
+            let centre: Vector3<f64> = centre_of(points, &way.shares) + way.shift;
+            assert!((centre - gel_centre).norm() < 1e-15, "{name}: {centre}");
             if name == "square" {
-                // Around the centre, in the face's plane: the contacts carry it all but the
-                // tangential force's arm from the face's depth.
-                let arm = (site.rotation * Vector3::z() * 2e-4).cross(&gel_force);
-                assert!((couple - arm).norm() < 1e-13, "{couple} {arm}");
+                // Around the centre: the shares carry it, nothing is moved.
+                assert!(way.shift.norm() < 1e-15, "{}", way.shift);
             } else {
-                assert!(couple.norm() > 1e-3, "{name}: {couple}");
+                assert!(way.shift.norm() > 1e-3, "{name}: {}", way.shift);
             }
+            // Only points without spread leave the twist to a couple.
+            assert_eq!(way.couple.is_some(), way.spread == 0.0, "{name}");
         }
         p.turned = UnitQuaternion::from_euler_angles(0.01, -0.02, 0.03);
         let way = carry(&square, Some(&p), &site);

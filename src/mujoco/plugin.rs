@@ -692,9 +692,10 @@ pub unsafe extern "C" fn tacrom_compute(
 /// the indenter's motion since ([`linearise`]); the gel is solved again where no sensor
 /// evaluation solved it at this state and an indenter moved further than
 /// [`needs_solve`] allows, or presses the gel's geom without a force from the last solve.
-/// What the contacts' rows cannot carry of the gel's torque (where MuJoCo's contact points
-/// do not surround the gel's centre of pressure) goes into `qfrc_passive` as a couple
-/// ([`gel_contacts::Couple`]). Also returns whether the coupling's state changed (a new
+/// The rows act where the gel presses: where MuJoCo's contact points do not surround the
+/// gel's centre of pressure, they are moved along the gel's face so that their centre is
+/// it ([`gel_contacts::shift_rows`]); only a twist that points without spread cannot carry
+/// goes into `qfrc_passive` as a couple ([`gel_contacts::Couple`]). Also returns whether the coupling's state changed (a new
 /// base, a solve).
 ///
 /// # Safety

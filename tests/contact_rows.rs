@@ -133,6 +133,17 @@ fn moved_rows_are_mujocos_jacobians_at_the_moved_point() {
                                 // point Jacobians along the row's direction.
                                 Some(a) => {
                                     let here = point_row(m, d, bodies, &x, &a);
+                                    if condim <= 3 {
+                                        // A row without a turning part is the point
+                                        // Jacobian along its direction before the move
+                                        // too: the test's directions are MuJoCo's.
+                                        let err = before[r]
+                                            .iter()
+                                            .zip(&here)
+                                            .map(|(a, b)| (a - b).abs())
+                                            .fold(0.0, f64::max);
+                                        assert!(err < 1e-12, "{case}: row {r} is not MuJoCo's");
+                                    }
                                     let there = point_row(m, d, bodies, &(x + shift), &a);
                                     let (b, h, t) = (&before[r], &here, &there);
                                     (0..b.len()).map(|c| b[c] - h[c] + t[c]).collect()
@@ -156,23 +167,6 @@ fn moved_rows_are_mujocos_jacobians_at_the_moved_point() {
                             }
                             checked += 1;
                         }
-                    }
-                    // A translational row is the point Jacobian along its direction
-                    // before the move too: the test's directions are MuJoCo's.
-                    let con = *d.contact;
-                    let bodies = [
-                        *m.geom_bodyid.add(con.geom[0] as usize),
-                        *m.geom_bodyid.add(con.geom[1] as usize),
-                    ];
-                    let n = Vector3::from_column_slice(&con.frame[0..3]);
-                    if elliptic || condim == 1 {
-                        let want = point_row(m, d, bodies, &Vector3::from(con.pos), &n);
-                        let err = before[con.efc_address as usize]
-                            .iter()
-                            .zip(&want)
-                            .map(|(a, b)| (a - b).abs())
-                            .fold(0.0, f64::max);
-                        assert!(err < 1e-12, "{case}: the normal row is not MuJoCo's");
                     }
                 }
             }

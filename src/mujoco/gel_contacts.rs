@@ -433,9 +433,9 @@ impl Carried {
 /// shares' own centre (so that the turn's and the twist's parts add up to no force,
 /// whatever the points), the shift along the gel's face that moves the points, rows and
 /// all, so that their centre is the gel's centre of pressure where they do not reach it,
-/// and the couple that
-/// makes up the twist where the points have no spread to carry it. Together, the gel's
-/// wrench, all of it but that couple carried by the rows (implicitly, in MuJoCo's solve).
+/// and the couple that makes up the twist where the points have no spread to carry it.
+/// Together, the gel's wrench, all of it but that couple carried by the rows (implicitly,
+/// in MuJoCo's solve).
 pub fn carry(points: &[Vector3<f64>], p: Option<&Linearised>, site: &Isometry3<f64>) -> Carried {
     let axes = [site.rotation * Vector3::x(), site.rotation * Vector3::y()];
     let gels = p
@@ -473,18 +473,20 @@ pub fn carry(points: &[Vector3<f64>], p: Option<&Linearised>, site: &Isometry3<f
     // the gel's centre on its rest surface moved with the indenter, so that the normal part
     // of their distance is no lever of the gel's (a tumbling box left the solve's centre
     // 8 mm out along the normal, and its friction rows moved there tipped it further).
+    // (Where the shares reach the centre, what is left is round-off: nothing is moved.)
     let normal = site.rotation * Vector3::z();
     let shift = (gels - centre) - normal * normal.dot(&(gels - centre));
-    let couple = (spread == 0.0 && p.twist != 0.0).then(|| site.rotation * Vector3::z() * p.twist);
+    let shift = if shift.norm() > COINCIDENT && shift.norm().is_finite() {
+        shift
+    } else {
+        Vector3::zeros()
+    };
+    let couple = (spread == 0.0 && p.twist != 0.0).then(|| normal * p.twist);
     Carried {
         shares,
         offsets,
         spread,
-        shift: if shift.iter().all(|v| v.is_finite()) {
-            shift
-        } else {
-            Vector3::zeros()
-        },
+        shift,
         couple,
     }
 }

@@ -7,7 +7,10 @@
 mod common;
 
 use nalgebra::Vector3;
-use tacrom::mujoco::{gel_contacts::shift_rows, sys};
+use tacrom::mujoco::{
+    gel_contacts::{shift_rows, Turns},
+    sys,
+};
 
 /// A block resting turned on a pad that hangs on a hinge and a slide (so that the
 /// Jacobians' turning part is not the identity), pressed 0.5 mm into it.
@@ -98,10 +101,12 @@ fn moved_rows_are_mujocos_jacobians_at_the_moved_point() {
                     assert!(ncon > 0, "{case}: no contact");
                     let before: Vec<Vec<f64>> = (0..nefc).map(|r| row(m, d, r)).collect();
                     let elliptic = cone == "elliptic";
+                    // One for the data's contacts, all between the same two bodies.
+                    let mut turns = Turns::default();
                     for i in 0..ncon {
                         let con = *d.contact.add(i);
                         let efc = con.efc_address as usize;
-                        shift_rows(m, d, &con, efc, elliptic, &shift);
+                        shift_rows(m, d, &con, efc, elliptic, &shift, &mut turns);
                         let bodies = [
                             *m.geom_bodyid.add(con.geom[0] as usize),
                             *m.geom_bodyid.add(con.geom[1] as usize),

@@ -195,6 +195,8 @@ pub unsafe fn write_rows(
     let nefc = usize::try_from(d.nefc).unwrap_or(0);
     // How each pressing geom's push-back is carried by its contacts ([`carry`]).
     let mut carried = vec![(0, 0); contacts.len()];
+    // The bodies' turning Jacobians, made once for a geom's contacts ([`shift_rows`]).
+    let mut turns = Turns::default();
     let mut ways: Vec<(Option<Linearised>, Carried)> = Vec::new();
     for (k, c) in contacts.iter().enumerate() {
         if contacts[..k].iter().any(|e| e.geom == c.geom) {
@@ -233,7 +235,7 @@ pub unsafe fn write_rows(
         if way.shift != Vector3::zeros() {
             // SAFETY: valid model and data per the caller; `con` is one of its contacts,
             // its rows from `efc`.
-            unsafe { shift_rows(m, d, con, efc, elliptic, &way.shift) };
+            unsafe { shift_rows(m, d, con, efc, elliptic, &way.shift, &mut turns) };
         }
         // The force (world) and the stiffness along a world axis, this contact's share.
         let force = p.map_or_else(Vector3::zeros, |p| way.force(&p, i, site));
@@ -317,9 +319,13 @@ pub unsafe fn write_rows(
 /// wherever the point: they stay. The rows' sparsity stays: the moved point is on the
 /// same bodies.
 ///
+/// `turns` keeps the bodies' turning Jacobians between calls for the same pair of bodies
+/// (a geom's contacts, one after another).
+///
 /// # Safety
 /// `m` and `d` must be a valid model and data after MuJoCo's position stage; `con` one of
-/// `d`'s contacts with its rows from `efc`, between two geoms.
+/// `d`'s contacts with its rows from `efc`, between two geoms; `turns` used with this `d`
+/// in this stage only.
 pub unsafe fn shift_rows(
     m: &sys::mjModel,
     d: &mut sys::mjData,
@@ -327,6 +333,7 @@ pub unsafe fn shift_rows(
     efc: usize,
     elliptic: bool,
     shift: &Vector3<f64>,
+    turns: &mut Turns,
 ) {
     let nv = usize::try_from(m.nv).unwrap_or(0);
     let nefc = usize::try_from(d.nefc).unwrap_or(0);
@@ -358,11 +365,16 @@ pub unsafe fn shift_rows(
     }
     // SAFETY: valid model per the caller; both geoms are ids of it.
     let bodies = unsafe { [*m.geom_bodyid.add(g1), *m.geom_bodyid.add(g2)] };
-    let mut turn = [vec![0.0; 3 * nv], vec![0.0; 3 * nv]];
-    for (jac, &body) in turn.iter_mut().zip(&bodies) {
-        // SAFETY: valid model and data; `jac` holds 3 x nv numbers.
-        unsafe { sys::mj_jacBody(m, d, std::ptr::null_mut(), jac.as_mut_ptr(), body) };
+    if turns.bodies != Some(bodies) {
+        turns.bodies = Some(bodies);
+        for (jac, &body) in turns.jacobians.iter_mut().zip(&bodies) {
+            jac.clear();
+            jac.resize(3 * nv, 0.0);
+            // SAFETY: valid model and data; `jac` holds 3 x nv numbers.
+            unsafe { sys::mj_jacBody(m, d, std::ptr::null_mut(), jac.as_mut_ptr(), body) };
+        }
     }
+    let turn = &turns.jacobians;
     // SAFETY: valid model per the caller.
     let sparse = unsafe { sys::mj_isSparse(m) } != 0;
     let mut delta = vec![0.0; nv];
@@ -397,6 +409,14 @@ pub unsafe fn shift_rows(
             }
         }
     }
+}
+
+/// The turning Jacobians (3 x nv each) of the last pair of bodies [`shift_rows`] moved a
+/// contact's rows between.
+#[derive(Clone, Debug, Default)]
+pub struct Turns {
+    bodies: Option<[i32; 2]>,
+    jacobians: [Vec<f64>; 2],
 }
 
 /// How a pressing geom's push-back is carried by its contacts ([`carry`]).

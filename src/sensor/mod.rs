@@ -502,10 +502,20 @@ impl TactileSensor {
             p.lower_surface(&self.grid, -t, 0.0, &mut self.zmin);
         }
         if self.zmin.iter().any(|&z| z <= -t) {
+            // A gel that pushes back is driven through by a physics step longer than its
+            // contact follows, too: a grasp's fingers then bounce the object between the
+            // gels (docs/rl.md, "A long physics step: a hold that bounces").
+            let step = if self.config.coupling {
+                "; with the coupling, a physics step too long for the gel's contact drives \
+                 it there too: try a smaller timestep (tacrom/GripperLift-v1's coupled grasp \
+                 holds still up to 6 ms)"
+            } else {
+                ""
+            };
             eval.warnings.push(format!(
                 "tacrom.tactile sensor '{}': an indenter reaches the gel's base ({:.1} mm \
                  below its face): no gel holds it there; give the sensor's body a collision \
-                 geom under the gel, or the indenter a lighter load",
+                 geom under the gel, or the indenter a lighter load{step}",
                 self.config.name,
                 t * 1e3
             ));

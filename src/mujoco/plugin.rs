@@ -729,9 +729,10 @@ unsafe fn implicit(
         return (warnings, false);
     }
     if m.opt.integrator == sys::mjINT_DISCRETE as i32 {
-        // The discrete integrator solves the constraints in its effective metric, in which
-        // the rows written below are not the gel's backward Euler: a ball resting on the
-        // gel was thrown 4 m up within 0.6 s.
+        // The discrete integrator makes the rows' reference and regulariser itself after
+        // this stage, from the contact's solref and solimp, and keeps the position written
+        // below: the offset that carries the gel's force becomes a penetration of MuJoCo's
+        // own spring (a ball resting on the gel was thrown 4 m up within 0.6 s).
         warnings.push(format!(
             "tacrom.tactile sensor '{name}': attribute 'gel_geom': the implicit coupling does \
              not support MuJoCo's discrete integrator (it solves the constraints in its own \

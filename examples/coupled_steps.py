@@ -14,8 +14,8 @@ observation.
 
 What it showed (docs/rl.md, "A long physics step: the gel's force where it presses" and
 "A long physics step: a hold that bounces"): 15 of 15 grasps lifted at 2 to 6 ms, 13 at
-8 ms and 9 at 10 ms (2 unstable); every lifted grasp's hold quiet up to 6 ms, and at 8 ms
-flat faces held by gels that bounce them by millimetres at up to 100 N and more.
+8 ms and 9 at 10 ms (2 unstable); 15 holds quiet at 2 and 4 ms, 14 at 6 ms, 7 at 8 ms and
+none at 10 ms, where the gels bounce the object by millimetres at up to 100 N and more.
 """
 
 from __future__ import annotations

@@ -735,9 +735,10 @@ unsafe fn implicit(
         // own spring (a ball resting on the gel was thrown 4 m up within 0.6 s).
         warnings.push(format!(
             "tacrom.tactile sensor '{name}': attribute 'gel_geom': the implicit coupling does \
-             not support MuJoCo's discrete integrator (it solves the constraints in its own \
-             effective metric, and the gel's rows would throw the bodies off); the gel's geom \
-             acts as a rigid contact: use the Euler, implicitfast, implicit or RK4 integrator"
+             not support MuJoCo's discrete integrator (it remakes the contact rows from the \
+             contact's own solref and solimp, and the gel's force written into them threw \
+             the bodies off); the gel's geom acts as a rigid contact: use the Euler, \
+             implicitfast, implicit or RK4 integrator"
         ));
         return (warnings, false);
     }

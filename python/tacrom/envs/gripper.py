@@ -173,9 +173,9 @@ class GripperLiftEnv(TactileEnv):
     ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad;
     ``info["gel_force"]`` ``(2, 3)``: each gel's force on the object (N, in its sensor's
     frame: ``[..., 2]`` the squeeze); at a physics step beyond :data:`COUPLED_STEP_LIMIT`
-    (6 ms) a reset warns that the hold may bounce. ``servo_time``: the time constant (s) of the filter
-    through which the carry and lift servos follow their targets (:data:`SERVO_TIME`; 0:
-    none, the targets taken at once).
+    (6 ms) a reset warns that the hold may bounce. ``servo_time``: the time constant (s) of
+    the filter through which the carry and lift servos follow their targets
+    (:data:`SERVO_TIME`; 0: none, the targets taken at once).
     """
 
     def __init__(

@@ -10,12 +10,15 @@ squeeze of a gel over those steps (N; a quiet hold squeezes 3.5 to 6 N), those w
 MuJoCo found unstable (its ``mjWARN_BADQACC`` count) and those with a non-finite
 observation.
 
-    .venv/bin/python examples/coupled_steps.py --steps 0.002 0.006 0.01 --seeds 5
+    .venv/bin/python examples/coupled_steps.py --steps 0.002 0.006 0.01 0.0133 --seeds 5
 
-What it showed (docs/rl.md, "A long physics step: the gel's force where it presses" and
-"A long physics step: a hold that bounces"): 15 of 15 grasps lifted at 2 to 6 ms, 13 at
-8 ms and 9 at 10 ms (2 unstable); 15 holds quiet at 2 and 4 ms, 14 at 6 ms, 7 at 8 ms and
-none at 10 ms, where the gels bounce the object by millimetres at up to 100 N and more.
+What it showed (docs/rl.md, "A long physics step: the fingers' damping, taken after the
+solve"), with the fingers' drives' inertia on their joints (``examples/gripper.xml``): 15
+of 15 grasps lifted and held still at 2 to 10 ms; at 13.3 ms 13 holds still, at 20 ms 13
+lifted and none still. Before it ("A long physics step: a hold that bounces"): 15 lifted
+at 2 to 6 ms, 13 at 8 ms and 9 at 10 ms (2 unstable); 15 holds still at 2 and 4 ms, 14
+at 6 ms, 7 at 8 ms and none at 10 ms, the gels bouncing the object by millimetres at up
+to 100 N and more.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 //! An indenter that reaches the gel's base is warned about, naming the sensor and the
 //! remedies; on a gel that pushes back (`coupling="on"`) the warning also names the physics
 //! step, which drives a coupled grasp through the gel where it is too long for the gel's
-//! contact (docs/rl.md, "A long physics step: a hold that bounces").
+//! contact, and a light body's joint damping taken after the contact solve, which does too
+//! (docs/rl.md, "A long physics step: the fingers' damping, taken after the solve").
 
 use std::sync::Arc;
 
@@ -55,6 +56,7 @@ fn an_indenter_through_the_gel_is_warned_about_and_a_coupled_gel_names_the_step(
     let w = base_warning(&coupled).unwrap_or_else(|| panic!("no warning: {coupled:?}"));
     assert!(w.contains("collision geom under the gel"), "{w}");
     assert!(w.contains("smaller timestep"), "{w}");
+    assert!(w.contains("joint damping") && w.contains("armature"), "{w}");
 }
 
 #[test]

@@ -503,12 +503,15 @@ impl TactileSensor {
         }
         if self.zmin.iter().any(|&z| z <= -t) {
             // A gel that pushes back is driven through by a physics step longer than its
-            // contact follows, too: a grasp's fingers then bounce the object between the
-            // gels (docs/rl.md, "A long physics step: a hold that bounces").
+            // contact follows, too, and by a light body whose joint damping the integrator
+            // takes after the contact solve: a grasp's fingers then bounce the object
+            // between the gels (docs/rl.md, "A long physics step: the fingers' damping,
+            // taken after the solve").
             let step = if self.config.coupling {
                 "; with the coupling, a physics step too long for the gel's contact drives \
-                 it there too: try a smaller timestep (tacrom/GripperLift-v1's coupled grasp \
-                 holds still up to 6 ms)"
+                 it there too, as does a light body whose joint damping MuJoCo's integrator \
+                 takes after the contact solve: try a smaller timestep, or give that joint \
+                 armature (tacrom/GripperLift-v1's coupled grasp holds still up to 10 ms)"
             } else {
                 ""
             };

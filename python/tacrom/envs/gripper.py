@@ -41,11 +41,11 @@ SERVO_TIME = 0.1
 #: The filtered actuators.
 FILTERED = ("carry", "lift")
 #: The longest physics step (s) at which the coupled grasp was measured to hold the lifted
-#: object still (docs/rl.md, "A long physics step: a hold that bounces": 15 of 15 grasps at
-#: 2 and 4 ms, 14 at 6 ms, 7 at 8 ms, none at 10 ms, where the gels bounce the object
-#: between the fingers by millimetres at up to 100 N and more). A coupled episode reset at a
-#: longer step warns.
-COUPLED_STEP_LIMIT = 0.006
+#: object still (docs/rl.md, "A long physics step: the fingers' damping, taken after the
+#: solve": 15 of 15 grasps at 2 to 10 ms, 13 at 13.3 ms, none at 20 ms, where the gels
+#: bounce the object between the fingers by millimetres at up to 126 N). A coupled episode
+#: reset at a longer step warns.
+COUPLED_STEP_LIMIT = 0.01
 
 
 #: Each fingertip's pad geom, the finger body it hangs on and the side its gel faces.
@@ -173,7 +173,7 @@ class GripperLiftEnv(TactileEnv):
     ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad;
     ``info["gel_force"]`` ``(2, 3)``: each gel's force on the object (N, in its sensor's
     frame: ``[..., 2]`` the squeeze); at a physics step beyond :data:`COUPLED_STEP_LIMIT`
-    (6 ms) a reset warns that the hold may bounce. ``servo_time``: the time constant (s) of
+    (10 ms) a reset warns that the hold may bounce. ``servo_time``: the time constant (s) of
     the filter through which the carry and lift servos follow their targets
     (:data:`SERVO_TIME`; 0: none, the targets taken at once).
     """
@@ -296,9 +296,10 @@ class GripperLiftEnv(TactileEnv):
             warnings.warn(
                 f"tacrom/GripperLift-v1 with coupled gels at a physics step of "
                 f"{m.opt.timestep * 1e3:g} ms: beyond {COUPLED_STEP_LIMIT * 1e3:g} ms the "
-                "gels can bounce the held object between the fingers by millimetres (at 8 ms "
-                "in half the measured grasps, at 10 ms in all; docs/rl.md, 'A long physics "
-                "step: a hold that bounces'); use a timestep of at most "
+                "gels can bounce the held object between the fingers by millimetres (at "
+                "13.3 ms in 2 of 15 measured grasps, at 20 ms in all; docs/rl.md, 'A long "
+                "physics step: the fingers\' damping, taken after the solve'); use a timestep "
+                "of at most "
                 f"{COUPLED_STEP_LIMIT * 1e3:g} ms",
                 RuntimeWarning,
                 stacklevel=2,

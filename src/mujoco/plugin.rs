@@ -66,6 +66,10 @@ struct Instance {
     /// How much of its `plugin_state` may hold non-zero numbers past the header: what the
     /// last write filled, or all of it after a state was taken from there.
     extent: usize,
+    /// The implicit coupling's check of the joints' damping
+    /// ([`gel_contacts::damping_taken_after_the_solve`]): the physics step it was made at
+    /// and the bodies checked (the sensor's, and those that pressed the gel's geom).
+    damping_checked: (f64, Vec<usize>),
 }
 
 /// Numbers ahead of an instance's state in `plugin_state`: its signature (a number drawn
@@ -134,6 +138,7 @@ impl Instance {
             shapes: self.shapes.clone(),
             stamp: self.stamp,
             extent: self.extent,
+            damping_checked: self.damping_checked.clone(),
         })
     }
 
@@ -494,6 +499,7 @@ pub unsafe extern "C" fn tacrom_init(
             stamp: [0.0; 2],
             // Until `mj_resetData` clears it, plugin_state holds what the allocator left.
             extent: usize::MAX,
+            damping_checked: (0.0, Vec::new()),
         });
         let slot = plugin_slot(dr, instance)?;
         *slot = Box::into_raw(state) as usize;
@@ -747,6 +753,46 @@ unsafe fn implicit(
     let contacts = unsafe {
         gel_contacts::gel_contacts(&*d, gel, &normal, |g| inst.scene.shape_of(g).is_some())
     };
+    // The joints that carry the sensor's body and each body newly pressing the gel's geom:
+    // one damped past its inertia within a step moves by a fraction of what MuJoCo's solve
+    // (and the gel's rows) meant.
+    if inst.damping_checked.0 != m.opt.timestep {
+        inst.damping_checked = (m.opt.timestep, Vec::new());
+    }
+    let model = Model(m);
+    let sensor_body = model.site_bodyid().get(inst.scene.site()).copied();
+    let fresh: Vec<usize> = sensor_body
+        .into_iter()
+        .chain(
+            contacts
+                .iter()
+                .filter_map(|c| model.geom_bodyid().get(c.geom).copied()),
+        )
+        .filter_map(|b| usize::try_from(b).ok())
+        .filter(|b| !inst.damping_checked.1.contains(b))
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    if !fresh.is_empty() {
+        inst.damping_checked.1.extend(&fresh);
+        // SAFETY: valid model and data past the position stage, per the caller.
+        if let Some(w) = unsafe { gel_contacts::damping_taken_after_the_solve(m, d, &fresh) } {
+            warnings.push(format!(
+                "tacrom.tactile sensor '{name}': attribute 'gel_geom': joint '{}' is damped \
+                 {:.1} times its inertia over the {:.1} ms physics step (damping {:.3}, \
+                 inertia {:.4} along it); MuJoCo's integrator takes that damping after its \
+                 constraint solve, which the gel's push-back is made for, and a held object \
+                 can bounce between gels: give the joint armature (its drive's inertia) or \
+                 take a shorter timestep (docs/rl.md, \"A long physics step: the fingers' \
+                 damping, taken after the solve\")",
+                w.joint,
+                w.ratio,
+                m.opt.timestep * 1e3,
+                w.damping,
+                w.inertia
+            ));
+        }
+    }
     let deepest = |geom: usize| {
         contacts
             .iter()

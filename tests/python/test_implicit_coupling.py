@@ -182,6 +182,45 @@ def test_the_coupled_box_at_a_10_ms_step_is_lifted_and_held_still():
     assert np.all(np.abs(squeeze - 3.57) <= 0.1 * 3.57), squeeze
 
 
+def test_a_joint_damped_past_its_inertia_within_a_step_is_warned_about(capfd):
+    """The coupled gripper's fingers without their drives' inertia (armature 0: 51 g on a
+    joint damped at 40 N s/m) at an 8 ms step: MuJoCo's Euler step takes that damping
+    after its constraint solve, 6.3 times the finger's inertia over the step, and the
+    gels bounced held objects between the fingers (docs/rl.md, "A long physics step: the
+    fingers' damping, taken after the solve"). Each sensor warns once, naming itself,
+    `gel_geom`, its finger's joint, the ratio, the step and the remedy. At 2 ms (1.6) and
+    with the scene's armature at 10 ms (1.6) nothing is said."""
+    import warnings
+
+    cases = [(0.008, 0.0, True), (0.002, 0.0, False), (0.01, None, False)]
+    for step, armature, warned in cases:
+        env = gripper.GripperLiftEnv(
+            physics="rom", object="box", coupling=True, frame_skip=max(1, round(0.04 / step))
+        )
+        env.model.opt.timestep = step
+        if armature is not None:
+            for joint in ("left", "right"):
+                env.model.dof_armature[env.model.joint(joint).dofadr[0]] = armature
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            env.reset(seed=0)
+        for a in [(0.0, -1.0, -1.0)] * 15 + [(0.0, -1.0, 1.0)] * 4:
+            env.step(np.array(a, dtype=np.float32))
+        env.close()
+        err = capfd.readouterr().err
+        said = [line for line in err.splitlines() if "damped" in line and "inertia" in line]
+        if not warned:
+            assert not said, (step, said)
+            continue
+        for sensor, joint in (("left_touch", "left"), ("right_touch", "right")):
+            mine = [line for line in said if f"sensor '{sensor}'" in line]
+            assert len(mine) == 1, (sensor, said)
+            w = mine[0]
+            assert "attribute 'gel_geom'" in w and f"joint '{joint}'" in w, w
+            assert "6.3 times its inertia over the 8.0 ms physics step" in w, w
+            assert "armature" in w and "shorter timestep" in w, w
+
+
 def test_a_coupled_episode_beyond_10_ms_warns_that_the_hold_may_bounce():
     """At physics steps beyond 10 ms the coupled grasp's gels can bounce the held object
     between the fingers by millimetres (13.3 ms: 13 of 15 holds still; 20 ms: none;

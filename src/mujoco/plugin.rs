@@ -761,18 +761,27 @@ unsafe fn implicit(
     }
     let model = Model(m);
     let sensor_body = model.site_bodyid().get(inst.scene.site()).copied();
-    let fresh: Vec<usize> = sensor_body
-        .into_iter()
-        .chain(
-            contacts
-                .iter()
-                .filter_map(|c| model.geom_bodyid().get(c.geom).copied()),
-        )
-        .filter_map(|b| usize::try_from(b).ok())
-        .filter(|b| !inst.damping_checked.1.contains(b))
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .collect();
+    let bodies = || {
+        sensor_body
+            .into_iter()
+            .chain(
+                contacts
+                    .iter()
+                    .filter_map(|c| model.geom_bodyid().get(c.geom).copied()),
+            )
+            .filter_map(|b| usize::try_from(b).ok())
+    };
+    // (Nothing collected where every body was checked: the steps between allocate nothing.)
+    let fresh: Vec<usize> = if bodies().any(|b| !inst.damping_checked.1.contains(&b)) {
+        let mut fresh: Vec<usize> = bodies()
+            .filter(|b| !inst.damping_checked.1.contains(b))
+            .collect();
+        fresh.sort_unstable();
+        fresh.dedup();
+        fresh
+    } else {
+        Vec::new()
+    };
     if !fresh.is_empty() {
         inst.damping_checked.1.extend(&fresh);
         // SAFETY: valid model and data past the position stage, per the caller.

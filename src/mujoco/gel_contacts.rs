@@ -527,6 +527,159 @@ pub struct Couple {
     pub torque: Vector3<f64>,
 }
 
+/// `h B / m` beyond which a joint's damping outweighs its inertia enough for a grasp on a
+/// gel that pushes back to bounce ([`damping_taken_after_the_solve`]). Measured on
+/// `tacrom/GripperLift-v1`'s fingers, five seeds and three objects each (docs/rl.md, "A
+/// long physics step: the fingers' damping, taken after the solve"): every hold still at
+/// 1.6 and 3.1 (2 and 4 ms), 14 of 15 at 4.7 (6 ms), 7 at 6.3 (8 ms), none at 7.8 (10 ms);
+/// with the drives' inertia on the joints, every hold still at 1.3 and 1.6 (8 and 10 ms).
+pub const DAMPING_OUTWEIGHS: f64 = 4.0;
+
+/// A joint whose damping outweighs its inertia over one physics step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Outweighed {
+    /// The joint's name (its id where it has none).
+    pub joint: String,
+    /// Its damping (MuJoCo's `damping`, with its actuators').
+    pub damping: f64,
+    /// The inertia along it: one over the diagonal of `M^-1` (with its armature).
+    pub inertia: f64,
+    /// `h damping / inertia`.
+    pub ratio: f64,
+}
+
+/// Among the joints that carry `bodies` (each body's own, and those of the bodies it hangs
+/// from), the one whose damping most outweighs its inertia over MuJoCo's physics step `h`,
+/// where `h B / m` exceeds [`DAMPING_OUTWEIGHS`] and the integrator takes that damping
+/// after its constraint solve (Euler unless `eulerdamp` or the dampers are disabled, and
+/// the implicit integrators): the solve, which the gel's rows are made for, takes such a
+/// joint for as free as its inertia makes it, and the step then moves it by a fraction of
+/// what the solve meant (`m / (m + h B)`). `m` is the inertia a force on the joint alone
+/// meets, one over the joint's diagonal of `M^-1`; `B` its `damping` and that of the
+/// actuators that drive it (times their gear squared), as MuJoCo's Euler step adds them.
+///
+/// # Safety
+/// `m` and `d` must be a valid model and data after MuJoCo's position stage (its factor of
+/// `M`); nothing else may hold a reference into `d`.
+pub unsafe fn damping_taken_after_the_solve(
+    m: &sys::mjModel,
+    d: *mut sys::mjData,
+    bodies: &[usize],
+) -> Option<Outweighed> {
+    let flags = m.opt.disableflags;
+    let after = match m.opt.integrator as u32 {
+        sys::mjINT_EULER => flags & (sys::mjDSBL_EULERDAMP | sys::mjDSBL_DAMPER) as i32 == 0,
+        sys::mjINT_IMPLICIT | sys::mjINT_IMPLICITFAST => flags & sys::mjDSBL_DAMPER as i32 == 0,
+        _ => false,
+    };
+    let (nv, nbody) = (
+        usize::try_from(m.nv).unwrap_or(0),
+        usize::try_from(m.nbody).unwrap_or(0),
+    );
+    let h = m.opt.timestep;
+    if !after || nv == 0 || !(h > 0.0) {
+        return None;
+    }
+    // The degrees of freedom that carry the bodies, each once.
+    let mut dofs = Vec::new();
+    for &body in bodies {
+        let mut b = body;
+        let mut hops = 0;
+        while b > 0 && b < nbody && hops < nbody {
+            // SAFETY: b < nbody; MuJoCo holds nbody entries of each body array.
+            let (adr, num, parent) = unsafe {
+                (
+                    *m.body_dofadr.add(b),
+                    *m.body_dofnum.add(b),
+                    *m.body_parentid.add(b),
+                )
+            };
+            if let (Ok(adr), Ok(num)) = (usize::try_from(adr), usize::try_from(num)) {
+                dofs.extend((adr..adr + num).filter(|&i| i < nv));
+            }
+            b = usize::try_from(parent).unwrap_or(0);
+            hops += 1;
+        }
+    }
+    dofs.sort_unstable();
+    dofs.dedup();
+    let (mut unit, mut column) = (vec![0.0; nv], vec![0.0; nv]);
+    let mut worst: Option<Outweighed> = None;
+    for i in dofs {
+        // SAFETY: i < nv; the joint and actuator ids are MuJoCo's own.
+        let (damping, joint) = unsafe { (joint_damping(m, i), *m.dof_jntid.add(i)) };
+        if !(damping > 0.0) {
+            continue;
+        }
+        unit.fill(0.0);
+        unit[i] = 1.0;
+        // SAFETY: valid model and data; both vectors hold nv numbers.
+        unsafe { sys::mj_solveM(m, d, column.as_mut_ptr(), unit.as_ptr(), 1) };
+        let inertia = 1.0 / column[i];
+        let ratio = h * damping / inertia;
+        if !(inertia > 0.0 && ratio.is_finite() && ratio > DAMPING_OUTWEIGHS) {
+            continue;
+        }
+        if worst.as_ref().is_some_and(|w| w.ratio >= ratio) {
+            continue;
+        }
+        // SAFETY: valid model; the name is looked up by MuJoCo (null where none).
+        let name = unsafe { sys::mj_id2name(m, sys::mjOBJ_JOINT as i32, joint) };
+        let joint = if name.is_null() {
+            format!("#{joint}")
+        } else {
+            // SAFETY: MuJoCo's names are NUL-terminated within its names buffer.
+            unsafe { std::ffi::CStr::from_ptr(name) }
+                .to_string_lossy()
+                .into_owned()
+        };
+        worst = Some(Outweighed {
+            joint,
+            damping,
+            inertia,
+            ratio,
+        });
+    }
+    worst
+}
+
+/// The linear damping MuJoCo's Euler step takes implicitly on degree of freedom `i`: the
+/// joint's `damping` and that of the actuators that drive the joint, times their gear
+/// squared.
+///
+/// # Safety
+/// `m` must be a valid model, `i` one of its degrees of freedom.
+unsafe fn joint_damping(m: &sys::mjModel, i: usize) -> f64 {
+    // SAFETY: per the caller; the ids read are MuJoCo's own, within their arrays.
+    unsafe {
+        let mut damping = *m.dof_damping.add(i);
+        let joint = *m.dof_jntid.add(i);
+        let nu = usize::try_from(m.nactuator).unwrap_or(0);
+        let driven = |u: usize| {
+            let out = usize::try_from(*m.actuator_outadr.add(u)).unwrap_or(u);
+            let gear = *m.actuator_gear.add(6 * out);
+            *m.actuator_damping.add(u) * gear * gear
+        };
+        if let Ok(j) = usize::try_from(joint) {
+            let actuator = *m.jnt_actuatorid.add(j);
+            if let Ok(u) = usize::try_from(actuator) {
+                if u < nu {
+                    damping += driven(u);
+                }
+            } else if actuator < -1 {
+                for u in 0..nu {
+                    let trn = *m.actuator_trntype.add(u) as u32;
+                    let on_joint = trn == sys::mjTRN_JOINT || trn == sys::mjTRN_JOINTINPARENT;
+                    if on_joint && *m.actuator_trnid.add(2 * u) == joint {
+                        damping += driven(u);
+                    }
+                }
+            }
+        }
+        damping
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -706,158 +859,5 @@ mod tests {
                 "case {case}: {w:?} for {points:?}"
             );
         }
-    }
-}
-
-/// `h B / m` beyond which a joint's damping outweighs its inertia enough for a grasp on a
-/// gel that pushes back to bounce ([`damping_taken_after_the_solve`]). Measured on
-/// `tacrom/GripperLift-v1`'s fingers, five seeds and three objects each (docs/rl.md, "A
-/// long physics step: the fingers' damping, taken after the solve"): every hold still at
-/// 1.6 and 3.1 (2 and 4 ms), 14 of 15 at 4.7 (6 ms), 7 at 6.3 (8 ms), none at 7.8 (10 ms);
-/// with the drives' inertia on the joints, every hold still at 1.3 and 1.6 (8 and 10 ms).
-pub const DAMPING_OUTWEIGHS: f64 = 4.0;
-
-/// A joint whose damping outweighs its inertia over one physics step.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Outweighed {
-    /// The joint's name (its id where it has none).
-    pub joint: String,
-    /// Its damping (MuJoCo's `damping`, with its actuators').
-    pub damping: f64,
-    /// The inertia along it: one over the diagonal of `M^-1` (with its armature).
-    pub inertia: f64,
-    /// `h damping / inertia`.
-    pub ratio: f64,
-}
-
-/// Among the joints that carry `bodies` (each body's own, and those of the bodies it hangs
-/// from), the one whose damping most outweighs its inertia over MuJoCo's physics step `h`,
-/// where `h B / m` exceeds [`DAMPING_OUTWEIGHS`] and the integrator takes that damping
-/// after its constraint solve (Euler unless `eulerdamp` or the dampers are disabled, and
-/// the implicit integrators): the solve, which the gel's rows are made for, takes such a
-/// joint for as free as its inertia makes it, and the step then moves it by a fraction of
-/// what the solve meant (`m / (m + h B)`). `m` is the inertia a force on the joint alone
-/// meets, one over the joint's diagonal of `M^-1`; `B` its `damping` and that of the
-/// actuators that drive it (times their gear squared), as MuJoCo's Euler step adds them.
-///
-/// # Safety
-/// `m` and `d` must be a valid model and data after MuJoCo's position stage (its factor of
-/// `M`); nothing else may hold a reference into `d`.
-pub unsafe fn damping_taken_after_the_solve(
-    m: &sys::mjModel,
-    d: *mut sys::mjData,
-    bodies: &[usize],
-) -> Option<Outweighed> {
-    let flags = m.opt.disableflags;
-    let after = match m.opt.integrator as u32 {
-        sys::mjINT_EULER => flags & (sys::mjDSBL_EULERDAMP | sys::mjDSBL_DAMPER) as i32 == 0,
-        sys::mjINT_IMPLICIT | sys::mjINT_IMPLICITFAST => flags & sys::mjDSBL_DAMPER as i32 == 0,
-        _ => false,
-    };
-    let (nv, nbody) = (
-        usize::try_from(m.nv).unwrap_or(0),
-        usize::try_from(m.nbody).unwrap_or(0),
-    );
-    let h = m.opt.timestep;
-    if !after || nv == 0 || !(h > 0.0) {
-        return None;
-    }
-    // The degrees of freedom that carry the bodies, each once.
-    let mut dofs = Vec::new();
-    for &body in bodies {
-        let mut b = body;
-        let mut hops = 0;
-        while b > 0 && b < nbody && hops < nbody {
-            // SAFETY: b < nbody; MuJoCo holds nbody entries of each body array.
-            let (adr, num, parent) = unsafe {
-                (
-                    *m.body_dofadr.add(b),
-                    *m.body_dofnum.add(b),
-                    *m.body_parentid.add(b),
-                )
-            };
-            if let (Ok(adr), Ok(num)) = (usize::try_from(adr), usize::try_from(num)) {
-                dofs.extend((adr..adr + num).filter(|&i| i < nv));
-            }
-            b = usize::try_from(parent).unwrap_or(0);
-            hops += 1;
-        }
-    }
-    dofs.sort_unstable();
-    dofs.dedup();
-    let (mut unit, mut column) = (vec![0.0; nv], vec![0.0; nv]);
-    let mut worst: Option<Outweighed> = None;
-    for i in dofs {
-        // SAFETY: i < nv; the joint and actuator ids are MuJoCo's own.
-        let (damping, joint) = unsafe { (joint_damping(m, i), *m.dof_jntid.add(i)) };
-        if !(damping > 0.0) {
-            continue;
-        }
-        unit.fill(0.0);
-        unit[i] = 1.0;
-        // SAFETY: valid model and data; both vectors hold nv numbers.
-        unsafe { sys::mj_solveM(m, d, column.as_mut_ptr(), unit.as_ptr(), 1) };
-        let inertia = 1.0 / column[i];
-        let ratio = h * damping / inertia;
-        if !(inertia > 0.0 && ratio.is_finite() && ratio > DAMPING_OUTWEIGHS) {
-            continue;
-        }
-        if worst.as_ref().is_some_and(|w| w.ratio >= ratio) {
-            continue;
-        }
-        // SAFETY: valid model; the name is looked up by MuJoCo (null where none).
-        let name = unsafe { sys::mj_id2name(m, sys::mjOBJ_JOINT as i32, joint) };
-        let joint = if name.is_null() {
-            format!("#{joint}")
-        } else {
-            // SAFETY: MuJoCo's names are NUL-terminated within its names buffer.
-            unsafe { std::ffi::CStr::from_ptr(name) }
-                .to_string_lossy()
-                .into_owned()
-        };
-        worst = Some(Outweighed {
-            joint,
-            damping,
-            inertia,
-            ratio,
-        });
-    }
-    worst
-}
-
-/// The linear damping MuJoCo's Euler step takes implicitly on degree of freedom `i`: the
-/// joint's `damping` and that of the actuators that drive the joint, times their gear
-/// squared.
-///
-/// # Safety
-/// `m` must be a valid model, `i` one of its degrees of freedom.
-unsafe fn joint_damping(m: &sys::mjModel, i: usize) -> f64 {
-    // SAFETY: per the caller; the ids read are MuJoCo's own, within their arrays.
-    unsafe {
-        let mut damping = *m.dof_damping.add(i);
-        let joint = *m.dof_jntid.add(i);
-        let nu = usize::try_from(m.nactuator).unwrap_or(0);
-        let driven = |u: usize| {
-            let out = usize::try_from(*m.actuator_outadr.add(u)).unwrap_or(u);
-            let gear = *m.actuator_gear.add(6 * out);
-            *m.actuator_damping.add(u) * gear * gear
-        };
-        if let Ok(j) = usize::try_from(joint) {
-            let actuator = *m.jnt_actuatorid.add(j);
-            if let Ok(u) = usize::try_from(actuator) {
-                if u < nu {
-                    damping += driven(u);
-                }
-            } else if actuator < -1 {
-                for u in 0..nu {
-                    let trn = *m.actuator_trntype.add(u) as u32;
-                    let on_joint = trn == sys::mjTRN_JOINT || trn == sys::mjTRN_JOINTINPARENT;
-                    if on_joint && *m.actuator_trnid.add(2 * u) == joint {
-                        damping += driven(u);
-                    }
-                }
-            }
-        }
-        damping
     }
 }

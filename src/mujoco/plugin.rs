@@ -761,27 +761,17 @@ unsafe fn implicit(
     }
     let model = Model(m);
     let sensor_body = model.site_bodyid().get(inst.scene.site()).copied();
-    let bodies = || {
-        sensor_body
-            .into_iter()
-            .chain(
-                contacts
-                    .iter()
-                    .filter_map(|c| model.geom_bodyid().get(c.geom).copied()),
-            )
-            .filter_map(|b| usize::try_from(b).ok())
-    };
-    // (Nothing collected where every body was checked: the steps between allocate nothing.)
-    let fresh: Vec<usize> = if bodies().any(|b| !inst.damping_checked.1.contains(&b)) {
-        let mut fresh: Vec<usize> = bodies()
-            .filter(|b| !inst.damping_checked.1.contains(b))
-            .collect();
-        fresh.sort_unstable();
-        fresh.dedup();
-        fresh
-    } else {
-        Vec::new()
-    };
+    // Vec::new allocates nothing: a step whose bodies were all checked costs the lookups.
+    let mut fresh: Vec<usize> = Vec::new();
+    let pressing = contacts
+        .iter()
+        .filter_map(|c| model.geom_bodyid().get(c.geom).copied());
+    for b in sensor_body.into_iter().chain(pressing) {
+        let Ok(b) = usize::try_from(b) else { continue };
+        if !inst.damping_checked.1.contains(&b) && !fresh.contains(&b) {
+            fresh.push(b);
+        }
+    }
     if !fresh.is_empty() {
         inst.damping_checked.1.extend(&fresh);
         // SAFETY: valid model and data past the position stage, per the caller.

@@ -68,8 +68,9 @@ impl StateBounds {
         let loads = 1 + 6 * (s + l);
         let prev = 1 + 8 * i;
         // Each solver's own: the secant memory (per particle and per indenter), one
-        // linear solver's history (anchors, lagged forces, the columns' mean
-        // displacement, the kept systems' bases: a flag and the columns of each), the total relaxation's nodal displacements and secant memory
+        // linear solver's history (anchors, lagged forces and those of the frame before,
+        // the indenters' last motion, the columns' mean displacement, the kept systems'
+        // bases: a flag and the columns of each), the total relaxation's nodal displacements and secant memory
         // (per node and per indenter), Newton's nodal displacements and secant memory
         // (at most three unknowns per node), stick anchors, lagged forces and loads (per
         // point of its contact lattice, and one tip point per indenter).
@@ -77,7 +78,12 @@ impl StateBounds {
             1 + match kind {
                 Solver::Relaxation => 2 + 12 * n + 3 * i,
                 Solver::Linear => {
-                    4 + 5 * l + 4 * l + 3 * c + (1 + super::linear::LOCAL_SYSTEMS * (2 + c))
+                    4 + 5 * l
+                        + 4 * l
+                        + (1 + 4 * l)
+                        + (1 + 3 * i)
+                        + 3 * c
+                        + (1 + super::linear::LOCAL_SYSTEMS * (2 + c))
                 }
                 Solver::Total => 1 + 3 * g + (1 + 3 * g) + (1 + 3 * i),
                 Solver::Newton => {

@@ -3676,7 +3676,8 @@ const MAX_LAGS: usize = 12;
 /// (the cosine of the two at least [`SECANT_ALIGNMENT`]). Over a tenth of a cell a lattice
 /// point's force changes smoothly from frame to frame, so the line through the last two
 /// frames' forces lies close to the next: on the moving press of `cargo bench --bench
-/// sensor` (34 um a frame, a fortieth of the default gel's 1.4 mm cell) the Newton steps
+/// sensor` (34 to 70 um a frame, a fortieth to a twentieth of the default gel's 1.4 mm
+/// cell) the Newton steps
 /// fell by a third (287 -> 186 under the sphere at 320 x 240, 549 -> 371 at 64 x 48).
 /// Beyond it a point's force does not follow a line: at up to a third of a cell,
 /// Press-v1's sweep (up to 0.78 mm a step) took 7 % more (3,708 -> 3,963 over 600 steps;

@@ -3677,11 +3677,11 @@ const MAX_LAGS: usize = 12;
 /// point's force changes smoothly from frame to frame, so the line through the last two
 /// frames' forces lies close to the next: on the moving press of `cargo bench --bench
 /// sensor` (34 to 70 um a frame, a fortieth to a twentieth of the default gel's 1.4 mm
-/// cell) the Newton steps
-/// fell by a third (287 -> 186 under the sphere at 320 x 240, 549 -> 371 at 64 x 48).
-/// Beyond it a point's force does not follow a line: at up to a third of a cell,
-/// Press-v1's sweep (up to 0.78 mm a step) took 7 % more (3,708 -> 3,963 over 600 steps;
-/// measured: `docs/solvers.md`, "A slowly moving contact starts along its secant").
+/// cell) the Newton steps fell by a third (287 -> 186 under the sphere at 320 x 240, 549
+/// -> 371 at 64 x 48). Beyond it a point's force does not follow a line: at up to a
+/// third of a cell, Press-v1's sweep (up to 0.78 mm a step) took 7 % more (3,708 -> 3,963
+/// over 600 steps; measured: `docs/solvers.md`, "A slowly moving contact starts along its
+/// secant").
 const SECANT_MOTION: f64 = 0.1;
 const SECANT_ALIGNMENT: f64 = 0.9;
 

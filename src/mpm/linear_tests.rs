@@ -885,6 +885,15 @@ fn a_shaken_grasp_splits_to_newtons_answer() {
     }
 }
 
+/// The default gel with friction 0.5, solved on one thread.
+fn rough_default_gel() -> Gel {
+    let params = GelParams {
+        friction: 0.5,
+        ..Default::default()
+    };
+    Gel::new(params, options(1)).unwrap()
+}
+
 /// The small gel with friction `mu`.
 fn rough_gel(mu: f64) -> GelParams {
     GelParams {
@@ -1559,11 +1568,7 @@ fn assert_same_answer(run: &dyn Fn(bool, f64) -> Vec<(Vector3<f64>, usize)>) {
 /// the default tolerance.
 #[test]
 fn a_sliding_sphere_starts_from_its_normal_forces() {
-    let params = GelParams {
-        friction: 0.5,
-        ..Default::default()
-    };
-    let gel = Gel::new(params, options(1)).unwrap();
+    let gel = rough_default_gel();
     let sphere = ball(5e-3);
     let placed = |k: usize| {
         let phase = 2.0 * std::f64::consts::PI * k as f64 / 40.0;
@@ -1581,7 +1586,7 @@ fn a_sliding_sphere_starts_from_its_normal_forces() {
 }
 
 /// The moving press of `cargo bench --bench sensor` (a 5 mm sphere pressed from 0.1 to
-/// 1.0 mm while it slides 1 mm along x, over 40 frames: 25 um a frame, under a tenth of a
+/// 1.0 mm while it slides 1 mm along x, over 40 frames: 34 um a frame, a fortieth of a
 /// cell) on the default gel with friction 0.5: the frames that start along the secant of
 /// the last two frames' forces ([`Compliance::secant_start`]) reach the same answer as
 /// those started from the last frame's forces alone (each frame's force within ten times
@@ -1591,11 +1596,7 @@ fn a_sliding_sphere_starts_from_its_normal_forces() {
 /// along the secant: the same forces and steps, to the bit, with it and without.
 #[test]
 fn a_slowly_moving_press_starts_along_its_secant() {
-    let params = GelParams {
-        friction: 0.5,
-        ..Default::default()
-    };
-    let gel = Gel::new(params, options(1)).unwrap();
+    let gel = rough_default_gel();
     let sphere = ball(5e-3);
     let frames = 40;
     let press = |slide: f64| {
@@ -1632,11 +1633,7 @@ fn a_slowly_moving_press_starts_along_its_secant() {
 /// `shaken`, then shaken by up to a micron into the gel and three along it (fixed,
 /// irregular offsets in [-1, 1): golden-ratio steps), as a coupled grasp trembles.
 fn pressed_face(slide: f64, shaken: usize) -> (Gel, impl Fn(usize) -> Placed) {
-    let params = GelParams {
-        friction: 0.5,
-        ..Default::default()
-    };
-    let gel = Gel::new(params, options(1)).unwrap();
+    let gel = rough_default_gel();
     let half = 5e-3;
     let face: Arc<dyn Sdf> = Arc::new(crate::geometry::Cuboid::new(Vector3::new(5e-3, 5e-3, half)));
     let placed = move |f: usize| {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
-use super::{PixelGrid, Sdf};
+use super::{PixelGrid, Sdf, TriMesh};
 
 /// `/work/shared` as seen from the crate: `../shared` beside the checkout when it exists
 /// (the main crate), `/work/shared` otherwise (scratch crates elsewhere).
@@ -239,4 +239,30 @@ pub fn check_chord(shape: &dyn Sdf, rng: &mut Rng, lines: usize, tol: f64) -> us
         }
     }
     met
+}
+
+/// A closed box mesh of half-extents `h` (m), 12 triangles wound outwards.
+pub fn box_mesh(h: Vector3<f64>) -> TriMesh {
+    let v: Vec<Point3<f64>> = (0..8)
+        .map(|i| {
+            Point3::new(
+                if i & 1 == 0 { -h.x } else { h.x },
+                if i & 2 == 0 { -h.y } else { h.y },
+                if i & 4 == 0 { -h.z } else { h.z },
+            )
+        })
+        .collect();
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    let faces = quads
+        .iter()
+        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+        .collect();
+    TriMesh::new(v, faces).unwrap()
 }

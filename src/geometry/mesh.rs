@@ -423,7 +423,8 @@ fn convex_planes(
     faces: &[[u32; 3]],
     aabb: &Aabb,
 ) -> Option<Vec<(Vector3<f64>, f64)>> {
-    let tolerance = CONVEX_TOLERANCE * (aabb.max - aabb.min).norm();
+    let scale = (aabb.max - aabb.min).norm();
+    let tolerance = CONVEX_TOLERANCE * scale;
     let centroid =
         vertices.iter().fold(Vector3::zeros(), |s, v| s + v.coords) / vertices.len() as f64;
     let mut planes: Vec<(Vector3<f64>, f64)> = Vec::new();
@@ -438,7 +439,6 @@ fn convex_planes(
         };
         // The same plane again: normals within the tolerance over the mesh's size (its
         // far side then within the tolerance too), offsets within the tolerance.
-        let scale = (aabb.max - aabb.min).norm();
         let same = |(m, e): &(Vector3<f64>, f64)| {
             (m - n).norm() * scale <= tolerance && (e - offset).abs() <= tolerance
         };

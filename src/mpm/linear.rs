@@ -4842,11 +4842,12 @@ fn on_columns_into(w: &[Columns], f: &[Vector3<f64>], out: &mut DVector<f64>) {
 }
 
 /// Unknowns (three per node column) from which a warm frictional solve that Newton's
-/// method does not finish in [`SPLIT_AFTER`] steps is split ([`split_start`]): about 150
-/// node columns, where a Newton step's dense factorisation costs about a millisecond
-/// (on smaller contacts Newton's steps are cheap, and it runs as before; measured:
-/// `docs/solvers.md`, "A held grasp split first").
-const SPLIT_UNKNOWNS: usize = 3 * 150;
+/// method does not finish in [`SPLIT_AFTER`] steps is split ([`split_start`]): 100 node
+/// columns, where a Newton step's dense factorisation costs about half a millisecond and a
+/// held grasp's unsplit solve took 10 to 20 of them (on smaller contacts Newton's steps
+/// are cheap, and it runs as before; `tacrom/Press-v1`'s sphere loads 20 to 60 columns;
+/// measured: `docs/solvers.md`, "A held grasp split first").
+const SPLIT_UNKNOWNS: usize = 3 * 100;
 
 /// Newton steps of a warm frictional solve before it splits: one step finishes a grasp
 /// held still. (A split at once where the same points split in the solve before, from

@@ -739,7 +739,7 @@ fn splitting_first_finds_newtons_minimum() {
     }
 }
 
-/// On random problems of [`MIXED_UNKNOWNS`] unknowns and more (150 to 170 columns, 300 to
+/// On random problems of [`MIXED_UNKNOWNS`] unknowns and more (100 to 120 columns, 300 to
 /// 600 points), Newton's steps solved by conjugate gradients preconditioned with the last
 /// factor (a step's lateral and vertical blocks, [`Problem::block_factor`], or its whole
 /// system's) reach the minimum that steps which each factor their own system reach: the

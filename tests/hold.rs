@@ -120,3 +120,40 @@ fn a_frame_moved_less_than_hold_is_the_last_solve_again() {
     s.reset();
     assert!(!frame(&mut s, face(4e-4, 0.0, 0.0)).1);
 }
+
+/// Catches: a contact the camera does not see (the gel is wider than its view) taken as no
+/// depth at all, so that the sensor never holds it and solves at every frame. The hold is
+/// measured by the depth the gel took the load at, wherever on the gel.
+///
+/// Scene: a 5 mm box face pressed 0.4 mm beside the view (its near edge 0.5 mm past it),
+/// moved 0.5 um (held: the bound is 0.8 um at 0.4 mm, as above) and then 0.9 um (solved).
+/// The view's pixels sink by 0.12 mm at most there (the bound asserted: half the box's
+/// depth), so the image alone would give the contact no depth.
+#[test]
+fn a_contact_outside_the_cameras_view_is_held_by_its_own_depth() {
+    const SMALL: f64 = 0.0025;
+    let shape: Arc<dyn Sdf> = Arc::new(Cuboid::new(Vector3::new(SMALL, SMALL, SMALL)));
+    let mut s = sensor(&[]);
+    let [_, view_y] = s.config().fov;
+    let [_, gel_y, _] = s.config().size;
+    let y = 0.5 * view_y + SMALL + 5e-4;
+    assert!(y + SMALL < 0.5 * gel_y, "the box lies on the gel");
+    let at = |shift: f64| Placed {
+        shape: shape.clone(),
+        pose: Isometry3::translation(shift, y, SMALL - 4e-4),
+    };
+    let (first, held) = frame(&mut s, at(0.0));
+    assert!(!held);
+    let force = first[first.len() - 1];
+    assert!(force > 0.1, "the gel carries the box: {force} N");
+    let depth = &first[..first.len() - 3];
+    assert!(
+        depth.iter().all(|&d| d < 2e-4),
+        "the view sees the gel sink beside the box (0.12 mm at most), not the box's 0.4 mm: {}",
+        depth.iter().copied().fold(0.0, f64::max)
+    );
+    let (again, held) = frame(&mut s, at(0.5e-6));
+    assert!(held, "0.5 um at 0.4 mm deep is held");
+    assert_eq!(again, first);
+    assert!(!frame(&mut s, at(0.9e-6)).1, "0.9 um is not");
+}

@@ -722,6 +722,15 @@ impl Gel {
         self.force
     }
 
+    /// How deep (m) below the undeformed face the last solve's most deeply pressed contact
+    /// point lies (0 where no point is loaded, or where the solver keeps no contact loads).
+    pub fn deepest_load(&self) -> f64 {
+        self.loads
+            .iter()
+            .filter(|l| l.force.z != 0.0)
+            .fold(0.0, |m, l| m.max(-l.z))
+    }
+
     /// The force and torque (about the sensor origin) of the gel on each of `indenters`
     /// (sensor frame; N and N m), from the last solve's contact loads: each load goes to
     /// the indenter nearest to the point where it acts. Their sum is [`Gel::force`] for

@@ -596,7 +596,10 @@ impl TactileSensor {
             } else {
                 self.solved.clear();
             }
-            self.solved_depth = -self.zmin.iter().copied().fold(0.0, f64::min);
+            // How deep the indenters reached: in the image, or wherever the gel took their
+            // load (a contact outside the camera's view holds by its own depth too).
+            let seen = -self.zmin.iter().copied().fold(0.0, f64::min);
+            self.solved_depth = seen.max(self.model.pressed_depth());
         }
         self.spare = touching;
         self.fresh = true;

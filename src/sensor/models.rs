@@ -31,6 +31,12 @@ pub trait SurfaceModel: Send + std::fmt::Debug {
     /// The total force of the gel on the indenters after the last solve (N, sensor frame).
     fn force(&self) -> Vector3<f64>;
 
+    /// How deep (m) the last solve's contact pressed the gel, wherever on the gel it lies
+    /// (the camera may see less of the gel); 0 for a model without a gel.
+    fn pressed_depth(&self) -> f64 {
+        0.0
+    }
+
     /// The force and torque (about the sensor origin) of the gel on each of `indenters`
     /// after the last solve (sensor frame); zero for a model without a gel.
     fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
@@ -314,6 +320,13 @@ impl SurfaceModel for Mpm {
         self.gel().map_or_else(Vector3::zeros, Gel::force)
     }
 
+    fn pressed_depth(&self) -> f64 {
+        match self.gel() {
+            Some(gel) if self.deformed => gel.deepest_load(),
+            _ => 0.0,
+        }
+    }
+
     fn wrenches(&self, indenters: &[Placed]) -> Vec<Wrench> {
         match self.gel() {
             Some(gel) if self.deformed => gel.wrenches(indenters),
@@ -471,6 +484,10 @@ impl SurfaceModel for Reduced {
         let mut f = self.mpm.force();
         f.z *= self.force_factor;
         f
+    }
+
+    fn pressed_depth(&self) -> f64 {
+        self.mpm.pressed_depth()
     }
 
     fn force_needs_depth(&self) -> bool {

@@ -74,6 +74,31 @@ def test_both_environments_default_to_the_sensors_default_physics():
     assert mini.physics == tacrom.attribute({"sensor": "gelsight-mini"}, "physics")
 
 
+def _attributes(model, instance: int) -> dict:
+    """The tacrom plugin instance's attributes as MuJoCo compiled them (``plugin_attr``:
+    each value null-terminated, in the plugin's declared order; empty where unset)."""
+    names = [a["name"] for a in tacrom.attribute_table()]
+    start = int(model.plugin_attradr[instance])
+    values = bytes(model.plugin_attr[start:]).split(b"\0")[: len(names)]
+    return {n: v.decode() for n, v in zip(names, values)}
+
+
+def test_the_grasp_holds_a_frame_within_5_um_unless_told():
+    """GripperLift-v1 sets its sensors' ``hold`` to ``GRASP_HOLD`` (5 um) where
+    ``sensor_config`` gives none, and keeps the one given (the sensor's own default then
+    applies to other environments)."""
+    from tacrom.envs import gripper
+
+    assert gripper.GRASP_HOLD == 5e-6
+    default = gym.make("tacrom/GripperLift-v1").unwrapped.model
+    told = gym.make("tacrom/GripperLift-v1", sensor_config={"hold": "1e-6"}).unwrapped.model
+    for instance in range(2):
+        assert float(_attributes(default, instance)["hold"]) == 5e-6
+        assert float(_attributes(told, instance)["hold"]) == 1e-6
+    press = gym.make("tacrom/Press-v1").unwrapped.model
+    assert _attributes(press, 0)["hold"] == ""
+
+
 def test_seeds_choose_the_episode():
     env = gym.make("tacrom/GripperLift-v1")
     objects = {env.reset(seed=s)[1]["object"] for s in range(12)}

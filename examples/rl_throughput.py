@@ -54,6 +54,7 @@ def make(
     threads: int = 1,
     coupling: bool = False,
     servo_time: float | None = None,
+    extra: dict | None = None,
 ):
     """A picklable maker of the environment: ``tacrom.envs:`` in the id makes Gymnasium
     import (and so register) tacrom in a fresh worker process. After a dash, a solver's
@@ -62,9 +63,11 @@ def make(
     ``model="rom-default"``, rom on the relaxation as it was before the linear gel);
     ``threads`` the sensors' own threads; ``coupling`` GripperLift-v1's gels pushing back
     (its ``coupling=True``; other environments and ``rigid`` ignore it); ``servo_time``
-    GripperLift-v1's ``servo_time`` (None: its default)."""
+    GripperLift-v1's ``servo_time`` (None: its default); ``extra`` further sensor
+    attributes (``{"hold": "1e-6"}``), given as the environments' ``sensor_config``."""
     config = {"threads": threads} if threads != 1 else {}
     config.update(mode_config(physics))
+    config.update(extra or {})
     physics = config.pop("physics")
     kwargs = {"physics": physics, "sensor_config": config} if config else {"physics": physics}
     if resolution:
@@ -86,13 +89,14 @@ def measure(
     threads: int = 1,
     coupling: bool = False,
     servo_time: float | None = None,
+    extra: dict | None = None,
 ) -> tuple[float, float | None]:
     """Environment steps per second of wall time over ``steps`` steps of each process, and
     (one process only) CPU milliseconds per step, which other jobs on the machine do not
     inflate."""
     rng = np.random.default_rng(0)
     if procs == 1:
-        env = make(env_id, physics, resolution, threads, coupling, servo_time)()
+        env = make(env_id, physics, resolution, threads, coupling, servo_time, extra)()
         env.reset(seed=0)
         t0, c0 = time.perf_counter(), time.process_time()
         for i in range(steps):
@@ -105,7 +109,8 @@ def measure(
     # Workers start from a fresh forkserver, not by forking this process: a process forked
     # after a gel sensor (coarse, rom) ran here would hang in the plugin's thread pool.
     envs = gym.vector.AsyncVectorEnv(
-        [make(env_id, physics, resolution, threads, coupling, servo_time)] * procs, context="forkserver"
+        [make(env_id, physics, resolution, threads, coupling, servo_time, extra)] * procs,
+        context="forkserver",
     )
     try:
         envs.reset(seed=0)
@@ -154,7 +159,22 @@ def main() -> None:
         type=float,
         help="GripperLift-v1's servo_time (s; 0: the arm's servos unfiltered; default: its own)",
     )
+    parser.add_argument(
+        "--config",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="further attributes of the gel sensors (hold=1e-6: the sensor's own default hold "
+        "in GripperLift-v1, whose own is 5e-6)",
+    )
     args = parser.parse_args()
+    extra = {}
+    for item in args.config:
+        key, sep, value = item.partition("=")
+        if not (key and sep):
+            parser.error(f"--config takes KEY=VALUE, not {item!r}")
+        extra[key] = value
+    shown = "".join(f", {k}={v}" for k, v in extra.items())
     print("| environment | policy | physics | processes | steps/s | ms/step | CPU ms/step |")
     print("|---|---|---|---:|---:|---:|---:|")
     for env_id in args.envs:
@@ -171,12 +191,14 @@ def main() -> None:
                     args.threads,
                     args.coupling,
                     args.servo_time,
+                    extra if physics != "rigid" else None,
                 )
                 policy = "grasp cycle" if env_id.startswith("tacrom/GripperLift") else args.policy
                 if args.coupling and policy == "grasp cycle" and physics != "rigid":
                     policy += ", coupled"
                 print(
-                    f"| {env_id} | {policy} | {physics} | {procs} | {rate:.1f} | "
+                    f"| {env_id} | {policy} | {physics}{shown if physics != 'rigid' else ''} | "
+                    f"{procs} | {rate:.1f} | "
                     f"{1e3 / rate:.1f} | {'-' if cpu is None else f'{cpu:.1f}'} |",
                     flush=True,
                 )

@@ -99,6 +99,32 @@ def test_the_grasp_holds_a_frame_within_5_um_unless_told():
     assert _attributes(press, 0)["hold"] == ""
 
 
+def test_a_step_is_frame_skip_physics_steps_then_one_evaluation():
+    """An environment step is ``frame_skip`` physics steps with the sensors off (MuJoCo
+    repeating the step itself) and one ``mj_forward`` that evaluates them: the same state
+    and sensor data, bit for bit, as those steps taken one call at a time on a copy."""
+    import mujoco
+
+    env = gym.make("tacrom/Press-v1").unwrapped
+    env.reset(seed=3)
+    m = env.model
+    for action in ([0.3, 0.8], [-0.5, 1.0], [0.9, 0.2]):
+        copy = mujoco.MjData(m)
+        mujoco.mj_copyData(copy, m, env.data)
+        env.step(np.array(action, np.float32))
+        copy.ctrl[:] = env.data.ctrl
+        m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+        for _ in range(env.frame_skip):
+            mujoco.mj_step(m, copy)
+        m.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+        mujoco.mj_forward(m, copy)
+        assert env.data.time == copy.time
+        assert np.array_equal(env.data.qpos, copy.qpos)
+        assert np.array_equal(env.data.qvel, copy.qvel)
+        assert np.array_equal(env.data.sensordata, copy.sensordata)
+        assert env.data.sensordata.max() > 0.0
+
+
 def test_seeds_choose_the_episode():
     env = gym.make("tacrom/GripperLift-v1")
     objects = {env.reset(seed=s)[1]["object"] for s in range(12)}

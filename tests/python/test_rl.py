@@ -3,6 +3,9 @@ holds each object of the tactile gripper with touch where it should be, renderin
 environments stepped in two processes."""
 
 import functools
+import json
+import pathlib
+import tempfile
 import warnings
 
 import gymnasium as gym
@@ -97,6 +100,16 @@ def test_the_grasp_holds_a_frame_within_5_um_unless_told():
         assert float(_attributes(told, instance)["hold"]) == 1e-6
     press = gym.make("tacrom/Press-v1").unwrapped.model
     assert _attributes(press, 0)["hold"] == ""
+    # A sensor file's own hold stands: the environment leaves the attribute to it.
+    with tempfile.TemporaryDirectory() as folder:
+        path = pathlib.Path(folder) / "sensor.json"
+        path.write_text(
+            json.dumps({"format": "tacrom-sensor-1", "attributes": {"hold": "2e-06"}})
+        )
+        filed = gym.make("tacrom/GripperLift-v1", sensor=str(path)).unwrapped.model
+        for instance in range(2):
+            assert _attributes(filed, instance)["hold"] == ""
+            assert _attributes(filed, instance)["sensor"] == str(path)
 
 
 def test_a_step_is_frame_skip_physics_steps_then_one_evaluation():

@@ -179,7 +179,7 @@ class GripperLiftEnv(TactileEnv):
     is fitted to its gel (:func:`fit_pads`). ``sensor_config``: further attributes of both sensors
     (``{"tolerance": "1e-2"}``, ``{"threads": 2}``; docs/configuration.md); their ``hold``
     is :data:`GRASP_HOLD` (5 um) unless given here (``{"hold": "1e-6"}``: the sensor's
-    own default).
+    own default) or by the sensor file.
     ``coupling``: the gels push back and hold the object (:func:`couple_pads`; needs
     ``"coarse"`` or ``"rom"``): the grasp is carried by the gels, not by a rigid pad;
     ``info["gel_force"]`` ``(2, 3)``: each gel's force on the object (N, in its sensor's
@@ -211,11 +211,12 @@ class GripperLiftEnv(TactileEnv):
         if coupling and physics == "rigid":
             raise ValueError("coupling needs a gel physics ('coarse' or 'rom'), not 'rigid'")
         spec = mujoco.MjSpec.from_file(str(asset_path("gripper.xml")))
-        extra = {
-            "hold": GRASP_HOLD,
-            **(sensor_config or {}),
-            **({"sensor": sensor} if sensor else {}),
-        }
+        extra = {**(sensor_config or {}), **({"sensor": sensor} if sensor else {})}
+        if "hold" not in extra and not (
+            extra.get("sensor") and "hold" in tacrom.sensor_file(str(extra["sensor"]))
+        ):
+            # (A sensor file's own `hold` stands.)
+            extra["hold"] = GRASP_HOLD
         if "sensor" not in extra:
             # The scene's fingertips are GelSight Minis; the environment's default is the
             # default gel, on which its costs and its coupled grasp are measured.
